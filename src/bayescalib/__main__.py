@@ -1,0 +1,5 @@
+import sys
+
+from bayescalib.cli import main
+
+sys.exit(main())

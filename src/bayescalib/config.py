@@ -1,0 +1,241 @@
+"""Configuration: loading, schema validation with defaults, and dotted overrides.
+
+Every configuration (a whole study, or one section such as the forward model)
+is validated against a JSON schema shipped with the package
+(``bayescalib/schemas/*.yaml``). Validation fills in the schema defaults, so
+the rest of the code can rely on every documented key being present.
+
+Errors never surface as a traceback from deep inside: they are raised as
+:class:`ConfigError` whose message names the offending key by its dotted path
+(``forward_model.fsi.mesh.h_interface``), the bad value, and what was expected.
+Unknown keys are reported with the closest known key as a suggestion.
+
+Schemas may reference each other by file name (``$ref: fsi.schema.yaml``), so
+that each section has one home.
+"""
+
+from __future__ import annotations
+
+import copy
+import difflib
+import json
+from collections.abc import Iterable, Mapping
+from functools import lru_cache
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+__all__ = [
+    "ConfigError",
+    "load_yaml",
+    "schema",
+    "validate",
+    "apply_overrides",
+    "parse_override",
+    "deep_merge",
+]
+
+
+class ConfigError(ValueError):
+    """A configuration is malformed; the message names the key and the problem."""
+
+
+def load_yaml(path: str | Path) -> dict[str, Any]:
+    """Read a YAML (or JSON) mapping from ``path``.
+
+    Raises
+    ------
+    ConfigError
+        If the file does not exist, is not valid YAML, or is not a mapping.
+    """
+    p = Path(path)
+    if not p.is_file():
+        raise ConfigError(f"config file '{p}' does not exist")
+    try:
+        data = yaml.safe_load(p.read_text())
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"config file '{p}' is not valid YAML: {exc}") from None
+    if data is None:
+        data = {}
+    if not isinstance(data, dict):
+        raise ConfigError(
+            f"config file '{p}' must hold a mapping of keys to values, got {type(data).__name__}"
+        )
+    return data
+
+
+def _schema_dir():
+    return resources.files("bayescalib") / "schemas"
+
+
+@lru_cache(maxsize=None)
+def _load_schema_file(name: str) -> dict[str, Any]:
+    text = (_schema_dir() / name).read_text()
+    return yaml.safe_load(text)
+
+
+@lru_cache(maxsize=None)
+def _registry():
+    from referencing import Registry, Resource
+    from referencing.jsonschema import DRAFT7
+
+    resources_ = []
+    for entry in _schema_dir().iterdir():
+        if entry.name.endswith(".schema.yaml"):
+            contents = _load_schema_file(entry.name)
+            resources_.append((entry.name, Resource(contents=contents, specification=DRAFT7)))
+    return Registry().with_resources(resources_)
+
+
+def schema(name: str) -> dict[str, Any]:
+    """The schema ``name`` (e.g. ``"fsi"`` for ``fsi.schema.yaml``)."""
+    return copy.deepcopy(_load_schema_file(f"{name}.schema.yaml"))
+
+
+def _validator_class():
+    from jsonschema import Draft7Validator, validators
+
+    base_props = Draft7Validator.VALIDATORS["properties"]
+
+    def set_defaults(validator, properties, instance, sch):
+        if isinstance(instance, dict):
+            for key, sub in properties.items():
+                if isinstance(sub, dict) and "default" in sub and key not in instance:
+                    instance[key] = copy.deepcopy(sub["default"])
+        yield from base_props(validator, properties, instance, sch)
+
+    return validators.extend(Draft7Validator, {"properties": set_defaults})
+
+
+def _path_str(path: Iterable[Any]) -> str:
+    parts: list[str] = []
+    for p in path:
+        if isinstance(p, int):
+            parts.append(f"[{p}]")
+        else:
+            parts.append(("." if parts else "") + str(p))
+    return "".join(parts) or "<top level>"
+
+
+def _format_error(err, where: str) -> str:
+    key = _path_str(err.absolute_path)
+    prefix = f"{where}: " if where else ""
+    if err.validator == "additionalProperties":
+        allowed = sorted((err.schema.get("properties") or {}).keys())
+        extra = sorted(set(err.instance) - set(allowed)) if isinstance(err.instance, dict) else []
+        msgs = []
+        for e in extra:
+            full = e if key == "<top level>" else f"{key}.{e}"
+            close = difflib.get_close_matches(e, allowed, n=1)
+            hint = f" (did you mean '{close[0]}'?)" if close else ""
+            msgs.append(f"unknown key '{full}'{hint}; allowed here: {', '.join(allowed)}")
+        return prefix + "; ".join(msgs)
+    if err.validator == "required":
+        return prefix + f"missing required key under '{key}': {err.message}"
+    if err.validator == "enum":
+        return (
+            prefix
+            + f"key '{key}': value {err.instance!r} is not one of {err.validator_value}"
+        )
+    if err.validator in {"minimum", "maximum", "exclusiveMinimum", "exclusiveMaximum"}:
+        return prefix + f"key '{key}': value {err.instance!r} is out of range ({err.message})"
+    if err.validator == "type":
+        return (
+            prefix
+            + f"key '{key}': value {err.instance!r} has the wrong type (expected {err.validator_value})"
+        )
+    return prefix + f"key '{key}': {err.message}"
+
+
+def validate(config: Mapping[str, Any], schema_name: str, *, where: str = "") -> dict[str, Any]:
+    """Validate ``config`` against schema ``schema_name`` and fill in defaults.
+
+    Parameters
+    ----------
+    config
+        The configuration mapping (not modified).
+    schema_name
+        Name of a packaged schema, e.g. ``"study"`` or ``"fsi"``.
+    where
+        Prefix for error messages (e.g. the config file name).
+
+    Returns
+    -------
+    dict
+        A deep copy of ``config`` with all defaults filled in.
+
+    Raises
+    ------
+    ConfigError
+        Naming the first offending key (all problems are listed, one per line).
+    """
+    cfg = copy.deepcopy(dict(config))
+    cls = _validator_class()
+    validator = cls(_load_schema_file(f"{schema_name}.schema.yaml"), registry=_registry())
+    # Fill defaults first (a validation pass), then collect errors on the filled config.
+    errors = sorted(validator.iter_errors(cfg), key=lambda e: list(map(str, e.absolute_path)))
+    if errors:
+        lines = []
+        for e in errors:
+            msg = _format_error(e, where)
+            if msg not in lines:
+                lines.append(msg)
+        raise ConfigError("\n".join(lines))
+    return cfg
+
+
+def parse_override(text: str) -> tuple[list[str], Any]:
+    """Parse ``KEY=VALUE`` with a dotted key; the value is parsed as YAML.
+
+    ``mesh.h_interface=0.02`` -> (["mesh", "h_interface"], 0.02);
+    ``material.law=neo_hooke`` -> (["material", "law"], "neo_hooke").
+    """
+    if "=" not in text:
+        raise ConfigError(f"override '{text}' must have the form KEY=VALUE")
+    key, _, raw = text.partition("=")
+    key = key.strip()
+    if not key or any(not part for part in key.split(".")):
+        raise ConfigError(f"override '{text}': empty key or key part")
+    try:
+        value = yaml.safe_load(raw) if raw.strip() else None
+    except yaml.YAMLError:
+        value = raw
+    return key.split("."), value
+
+
+def apply_overrides(config: Mapping[str, Any], overrides: Iterable[str]) -> dict[str, Any]:
+    """Return a copy of ``config`` with dotted ``KEY=VALUE`` overrides applied."""
+    cfg = copy.deepcopy(dict(config))
+    for text in overrides:
+        parts, value = parse_override(text)
+        node = cfg
+        for i, p in enumerate(parts[:-1]):
+            nxt = node.get(p)
+            if nxt is None:
+                nxt = {}
+                node[p] = nxt
+            if not isinstance(nxt, dict):
+                raise ConfigError(
+                    f"override '{text}': '{'.'.join(parts[: i + 1])}' is a value, not a section"
+                )
+            node = nxt
+        node[parts[-1]] = value
+    return cfg
+
+
+def deep_merge(base: Mapping[str, Any], update: Mapping[str, Any]) -> dict[str, Any]:
+    """Recursively merge ``update`` into a copy of ``base`` (mappings merge, others replace)."""
+    out = copy.deepcopy(dict(base))
+    for k, v in update.items():
+        if isinstance(v, Mapping) and isinstance(out.get(k), Mapping):
+            out[k] = deep_merge(out[k], v)
+        else:
+            out[k] = copy.deepcopy(v)
+    return out
+
+
+def canonical_json(obj: Any) -> str:
+    """Stable JSON text for hashing/caching (sorted keys, no whitespace)."""
+    return json.dumps(obj, sort_keys=True, separators=(",", ":"))
