@@ -1,0 +1,44 @@
+"""bayescalib: Bayesian calibration from observed interface shapes.
+
+Run the default study:          snakemake --cores 2
+Run another study:              snakemake --cores 2 --configfile config/<study>.yaml
+HTML report:                    snakemake --report results/report.html [--configfile ...]
+
+Parsing this file is cheap: it validates the config (JSON schema with
+defaults, errors name the offending key) and imports nothing heavy; the Sobol
+design is computed only when the DAG first needs a point.
+"""
+
+import sys
+
+from bayescalib.study import Study, ConfigError
+
+configfile: "config/config.yaml"
+
+try:
+    study = Study(config, where="config")
+except ConfigError as exc:
+    sys.stderr.write(f"bayescalib: invalid configuration:\n{exc}\n")
+    sys.exit(1)
+
+R = study.root
+
+wildcard_constraints:
+    i=r"\d+",
+    measure=r"euclidean|cpp|rkhs",
+
+report: "workflow/report/workflow.rst"
+
+include: "workflow/rules/observe.smk"
+include: "workflow/rules/solve.smk"
+include: "workflow/rules/discrepancy.smk"
+include: "workflow/rules/surrogate.smk"
+include: "workflow/rules/inference.smk"
+include: "workflow/rules/figures.smk"
+include: "workflow/rules/summary.smk"
+
+
+rule all:
+    input:
+        f"{R}/summary.json",
+    default_target: True

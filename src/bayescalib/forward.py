@@ -1,0 +1,428 @@
+"""Pluggable forward models and the isolated solve of one design point.
+
+A forward model maps parameter values (keyed by their *target*, a dotted
+config key such as ``material.E``) to the deformed interface. Three kinds are
+built in, chosen by ``forward_model.type`` in the study config:
+
+``fsi``
+    The NGSolve monolithic ALE fluid–structure model (:mod:`bayescalib.fsi`).
+``python``
+    A Python callable given as ``module:function`` (the module must be
+    importable, e.g. from the working directory or an installed package). It is
+    called as ``function(params, **options)`` with ``params`` a ``dict`` of
+    floats and must return the deformed interface: an ``(n, 2)`` or ``(n, 3)``
+    array of ordered points, an :class:`~bayescalib.interface.Interface`, or a
+    mapping with ``current`` (and optionally ``reference``) entries of either
+    kind. Raising an exception marks the run as failed.
+``command``
+    An external solver (e.g. 4C): a Jinja2 input template is rendered with the
+    parameter values (strict undefined variables: a misspelt name is an error),
+    the command is run *without a shell* in a private work directory, and the
+    interface file it writes (CSV or VTK) is read back.
+
+:func:`solve_point` runs one model evaluation in a forked child process with a
+wall-clock limit, so that a crash, a hang or a segmentation fault inside a
+solver ends as a recorded failed run (:class:`~bayescalib.runrecord.SolveResult`
+with ``status == "failed"``) instead of taking the study down. The run record
+is always written atomically.
+"""
+
+from __future__ import annotations
+
+import importlib
+import math
+import multiprocessing as mp
+import os
+import re
+import subprocess
+import sys
+import time
+import traceback
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any, Protocol
+
+import numpy as np
+
+from bayescalib.runrecord import SolveResult, write_run
+
+__all__ = [
+    "ForwardModel",
+    "ForwardModelError",
+    "PythonModel",
+    "CommandModel",
+    "FSIForward",
+    "make_forward_model",
+    "failed_result",
+    "solve_point",
+]
+
+
+class ForwardModelError(ValueError):
+    """A forward model is misconfigured (bad module path, template, command...)."""
+
+
+class ForwardModel(Protocol):
+    """Anything that maps parameter values to a :class:`SolveResult`."""
+
+    def solve(self, params: Mapping[str, float]) -> SolveResult:  # pragma: no cover
+        ...
+
+
+def failed_result(params: Mapping[str, float], reason: str, wall_time: float = 0.0,
+                  **stats: Any) -> SolveResult:
+    """A failed-run record with no interface."""
+    empty = np.zeros((0, 2))
+    return SolveResult(
+        status="failed",
+        reason=reason,
+        parameters={k: float(v) for k, v in params.items()},
+        load_fraction=0.0,
+        newton_iterations=0,
+        load_steps=0,
+        wall_time=float(wall_time),
+        interface_reference=empty,
+        interface_current=empty,
+        segments=np.zeros((0, 2), dtype=np.int64),
+        max_displacement=float("nan"),
+        stats=dict(stats),
+    )
+
+
+def _points_of(obj: Any, what: str) -> np.ndarray:
+    pts = getattr(obj, "points", obj)
+    arr = np.asarray(pts, dtype=float)
+    if arr.ndim != 2 or arr.shape[1] not in (2, 3) or arr.shape[0] < 2:
+        raise ForwardModelError(
+            f"{what} must be an (n, 2) or (n, 3) array of at least 2 ordered points, "
+            f"got shape {arr.shape}"
+        )
+    return arr
+
+
+def _result_from_points(params: Mapping[str, float], current: np.ndarray,
+                        reference: np.ndarray | None, wall_time: float,
+                        **stats: Any) -> SolveResult:
+    ref = current if reference is None else reference
+    if ref.shape != current.shape:
+        raise ForwardModelError(
+            f"reference interface has shape {ref.shape} but current has {current.shape}"
+        )
+    n = current.shape[0]
+    segs = np.column_stack([np.arange(n - 1), np.arange(1, n)]).astype(np.int64)
+    finite = bool(np.all(np.isfinite(current)))
+    disp = np.linalg.norm(current - ref, axis=1)
+    return SolveResult(
+        status="ok" if finite else "failed",
+        reason="" if finite else "interface contains NaN or inf",
+        parameters={k: float(v) for k, v in params.items()},
+        load_fraction=1.0 if finite else 0.0,
+        newton_iterations=0,
+        load_steps=1,
+        wall_time=float(wall_time),
+        interface_reference=ref,
+        interface_current=current,
+        segments=segs,
+        max_displacement=float(disp.max()) if finite else float("nan"),
+        stats=dict(stats),
+    )
+
+
+class PythonModel:
+    """Forward model given as a Python callable ``module:function``.
+
+    Parameters
+    ----------
+    function
+        ``"package.module:function"``.
+    options
+        Extra keyword arguments passed to the callable on every call.
+    """
+
+    def __init__(self, function: str, options: Mapping[str, Any] | None = None):
+        if not isinstance(function, str) or ":" not in function:
+            raise ForwardModelError(
+                f"forward_model.python.function must look like 'module:function', got {function!r}"
+            )
+        mod_name, _, fn_name = function.partition(":")
+        if os.getcwd() not in sys.path:
+            sys.path.insert(0, os.getcwd())
+        try:
+            mod = importlib.import_module(mod_name)
+        except ImportError as exc:
+            raise ForwardModelError(
+                f"forward_model.python.function: cannot import module '{mod_name}': {exc}"
+            ) from None
+        fn = getattr(mod, fn_name, None)
+        if not callable(fn):
+            raise ForwardModelError(
+                f"forward_model.python.function: module '{mod_name}' has no callable '{fn_name}'"
+            )
+        self.function = fn
+        self.options = dict(options or {})
+
+    def solve(self, params: Mapping[str, float]) -> SolveResult:
+        t0 = time.perf_counter()
+        try:
+            out = self.function(dict(params), **self.options)
+            if isinstance(out, Mapping):
+                if "current" not in out:
+                    raise ForwardModelError("the callable returned a mapping without 'current'")
+                current = _points_of(out["current"], "returned 'current'")
+                reference = (
+                    _points_of(out["reference"], "returned 'reference'")
+                    if out.get("reference") is not None else None
+                )
+            else:
+                current, reference = _points_of(out, "the returned interface"), None
+            return _result_from_points(params, current, reference, time.perf_counter() - t0)
+        except Exception as exc:  # the model's failure is data, not a crash
+            return failed_result(
+                params, f"{type(exc).__name__}: {exc}", time.perf_counter() - t0,
+                log_tail=traceback.format_exc()[-2000:],
+            )
+
+
+_ARG_FIELD = re.compile(r"\{([A-Za-z_][A-Za-z0-9_.]*)\}")
+
+
+class CommandModel:
+    """Forward model run as an external command (no shell).
+
+    Parameters
+    ----------
+    template
+        Path of a Jinja2 input template. Parameter values are available by
+        target name (``{{ E }}``) and as ``{{ params["material.E"] }}``; all
+        are Python floats, so only numbers reach the file.
+    command
+        Argument list. ``{input}``, ``{output}``, ``{workdir}`` are replaced
+        by paths; ``{NAME}`` by the number of parameter ``NAME``. No shell is
+        involved, so no value can change the command.
+    input_name, output_name
+        File names inside the per-run work directory.
+    workdir
+        Directory for the run's files (created).
+    time_limit_s
+        Wall-clock limit of the command.
+    """
+
+    def __init__(self, template: str | Path, command: list[str], *, input_name: str,
+                 output_name: str, workdir: str | Path, time_limit_s: float = 600.0,
+                 units: str = "mm"):
+        import jinja2
+
+        tpath = Path(template)
+        if not tpath.is_file():
+            raise ForwardModelError(f"forward_model.command.template: file '{tpath}' does not exist")
+        if not command or not all(isinstance(a, str) for a in command):
+            raise ForwardModelError("forward_model.command.command must be a non-empty list of strings")
+        env = jinja2.Environment(undefined=jinja2.StrictUndefined, keep_trailing_newline=True)
+        try:
+            self.template = env.from_string(tpath.read_text())
+        except jinja2.TemplateSyntaxError as exc:
+            raise ForwardModelError(
+                f"forward_model.command.template '{tpath}': syntax error line {exc.lineno}: {exc.message}"
+            ) from None
+        self.template_path = tpath
+        self.command = list(command)
+        self.input_name = input_name
+        self.output_name = output_name
+        self.workdir = Path(workdir)
+        self.time_limit_s = float(time_limit_s)
+        self.units = units
+
+    def _values(self, params: Mapping[str, float]) -> dict[str, Any]:
+        values: dict[str, Any] = {}
+        for k, v in params.items():
+            fv = float(v)  # numbers only, by construction
+            if not math.isfinite(fv):
+                raise ForwardModelError(f"parameter '{k}' has non-finite value {v!r}")
+            values[k] = fv
+        return values
+
+    def render_input(self, params: Mapping[str, float]) -> str:
+        import jinja2
+
+        values = self._values(params)
+        ctx: dict[str, Any] = {k: v for k, v in values.items() if k.isidentifier()}
+        ctx["params"] = values
+        try:
+            return self.template.render(**ctx)
+        except jinja2.UndefinedError as exc:
+            raise ForwardModelError(
+                f"forward_model.command.template '{self.template_path}': {exc.message}; "
+                f"available: {', '.join(sorted(values))}"
+            ) from None
+
+    def argv(self, params: Mapping[str, float], input_path: Path, output_path: Path) -> list[str]:
+        values = self._values(params)
+        paths = {"input": str(input_path), "output": str(output_path), "workdir": str(self.workdir)}
+
+        def sub(m: re.Match) -> str:
+            name = m.group(1)
+            if name in paths:
+                return paths[name]
+            if name in values:
+                return repr(values[name])
+            raise ForwardModelError(
+                f"forward_model.command.command: unknown placeholder '{{{name}}}'; "
+                f"available: {', '.join(sorted([*paths, *values]))}"
+            )
+
+        return [_ARG_FIELD.sub(sub, a) for a in self.command]
+
+    def solve(self, params: Mapping[str, float]) -> SolveResult:
+        from bayescalib.observations import read_interface
+
+        t0 = time.perf_counter()
+        self.workdir.mkdir(parents=True, exist_ok=True)
+        inp = self.workdir / self.input_name
+        out = self.workdir / self.output_name
+        if out.exists():
+            out.unlink()
+        inp.write_text(self.render_input(params))
+        log = self.workdir / "solver.log"
+        argv = self.argv(params, inp, out)
+        try:
+            with open(log, "wb") as fh:
+                proc = subprocess.run(argv, cwd=self.workdir, stdout=fh, stderr=subprocess.STDOUT,
+                                      timeout=self.time_limit_s, stdin=subprocess.DEVNULL)
+            rc = proc.returncode
+            reason = "" if rc == 0 else f"command exited with status {rc}"
+        except subprocess.TimeoutExpired:
+            rc, reason = -1, f"command exceeded its time limit of {self.time_limit_s:g} s"
+        except OSError as exc:
+            rc, reason = -1, f"command could not be started: {exc}"
+        tail = log.read_text(errors="replace")[-2000:] if log.exists() else ""
+        wall = time.perf_counter() - t0
+        if rc != 0:
+            return failed_result(params, reason, wall, log_tail=tail)
+        if not out.exists() or out.stat().st_size == 0:
+            return failed_result(params, f"command wrote no output file '{out.name}'", wall,
+                                 log_tail=tail)
+        try:
+            iface = read_interface(out, units=self.units)
+        except (ValueError, OSError) as exc:
+            return failed_result(params, f"unreadable output '{out.name}': {exc}", wall,
+                                 log_tail=tail)
+        return _result_from_points(params, np.asarray(iface.points), None, wall)
+
+
+class FSIForward:
+    """The built-in NGSolve FSI model (:class:`bayescalib.fsi.model.FSIModel`)."""
+
+    def __init__(self, fsi_config: Mapping[str, Any], warm_start: str | Path | None = None,
+                 time_limit_s: float | None = None):
+        from bayescalib.fsi.model import FSIModel
+
+        self.model = FSIModel(dict(fsi_config))
+        self.warm_start = warm_start
+        self.time_limit_s = time_limit_s
+
+    def solve(self, params: Mapping[str, float]) -> SolveResult:
+        return self.model.solve(dict(params), warm_start=self.warm_start,
+                                time_limit=self.time_limit_s)
+
+
+def make_forward_model(fm: Mapping[str, Any], *, workdir: str | Path = ".",
+                       warm_start: str | Path | None = None) -> ForwardModel:
+    """Build the forward model described by a validated ``forward_model`` section."""
+    kind = fm.get("type")
+    if kind == "fsi":
+        return FSIForward(fm["fsi"], warm_start=warm_start, time_limit_s=fm.get("time_limit_s"))
+    if kind == "python":
+        py = fm.get("python") or {}
+        return PythonModel(py.get("function"), py.get("options"))
+    if kind == "command":
+        c = fm.get("command") or {}
+        return CommandModel(
+            c.get("template"), c.get("command"), input_name=c.get("input_name", "input.txt"),
+            output_name=c.get("output_name", "interface.csv"), workdir=workdir,
+            time_limit_s=fm.get("time_limit_s") or 600.0, units=c.get("units", "mm"),
+        )
+    raise ForwardModelError(
+        f"forward_model.type: unknown forward model type {kind!r} (expected fsi, python or command)"
+    )
+
+
+def _child(fm: Mapping[str, Any], params: Mapping[str, float], workdir: str,
+           warm_start: str | None, conn) -> None:
+    try:
+        model = make_forward_model(fm, workdir=workdir, warm_start=warm_start)
+        res = model.solve(params)
+    except BaseException as exc:  # noqa: BLE001 - any failure is recorded
+        res = failed_result(params, f"{type(exc).__name__}: {exc}",
+                            log_tail=traceback.format_exc()[-2000:])
+    conn.send(res)
+    conn.close()
+
+
+def solve_point(fm: Mapping[str, Any], params: Mapping[str, float], out_path: str | Path, *,
+                time_limit_s: float | None = None, warm_start: str | Path | None = None,
+                workdir: str | Path | None = None, isolate: bool = True) -> SolveResult:
+    """Evaluate the forward model at ``params`` and write the run record.
+
+    Parameters
+    ----------
+    fm
+        Validated ``forward_model`` config section.
+    params
+        Parameter values keyed by target (user units).
+    out_path
+        HDF5 run record to write (atomically), whatever happens.
+    time_limit_s
+        Hard wall-clock limit for the whole evaluation; past it the child
+        process is killed and the run recorded as failed. Defaults to
+        ``fm["time_limit_s"]`` (plus a grace period of 30 s for the model's own
+        limit to act first).
+    isolate
+        Run in a forked child (default). ``False`` runs in-process (for tests
+        of cheap models).
+
+    Returns
+    -------
+    SolveResult
+        The record that was written.
+    """
+    out_path = Path(out_path)
+    workdir = Path(workdir) if workdir is not None else out_path.with_suffix(".work")
+    limit = time_limit_s if time_limit_s is not None else fm.get("time_limit_s")
+    t0 = time.perf_counter()
+    if not isolate:
+        try:
+            res = make_forward_model(fm, workdir=workdir, warm_start=warm_start).solve(params)
+        except ForwardModelError:
+            raise
+        except Exception as exc:  # noqa: BLE001
+            res = failed_result(params, f"{type(exc).__name__}: {exc}",
+                                log_tail=traceback.format_exc()[-2000:])
+    else:
+        ctx = mp.get_context("fork" if "fork" in mp.get_all_start_methods() else "spawn")
+        parent, child = ctx.Pipe(duplex=False)
+        proc = ctx.Process(target=_child, args=(dict(fm), dict(params), str(workdir),
+                                                None if warm_start is None else str(warm_start),
+                                                child))
+        proc.start()
+        child.close()
+        hard = None if limit is None else float(limit) + 30.0
+        res = None
+        if parent.poll(hard):
+            try:
+                res = parent.recv()
+            except EOFError:
+                res = None
+        proc.join(timeout=5)
+        if proc.is_alive():
+            proc.kill()
+            proc.join()
+        if res is None:
+            wall = time.perf_counter() - t0
+            if hard is not None and wall >= hard:
+                res = failed_result(params, f"killed after exceeding the time limit ({hard:g} s)",
+                                    wall)
+            else:
+                res = failed_result(params, f"solver process died (exit code {proc.exitcode})",
+                                    wall)
+    write_run(out_path, res)
+    return res

@@ -1,0 +1,172 @@
+"""A calibration study: its validated configuration, its output layout, and
+the config *sections* each pipeline stage depends on.
+
+The Snakemake workflow passes every rule only the sections it depends on, as
+plain Python values, so that Snakemake's parameter trigger reruns exactly what
+changed: a GP setting never reruns a forward solve, and adding Sobol points
+solves only the new ones (the design has the prefix property, so the values of
+the first ``n`` points do not change when ``n`` grows; the solve of point ``i``
+depends only on the forward-model section and on the values of point ``i``).
+
+This module is imported when the Snakefile is parsed, so it imports only the
+configuration machinery; the Sobol design (SciPy) is computed lazily, when the
+DAG first asks for a point.
+"""
+
+from __future__ import annotations
+
+import copy
+from collections.abc import Mapping
+from functools import cached_property
+from pathlib import Path
+from typing import Any
+
+from bayescalib.config import ConfigError, validate
+
+__all__ = ["Study", "ConfigError"]
+
+
+class Study:
+    """Validated study configuration with derived paths and rule sections.
+
+    Parameters
+    ----------
+    config
+        The raw study configuration (e.g. Snakemake's ``config``).
+    where
+        Name of the configuration's source for error messages.
+    """
+
+    def __init__(self, config: Mapping[str, Any], *, where: str = "config"):
+        cfg = validate(config, "study", where=where)
+        self._check_consistency(cfg, where)
+        self.config: dict[str, Any] = cfg
+
+    # ------------------------------------------------------------------ checks
+    @staticmethod
+    def _check_consistency(cfg: dict[str, Any], where: str) -> None:
+        from bayescalib.parameters import ParameterError, ParameterSpace
+
+        try:
+            ParameterSpace.from_config(cfg["parameters"])
+        except ParameterError as exc:
+            raise ConfigError(f"{where}: parameters: {exc}") from None
+        fm = cfg["forward_model"]
+        kind = fm["type"]
+        if kind == "python" and "function" not in fm["python"]:
+            raise ConfigError(
+                f"{where}: forward_model.python.function is required when forward_model.type is python"
+            )
+        if kind == "command":
+            for key in ("template", "command"):
+                if key not in fm["command"]:
+                    raise ConfigError(
+                        f"{where}: forward_model.command.{key} is required when "
+                        "forward_model.type is command"
+                    )
+            if not Path(fm["command"]["template"]).is_file():
+                raise ConfigError(
+                    f"{where}: forward_model.command.template: file "
+                    f"'{fm['command']['template']}' does not exist"
+                )
+        if fm["warm_start"] != "none" and kind != "fsi":
+            raise ConfigError(
+                f"{where}: forward_model.warm_start: '{fm['warm_start']}' needs forward_model.type fsi"
+            )
+        conv = cfg["convergence"]
+        if conv["enabled"] and max(conv["n_train"]) > cfg["design"]["n_train"]:
+            raise ConfigError(
+                f"{where}: convergence.n_train: largest value {max(conv['n_train'])} exceeds "
+                f"design.n_train = {cfg['design']['n_train']}"
+            )
+        names = [p["name"] for p in cfg["parameters"]]
+        obs = cfg["observations"]
+        if obs.get("source", "synthetic") == "synthetic":
+            missing = [p["name"] for p in cfg["parameters"] if p.get("ground_truth") is None]
+            if missing:
+                raise ConfigError(
+                    f"{where}: observations.source is synthetic, so every parameter needs a "
+                    f"ground_truth; missing for: {', '.join(missing)}"
+                )
+        if len(set(names)) != len(names):
+            raise ConfigError(f"{where}: parameters: duplicate parameter names in {names}")
+
+    # ------------------------------------------------------------------- paths
+    @property
+    def name(self) -> str:
+        return self.config["study"]
+
+    @property
+    def root(self) -> str:
+        return f"{self.config['results_dir']}/{self.name}"
+
+    @property
+    def measures(self) -> list[str]:
+        return list(self.config["measures"])
+
+    @property
+    def primary_measure(self) -> str:
+        return self.config["measures"][0]
+
+    @property
+    def n_train(self) -> int:
+        return int(self.config["design"]["n_train"])
+
+    @property
+    def n_test(self) -> int:
+        conv = self.config["convergence"]
+        return int(conv["n_test"]) if conv["enabled"] else 0
+
+    @property
+    def n_points(self) -> int:
+        """Number of design points solved: training points plus held-out test points."""
+        return self.n_train + self.n_test
+
+    # ----------------------------------------------------------------- design
+    @cached_property
+    def space(self):
+        from bayescalib.parameters import ParameterSpace
+
+        return ParameterSpace.from_config(self.config["parameters"])
+
+    @cached_property
+    def _design(self):
+        from bayescalib.design import sobol_design
+
+        return sobol_design(self.space.bounds, self.n_points, self.config["design"]["seed"])
+
+    def targets(self) -> list[str]:
+        """Forward-model config key set by each parameter (its name if no target)."""
+        return [p.get("target") or p["name"] for p in self.config["parameters"]]
+
+    def point(self, i: int) -> dict[str, float]:
+        """Values of design point ``i`` keyed by target (plain floats)."""
+        row = self._design[int(i)]
+        return {t: float(v) for t, v in zip(self.targets(), row, strict=True)}
+
+    def ground_truth(self) -> dict[str, float]:
+        """Ground-truth values keyed by target (for synthetic observations)."""
+        return {
+            (p.get("target") or p["name"]): float(p["ground_truth"])
+            for p in self.config["parameters"]
+            if p.get("ground_truth") is not None
+        }
+
+    def prior_centre(self) -> dict[str, float]:
+        """Centre of the design box, keyed by target (warm-start base state)."""
+        b = self.space.bounds
+        return {t: float(0.5 * (lo + hi)) for t, (lo, hi) in zip(self.targets(), b, strict=True)}
+
+    # --------------------------------------------------------------- sections
+    def section(self, *keys: str) -> dict[str, Any]:
+        """Deep copy of the named top-level sections, as plain values."""
+        return {k: copy.deepcopy(self.config[k]) for k in keys}
+
+    def forward_section(self) -> dict[str, Any]:
+        """The forward model section, reduced to what the chosen model uses."""
+        fm = copy.deepcopy(self.config["forward_model"])
+        kind = fm["type"]
+        for other in ("fsi", "python", "command"):
+            if other != kind:
+                fm.pop(other, None)
+        return fm

@@ -1,0 +1,40 @@
+# Discrepancy between model and observed interfaces, one job per design point
+# and measure: distance vector, D, log-likelihood. Depends on the measure and
+# likelihood sections (sigma_N, sigma_W), never on the forward model settings.
+
+
+rule discrepancy:
+    input:
+        run=f"{R}/runs/{{i}}.h5",
+        obs=f"{R}/observations/observations.h5",
+    output:
+        f"{R}/discrepancy/{{measure}}/{{i}}.json",
+    params:
+        measure=study.config["measure"],
+        likelihood=study.config["likelihood"],
+    log:
+        f"{R}/logs/discrepancy/{{measure}}/{{i}}.log",
+    threads: 1
+    resources:
+        runtime=5,
+        mem_mb=1000,
+    script:
+        "../../scripts/discrepancy.py"
+
+
+rule gather:
+    input:
+        runs=expand(f"{R}/runs/{{i}}.h5", i=range(study.n_points)),
+        disc=lambda wc: expand(
+            f"{R}/discrepancy/{wc.measure}/{{i}}.json", i=range(study.n_points)
+        ),
+    output:
+        f"{R}/{{measure}}/training.h5",
+    params:
+        names=[p["name"] for p in study.config["parameters"]],
+        targets=study.targets(),
+        n_train=study.n_train,
+    log:
+        f"{R}/logs/{{measure}}/gather.log",
+    script:
+        "../../scripts/gather.py"

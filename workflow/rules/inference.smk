@@ -1,0 +1,36 @@
+# Sequential Monte Carlo on the surrogate, then posterior analysis
+# (moments, MAP, MAP after marginalizing uncertain conditions, Gaussian and
+# Laplace approximations, KDE marginals) and the ArviZ NetCDF export.
+
+
+rule smc:
+    input:
+        f"{R}/{{measure}}/surrogate.h5",
+    output:
+        f"{R}/{{measure}}/particles.h5",
+    params:
+        smc=study.config["smc"],
+        parameters=study.config["parameters"],
+    log:
+        f"{R}/logs/{{measure}}/smc.log",
+    threads: 1
+    script:
+        "../../scripts/smc.py"
+
+
+rule marginalize:
+    input:
+        particles=f"{R}/{{measure}}/particles.h5",
+        surrogate=f"{R}/{{measure}}/surrogate.h5",
+    output:
+        posterior=f"{R}/{{measure}}/posterior.json",
+        netcdf=f"{R}/{{measure}}/posterior.nc",
+    params:
+        posterior=study.config["posterior"],
+        parameters=study.config["parameters"],
+        seed=study.config["smc"]["seed"],
+    log:
+        f"{R}/logs/{{measure}}/marginalize.log",
+    threads: 1
+    script:
+        "../../scripts/marginalize.py"

@@ -1,0 +1,47 @@
+# One forward solve per design point (wildcard i = point index). The job's
+# params are the forward-model section and the values of point i only, so a
+# change of any downstream setting never reruns it, and growing the design
+# solves only the new points. A failed solve writes a failed-run record.
+
+
+def _solve_inputs(wildcards):
+    if study.config["forward_model"]["warm_start"] == "prior_centre":
+        return {"base": f"{R}/runs/base_state.h5"}
+    return {}
+
+
+rule base_state:
+    output:
+        run=f"{R}/runs/base_state.h5",
+        state=f"{R}/runs/base_state.state.h5",
+    params:
+        forward_model=study.forward_section(),
+        point=study.prior_centre(),
+    log:
+        f"{R}/logs/solve/base_state.log",
+    threads: 1
+    resources:
+        runtime=30,
+        mem_mb=2000,
+    script:
+        "../../scripts/base_state.py"
+
+
+rule solve:
+    input:
+        unpack(_solve_inputs),
+    output:
+        f"{R}/runs/{{i}}.h5",
+    params:
+        forward_model=study.forward_section(),
+        point=lambda wc: study.point(int(wc.i)),
+    log:
+        f"{R}/logs/solve/{{i}}.log",
+    threads: 1
+    resources:
+        runtime=30,
+        mem_mb=2000,
+    group:
+        "solves"
+    script:
+        "../../scripts/solve.py"

@@ -1,0 +1,35 @@
+# GP surrogate of the log-likelihood (one per measure) and the GP convergence
+# study over n_train. Depends on the training table and the surrogate section.
+
+
+rule train_surrogate:
+    input:
+        f"{R}/{{measure}}/training.h5",
+    output:
+        f"{R}/{{measure}}/surrogate.h5",
+    params:
+        surrogate=study.config["surrogate"],
+        parameters=study.config["parameters"],
+        n_train=study.n_train,
+    log:
+        f"{R}/logs/{{measure}}/train_surrogate.log",
+    threads: 1
+    script:
+        "../../scripts/train_surrogate.py"
+
+
+rule convergence:
+    input:
+        f"{R}/{{measure}}/training.h5",
+    output:
+        f"{R}/{{measure}}/convergence.json",
+    params:
+        surrogate=study.config["surrogate"],
+        parameters=study.config["parameters"],
+        convergence=study.config["convergence"],
+        n_train=study.n_train,
+    log:
+        f"{R}/logs/{{measure}}/convergence.log",
+    threads: 1
+    script:
+        "../../scripts/convergence.py"
