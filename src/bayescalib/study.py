@@ -114,8 +114,9 @@ class Study:
 
     @property
     def n_test(self) -> int:
-        conv = self.config["convergence"]
-        return int(conv["n_test"]) if conv["enabled"] else 0
+        if not self.config["convergence"]["enabled"]:
+            return 0
+        return int(self.config["design"]["n_test"])
 
     @property
     def n_points(self) -> int:

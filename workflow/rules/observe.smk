@@ -1,21 +1,40 @@
 # Observation set: synthetic (a forward solve at the ground truth, plus optional
-# noise) or read from files/images. Depends on the forward model (synthetic
-# case) and the observations section only.
+# seeded noise) or read from files/images. Depends on the forward model
+# (synthetic case) and the observations section only.
 
 
-rule observe:
+def _observe_inputs(wildcards):
+    if study.config["observations"].get("source", "synthetic") == "synthetic":
+        return {"run": f"{R}/observations/ground_truth_run.h5"}
+    return {}
+
+
+rule ground_truth:
     output:
-        obs=f"{R}/observations/observations.h5",
-        run=f"{R}/observations/ground_truth_run.h5",
+        f"{R}/observations/ground_truth_run.h5",
     params:
-        observations=study.config["observations"],
         forward_model=study.forward_section(),
-        ground_truth=study.ground_truth(),
+        point=study.ground_truth(),
+        fields=study.config["plots"]["fields"],
     log:
-        f"{R}/logs/observe.log",
+        f"{R}/logs/ground_truth.log",
     threads: 1
     resources:
         runtime=30,
         mem_mb=2000,
+    script:
+        "../../scripts/ground_truth.py"
+
+
+rule observe:
+    input:
+        unpack(_observe_inputs),
+    output:
+        f"{R}/observations/observations.h5",
+    params:
+        observations=study.config["observations"],
+    log:
+        f"{R}/logs/observe.log",
+    threads: 1
     script:
         "../../scripts/observe.py"

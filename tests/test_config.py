@@ -1,0 +1,56 @@
+"""Configuration loading, validation with defaults, and overrides."""
+
+import pytest
+
+from bayescalib.config import (
+    ConfigError,
+    apply_overrides,
+    deep_merge,
+    load_yaml,
+    parse_override,
+)
+
+
+def test_parse_override_parses_yaml_values():
+    assert parse_override("mesh.h=0.02") == (["mesh", "h"], 0.02)
+    assert parse_override("material.law=neo_hooke") == (["material", "law"], "neo_hooke")
+    assert parse_override("flag=true") == (["flag"], True)
+    assert parse_override("xs=[1, 2]") == (["xs"], [1, 2])
+
+
+@pytest.mark.parametrize("bad", ["novalue", "=3", "a..b=1", ".a=1"])
+def test_parse_override_rejects_malformed(bad):
+    with pytest.raises(ConfigError):
+        parse_override(bad)
+
+
+def test_apply_overrides_creates_and_replaces_nested_keys():
+    cfg = {"a": {"b": 1}}
+    out = apply_overrides(cfg, ["a.b=2", "a.c.d=x"])
+    assert out == {"a": {"b": 2, "c": {"d": "x"}}}
+    assert cfg == {"a": {"b": 1}}, "the input must not be modified"
+
+
+def test_apply_overrides_refuses_to_descend_into_a_value():
+    with pytest.raises(ConfigError, match="'a.b' is a value"):
+        apply_overrides({"a": {"b": 1}}, ["a.b.c=2"])
+
+
+def test_deep_merge_merges_mappings_and_replaces_the_rest():
+    assert deep_merge({"a": {"x": 1, "y": 2}, "l": [1]}, {"a": {"y": 3}, "l": [2]}) == {
+        "a": {"x": 1, "y": 3},
+        "l": [2],
+    }
+
+
+def test_load_yaml_errors_name_the_file(tmp_path):
+    with pytest.raises(ConfigError, match="does not exist"):
+        load_yaml(tmp_path / "missing.yaml")
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("a: [1, 2\n")
+    with pytest.raises(ConfigError, match="bad.yaml.*not valid YAML"):
+        load_yaml(bad)
+    lst = tmp_path / "list.yaml"
+    lst.write_text("- 1\n- 2\n")
+    with pytest.raises(ConfigError, match="list.yaml.*mapping"):
+        load_yaml(lst)
