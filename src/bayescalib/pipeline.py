@@ -1,0 +1,383 @@
+"""Pipeline stages: one function per Snakemake rule, over plain values and paths.
+
+The rule scripts in ``scripts/`` only unpack ``snakemake.input/params/output``
+and call these functions, so every stage can be run and tested without
+Snakemake. Each stage reads its inputs, does its one job with the library, and
+writes its outputs atomically, so an interrupted run never leaves a
+half-written file that a later run would trust.
+
+Stages (paper Sec. 3, Fig. "workflow"):
+
+``observe``        observation set (synthetic from a ground-truth solve, or files)
+``discrepancy``    D and log-likelihood of one design point for one measure
+``gather``         training table of all design points
+``train``          GP surrogate of the log-likelihood
+``convergence``    GP error over n_train on held-out Sobol points
+``smc``            SMC particles on the surrogate
+``marginalize``    posterior summaries and ArviZ export
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from bayescalib._atomic_write import atomic_path
+
+__all__ = [
+    "PipelineError",
+    "write_json",
+    "read_json",
+    "observe",
+    "discrepancy",
+    "gather",
+    "read_training",
+    "train",
+    "convergence",
+    "smc",
+    "marginalize",
+]
+
+log = logging.getLogger("bayescalib")
+
+
+class PipelineError(RuntimeError):
+    """A stage cannot proceed; the message says what to change."""
+
+
+# ----------------------------------------------------------------------------- json
+def _clean(obj: Any) -> Any:
+    """Make ``obj`` strict-JSON serializable (non-finite floats become None)."""
+    if isinstance(obj, Mapping):
+        return {str(k): _clean(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_clean(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return _clean(obj.tolist())
+    if isinstance(obj, (np.floating, float)):
+        f = float(obj)
+        return f if math.isfinite(f) else None
+    if isinstance(obj, np.integer):
+        return int(obj)
+    if isinstance(obj, np.bool_):
+        return bool(obj)
+    return obj
+
+
+def write_json(path: str | Path, obj: Any) -> None:
+    """Write ``obj`` as indented strict JSON, atomically."""
+    with atomic_path(path, suffix=".json") as tmp:
+        tmp.write_text(json.dumps(_clean(obj), indent=2, sort_keys=False, allow_nan=False) + "\n")
+
+
+def read_json(path: str | Path) -> Any:
+    p = Path(path)
+    try:
+        return json.loads(p.read_text())
+    except (OSError, json.JSONDecodeError) as exc:
+        raise PipelineError(f"cannot read JSON file '{p}': {exc}") from None
+
+
+def setup_logging(path: str | Path | None) -> None:
+    """Send the library's log records to ``path`` (a rule's log file) and stderr."""
+    root = logging.getLogger("bayescalib")
+    root.setLevel(logging.INFO)
+    fmt = logging.Formatter("%(asctime)s %(levelname)s %(message)s")
+    handlers: list[logging.Handler] = [logging.StreamHandler()]
+    if path is not None:
+        Path(path).parent.mkdir(parents=True, exist_ok=True)
+        handlers.append(logging.FileHandler(path, mode="w"))
+    for h in handlers:
+        h.setFormatter(fmt)
+        root.addHandler(h)
+
+
+# -------------------------------------------------------------------------- observe
+def observe(observations: Mapping[str, Any], out_path: str | Path, *,
+            ground_truth_run: str | Path | None = None) -> None:
+    """Build the observation set and write ``observations.h5``.
+
+    Parameters
+    ----------
+    observations
+        Validated ``observations`` config section.
+    ground_truth_run
+        Run record of the forward solve at the ground truth (synthetic source).
+    """
+    from bayescalib.interface import Interface
+    from bayescalib.observation_store import StoredObservations, write_observations
+    from bayescalib.observations import add_noise, read_interface
+    from bayescalib.runrecord import read_run
+
+    source = observations.get("source", "synthetic")
+    if source == "synthetic":
+        if ground_truth_run is None:
+            raise PipelineError("synthetic observations need the ground-truth run record")
+        run = read_run(ground_truth_run)
+        if run.status != "ok":
+            raise PipelineError(
+                f"the forward solve at the ground truth failed ({run.reason}); synthetic "
+                "observations cannot be made: change the ground truth or the forward model"
+            )
+        current = Interface.polyline(run.interface_current, run.segments, name="observed")
+        reference = Interface.polyline(run.interface_reference, run.segments, name="reference")
+        sigma = float(observations.get("noise_sigma", 0.0))
+        seed = int(observations.get("seed", 0))
+        if sigma > 0:
+            current = add_noise(current, sigma, np.random.default_rng(seed))
+        load = run.parameters.get("inflow.rate")
+        stored = StoredObservations(
+            [current], ["ground_truth"], [load], reference,
+            {"source": "synthetic", "noise_sigma_mm": sigma, "seed": seed,
+             "ground_truth": run.parameters},
+        )
+    elif source == "files":
+        snaps, labels, loads = [], [], []
+        for k, entry in enumerate(observations.get("files", [])):
+            iface = read_interface(entry["path"], **_reader_options(entry))
+            snaps.append(iface)
+            labels.append(entry.get("label") or Path(entry["path"]).stem)
+            loads.append(entry.get("load"))
+        if not snaps:
+            raise PipelineError("observations.files is empty: list at least one interface file")
+        ref = None
+        if observations.get("reference"):
+            ref_entry = observations["reference"]
+            ref = read_interface(ref_entry["path"], **_reader_options(ref_entry))
+        stored = StoredObservations(snaps, labels, loads, ref,
+                                    {"source": "files", "files": observations.get("files", [])})
+    else:
+        raise PipelineError(f"observations.source: unknown source {source!r}")
+    write_observations(out_path, stored)
+    log.info("observation set: %d snapshot(s) -> %s", len(stored.snapshots), out_path)
+
+
+def _reader_options(entry: Mapping[str, Any]) -> dict[str, Any]:
+    keys = ("units", "pixel_size", "origin")
+    return {k: entry[k] for k in keys if entry.get(k) is not None}
+
+
+# --------------------------------------------------------------------- discrepancy
+def discrepancy(run_path: str | Path, obs_path: str | Path, measure_name: str,
+                measure: Mapping[str, Any], likelihood: Mapping[str, Any],
+                out_path: str | Path) -> dict[str, Any]:
+    """D, distance vector and log-likelihood of one design point for one measure.
+
+    A failed run gives ``loglik = None`` (i.e. -inf: excluded from training).
+    """
+    from bayescalib.interface import Interface
+    from bayescalib.likelihood import gaussian_loglik
+    from bayescalib.measures import compute
+    from bayescalib.observation_store import read_observations
+    from bayescalib.runrecord import read_run
+
+    run = read_run(run_path)
+    obs = read_observations(obs_path)
+    record: dict[str, Any] = {
+        "measure": measure_name,
+        "status": run.status,
+        "reason": run.reason,
+        "parameters": run.parameters,
+    }
+    if run.status != "ok":
+        record.update(D=None, n=None, loglik=None, snapshots=[])
+        write_json(out_path, record)
+        return record
+    model = Interface.polyline(run.interface_current, run.segments, name="model")
+    sigma_n2 = _sigma_n2(likelihood)
+    options = _measure_options(measure_name, measure, obs)
+    total, snaps = 0.0, []
+    for label, snap in zip(obs.labels, obs.snapshots, strict=True):
+        res = compute(measure_name, model, snap, **options)
+        ll = gaussian_loglik(res.D, res.n, sigma_n2)
+        total += ll
+        snaps.append({"label": label, "D": res.D, "n": res.n, "loglik": ll,
+                      "distances": np.atleast_1d(res.distances)})
+    record.update(D=float(np.sqrt(sum(s["D"] ** 2 for s in snaps))),
+                  n=int(sum(s["n"] for s in snaps)), loglik=total, sigma_n2=sigma_n2,
+                  snapshots=snaps)
+    write_json(out_path, record)
+    return record
+
+
+def _sigma_n2(likelihood: Mapping[str, Any]) -> float:
+    if likelihood.get("sigma_n2") is not None:
+        return float(likelihood["sigma_n2"])
+    if likelihood.get("sigma_n") is not None:
+        return float(likelihood["sigma_n"]) ** 2
+    raise PipelineError("likelihood: give sigma_n2 (mm^2) or sigma_n (mm)")
+
+
+def _measure_options(name: str, measure: Mapping[str, Any], obs) -> dict[str, Any]:
+    """Options of measure ``name`` from the ``measure`` config section."""
+    sub = dict(measure.get(name, {}) or {})
+    if name == "euclidean" and obs.reference is not None and "reference" not in sub:
+        sub["reference"] = obs.reference
+    return sub
+
+
+# --------------------------------------------------------------------------- gather
+def gather(run_paths: Sequence[str | Path], disc_paths: Sequence[str | Path],
+           names: Sequence[str], targets: Sequence[str], n_train: int,
+           out_path: str | Path) -> None:
+    """Training table of all design points for one measure (HDF5).
+
+    Datasets: ``X (n, d)`` inputs in user units (columns = parameter names),
+    ``loglik (n,)`` (-inf for failed runs), ``D (n,)``, ``status`` (1 ok, 0
+    failed), ``is_train`` (first ``n_train`` points; the rest are held out for
+    the convergence study), ``reason`` (str per point).
+    """
+    import h5py
+
+    from bayescalib.runrecord import read_run
+
+    if len(run_paths) != len(disc_paths):
+        raise PipelineError("gather: the number of run records and discrepancy files differ")
+    n, d = len(run_paths), len(names)
+    X = np.full((n, d), np.nan)
+    L = np.full(n, -np.inf)
+    D = np.full(n, np.nan)
+    ok = np.zeros(n, dtype=np.int8)
+    reasons: list[str] = []
+    for i, (rp, dp) in enumerate(zip(run_paths, disc_paths, strict=True)):
+        run = read_run(rp)
+        X[i] = [run.parameters[t] for t in targets]
+        rec = read_json(dp)
+        if run.status == "ok" and rec.get("loglik") is not None:
+            L[i] = float(rec["loglik"])
+            D[i] = float(rec["D"])
+            ok[i] = 1
+        reasons.append(run.reason or rec.get("reason") or "")
+    with atomic_path(out_path, suffix=".h5") as tmp:
+        with h5py.File(tmp, "w") as f:
+            f["X"] = X
+            f["loglik"] = L
+            f["D"] = D
+            f["status"] = ok
+            f["is_train"] = (np.arange(n) < n_train).astype(np.int8)
+            f.create_dataset("reason", data=np.array(reasons, dtype=object),
+                             dtype=h5py.string_dtype())
+            f.attrs["names"] = json.dumps(list(names))
+            f.attrs["n_train"] = int(n_train)
+            f.attrs["n_failed"] = int(n - ok.sum())
+    log.info("training table: %d points, %d failed -> %s", n, n - int(ok.sum()), out_path)
+
+
+def read_training(path: str | Path) -> dict[str, Any]:
+    """Read a training table written by :func:`gather`."""
+    import h5py
+
+    with h5py.File(path, "r") as f:
+        out = {k: f[k][...] for k in ("X", "loglik", "D", "status", "is_train")}
+        out["reason"] = [r.decode() if isinstance(r, bytes) else str(r) for r in f["reason"][...]]
+        out["names"] = json.loads(f.attrs["names"])
+        out["n_train"] = int(f.attrs["n_train"])
+        out["n_failed"] = int(f.attrs["n_failed"])
+    return out
+
+
+# ---------------------------------------------------------------------------- train
+def _space(parameters: Sequence[Mapping[str, Any]]):
+    from bayescalib.parameters import ParameterSpace
+
+    return ParameterSpace.from_config(parameters)
+
+
+def train(training_path: str | Path, surrogate: Mapping[str, Any],
+          parameters: Sequence[Mapping[str, Any]], out_path: str | Path) -> None:
+    """Fit the GP surrogate on the training points (failed runs left out)."""
+    from bayescalib.surrogate import fit_gp
+
+    tab = read_training(training_path)
+    train_mask = tab["is_train"].astype(bool)
+    X, L = tab["X"][train_mask], tab["loglik"][train_mask]
+    finite = np.isfinite(L)
+    if finite.sum() == 0:
+        reasons = sorted({r for r, ok in zip(tab["reason"], train_mask, strict=True) if ok and r})
+        raise PipelineError(
+            f"all {len(L)} design points failed or have a log-likelihood of -inf, so no "
+            "surrogate can be trained. Reasons seen: "
+            + ("; ".join(reasons[:5]) or "none recorded")
+            + ". Check the forward model settings, the parameter bounds, and sigma_n."
+        )
+    if finite.sum() < 3:
+        raise PipelineError(
+            f"only {int(finite.sum())} of {len(L)} design points succeeded; at least 3 are "
+            "needed to train the surrogate: increase design.n_train or narrow the bounds"
+        )
+    space = _space(parameters)
+    gp = fit_gp(X, L, ard=surrogate["ard"], optimizer=surrogate["optimizer"],
+                restarts=surrogate["restarts"], seed=surrogate["seed"], bounds=space.bounds,
+                mean_offset_factor=surrogate["mean_offset_factor"],
+                nugget_factor=surrogate["nugget_factor"])
+    gp.save(out_path)
+    log.info("GP surrogate on %d points (%d excluded): %s", gp.n_train, gp.n_excluded,
+             gp.hyperparameters)
+
+
+def convergence(training_path: str | Path, surrogate: Mapping[str, Any],
+                parameters: Sequence[Mapping[str, Any]], n_train_list: Sequence[int],
+                out_path: str | Path) -> dict[str, Any]:
+    """GP convergence over n_train against the held-out Sobol points."""
+    from bayescalib.convergence import convergence_study
+
+    tab = read_training(training_path)
+    tr = tab["is_train"].astype(bool)
+    space = _space(parameters)
+    res = convergence_study(
+        tab["X"][tr], tab["loglik"][tr], tab["X"][~tr], tab["loglik"][~tr],
+        n_train_list=list(n_train_list), bounds=space.bounds, ard=surrogate["ard"],
+        optimizer=surrogate["optimizer"], restarts=surrogate["restarts"],
+        seed=surrogate["seed"], mean_offset_factor=surrogate["mean_offset_factor"],
+        nugget_factor=surrogate["nugget_factor"],
+    )
+    write_json(out_path, res)
+    return res
+
+
+# ------------------------------------------------------------------------------ smc
+def smc(surrogate_path: str | Path, smc_cfg: Mapping[str, Any],
+        parameters: Sequence[Mapping[str, Any]], out_path: str | Path) -> None:
+    """Run SMC with adaptive tempering on the GP mean of the log-likelihood."""
+    from bayescalib.posterior import write_particles_h5
+    from bayescalib.smc import run_smc
+    from bayescalib.surrogate import GPSurrogate
+
+    gp = GPSurrogate.load(surrogate_path)
+    space = _space(parameters)
+
+    def progress(step: int, info: Mapping[str, Any]) -> None:
+        log.info("SMC step %d: %s", step, {k: info[k] for k in sorted(info)})
+
+    result = run_smc(
+        lambda X: gp.predict(X), space, n_particles=smc_cfg["n_particles"],
+        n_rej=smc_cfg["n_rej"], zeta=smc_cfg["zeta"], ess_min_ratio=smc_cfg["ess_min_ratio"],
+        rng=np.random.default_rng(smc_cfg["seed"]), callback=progress,
+    )
+    write_particles_h5(out_path, result, space)
+    log.info("SMC done: %d steps, log evidence %.4f", result.n_steps, result.log_evidence)
+
+
+def marginalize(particles_path: str | Path, surrogate_path: str | Path,
+                posterior_cfg: Mapping[str, Any], parameters: Sequence[Mapping[str, Any]],
+                seed: int, out_json: str | Path, out_netcdf: str | Path) -> dict[str, Any]:
+    """Posterior summaries (JSON) and the ArviZ NetCDF export."""
+    from bayescalib.posterior import read_particles_h5, summarize, write_netcdf
+    from bayescalib.surrogate import GPSurrogate
+
+    gp = GPSurrogate.load(surrogate_path)
+    space = _space(parameters)
+    result = read_particles_h5(particles_path)
+    summary = summarize(result, space, loglik=lambda X: gp.predict(X),
+                        map_bins=posterior_cfg.get("map_bins"),
+                        levels=tuple(posterior_cfg.get("levels", (0.5, 0.9, 0.99))))
+    write_json(out_json, summary)
+    write_netcdf(out_netcdf, result, space, np.random.default_rng(seed),
+                 posterior_cfg.get("n_draws", 4000))
+    return summary
