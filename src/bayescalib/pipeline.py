@@ -352,8 +352,8 @@ def smc(surrogate_path: str | Path, smc_cfg: Mapping[str, Any],
     gp = GPSurrogate.load(surrogate_path)
     space = _space(parameters)
 
-    def progress(step: int, info: Mapping[str, Any]) -> None:
-        log.info("SMC step %d: %s", step, {k: info[k] for k in sorted(info)})
+    def progress(info: Mapping[str, Any]) -> None:
+        log.info("SMC step: %s", ", ".join(f"{k}={info[k]}" for k in sorted(info)))
 
     result = run_smc(
         lambda X: gp.predict(X), space, n_particles=smc_cfg["n_particles"],

@@ -1,0 +1,10 @@
+"""Rule `ground_truth`: the forward solve at the ground-truth parameters."""
+from bayescalib.forward import solve_point
+from bayescalib.pipeline import setup_logging
+
+setup_logging(snakemake.log[0])  # noqa: F821
+solve_point(
+    snakemake.params.forward_model,  # noqa: F821
+    snakemake.params.point,  # noqa: F821
+    snakemake.output[0],  # noqa: F821
+)
