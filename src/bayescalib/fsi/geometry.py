@@ -1,0 +1,222 @@
+"""Flow-cell geometry and mesh of the biofilm problem (paper Sec. 4.1, App. B).
+
+Domain: a channel ``[0, L] x [0, H]`` (default 2 mm x 1 mm, lengths in mm) with a
+biofilm patch attached to the floor. Shapes:
+
+* ``half_ellipse`` — the upper half of an ellipse with semi-axes ``width/2`` and
+  ``height`` centred at ``(centre, 0)`` (exact OpenCascade ellipse; default
+  0.6 mm wide, 0.4 mm high at x = 1 mm);
+* ``polyline`` — an arbitrary closed outline ``[[x, y], ...]`` in mm (e.g. a segmented
+  OCT shape); the part below the floor ``y = 0`` is cut off, so the outline may start
+  and end on or below the floor.
+
+Heterogeneous split (6-parameter case, paper Sec. 4.5): with
+``subdomains.enabled`` the biofilm is cut by two horizontal lines at
+``y = cuts[0] * h`` and ``y = cuts[1] * h`` (``h`` = patch height) into
+
+* ``base``   — ``0 <= y < cuts[0] h``, attached to the floor (the stiff one),
+* ``middle`` — ``cuts[0] h <= y < cuts[1] h`` (the largest),
+* ``cap``    — ``y >= cuts[1] h``.
+
+With the default cuts (0.2, 0.75) the half-ellipse splits into about 25 %, 61 % and
+14 % of its area, which makes ``middle`` the largest as in the paper.
+
+Boundary names: ``inlet`` (x = 0), ``outlet`` (x = L), ``top``, ``floor`` (fluid part of
+the floor), ``biofilm_floor`` (the clamped biofilm base), ``interface`` (fluid–biofilm)
+and ``cut`` (inner boundaries between biofilm subdomains). Region names: ``fluid`` and
+``biofilm`` or ``base|middle|cap``. The mesh is graded from ``h_interface`` on the
+interface to ``h_bulk`` elsewhere and curved with ``curve_order`` (``mesh.Curve``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+SOLID_SUBDOMAINS = ("base", "middle", "cap")
+
+
+@dataclass
+class BiofilmMesh:
+    """A meshed flow cell.
+
+    Attributes
+    ----------
+    mesh
+        The NGSolve mesh (lengths in mm).
+    solid_regions
+        Names of the solid material regions (``["biofilm"]`` or ``["base", "middle", "cap"]``).
+    interface_vertices
+        (n,) vertex numbers of the interface, ordered from the upstream foot to the
+        downstream foot.
+    interface_reference
+        (n, 2) coordinates of these vertices in mm.
+    segments
+        (n - 1, 2) consecutive index pairs into the interface arrays.
+    patch_height
+        Height of the biofilm patch in mm.
+    """
+
+    mesh: Any
+    solid_regions: list[str]
+    interface_vertices: np.ndarray
+    interface_reference: np.ndarray
+    segments: np.ndarray
+    patch_height: float
+
+
+def _outline_face(geometry: dict[str, Any]):
+    """OpenCascade face of the biofilm patch above the floor, and its height (mm)."""
+    from netgen.occ import Ellipse, Face, Wire, WorkPlane, gp_Ax2d, gp_Dir2d, gp_Pnt2d
+
+    L = float(geometry["length"])
+    if geometry["shape"] == "half_ellipse":
+        a = 0.5 * float(geometry["width"])
+        b = float(geometry["height"])
+        xc = float(geometry["centre"])
+        if xc - a <= 0 or xc + a >= L or b >= float(geometry["channel_height"]):
+            raise ValueError(
+                "geometry: the half-ellipse (centre ± width/2, height) must lie inside the channel"
+            )
+        major, minor, axis = (b, a, gp_Dir2d(0, 1)) if b >= a else (a, b, gp_Dir2d(1, 0))
+        full = Face(Wire([Ellipse(gp_Ax2d(gp_Pnt2d(xc, 0), axis), major, minor).Edge()]))
+        lo, hi = xc - a, xc + a
+    elif geometry["shape"] == "polyline":
+        pts = np.asarray(geometry["outline"], dtype=float)
+        if pts.ndim != 2 or pts.shape[1] != 2 or len(pts) < 3:
+            raise ValueError("geometry.outline: need at least 3 points [x, y] (mm)")
+        if np.allclose(pts[0], pts[-1]):
+            pts = pts[:-1]
+        wp = WorkPlane().MoveTo(*pts[0])
+        for p in pts[1:]:
+            wp.LineTo(*p)
+        full = wp.Close().Face()
+        lo, hi = float(pts[:, 0].min()), float(pts[:, 0].max())
+        b = float(pts[:, 1].max())
+        if lo <= 0 or hi >= L or b >= float(geometry["channel_height"]) or b <= 0:
+            raise ValueError("geometry.outline must lie inside the channel, above the floor")
+    else:
+        raise ValueError(f"geometry.shape: unknown shape '{geometry['shape']}'")
+    below = WorkPlane().MoveTo(lo - 1.0, -10.0).Rectangle(hi - lo + 2.0, 10.0).Face()
+    patch = full - below
+    return patch, lo, hi, b
+
+
+def build_mesh(geometry: dict[str, Any], mesh_cfg: dict[str, Any]) -> BiofilmMesh:
+    """Mesh the flow cell.
+
+    Parameters
+    ----------
+    geometry
+        Validated ``geometry`` section of the fsi config (mm).
+    mesh_cfg
+        Validated ``mesh`` section: ``h_interface``, ``h_bulk`` (mm), ``curve_order``.
+
+    Returns
+    -------
+    BiofilmMesh
+    """
+    import ngsolve as ng
+    from netgen.occ import X, Y, Glue, OCCGeometry, WorkPlane
+
+    L = float(geometry["length"])
+    H = float(geometry["channel_height"])
+    patch, lo, hi, height = _outline_face(geometry)
+    patch.edges.name = "interface"
+    patch.edges.Min(Y).name = "biofilm_floor"
+
+    solids = []
+    sub = geometry["subdomains"]
+    if sub["enabled"]:
+        c0, c1 = (float(c) for c in sub["cuts"])
+        if not 0.0 < c0 < c1 < 1.0:
+            raise ValueError("geometry.subdomains.cuts must satisfy 0 < cuts[0] < cuts[1] < 1")
+        w = hi - lo + 2.0
+        band0 = WorkPlane().MoveTo(lo - 1.0, -1.0).Rectangle(w, 1.0 + c0 * height).Face()
+        band1 = WorkPlane().MoveTo(lo - 1.0, c0 * height).Rectangle(w, (c1 - c0) * height).Face()
+        band2 = WorkPlane().MoveTo(lo - 1.0, c1 * height).Rectangle(w, 2.0 * H).Face()
+        for band in (band0, band1, band2):
+            band.edges.name = "cut"
+        pieces = [patch * band0, patch * band1, patch * band2]
+        for name, piece in zip(SOLID_SUBDOMAINS, pieces):
+            piece.faces.name = name
+            solids.append(piece)
+        regions = list(SOLID_SUBDOMAINS)
+    else:
+        patch.faces.name = "biofilm"
+        solids.append(patch)
+        regions = ["biofilm"]
+
+    channel = WorkPlane().Rectangle(L, H).Face()
+    channel.edges.Min(X).name = "inlet"
+    channel.edges.Max(X).name = "outlet"
+    channel.edges.Min(Y).name = "floor"
+    channel.edges.Max(Y).name = "top"
+    fluid = channel - patch
+    fluid.faces.name = "fluid"
+    shape = Glue([fluid, *solids])
+    h_if = float(mesh_cfg["h_interface"])
+    for e in shape.edges:
+        if e.name in ("interface", "cut", "biofilm_floor"):
+            e.maxh = h_if
+    for f in shape.faces:
+        if f.name != "fluid":
+            f.maxh = float(mesh_cfg["h_solid"]) if mesh_cfg.get("h_solid") else 2 * h_if
+    geo = OCCGeometry(shape, dim=2)
+    ngmesh = geo.GenerateMesh(maxh=float(mesh_cfg["h_bulk"]), grading=float(mesh_cfg["grading"]))
+    mesh = ng.Mesh(ngmesh)
+    mesh.Curve(int(mesh_cfg["curve_order"]))
+    verts, coords, segs = interface_chain(mesh, "interface")
+    return BiofilmMesh(mesh, regions, verts, coords, segs, height)
+
+
+def interface_chain(mesh: Any, boundary: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Ordered vertices of an open boundary chain.
+
+    Parameters
+    ----------
+    mesh
+        NGSolve mesh.
+    boundary
+        Boundary name of the chain (e.g. ``"interface"``).
+
+    Returns
+    -------
+    vertices : (n,) int
+        Vertex numbers, from the end with the smaller x (upstream) to the other end.
+    coords : (n, 2) float
+        Vertex coordinates.
+    segments : (n - 1, 2) int
+        ``[[0, 1], [1, 2], ...]``.
+    """
+    import ngsolve as ng
+
+    edges = []
+    for el in mesh.Elements(ng.BND):
+        if el.mat == boundary:
+            vs = [v.nr for v in el.vertices]
+            edges.append((vs[0], vs[1]))
+    if not edges:
+        raise ValueError(f"mesh has no boundary named '{boundary}'")
+    adj: dict[int, list[int]] = {}
+    for a, b in edges:
+        adj.setdefault(a, []).append(b)
+        adj.setdefault(b, []).append(a)
+    ends = [v for v, nb in adj.items() if len(nb) == 1]
+    if len(ends) != 2 or any(len(nb) > 2 for nb in adj.values()):
+        raise ValueError(f"boundary '{boundary}' is not a single open chain")
+    xy = {v: np.array(mesh.vertices[v].point) for v in adj}
+    start = min(ends, key=lambda v: (xy[v][0], xy[v][1]))
+    order = [start]
+    prev = -1
+    cur = start
+    while len(order) < len(adj):
+        nxt = [n for n in adj[cur] if n != prev][0]
+        prev, cur = cur, nxt
+        order.append(cur)
+    verts = np.array(order, dtype=int)
+    coords = np.array([xy[v] for v in order], dtype=float)
+    segs = np.column_stack([np.arange(len(order) - 1), np.arange(1, len(order))]).astype(int)
+    return verts, coords, segs

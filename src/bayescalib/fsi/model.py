@@ -1,0 +1,422 @@
+"""The biofilm flow-cell forward model: config -> mesh -> solve -> run record.
+
+:class:`FSIModel` wraps the solver core (:mod:`bayescalib.fsi.solver`) for the problem of
+paper Sec. 4.1 / App. B: a 2 mm x 1 mm channel with a biofilm patch on the floor, a
+parabolic inflow of volume rate ``inflow.rate`` (mm^2/s) on the left, no-slip on floor,
+top and biofilm base, do-nothing outflow on the right, St. Venant–Kirchhoff (or
+compressible neo-Hooke) biofilm in plane strain with E, nu per subdomain.
+
+Units. Config and outputs use mm, Pa, mm^2/s (density kg/m^3, viscosity Pa s). The
+solver works in mm, s, mg, where water has rho = 1 mg/mm^3 and mu = 1 mg/(mm s) and
+stresses are in mPa: E = 400 Pa is 4e5 in solver units (factor :data:`PA`).
+
+Mesh and geometry are built once per model object and reused for every solve whose
+geometry/mesh/law keys are unchanged (material values and the inflow rate are NGSolve
+parameters / boundary data, so nothing is recompiled). The initial state of a solve is
+rest (continuation from zero inflow) unless a warm start is given: a state file saved by
+:meth:`FSIModel.save_state` (or the in-memory last state, ``warm_start="last"``), which
+is used as initial guess at the full load.
+"""
+
+from __future__ import annotations
+
+import copy
+import hashlib
+import json
+import os
+import resource
+import tempfile
+import time
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from bayescalib.config import ConfigError, validate
+from bayescalib.fsi.geometry import SOLID_SUBDOMAINS, BiofilmMesh, build_mesh
+from bayescalib.fsi.materials import check_poisson
+from bayescalib.fsi.problem import FSIProblem
+from bayescalib.fsi.solver import MonolithicSolver, SolverControls
+from bayescalib.runrecord import SolveResult, write_run
+
+__all__ = ["FSIModel", "solve_to_file", "MESH_PRESETS", "PA", "fsi_section"]
+
+#: Pa -> solver stress units mg/(mm s^2) (= mPa)
+PA = 1.0e3
+#: kg/m^3 -> mg/mm^3
+KG_PER_M3 = 1.0e-3
+#: Pa s -> mg/(mm s)
+PA_S = 1.0e3
+#: mesh presets: name -> (h_interface, h_bulk) in mm
+MESH_PRESETS = {"paper": (0.017, 0.08), "coarse": (0.035, 0.16), "fine": (0.0085, 0.04)}
+
+#: config keys that change the mesh or the compiled forms (everything else is a value)
+_STRUCTURAL = ("geometry", "mesh", "fluid", "material.law", "solver.order", "solver.ale_weight")
+
+
+def fsi_section(config: Mapping[str, Any]) -> dict[str, Any]:
+    """The fsi section of ``config``: ``config["forward_model"]["fsi"]`` for a whole study
+    config (top-level ``forward_model`` key), else ``config`` itself."""
+    if "forward_model" in config:
+        fm = config["forward_model"]
+        if not isinstance(fm, Mapping) or not isinstance(fm.get("fsi", {}), Mapping):
+            raise ConfigError("key 'forward_model.fsi' must be a mapping")
+        return dict(fm.get("fsi") or {})
+    return dict(config)
+
+
+def _get(cfg: Mapping[str, Any], dotted: str) -> Any:
+    node: Any = cfg
+    for part in dotted.split("."):
+        node = node[part]
+    return node
+
+
+def _set(cfg: dict[str, Any], dotted: str, value: Any) -> None:
+    parts = dotted.split(".")
+    node = cfg
+    for i, part in enumerate(parts[:-1]):
+        nxt = node.setdefault(part, {})
+        if not isinstance(nxt, dict):
+            raise ConfigError(f"override '{dotted}': '{'.'.join(parts[: i + 1])}' is a value, not a section")
+        node = nxt
+    node[parts[-1]] = value
+
+
+def _structural_key(cfg: Mapping[str, Any]) -> str:
+    data = {k: _get(cfg, k) for k in _STRUCTURAL}
+    return hashlib.sha256(json.dumps(data, sort_keys=True).encode()).hexdigest()[:16]
+
+
+class FSIModel:
+    """Steady FSI forward model of the biofilm flow cell.
+
+    Parameters
+    ----------
+    config
+        The fsi config section (validated here with :func:`bayescalib.config.validate`,
+        which fills defaults; a whole study config with ``forward_model.fsi`` also works).
+
+    Examples
+    --------
+    >>> model = FSIModel({"mesh": {"preset": "coarse"}})          # doctest: +SKIP
+    >>> res = model.solve({"material.E": 250.0, "material.nu": 0.2})  # doctest: +SKIP
+    >>> res.status, res.max_displacement                              # doctest: +SKIP
+    """
+
+    def __init__(self, config: Mapping[str, Any] | None = None):
+        self.config = validate(fsi_section(config or {}), "fsi")
+        self._key: str | None = None
+        self.geometry: BiofilmMesh | None = None
+        self.solver: MonolithicSolver | None = None
+        self._last_state: np.ndarray | None = None
+        self._last_params: dict[str, float] = {}
+        self.build_time = 0.0
+
+    # ------------------------------------------------------------------ building
+    def _build(self, cfg: Mapping[str, Any]) -> None:
+        import ngsolve as ng
+
+        key = _structural_key(cfg)
+        if key == self._key:
+            return
+        t0 = time.perf_counter()
+        ng.SetNumThreads(1)
+        mesh_cfg = dict(cfg["mesh"])
+        h_if, h_bulk = MESH_PRESETS[mesh_cfg["preset"]]
+        mesh_cfg["h_interface"] = mesh_cfg["h_interface"] or h_if
+        mesh_cfg["h_bulk"] = mesh_cfg["h_bulk"] or h_bulk
+        geo = build_mesh(cfg["geometry"], mesh_cfg)
+        H = float(cfg["geometry"]["channel_height"])
+        law = cfg["material"]["law"]
+
+        def profile():
+            # parabolic profile with unit volume rate (scaled by the rate in solve())
+            return ng.CoefficientFunction((6.0 * ng.y * (H - ng.y) / H**3, 0.0))
+
+        problem = FSIProblem(
+            mesh=geo.mesh,
+            fluid="fluid",
+            solids={name: law for name in geo.solid_regions},
+            velocity_dirichlet="inlet|floor|top|biofilm_floor",
+            displacement_dirichlet="inlet|outlet|floor|top|biofilm_floor",
+            inflow="inlet",
+            inflow_profile=profile,
+            rho_fluid=float(cfg["fluid"]["density"]) * KG_PER_M3,
+            mu_fluid=float(cfg["fluid"]["viscosity"]) * PA_S,
+            interface="interface",
+            ale_weight=float(cfg["solver"]["ale_weight"]),
+            length_scale=float(mesh_cfg["h_interface"]),
+            order=int(cfg["solver"]["order"]),
+        )
+        self.solver = MonolithicSolver(problem)
+        self._unit_inflow = self.solver._inflow_val.copy()
+        self.geometry = geo
+        self._key = key
+        self._last_state = None
+        self.build_time = time.perf_counter() - t0
+
+    def _materials(self, cfg: Mapping[str, Any]) -> dict[str, tuple[float, float]]:
+        """(E, nu) per solid region in user units (Pa, -)."""
+        assert self.geometry is not None
+        mat = cfg["material"]
+        if self.geometry.solid_regions == ["biofilm"]:
+            return {"biofilm": (float(mat["E"]), float(mat["nu"]))}
+        return {n: (float(mat["subdomains"][n]["E"]), float(mat["subdomains"][n]["nu"]))
+                for n in SOLID_SUBDOMAINS}
+
+    def _parameters(self, cfg: Mapping[str, Any], overrides: Mapping[str, Any]) -> dict[str, float]:
+        assert self.geometry is not None
+        out: dict[str, float] = {}
+        if self.geometry.solid_regions == ["biofilm"]:
+            out["material.E"] = float(cfg["material"]["E"])
+            out["material.nu"] = float(cfg["material"]["nu"])
+        else:
+            for n in SOLID_SUBDOMAINS:
+                out[f"material.subdomains.{n}.E"] = float(cfg["material"]["subdomains"][n]["E"])
+                out[f"material.subdomains.{n}.nu"] = float(cfg["material"]["subdomains"][n]["nu"])
+        out["inflow.rate"] = float(cfg["inflow"]["rate"])
+        for k, v in overrides.items():
+            if isinstance(v, (int, float)) and not isinstance(v, bool):
+                out[k] = float(v)
+        return out
+
+    def resolved_config(self, overrides: Mapping[str, Any] | None = None) -> dict[str, Any]:
+        """The config with dotted ``overrides`` applied and validated (raises ConfigError)."""
+        cfg = copy.deepcopy(self.config)
+        for k, v in (overrides or {}).items():
+            _set(cfg, k, v)
+        return validate(cfg, "fsi", where="overrides" if overrides else "")
+
+    # ------------------------------------------------------------------ states
+    def save_state(self, path: str | Path) -> None:
+        """Save the last solved state (a converged solution) for a later warm start (``.npz``)."""
+        if self._last_state is None:
+            raise ValueError("no solved state to save: call solve() first")
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".npz", dir=path.parent)
+        os.close(fd)
+        try:
+            with open(tmp, "wb") as fh:
+                np.savez(fh, state=self._last_state, key=np.array(self._key),
+                         parameters=np.array(json.dumps(self._last_params)))
+            os.replace(tmp, path)
+        except BaseException:
+            if os.path.exists(tmp):
+                os.unlink(tmp)
+            raise
+
+    def _load_state(self, path: str | Path) -> np.ndarray:
+        path = Path(path)
+        try:
+            with np.load(path, allow_pickle=False) as data:
+                state = np.array(data["state"], dtype=float)
+                key = str(data["key"])
+        except FileNotFoundError:
+            raise ValueError(f"warm-start file '{path}' does not exist") from None
+        except (OSError, KeyError, ValueError) as exc:
+            raise ValueError(f"warm-start file '{path}' is not a saved FSI state: {exc}") from None
+        assert self.solver is not None
+        if key != self._key or state.shape[0] != self.solver.ndof:
+            raise ValueError(
+                f"warm-start file '{path}' was saved for another geometry/mesh/law "
+                f"({state.shape[0]} unknowns, this model has {self.solver.ndof})"
+            )
+        return state
+
+    @property
+    def last_state(self) -> np.ndarray | None:
+        """Copy of the state vector of the last solve (``None`` before the first solve)."""
+        return None if self._last_state is None else self._last_state.copy()
+
+    # ------------------------------------------------------------------ solving
+    def solve(
+        self,
+        overrides: Mapping[str, Any] | None = None,
+        *,
+        warm_start: str | Path | np.ndarray | None = None,
+        time_limit: float | None = None,
+    ) -> SolveResult:
+        """Solve the steady FSI problem.
+
+        Parameters
+        ----------
+        overrides
+            Dotted config keys -> values, e.g. ``{"material.E": 250.0, "inflow.rate": 90.0,
+            "material.subdomains.middle.E": 200.0}`` (user units). Changing geometry, mesh,
+            fluid or law keys rebuilds the mesh.
+        warm_start
+            A state file from :meth:`save_state`, a state vector, or ``"last"`` for the
+            last state of this model; used as the initial guess at full load (the solve
+            falls back to continuation from rest if Newton fails from it).
+        time_limit
+            Wall-clock limit in s (default ``solver.time_limit_s``).
+
+        Returns
+        -------
+        SolveResult
+            Never raises for solver failures (non-convergence, NaN, inverted elements,
+            nu >= 0.5, time limit): those give ``status == "failed"`` with a reason.
+
+        Raises
+        ------
+        ConfigError
+            Unknown override keys or out-of-range values.
+        ValueError
+            An unusable warm-start file.
+        """
+        t_start = time.perf_counter()
+        overrides = dict(overrides or {})
+        cfg = self.resolved_config(overrides)
+        build_before = self._key
+        self._build(cfg)
+        built = build_before != self._key
+        solver = self.solver
+        geo = self.geometry
+        assert solver is not None and geo is not None
+        params = self._parameters(cfg, overrides)
+        materials = self._materials(cfg)
+        scfg = cfg["solver"]
+        controls = SolverControls(
+            rtol_velocity=float(scfg["rtol_velocity"]),
+            atol_displacement=float(scfg["atol_displacement"]),
+            rtol_displacement=float(scfg["rtol_displacement"]),
+            max_iterations=int(scfg["max_iterations"]),
+            initial_step=float(scfg["initial_step"]),
+            min_step=float(scfg["min_step"]),
+            growth=float(scfg["growth"]),
+            time_limit=float(time_limit if time_limit is not None else scfg["time_limit_s"]),
+            reuse_factorization=bool(scfg["reuse_factorization"]),
+        )
+        initial = None
+        start_load = 0.0
+        if warm_start is not None:
+            if isinstance(warm_start, np.ndarray):
+                initial = np.asarray(warm_start, dtype=float)
+                if initial.shape != (solver.ndof,):
+                    raise ValueError(f"warm-start state has shape {initial.shape}, expected ({solver.ndof},)")
+            elif isinstance(warm_start, str) and warm_start == "last":
+                initial = self._last_state
+            else:
+                initial = self._load_state(warm_start)
+            start_load = 1.0 if initial is not None else 0.0
+
+        reason = ""
+        for name, (_, nu) in materials.items():
+            reason = reason or check_poisson(nu)
+        rate = float(cfg["inflow"]["rate"])
+        base_stats: dict[str, Any] = {
+            "ndof": solver.ndof,
+            "nfree": solver.nfree,
+            "n_interface_nodes": int(len(geo.interface_vertices)),
+            "n_elements": int(geo.mesh.ne),
+            "h_interface": float(solver.problem.length_scale),
+            "law": cfg["material"]["law"],
+            "warm_start": int(initial is not None),
+            "build_time": float(self.build_time if built else 0.0),
+            "units": "mm, Pa, mm^2/s, s",
+        }
+        if reason:
+            solver.reset()
+            return self._result("failed", reason, params, 0.0, 0, 0, t_start, base_stats)
+
+        solver.set_materials({n: (E * PA, nu) for n, (E, nu) in materials.items()})
+        solver._inflow_val = self._unit_inflow * rate
+        if initial is None:
+            solver.reset()
+        outcome = solver.solve(controls, initial=initial, start_load=start_load)
+        base_stats.update({
+            "factorizations": outcome.factorizations,
+            "min_det_F": solver.min_det_F(),
+            "max_interface_velocity": self._max_interface_velocity(),
+            **{k: float(v) for k, v in outcome.timings.items()},
+        })
+        status = "ok" if outcome.ok else "failed"
+        if outcome.ok:
+            self._last_state = solver.get_state()
+            self._last_params = params
+        res = self._result(status, outcome.reason, params, outcome.load_fraction,
+                           outcome.newton_iterations, outcome.load_steps, t_start, base_stats)
+        return res
+
+    def _interface_displacement(self) -> np.ndarray:
+        """(n, 2) displacement (mm) of the interface vertices in the current state."""
+        assert self.solver is not None and self.geometry is not None
+        s = self.solver
+        dblock = s.block(s.i_d)
+        nd = dblock.shape[0] // 2
+        v = self.geometry.interface_vertices
+        # H1 vertex DOFs are the vertex values (hierarchical higher-order basis)
+        return np.column_stack([dblock[v], dblock[nd + v]])
+
+    def _max_interface_velocity(self) -> float:
+        assert self.solver is not None and self.geometry is not None
+        ub = self.solver.block(0)
+        nd = ub.shape[0] // 2
+        v = self.geometry.interface_vertices
+        return float(np.max(np.hypot(ub[v], ub[nd + v])))
+
+    def _result(self, status, reason, params, load_fraction, iters, steps, t_start, stats) -> SolveResult:
+        assert self.geometry is not None
+        ref = self.geometry.interface_reference.copy()
+        disp = self._interface_displacement()
+        cur = ref + disp
+        stats = dict(stats)
+        stats["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+        return SolveResult(
+            status=status,
+            reason=reason,
+            parameters=params,
+            load_fraction=float(load_fraction),
+            newton_iterations=int(iters),
+            load_steps=int(steps),
+            wall_time=time.perf_counter() - t_start,
+            interface_reference=ref,
+            interface_current=cur,
+            segments=self.geometry.segments.copy(),
+            max_displacement=float(np.max(np.hypot(disp[:, 0], disp[:, 1]))),
+            stats=stats,
+        )
+
+    def write_vtu(self, path: str | Path) -> None:
+        """Write velocity, pressure and displacement of the current state on the deformed mesh."""
+        from bayescalib.fsi.vtu import write_fields_vtu
+
+        assert self.solver is not None
+        write_fields_vtu(path, self.solver)
+
+
+def solve_to_file(
+    config: Mapping[str, Any],
+    overrides: Mapping[str, Any] | None,
+    out_dir: str | Path,
+    vtu: bool = False,
+    warm_start: str | Path | None = None,
+    *,
+    name: str = "run",
+    save_state: bool = True,
+) -> SolveResult:
+    """One solve written to ``out_dir/<name>.h5`` (plus ``<name>.state.npz`` when ok, and
+    ``<name>.vtu`` with ``vtu``). Used by the CLI and by the pipeline's scripts.
+
+    Returns
+    -------
+    SolveResult
+        With ``stats["output"]`` set to the HDF5 path.
+    """
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    model = FSIModel(config)
+    res = model.solve(overrides, warm_start=warm_start)
+    h5 = out / f"{name}.h5"
+    res.stats["output"] = str(h5)
+    if res.ok and save_state:
+        model.save_state(out / f"{name}.state.npz")
+        res.stats["state_file"] = str(out / f"{name}.state.npz")
+    if vtu:
+        model.write_vtu(out / f"{name}.vtu")
+        res.stats["vtu"] = str(out / f"{name}.vtu")
+    write_run(h5, res)
+    return res

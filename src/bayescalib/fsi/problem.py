@@ -1,0 +1,89 @@
+"""Problem description consumed by the monolithic FSI solver core.
+
+One solver core (:mod:`bayescalib.fsi.solver`) serves the biofilm flow cell and the
+Turek–Hron validation benchmarks (FSI1, CSM1, CFD1). Everything that differs between
+them — mesh, region and boundary names, boundary data, fluid and solid constants, body
+force — is gathered in :class:`FSIProblem`. The core is unit-agnostic: all values of a
+problem must be in one consistent unit system (the biofilm model uses mm, s, mg, so
+that stresses are in mPa; the Turek–Hron problems use SI).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+from bayescalib.fsi.materials import LAWS
+
+
+@dataclass
+class FSIProblem:
+    """Geometry, boundary conditions and constants of one steady FSI problem.
+
+    Attributes
+    ----------
+    mesh
+        NGSolve mesh (already curved if wanted), 2D.
+    fluid
+        Material name (regex) of the fluid region, or ``None`` for a solid-only problem.
+    solids
+        Mapping solid material name -> law (``"svk"`` or ``"neo_hooke"``); empty for a
+        fluid-only problem (a rigid obstacle). E and nu are given per solve.
+    velocity_dirichlet
+        Boundary regex where the velocity is prescribed (zero, or the inflow profile on
+        ``inflow``). It must include ``inflow``.
+    displacement_dirichlet
+        Boundary regex where the displacement (solid clamp and ALE mesh boundary) is zero.
+    inflow
+        Boundary name of the inflow, or ``None``.
+    inflow_profile
+        Callable returning the full-load inflow velocity as an NGSolve vector coefficient
+        function of ``ngsolve.x, ngsolve.y`` (velocity units); scaled by the load factor.
+    rho_fluid, mu_fluid
+        Fluid density and dynamic viscosity.
+    rho_solid
+        Solid reference density (only used with ``body_force``).
+    body_force
+        Acceleration (gx, gy) acting on the solid, scaled by the load factor (CSM1 gravity).
+    interface
+        Boundary name of the fluid–solid interface (output and checks), or ``None``.
+    ale_weight
+        Weight of the harmonic mesh-extension form in the fluid. It must be tiny against
+        the solid's ``u = 0`` form it shares rows with on the interface, otherwise the
+        interface slips (NOTES-fsi.md); see :attr:`length_scale`.
+    length_scale
+        Characteristic element size near the interface; the extension form is weighted by
+        ``ale_weight * length_scale**2`` so that the ratio to the mass form is
+        ``ale_weight`` whatever the units.
+    order
+        Polynomial order of velocity and displacement (pressure: ``order - 1``).
+    """
+
+    mesh: Any
+    fluid: str | None
+    solids: dict[str, str]
+    velocity_dirichlet: str
+    displacement_dirichlet: str
+    inflow: str | None = None
+    inflow_profile: Callable[[], Any] | None = None
+    rho_fluid: float = 1.0
+    mu_fluid: float = 1.0
+    rho_solid: float = 1.0
+    body_force: tuple[float, float] = (0.0, 0.0)
+    interface: str | None = None
+    ale_weight: float = 1e-8
+    length_scale: float = 1.0
+    order: int = 2
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        for name, law in self.solids.items():
+            if law not in LAWS:
+                raise ValueError(f"solid region '{name}': unknown law '{law}', expected one of {LAWS}")
+        if self.fluid is None and not self.solids:
+            raise ValueError("an FSI problem needs a fluid region, solid regions, or both")
+        if self.inflow is not None and self.inflow_profile is None:
+            raise ValueError("inflow boundary given without an inflow profile")
+        if self.order < 2:
+            raise ValueError("order must be >= 2 (Taylor–Hood P2/P1)")

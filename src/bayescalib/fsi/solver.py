@@ -1,0 +1,468 @@
+"""Monolithic steady ALE fluid–structure solver core (paper App. B).
+
+Formulation
+-----------
+All fields live on the reference (undeformed) mesh. Unknowns: velocity ``u`` (P2, one
+space over fluid *and* solid), pressure ``p`` (P1, fluid only: Taylor–Hood) and
+displacement ``d`` (P2, over both; in the fluid it is the ALE mesh displacement). With
+``F = I + grad d``, ``J = det F`` the steady weak form is
+
+* fluid momentum and mass (ALE, mesh velocity zero in the steady state, App. B.1), with
+  the gradient (Laplacian) form of the viscous term, whose natural outflow condition is
+  "do nothing"::
+
+      int_f  rho J (grad u F^-1 u) . v + mu J (grad u F^-1) : (grad v F^-1)
+             - p J tr(grad v F^-1) - q J tr(grad u F^-1)  dX
+
+* solid momentum (App. B.2), tested with the *same* velocity test function ``v``::
+
+      int_s  P(F) : grad v - rho_s g . v  dX
+
+  Because ``v`` is continuous across the interface, the traction balance of App. B.3 is
+  satisfied weakly without an explicit coupling term.
+* kinematics: the steady solid does not move, ``u = 0`` in the solid (tested with the
+  displacement test function ``w``), which gives the no-slip condition ``u = d_t = 0``
+  on the interface (App. B.3);
+* ALE mesh: harmonic extension of the solid displacement into the fluid,
+  ``alpha int_f grad d : grad w dX``, with a tiny weight ``alpha`` (it shares the
+  interface rows with the ``u = 0`` form; a large weight lets the interface slip).
+
+Nonlinear solution
+------------------
+Newton's method with NGSolve's automatic linearization and UMFPACK, inside a load
+continuation in the load factor ``lambda`` (scales the inflow and the body force):
+start with ``initial_step``, halve the step on failure, grow it by ``growth`` on
+success, give up below ``min_step``. Convergence needs *both* the velocity increment
+(relative to the velocity) and the displacement increment (absolute + relative) to be
+small — a test on the whole vector would be dominated by the pressure. Optionally the
+factorization is reused across iterations (chord steps) while the iteration contracts
+fast enough; this saves most of the cost, which is the sparse LU factorization.
+
+Every failure — Newton not converging, NaN, an inverted element (``det F <= 0`` at a
+quadrature point of the solid or the fluid mesh), the wall-clock deadline — ends as a
+:class:`SolveOutcome` with ``ok = False`` and a reason; the last converged state is kept.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from bayescalib.fsi.materials import piola1
+from bayescalib.fsi.problem import FSIProblem
+
+
+@dataclass
+class SolverControls:
+    """Newton and continuation settings.
+
+    Attributes
+    ----------
+    rtol_velocity
+        Velocity increment test: ``max|du| <= rtol_velocity * max|u|``.
+    atol_displacement, rtol_displacement
+        Displacement test: ``max|dd| <= atol_displacement + rtol_displacement * max|d|``
+        (length units of the problem).
+    max_iterations
+        Newton iterations per load step before the step counts as failed.
+    initial_step, min_step, growth
+        Load continuation: first increment of the load factor, smallest allowed
+        increment, growth factor after a converged step.
+    time_limit
+        Wall-clock limit in seconds for the whole solve (``None``: none).
+    reuse_factorization
+        Reuse the LU factorization (chord step) while the increments contract by at least
+        ``reuse_contraction`` per iteration.
+    reuse_contraction
+        Contraction ratio below which the factorization is kept.
+    """
+
+    rtol_velocity: float = 1e-8
+    atol_displacement: float = 1e-10
+    rtol_displacement: float = 1e-7
+    max_iterations: int = 20
+    initial_step: float = 1.0
+    min_step: float = 1.0 / 64
+    growth: float = 2.0
+    time_limit: float | None = None
+    reuse_factorization: bool = True
+    reuse_contraction: float = 0.25
+
+
+@dataclass
+class SolveOutcome:
+    """Result of :meth:`MonolithicSolver.solve` (state stays in the solver)."""
+
+    ok: bool
+    reason: str
+    load_fraction: float
+    newton_iterations: int
+    load_steps: int
+    factorizations: int
+    wall_time: float
+    timings: dict[str, float] = field(default_factory=dict)
+
+
+class _Failure(Exception):
+    """Internal: a load step failed (reason in ``args[0]``); ``fatal`` stops the solve."""
+
+    def __init__(self, reason: str, fatal: bool = False):
+        super().__init__(reason)
+        self.fatal = fatal
+
+
+class MonolithicSolver:
+    """Steady monolithic ALE FSI solver for one :class:`FSIProblem`.
+
+    Material values are NGSolve ``Parameter`` objects, so new E, nu per solve reuse the
+    compiled forms. The state (all unknowns) is held in :attr:`gfu`.
+
+    Parameters
+    ----------
+    problem
+        The problem description (mesh, regions, boundary data, constants).
+    """
+
+    def __init__(self, problem: FSIProblem):
+        import ngsolve as ng
+
+        self.problem = pb = problem
+        mesh = pb.mesh
+        self.mesh = mesh
+        order = pb.order
+        self.has_fluid = pb.fluid is not None
+        self.has_solid = bool(pb.solids)
+
+        spaces = []
+        V = ng.VectorH1(mesh, order=order, dirichlet=pb.velocity_dirichlet)
+        spaces.append(V)
+        self.Vspace = V
+        if self.has_fluid:
+            Q = ng.H1(mesh, order=order - 1, definedon=pb.fluid)
+            spaces.append(Q)
+        if self.has_solid:
+            D = ng.VectorH1(mesh, order=order, dirichlet=pb.displacement_dirichlet)
+            spaces.append(D)
+        X = ng.FESpace(spaces)
+        self.X = X
+        self.gfu = ng.GridFunction(X)
+        self.ncomp = len(spaces)
+        self.i_u = 0
+        self.i_p = 1 if self.has_fluid else None
+        self.i_d = (self.ncomp - 1) if self.has_solid else None
+
+        self.load = ng.Parameter(0.0)
+        self.E = {name: ng.Parameter(1.0) for name in pb.solids}
+        self.nu = {name: ng.Parameter(0.0) for name in pb.solids}
+
+        trials, tests = X.TnT()
+        u, v = trials[0], tests[0]
+        if self.has_solid:
+            d, w = trials[self.i_d], tests[self.i_d]
+            F = ng.Id(2) + ng.Grad(d)
+        else:
+            d = w = None
+            F = ng.Id(2)
+        a = ng.BilinearForm(X, symmetric=False)
+        fluid_form = None
+        if self.has_fluid:
+            p, q = trials[self.i_p], tests[self.i_p]
+            J = ng.Det(F)
+            Finv = ng.Inv(F)
+            gu = ng.Grad(u) * Finv
+            gv = ng.Grad(v) * Finv
+            dxf = ng.dx(definedon=mesh.Materials(pb.fluid))
+            ff = (
+                pb.rho_fluid * J * ng.InnerProduct(gu * u, v)
+                + pb.mu_fluid * J * ng.InnerProduct(gu, gv)
+                - J * ng.Trace(gv) * p
+                - J * ng.Trace(gu) * q
+            ) * dxf
+            a += ff
+            fluid_form = ng.BilinearForm(X, symmetric=False)
+            fluid_form += (
+                pb.rho_fluid * J * ng.InnerProduct(gu * u, v)
+                + pb.mu_fluid * J * ng.InnerProduct(gu, gv)
+                - J * ng.Trace(gv) * p
+            ) * dxf
+            if self.has_solid:
+                alpha = pb.ale_weight * pb.length_scale**2
+                a += alpha * ng.InnerProduct(ng.Grad(d), ng.Grad(w)) * dxf
+        if self.has_solid:
+            g = ng.CoefficientFunction(tuple(float(c) for c in pb.body_force))
+            for name, law in pb.solids.items():
+                dxs = ng.dx(definedon=mesh.Materials(name))
+                P = piola1(law, F, self.E[name], self.nu[name])
+                a += ng.InnerProduct(P, ng.Grad(v)) * dxs
+                if any(pb.body_force):
+                    a += -self.load * pb.rho_solid * ng.InnerProduct(g, v) * dxs
+                a += ng.InnerProduct(u, w) * dxs
+        self.a = a
+        self._fluid_form = fluid_form
+
+        # Dirichlet data of the inflow at full load, restricted to its DOFs.
+        x = self.gfu.vec.FV().NumPy()
+        self._inflow_idx = np.zeros(0, dtype=int)
+        self._inflow_val = np.zeros(0)
+        if pb.inflow is not None:
+            tmp = ng.GridFunction(V)
+            tmp.Set(pb.inflow_profile(), ng.BND, definedon=mesh.Boundaries(pb.inflow))
+            mask = np.array(list(V.GetDofs(mesh.Boundaries(pb.inflow))), dtype=bool)
+            mask &= ~np.array(list(V.FreeDofs()), dtype=bool)
+            off = X.Range(0).start
+            # VectorH1 DOFs: component blocks of size V.ndof // 2
+            idx = np.nonzero(mask)[0] + off
+            self._inflow_idx = idx
+            self._inflow_val = tmp.vec.FV().NumPy()[np.nonzero(mask)[0]].copy()
+        self._x = x
+        self._freedofs = X.FreeDofs()
+        self._free = np.array(list(self._freedofs), dtype=bool)
+        self._ranges = [(X.Range(i).start, X.Range(i).stop) for i in range(self.ncomp)]
+        self._res = self.gfu.vec.CreateVector()
+        self._du = self.gfu.vec.CreateVector()
+        self._ir_points = None
+        if self.has_solid:
+            self._detF = ng.Det(ng.Id(2) + ng.Grad(self.gfu.components[self.i_d]))
+            ir = ng.IntegrationRule(ng.TRIG, 2 * order)
+            self._ir_points = mesh.MapToAllElements(ir, ng.VOL)
+
+    # ------------------------------------------------------------------ state access
+    @property
+    def ndof(self) -> int:
+        """Number of unknowns (all, including Dirichlet DOFs)."""
+        return int(self.X.ndof)
+
+    @property
+    def nfree(self) -> int:
+        """Number of free unknowns (the size of the linear systems)."""
+        return int(self._free.sum())
+
+    def get_state(self) -> np.ndarray:
+        """Copy of the full state vector, shape (ndof,)."""
+        return self._x.copy()
+
+    def set_state(self, state: np.ndarray) -> None:
+        """Set the full state vector (shape (ndof,))."""
+        state = np.asarray(state, dtype=float)
+        if state.shape != self._x.shape:
+            raise ValueError(f"state has {state.shape[0]} entries, the solver has {self._x.shape[0]} unknowns")
+        self._x[:] = state
+
+    def reset(self) -> None:
+        """Zero state (fluid at rest, undeformed)."""
+        self._x[:] = 0.0
+
+    def set_materials(self, values: dict[str, tuple[float, float]]) -> None:
+        """Set ``(E, nu)`` per solid region (solver stress units)."""
+        for name, (E, nu) in values.items():
+            self.E[name].Set(float(E))
+            self.nu[name].Set(float(nu))
+
+    def block(self, i: int) -> np.ndarray:
+        """View of the state entries of component ``i`` (0 velocity, then pressure, displacement)."""
+        s, e = self._ranges[i]
+        return self._x[s:e]
+
+    def min_det_F(self) -> float:
+        """Minimum of ``det F`` over quadrature points of the whole mesh (1 if no solid)."""
+        if self._ir_points is None:
+            return 1.0
+        vals = np.asarray(self._detF(self._ir_points))
+        return float(np.min(vals)) if vals.size else 1.0
+
+    def _apply_load(self, lam: float) -> None:
+        self.load.Set(lam)
+        if self._inflow_idx.size:
+            self._x[self._inflow_idx] = lam * self._inflow_val
+
+    def fluid_force(self, boundary: str) -> tuple[float, float]:
+        """Force of the fluid on ``boundary`` (regex), ``(Fx, Fy)``, from the fluid residual.
+
+        The residual of the fluid momentum form, tested with a function that is the unit
+        vector on ``boundary`` and zero on all other boundaries, equals the boundary
+        integral of the fluid traction (a volume-based, Babuška–Miller type evaluation,
+        more accurate than a boundary integral of derivatives).
+        """
+        import ngsolve as ng
+
+        if self._fluid_form is None:
+            raise ValueError("problem has no fluid")
+        res = self.gfu.vec.CreateVector()
+        self._fluid_form.Apply(self.gfu.vec, res)
+        r = res.FV().NumPy()
+        out = []
+        for comp in ((1.0, 0.0), (0.0, 1.0)):
+            wv = ng.GridFunction(self.Vspace)
+            wv.Set(ng.CoefficientFunction(comp), ng.BND, definedon=self.mesh.Boundaries(boundary))
+            s, e = self._ranges[0]
+            out.append(-float(np.dot(r[s:e], wv.vec.FV().NumPy())))
+        return out[0], out[1]
+
+    # ------------------------------------------------------------------ solving
+    def _converged(self, du: np.ndarray) -> tuple[bool, float]:
+        """Separate increment tests on velocity and displacement; returns (ok, scaled size)."""
+        pb_ok = True
+        scaled = 0.0
+        s, e = self._ranges[self.i_u]
+        dv = float(np.max(np.abs(du[s:e]))) if e > s else 0.0
+        vmax = float(np.max(np.abs(self._x[s:e]))) if e > s else 0.0
+        if self.has_fluid:
+            tol_v = self.controls.rtol_velocity * max(vmax, 1e-300)
+            pb_ok &= dv <= tol_v
+            scaled = max(scaled, dv / max(vmax, 1e-300))
+        if self.has_solid:
+            s, e = self._ranges[self.i_d]
+            dd = float(np.max(np.abs(du[s:e])))
+            dmax = float(np.max(np.abs(self._x[s:e])))
+            tol_d = self.controls.atol_displacement + self.controls.rtol_displacement * dmax
+            pb_ok &= dd <= tol_d
+            scaled = max(scaled, dd / max(dmax, self.controls.atol_displacement * 1e3, 1e-300))
+        return pb_ok, scaled
+
+    def _check(self, deadline: float | None) -> None:
+        if deadline is not None and time.perf_counter() > deadline:
+            raise _Failure("wall-clock time limit reached", fatal=True)
+
+    def _newton(self, deadline: float | None, stats: dict) -> None:
+        """Newton (with optional chord steps) at the current load; raises _Failure."""
+        c = self.controls
+        inv = self._inv if c.reuse_factorization else None
+        prev = None
+        for it in range(1, c.max_iterations + 1):
+            self._check(deadline)
+            t0 = time.perf_counter()
+            self.a.Apply(self.gfu.vec, self._res)
+            t1 = time.perf_counter()
+            stats["t_residual"] += t1 - t0
+            if inv is None:
+                self.a.AssembleLinearization(self.gfu.vec)
+                t2 = time.perf_counter()
+                stats["t_assemble"] += t2 - t1
+                self._check(deadline)
+                inv = self.a.mat.Inverse(self._freedofs, inverse="umfpack")
+                stats["t_factor"] += time.perf_counter() - t2
+                stats["factorizations"] += 1
+                fresh = True
+            else:
+                fresh = False
+            t3 = time.perf_counter()
+            self._du.data = inv * self._res
+            stats["t_solve"] += time.perf_counter() - t3
+            du = self._du.FV().NumPy()
+            stats["iterations"] += 1
+            if not np.all(np.isfinite(du)):
+                self._inv = None
+                if not fresh:
+                    inv = None
+                    continue
+                raise _Failure(f"NaN/Inf in the Newton increment (iteration {it})")
+            self._x -= du
+            if not np.all(np.isfinite(self._x)):
+                raise _Failure(f"NaN/Inf in the solution (iteration {it})")
+            ok, size = self._converged(du)
+            jmin = self.min_det_F()
+            if not (jmin > 0.0):
+                raise _Failure(f"inverted element: min det F = {jmin:.3g} (iteration {it})")
+            if ok:
+                self._inv = inv if c.reuse_factorization else None
+                return
+            if prev is not None and size > 1e3 * max(prev, 1e-300) and fresh:
+                raise _Failure(f"Newton diverging (iteration {it})")
+            keep = (
+                c.reuse_factorization
+                and prev is not None
+                and size <= c.reuse_contraction * prev
+            )
+            if not keep:
+                inv = None
+            prev = size
+        self._inv = None
+        raise _Failure(f"Newton did not converge in {c.max_iterations} iterations")
+
+    def solve(self, controls: SolverControls, *, initial: np.ndarray | None = None,
+              start_load: float = 0.0) -> SolveOutcome:
+        """Solve at full load by continuation in the load factor.
+
+        Parameters
+        ----------
+        controls
+            Newton and continuation settings.
+        initial
+            Initial state (e.g. a warm start); ``None`` keeps the current state.
+        start_load
+            Load factor at which ``initial`` is an (approximate) solution; the
+            continuation starts from there (0 for rest, 1 for a warm start at full load).
+
+        Returns
+        -------
+        SolveOutcome
+            The state (converged, or the last converged one on failure) is in :attr:`gfu`.
+        """
+        t_start = time.perf_counter()
+        self.controls = controls
+        deadline = None if controls.time_limit is None else t_start + controls.time_limit
+        stats = {"t_residual": 0.0, "t_assemble": 0.0, "t_factor": 0.0, "t_solve": 0.0,
+                 "iterations": 0, "factorizations": 0}
+        self._inv = None
+        if initial is not None:
+            self.set_state(initial)
+        steps = 0
+        reason = ""
+        lam = float(min(max(start_load, 0.0), 1.0))
+        if lam > 0.0:
+            # converge at the starting load first; if the initial state is too far off,
+            # fall back to the continuation from rest
+            self._apply_load(lam)
+            saved = self._x.copy()
+            try:
+                self._newton(deadline, stats)
+                steps += 1
+            except _Failure as fail:
+                self._inv = None
+                if fail.fatal:
+                    self._x[:] = saved
+                    reason = str(fail)
+                lam = 0.0
+                if not reason:
+                    self._x[:] = 0.0
+        self._apply_load(lam)
+        saved = self._x.copy()
+        step = float(controls.initial_step)
+        while lam < 1.0 and not reason:
+            new = min(1.0, lam + step)
+            try:
+                self._apply_load(new)
+                self._newton(deadline, stats)
+            except _Failure as fail:
+                self._x[:] = saved
+                self._apply_load(lam)
+                self._inv = None
+                if fail.fatal:
+                    reason = str(fail)
+                    break
+                step *= 0.5
+                if step < controls.min_step:
+                    reason = f"load continuation stalled: {fail} (step below {controls.min_step:g})"
+                continue
+            steps += 1
+            lam = new
+            saved[:] = self._x
+            step = min(step * controls.growth, 1.0)
+        ok = lam >= 1.0 and not reason
+        wall = time.perf_counter() - t_start
+        timings = {k: v for k, v in stats.items() if k.startswith("t_")}
+        return SolveOutcome(
+            ok=ok,
+            reason="" if ok else (reason or "not converged"),
+            load_fraction=float(lam),
+            newton_iterations=int(stats["iterations"]),
+            load_steps=steps,
+            factorizations=int(stats["factorizations"]),
+            wall_time=wall,
+            timings=timings,
+        )
+
+
+__all__ = ["MonolithicSolver", "SolverControls", "SolveOutcome"]
