@@ -1,0 +1,41 @@
+"""Paper-quality figures of the calibration results, from plain arrays.
+
+Every public function takes NumPy arrays (no other bayescalib objects),
+writes one figure to any number of paths (format from the suffix, ``dpi``
+argument), returns the list of written paths and releases the figure (pass
+``return_figure=True`` to get ``(paths, Figure)`` instead). Weighted particles
+are accepted everywhere; weights are normalized to sum to one.
+
+Modules (one figure family each)
+--------------------------------
+* :mod:`.response`    -- likelihood / log-likelihood / GP std over a 2-D design space
+* :mod:`.convergence` -- GP error over the number of training points
+* :mod:`.joint`       -- joint 2-D posterior with marginals and approximations
+* :mod:`.particles`   -- SMC particles with weight as size and colour
+* :mod:`.marginals`   -- 1-D marginals and corner (pair) plots
+* :mod:`.parallel`    -- parallel-axis plot of particles coloured by density
+* :mod:`.interfaces`  -- interface curves and scalar residuals along the interface
+* :mod:`.fields`      -- velocity, pressure and displacement fields on the mesh
+
+Helpers: :mod:`.style` (rc context, palette, labels), :mod:`.kde` (weighted
+KDE, HPD thresholds), :mod:`.gaussian` (probability ellipses).
+"""
+
+from .gaussian import chi2_radius2, ellipse_axes, ellipse_points
+from .joint import plot_joint_posterior
+from .kde import hpd_thresholds, hpd_thresholds_grid, weighted_kde
+from .response import plot_response_surface
+from .style import axis_label, paper_style
+
+__all__ = [
+    "plot_response_surface",
+    "plot_joint_posterior",
+    "weighted_kde",
+    "hpd_thresholds",
+    "hpd_thresholds_grid",
+    "chi2_radius2",
+    "ellipse_axes",
+    "ellipse_points",
+    "axis_label",
+    "paper_style",
+]
