@@ -21,15 +21,22 @@ Helpers: :mod:`.style` (rc context, palette, labels), :mod:`.kde` (weighted
 KDE, HPD thresholds), :mod:`.gaussian` (probability ellipses).
 """
 
+from .convergence import plot_gp_convergence
 from .gaussian import chi2_radius2, ellipse_axes, ellipse_points
 from .joint import plot_joint_posterior
 from .kde import hpd_thresholds, hpd_thresholds_grid, weighted_kde
+from .marginals import plot_marginals_1d, plot_pair_marginals
+from .particles import plot_particles
 from .response import plot_response_surface
 from .style import axis_label, paper_style
 
 __all__ = [
     "plot_response_surface",
+    "plot_gp_convergence",
     "plot_joint_posterior",
+    "plot_particles",
+    "plot_marginals_1d",
+    "plot_pair_marginals",
     "weighted_kde",
     "hpd_thresholds",
     "hpd_thresholds_grid",
