@@ -111,6 +111,9 @@ def write_run(path: str | Path, result: SolveResult) -> None:
         raise ValueError(f"status must be 'ok' or 'failed', got {result.status!r}")
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     os.close(fd)
+    mask = os.umask(0)
+    os.umask(mask)
+    os.chmod(tmp, 0o666 & ~mask)
     try:
         with h5py.File(tmp, "w") as f:
             f.attrs["format"] = _FORMAT

@@ -89,6 +89,13 @@ def _structural_key(cfg: Mapping[str, Any]) -> str:
     return hashlib.sha256(json.dumps(data, sort_keys=True).encode()).hexdigest()[:16]
 
 
+def _chmod_default(path: str) -> None:
+    """Give a ``mkstemp`` file the permissions of a normally created file (umask)."""
+    mask = os.umask(0)
+    os.umask(mask)
+    os.chmod(path, 0o666 & ~mask)
+
+
 class FSIModel:
     """Steady FSI forward model of the biofilm flow cell.
 
@@ -199,6 +206,7 @@ class FSIModel:
         fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".npz", dir=path.parent)
         os.close(fd)
         try:
+            _chmod_default(tmp)
             with open(tmp, "wb") as fh:
                 np.savez(fh, state=self._last_state, key=np.array(self._key),
                          parameters=np.array(json.dumps(self._last_params)))
@@ -281,6 +289,7 @@ class FSIModel:
         scfg = cfg["solver"]
         controls = SolverControls(
             rtol_velocity=float(scfg["rtol_velocity"]),
+            atol_velocity=float(scfg["atol_velocity"]),
             atol_displacement=float(scfg["atol_displacement"]),
             rtol_displacement=float(scfg["rtol_displacement"]),
             max_iterations=int(scfg["max_iterations"]),

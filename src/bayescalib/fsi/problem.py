@@ -72,7 +72,7 @@ class FSIProblem:
     rho_solid: float = 1.0
     body_force: tuple[float, float] = (0.0, 0.0)
     interface: str | None = None
-    ale_weight: float = 1e-8
+    ale_weight: float = 1e-6
     length_scale: float = 1.0
     order: int = 2
     extra: dict[str, Any] = field(default_factory=dict)

@@ -60,8 +60,8 @@ class SolverControls:
 
     Attributes
     ----------
-    rtol_velocity
-        Velocity increment test: ``max|du| <= rtol_velocity * max|u|``.
+    rtol_velocity, atol_velocity
+        Velocity increment test: ``max|du| <= atol_velocity + rtol_velocity * max|u|``.
     atol_displacement, rtol_displacement
         Displacement test: ``max|dd| <= atol_displacement + rtol_displacement * max|d|``
         (length units of the problem).
@@ -80,6 +80,7 @@ class SolverControls:
     """
 
     rtol_velocity: float = 1e-8
+    atol_velocity: float = 1e-10
     atol_displacement: float = 1e-10
     rtol_displacement: float = 1e-7
     max_iterations: int = 20
@@ -309,9 +310,9 @@ class MonolithicSolver:
         dv = float(np.max(np.abs(du[s:e]))) if e > s else 0.0
         vmax = float(np.max(np.abs(self._x[s:e]))) if e > s else 0.0
         if self.has_fluid:
-            tol_v = self.controls.rtol_velocity * max(vmax, 1e-300)
+            tol_v = self.controls.atol_velocity + self.controls.rtol_velocity * vmax
             pb_ok &= dv <= tol_v
-            scaled = max(scaled, dv / max(vmax, 1e-300))
+            scaled = max(scaled, dv / max(vmax, self.controls.atol_velocity * 1e3, 1e-300))
         if self.has_solid:
             s, e = self._ranges[self.i_d]
             dd = float(np.max(np.abs(du[s:e])))
@@ -362,6 +363,7 @@ class MonolithicSolver:
             if not np.all(np.isfinite(self._x)):
                 raise _Failure(f"NaN/Inf in the solution (iteration {it})")
             ok, size = self._converged(du)
+            self.history.append((float(self.load.Get()), it, size, fresh))
             jmin = self.min_det_F()
             if not (jmin > 0.0):
                 raise _Failure(f"inverted element: min det F = {jmin:.3g} (iteration {it})")
@@ -406,6 +408,10 @@ class MonolithicSolver:
         stats = {"t_residual": 0.0, "t_assemble": 0.0, "t_factor": 0.0, "t_solve": 0.0,
                  "iterations": 0, "factorizations": 0}
         self._inv = None
+        #: (load, iteration, scaled increment, fresh factorization) per Newton iteration
+        self.history: list[tuple[float, int, float, bool]] = []
+        #: messages of failed load steps (before step halving)
+        self.failures: list[str] = []
         if initial is not None:
             self.set_state(initial)
         steps = 0
@@ -436,6 +442,8 @@ class MonolithicSolver:
                 self._apply_load(new)
                 self._newton(deadline, stats)
             except _Failure as fail:
+                self.history.append((new, -1, float("nan"), False))
+                self.failures.append(f"load {new:.4g}: {fail}")
                 self._x[:] = saved
                 self._apply_load(lam)
                 self._inv = None
