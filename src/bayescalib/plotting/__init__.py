@@ -23,9 +23,11 @@ KDE, HPD thresholds), :mod:`.gaussian` (probability ellipses).
 
 from .convergence import plot_gp_convergence
 from .gaussian import chi2_radius2, ellipse_axes, ellipse_points
+from .interfaces import plot_interface_residual, plot_interfaces
 from .joint import plot_joint_posterior
 from .kde import hpd_thresholds, hpd_thresholds_grid, weighted_kde
 from .marginals import plot_marginals_1d, plot_pair_marginals
+from .parallel import plot_parallel_axes
 from .particles import plot_particles
 from .response import plot_response_surface
 from .style import axis_label, paper_style
@@ -37,6 +39,9 @@ __all__ = [
     "plot_particles",
     "plot_marginals_1d",
     "plot_pair_marginals",
+    "plot_parallel_axes",
+    "plot_interfaces",
+    "plot_interface_residual",
     "weighted_kde",
     "hpd_thresholds",
     "hpd_thresholds_grid",
