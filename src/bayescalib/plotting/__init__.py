@@ -22,6 +22,7 @@ KDE, HPD thresholds), :mod:`.gaussian` (probability ellipses).
 """
 
 from .convergence import plot_gp_convergence
+from .fields import plot_fields
 from .gaussian import chi2_radius2, ellipse_axes, ellipse_points
 from .interfaces import plot_interface_residual, plot_interfaces
 from .joint import plot_joint_posterior
@@ -42,6 +43,7 @@ __all__ = [
     "plot_parallel_axes",
     "plot_interfaces",
     "plot_interface_residual",
+    "plot_fields",
     "weighted_kde",
     "hpd_thresholds",
     "hpd_thresholds_grid",

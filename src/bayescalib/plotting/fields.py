@@ -1,0 +1,184 @@
+"""Field solutions of the FSI forward model on the (deformed) flow-cell mesh
+(paper Fig. "FSIresult").
+
+Three stacked panels: fluid velocity magnitude with streamlines, fluid
+pressure, and solid displacement magnitude; equal aspect, lengths in mm, the
+fluid-biofilm interface drawn on top of every panel.
+"""
+
+from __future__ import annotations
+
+import warnings
+from collections.abc import Sequence
+
+import numpy as np
+from matplotlib.figure import Figure
+from matplotlib.tri import LinearTriInterpolator, Triangulation
+
+from ._checks import PathsLike, as_array, as_paths, as_points, finish
+from .style import COLORS, paper_style
+
+__all__ = ["plot_fields"]
+
+
+def _check_triangles(triangles, n_points: int) -> np.ndarray:
+    t = np.asarray(triangles)
+    if t.ndim != 2 or t.shape[1] != 3 or t.shape[0] < 1:
+        raise ValueError(f"triangles: expected shape (t, 3) with t >= 1, got {t.shape}")
+    if not np.issubdtype(t.dtype, np.integer):
+        if not np.all(np.isfinite(t)) or np.any(t != np.round(t)):
+            raise ValueError("triangles: entries must be integer point indices")
+        t = t.astype(np.int64)
+    if t.min() < 0 or t.max() >= n_points:
+        raise ValueError(f"triangles: indices must lie in [0, {n_points - 1}], "
+                         f"got [{t.min()}, {t.max()}]")
+    return t
+
+
+def plot_fields(
+    points: np.ndarray,
+    triangles: np.ndarray,
+    velocity: np.ndarray,
+    pressure: np.ndarray,
+    displacement: np.ndarray,
+    paths: PathsLike,
+    *,
+    interface: np.ndarray | None = None,
+    solid_mask_triangles: np.ndarray | None = None,
+    deform: bool = False,
+    length_unit_factor: float = 1.0,
+    velocity_unit_factor: float = 1.0,
+    pressure_unit_factor: float = 1.0,
+    streamlines: bool = True,
+    title: str | None = None,
+    dpi: float = 200,
+    return_figure: bool = False,
+):
+    """Velocity magnitude, pressure and displacement magnitude on the mesh.
+
+    Parameters
+    ----------
+    points : array_like, shape (p, 2)
+        Mesh vertices (reference or already deformed configuration).
+    triangles : array_like of int, shape (t, 3)
+        Vertex indices of the triangles.
+    velocity : array_like, shape (p, 2)
+        Fluid velocity at the vertices (values in solid triangles are ignored).
+    pressure : array_like, shape (p,)
+        Fluid pressure at the vertices.
+    displacement : array_like, shape (p, 2)
+        Displacement at the vertices (same length unit as ``points``).
+    paths : path or sequence of paths
+        Output files; format from the suffix.
+    interface : array_like, shape (n, 2), optional
+        Fluid-biofilm interface (in the units of ``points``; plotted as given,
+        so pass the deformed interface when ``deform`` is used).
+    solid_mask_triangles : array_like of bool, shape (t,), optional
+        True for biofilm (solid) triangles. The velocity and pressure panels
+        show fluid triangles only, the displacement panel solid ones only;
+        None treats every triangle as both.
+    deform : bool
+        Plot on ``points + displacement`` (for a reference-configuration mesh).
+    length_unit_factor : float
+        Converts lengths (points, displacement, interface) to mm.
+    velocity_unit_factor : float
+        Converts velocities to mm/s.
+    pressure_unit_factor : float
+        Converts pressures to Pa (e.g. 1e-3 for a pressure in mPa).
+    streamlines : bool
+        Overlay streamlines of the fluid velocity.
+    title : str, optional
+        Figure title.
+    dpi : float
+        Raster resolution [dots per inch].
+    return_figure : bool
+        Also return the Figure.
+
+    Returns
+    -------
+    list of pathlib.Path
+        Written files, or ``(paths, Figure)`` if ``return_figure``.
+    """
+    for val, nm in ((length_unit_factor, "length_unit_factor"),
+                    (velocity_unit_factor, "velocity_unit_factor"),
+                    (pressure_unit_factor, "pressure_unit_factor")):
+        if not val > 0:
+            raise ValueError(f"{nm}: must be positive, got {val}")
+    pts = as_points(points, "points", allow_empty=False)
+    n = pts.shape[0]
+    tri = _check_triangles(triangles, n)
+    vel = as_array(velocity, "velocity", shape=(n, 2)) * velocity_unit_factor
+    pres = as_array(pressure, "pressure", shape=(n,)) * pressure_unit_factor
+    disp = as_array(displacement, "displacement", shape=(n, 2)) * length_unit_factor
+    pts = pts * length_unit_factor
+    itf = None if interface is None else as_points(interface, "interface") * length_unit_factor
+    if solid_mask_triangles is None:
+        solid = np.zeros(tri.shape[0], dtype=bool)
+        has_solid = False
+    else:
+        solid = np.asarray(solid_mask_triangles)
+        if solid.shape != (tri.shape[0],):
+            raise ValueError(f"solid_mask_triangles: expected shape ({tri.shape[0]},), "
+                             f"got {solid.shape}")
+        solid = solid.astype(bool)
+        has_solid = True
+    out_paths = as_paths(paths)
+    xy = pts + disp if deform else pts
+
+    fluid_tri = Triangulation(xy[:, 0], xy[:, 1], tri, mask=solid if has_solid else None)
+    solid_tri = Triangulation(xy[:, 0], xy[:, 1], tri, mask=~solid if has_solid else None)
+    speed = np.hypot(vel[:, 0], vel[:, 1])
+    dmag = np.hypot(disp[:, 0], disp[:, 1])
+    lo, hi = xy.min(axis=0), xy.max(axis=0)
+    span = hi - lo
+    width = 6.0
+    h_panel = float(np.clip(width * span[1] / max(span[0], 1e-12), 1.0, 4.0))
+
+    with paper_style():
+        fig = Figure(figsize=(width + 1.0, 3 * h_panel + 1.0), layout="compressed")
+        axes = fig.subplots(3, 1, sharex=True, sharey=True)
+        specs = [
+            (fluid_tri, speed, "viridis", "velocity magnitude |v| [mm/s]", "fluid velocity"),
+            (fluid_tri, pres, "cividis", "pressure p [Pa]", "fluid pressure"),
+            (solid_tri, dmag, "magma", "displacement magnitude |u| [mm]",
+             "solid displacement" if has_solid else "displacement"),
+        ]
+        for k, (ax, (tr, val, cmap, clabel, name)) in enumerate(zip(axes, specs)):
+            # outline of the whole mesh in light grey, so masked parts stay visible
+            ax.tripcolor(Triangulation(xy[:, 0], xy[:, 1], tri), np.ones(tri.shape[0]),
+                         cmap="Greys", vmin=0, vmax=6, shading="flat", rasterized=True)
+            pc = ax.tripcolor(tr, val, cmap=cmap, shading="gouraud", rasterized=True)
+            cb = fig.colorbar(pc, ax=ax, pad=0.02, shrink=0.95)
+            cb.set_label(clabel, fontsize=7.5)
+            if k == 0 and streamlines:
+                _streamlines(ax, fluid_tri, vel, lo, hi)
+            if itf is not None and itf.shape[0] >= 2:
+                ax.plot(itf[:, 0], itf[:, 1], color="w", lw=2.2, zorder=4)
+                ax.plot(itf[:, 0], itf[:, 1], color=COLORS["observed"], lw=1.0, zorder=5,
+                        label="interface")
+            ax.set_aspect("equal")
+            ax.set_xlim(lo[0], hi[0])
+            ax.set_ylim(lo[1], hi[1])
+            ax.set_ylabel("y [mm]")
+            ax.set_title(name, fontsize=8, loc="left")
+        axes[-1].set_xlabel("x [mm]")
+        if title:
+            fig.suptitle(title)
+        return finish(fig, out_paths, dpi, return_figure)
+
+
+def _streamlines(ax, tri: Triangulation, vel: np.ndarray, lo: Sequence[float],
+                 hi: Sequence[float], n: int = 120) -> None:
+    """Streamlines of the piecewise-linear velocity, interpolated to a grid."""
+    gx = np.linspace(lo[0], hi[0], n)
+    gy = np.linspace(lo[1], hi[1], max(8, int(n * (hi[1] - lo[1]) / max(hi[0] - lo[0], 1e-12))))
+    X, Y = np.meshgrid(gx, gy)
+    u = LinearTriInterpolator(tri, vel[:, 0])(X, Y)
+    v = LinearTriInterpolator(tri, vel[:, 1])(X, Y)
+    if np.ma.count(u) < 4 or not np.ma.max(np.hypot(u, v)) > 0:
+        return
+    try:
+        ax.streamplot(gx, gy, u, v, color="0.1", linewidth=0.5, density=(1.6, 0.7),
+                      arrowsize=0.6, zorder=3, broken_streamlines=True)
+    except ValueError as exc:  # irregular grids or fully masked rows
+        warnings.warn(f"streamlines skipped: {exc}", stacklevel=3)
