@@ -47,6 +47,7 @@ from __future__ import annotations
 
 import logging
 import math
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -481,7 +482,10 @@ def fit_gp(
         model.kern.variance[:] = v
         model.kern.lengthscale[:] = ls
         try:
-            model.optimize(optimizer=optimizer, max_iters=max_iters, messages=False)
+            with np.errstate(over="ignore"), warnings.catch_warnings():
+                # paramz's log-exp transform overflows harmlessly on wild line-search steps
+                warnings.filterwarnings("ignore", message="overflow encountered", category=RuntimeWarning)
+                model.optimize(optimizer=optimizer, max_iters=max_iters, messages=False)
             lml = float(model.log_likelihood())
         except (np.linalg.LinAlgError, ValueError, FloatingPointError) as exc:
             log.warning("GP restart %d failed: %s", r, exc)

@@ -1,0 +1,142 @@
+"""GP surrogate of the log-likelihood (bayescalib.surrogate) and the convergence study."""
+
+import numpy as np
+import pytest
+
+from bayescalib.convergence import convergence_study_function
+from bayescalib.design import sobol_design, sobol_test_points
+from bayescalib.surrogate import GPSurrogate, fit_gp
+
+BOX = np.array([[100.0, 800.0], [-0.8, 0.5]])
+
+
+def smooth_loglik(X):
+    e = (X[:, 0] - 100) / 700
+    n = (X[:, 1] + 0.8) / 1.3
+    return -40.0 * ((n - 0.3 - 0.5 * e) ** 2 + 0.5 * (e - 0.4) ** 2) - 3.0
+
+
+@pytest.fixture(scope="module")
+def gp64():
+    X = sobol_design(BOX, 64, 0)
+    return fit_gp(X, smooth_loglik(X), bounds=BOX, restarts=2, seed=0)
+
+
+def test_recovers_smooth_function(gp64):
+    # 64 Sobol points of a smooth quadratic: the GP mean should be within 1 % of the
+    # range of L (~23) at held-out points (observed 0.4 %; Matern 3/2 converges
+    # like n^(-3/(2d)) or better for such smooth targets).
+    Xt = sobol_test_points(BOX, 64, 100, 0)
+    err = gp64.predict(Xt) - smooth_loglik(Xt)
+    y = gp64.y_train
+    assert np.sqrt(np.mean(err**2)) < 0.01 * (y.max() - y.min())
+    # the GP interpolates its training data up to the tiny nugget
+    assert np.allclose(gp64.predict(gp64.X_train), y, atol=1e-3 * (y.max() - y.min()))
+
+
+def test_mean_and_nugget_rules(gp64):
+    y = gp64.y_train
+    rng_ = y.max() - y.min()
+    assert gp64.mean_const == pytest.approx(y.min() - 1.0 * rng_, rel=1e-14)
+    assert gp64.nugget == pytest.approx(1e-5 * rng_, rel=1e-14)
+    m = gp64.gpy_model()
+    assert m.Gaussian_noise.variance.is_fixed
+    assert float(m.Gaussian_noise.variance[0]) == pytest.approx(gp64.nugget, rel=1e-14)
+    hp = gp64.hyperparameters
+    assert hp["mean"] == gp64.mean_const and hp["nugget"] == gp64.nugget
+    assert len(hp["lengthscale"]) == 1 and hp["ard"] is False
+    # non-default factors
+    X = gp64.X_train[:20]
+    g2 = fit_gp(X, smooth_loglik(X), bounds=BOX, restarts=1, mean_offset_factor=0.5, nugget_factor=1e-3)
+    r2 = g2.y_train.max() - g2.y_train.min()
+    assert g2.mean_const == pytest.approx(g2.y_train.min() - 0.5 * r2)
+    assert g2.nugget == pytest.approx(1e-3 * r2)
+
+
+def test_fit_maximizes_evidence(gp64):
+    # The stored evidence is GPy's at the stored hyperparameters, and the optimum is a
+    # local maximum: perturbing the length scale by +-5 % lowers it.
+    m = gp64.gpy_model()
+    assert float(m.log_likelihood()) == pytest.approx(gp64.log_marginal_likelihood, rel=1e-10)
+    base = float(m.log_likelihood())
+    for f in (0.95, 1.05):
+        m.kern.lengthscale[:] = gp64.lengthscale * f
+        assert float(m.log_likelihood()) < base
+
+
+@pytest.mark.parametrize("ard", [False, True])
+def test_fast_predictor_equals_gpy(ard):
+    # Same formulas, different round-off: mean to 1e-8 relative to max|mean|. The
+    # variance k** - k*^T K^-1 k* is a difference of numbers of size s^2 (the kernel
+    # variance), so both implementations carry absolute round-off ~ s^2 * 1e-13; it is
+    # compared to 1e-8 * s^2.
+    X = sobol_design(BOX, 80, 1)
+    gp = fit_gp(X, smooth_loglik(X), bounds=BOX, ard=ard, restarts=1)
+    Xt = np.random.default_rng(0).uniform(BOX[:, 0], BOX[:, 1], size=(3000, 2))
+    mu, var = gp.predict(Xt, return_var=True)
+    mg, vg = gp.gpy_predict(Xt, return_var=True)
+    assert np.max(np.abs(mu - mg)) <= 1e-8 * np.max(np.abs(mg))
+    assert np.max(np.abs(var - vg)) <= 1e-8 * gp.variance
+    assert np.all(var >= 0)
+    # chunking does not change results
+    gp.chunk_entries = 1000
+    gp._cache.clear()
+    assert np.allclose(gp.predict(Xt), mu, rtol=0, atol=1e-12 * np.max(np.abs(mu)))
+    assert len(gp.hyperparameters["lengthscale"]) == (2 if ard else 1)
+
+
+def test_save_load_round_trip(tmp_path, gp64):
+    p = tmp_path / "gp.h5"
+    gp64.save(p)
+    g = GPSurrogate.load(p)
+    Xt = sobol_test_points(BOX, 64, 50, 0)
+    m1, v1 = gp64.predict(Xt, return_var=True)
+    m2, v2 = g.predict(Xt, return_var=True)
+    assert np.array_equal(m1, m2) and np.array_equal(v1, v2)  # exact, no re-optimization
+    assert g.hyperparameters == gp64.hyperparameters
+    assert g.n_train == gp64.n_train and g.n_excluded == gp64.n_excluded
+    assert not list(tmp_path.glob(".gp.h5.*"))  # atomic write leaves no temp file
+
+
+def test_failed_runs_are_excluded():
+    X = sobol_design(BOX, 40, 2)
+    y = smooth_loglik(X)
+    y[[3, 7, 11]] = [np.nan, -np.inf, np.inf]
+    gp = fit_gp(X, y, bounds=BOX, restarts=1)
+    assert gp.n_excluded == 3 and gp.n_train == 37
+    ok = np.isfinite(y)
+    assert np.array_equal(gp.X_train, X[ok])
+    ref = fit_gp(X[ok], y[ok], bounds=BOX, restarts=1)
+    assert np.array_equal(ref.predict(X), gp.predict(X))
+
+
+def test_seeded_fit_is_reproducible():
+    X = sobol_design(BOX, 30, 3)
+    a = fit_gp(X, smooth_loglik(X), bounds=BOX, restarts=3, seed=5)
+    b = fit_gp(X, smooth_loglik(X), bounds=BOX, restarts=3, seed=5)
+    assert a.hyperparameters == b.hyperparameters
+
+
+def test_loo_closed_form_matches_refits(gp64):
+    # alpha_i / [K^-1]_ii equals y_i minus the prediction of the GP refit without point i
+    # (same hyperparameters, mean and nugget): agreement to round-off.
+    loo = gp64.loo_residuals()
+    for i in (0, 17, 40):
+        keep = np.arange(gp64.n_train) != i
+        g = GPSurrogate(
+            X_train=gp64.X_train[keep], y_train=gp64.y_train[keep], shift=gp64.shift,
+            scale=gp64.scale, mean_const=gp64.mean_const, nugget=gp64.nugget,
+            variance=gp64.variance, lengthscale=gp64.lengthscale, ard=gp64.ard, device="cpu",
+        )
+        direct = gp64.y_train[i] - g.predict(gp64.X_train[i : i + 1])[0]
+        assert loo[i] == pytest.approx(direct, abs=1e-6 * (1 + abs(direct)))
+
+
+def test_convergence_study_error_decreases():
+    out = convergence_study_function(smooth_loglik, BOX, [8, 32, 128], n_test=50, restarts=1)
+    assert out["n_train"] == [8, 32, 128] and out["n_test"] == 50
+    e = out["l2_error"]
+    assert e[0] > e[1] > e[2]
+    assert out["rel_error"][2] < 0.01
+    assert np.allclose(out["rmse"], np.array(e) / np.sqrt(50))
+    assert all(v >= 0 for v in out["loo_rmse"])
