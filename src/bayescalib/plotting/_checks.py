@@ -66,7 +66,8 @@ def as_array(x: Any, name: str, *, ndim: int | None = None, shape: tuple | None 
         raise ValueError(f"{name}: expected a {ndim}-D array, got shape {a.shape}")
     if shape is not None:
         if a.ndim != len(shape) or any(s is not None and s != t for s, t in zip(shape, a.shape)):
-            want = "(" + ", ".join("*" if s is None else str(s) for s in shape) + ")"
+            want = "(" + ", ".join("*" if s is None else str(s) for s in shape) + \
+                ("," if len(shape) == 1 else "") + ")"
             raise ValueError(f"{name}: expected shape {want}, got {a.shape}")
     if finite and not np.all(np.isfinite(a)):
         raise ValueError(f"{name}: contains NaN or infinite values")

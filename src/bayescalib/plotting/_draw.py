@@ -135,8 +135,11 @@ def draw_hexbin(ax: Axes, xy: np.ndarray, w: np.ndarray, xlim: Sequence[float],
     -------
     PolyCollection
         The hexbin (use as mappable for a colour bar; values are probability
-        masses per hexagon).
+        masses per hexagon; particles outside the box are left out).
     """
+    inside = ((xy[:, 0] >= xlim[0]) & (xy[:, 0] <= xlim[1])
+              & (xy[:, 1] >= ylim[0]) & (xy[:, 1] <= ylim[1]))
+    xy, w = xy[inside], w[inside]  # particles outside the plotted box are not binned
     return ax.hexbin(xy[:, 0], xy[:, 1], C=w, reduce_C_function=np.sum, gridsize=gridsize,
                      extent=(xlim[0], xlim[1], ylim[0], ylim[1]), cmap=DENSITY_CMAP,
                      linewidths=0.15, edgecolors="face", mincnt=1)

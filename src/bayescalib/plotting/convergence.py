@@ -61,8 +61,11 @@ def plot_gp_convergence(
     m = n.size
     if m < 1:
         raise ValueError("n_train: need at least one entry")
-    e = as_array(l2_error, "l2_error", shape=(m,))
-    loo = None if loo_error is None else as_array(loo_error, "loo_error", shape=(m,))
+    e = as_array(l2_error, "l2_error", ndim=1)
+    loo = None if loo_error is None else as_array(loo_error, "loo_error", ndim=1)
+    for arr, nm in ((e, "l2_error"), (loo, "loo_error")):
+        if arr is not None and arr.size != m:
+            raise ValueError(f"{nm}: length {arr.size} does not match n_train ({m})")
     if np.any(n <= 0):
         raise ValueError("n_train: must be positive")
     for arr, nm in ((e, "l2_error"), (loo, "loo_error")):

@@ -1,0 +1,485 @@
+"""Tests of bayescalib.plotting: files written, labels with units, HPD
+thresholds against the analytic 2-D Gaussian, ellipse geometry, weighted
+histograms, and input validation.
+
+Set BAYESCALIB_PLOT_DIR to keep the rendered figures for visual inspection.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+from matplotlib.collections import LineCollection, PolyCollection
+
+from bayescalib.plotting import (
+    axis_label,
+    chi2_radius2,
+    ellipse_axes,
+    ellipse_points,
+    hpd_thresholds,
+    hpd_thresholds_grid,
+    plot_fields,
+    plot_gp_convergence,
+    plot_interface_residual,
+    plot_interfaces,
+    plot_joint_posterior,
+    plot_marginals_1d,
+    plot_pair_marginals,
+    plot_parallel_axes,
+    plot_particles,
+    plot_response_surface,
+    weighted_kde,
+)
+from bayescalib.plotting.interfaces import largest_deformation_box
+from bayescalib.plotting.parallel import select_lines
+
+NAMES, UNITS = ["E", "nu"], ["Pa", "-"]
+BOUNDS = ((100.0, 800.0), (-0.8, 0.5))
+MEAN = np.array([400.0, 0.1])
+COV = np.array([[80.0**2, 0.8 * 80.0 * 0.15], [0.8 * 80.0 * 0.15, 0.15**2]])
+
+
+@pytest.fixture
+def outdir(tmp_path: Path) -> Path:
+    keep = os.environ.get("BAYESCALIB_PLOT_DIR")
+    if keep:
+        p = Path(keep)
+        p.mkdir(parents=True, exist_ok=True)
+        return p
+    return tmp_path
+
+
+@pytest.fixture
+def weighted_gaussian():
+    """Importance sample of N(MEAN, COV): draws from a 1.5x wider Gaussian, weighted."""
+    rng = np.random.default_rng(0)
+    n = 1500
+    prop_cov = 2.25 * COV
+    x = rng.multivariate_normal(MEAN, prop_cov, size=n)
+    ic, ip = np.linalg.inv(COV), np.linalg.inv(prop_cov)
+    d = x - MEAN
+    logw = -0.5 * np.einsum("ni,ij,nj->n", d, ic, d) + 0.5 * np.einsum("ni,ij,nj->n", d, ip, d)
+    w = np.exp(logw - logw.max())
+    return x, w / w.sum()
+
+
+def _labels(fig) -> set[str]:
+    out = set()
+    for ax in fig.axes:
+        out |= {ax.get_xlabel(), ax.get_ylabel()}
+    return out
+
+
+def _check_files(paths, expected):
+    assert [Path(p) for p in paths] == [Path(p) for p in expected]
+    for p in expected:
+        assert Path(p).is_file() and Path(p).stat().st_size > 1000, p
+    png = Path(expected[0]).read_bytes()
+    assert png[:8] == b"\x89PNG\r\n\x1a\n"
+    assert Path(expected[1]).read_bytes()[:5] == b"%PDF-"
+
+
+def _uniform(lo, hi):
+    return lambda x: np.where((x >= lo) & (x <= hi), 1.0 / (hi - lo), 0.0)
+
+
+# --------------------------------------------------------------------------- style / labels
+def test_axis_labels_typeset_names_and_units():
+    assert axis_label("E", "Pa") == "E [Pa]"
+    assert axis_label("nu", "-") == "ν [-]"
+    assert axis_label("nu", "") == "ν [-]"
+    assert axis_label("E2", "Pa") == "E₂ [Pa]"
+    assert axis_label("nu_3", "1") == "ν₃ [-]"
+    assert axis_label("V_in", "mm^2/s") == "V_in [mm^2/s]"
+
+
+# --------------------------------------------------------------------------- HPD thresholds
+def test_hpd_thresholds_match_analytic_gaussian():
+    """For a 2-D Gaussian the mass of {f >= t} is 1 - t/f_max, so t_p = f_max (1 - p).
+
+    The estimate is an empirical quantile of f(X): its standard deviation is
+    f_max * sqrt(p (1 - p) / N) (delta method with dM/dt = -1/f_max). We
+    allow 5 standard deviations.
+    """
+    rng = np.random.default_rng(1)
+    n = 20000
+    x = rng.multivariate_normal(MEAN, COV, size=n)
+    ic = np.linalg.inv(COV)
+    fmax = 1.0 / (2 * np.pi * np.sqrt(np.linalg.det(COV)))
+    d = x - MEAN
+    f = fmax * np.exp(-0.5 * np.einsum("ni,ij,nj->n", d, ic, d))
+    levels = np.array([0.5, 0.9, 0.99])
+    t = hpd_thresholds(f, None, levels)
+    tol = 5 * np.sqrt(levels * (1 - levels) / n)
+    np.testing.assert_array_less(np.abs(t / fmax - (1 - levels)), tol)
+    assert np.all(np.diff(t) < 0)  # larger mass, lower threshold
+
+
+def test_hpd_thresholds_weighted_importance_sample(weighted_gaussian):
+    """Same analytic check with importance weights; MC error uses the Kish ESS."""
+    x, w = weighted_gaussian
+    ic = np.linalg.inv(COV)
+    fmax = 1.0 / (2 * np.pi * np.sqrt(np.linalg.det(COV)))
+    d = x - MEAN
+    f = fmax * np.exp(-0.5 * np.einsum("ni,ij,nj->n", d, ic, d))
+    ess = 1.0 / np.sum(w**2)
+    levels = np.array([0.5, 0.9])
+    t = hpd_thresholds(f, w, levels)
+    tol = 5 * np.sqrt(levels * (1 - levels) / ess)
+    np.testing.assert_array_less(np.abs(t / fmax - (1 - levels)), tol)
+
+
+def test_hpd_thresholds_hold_exactly_the_requested_weighted_mass():
+    rng = np.random.default_rng(2)
+    f = rng.uniform(size=500)
+    w = rng.uniform(size=500)
+    w /= w.sum()
+    for p, t in zip((0.3, 0.7, 0.95), hpd_thresholds(f, w, (0.3, 0.7, 0.95))):
+        assert w[f >= t].sum() >= p - 1e-12
+        assert w[f > t].sum() < p
+
+
+def test_hpd_thresholds_grid_match_analytic_gaussian():
+    g = np.linspace(-8, 8, 801)
+    X, Y = np.meshgrid(g, g)
+    f = np.exp(-0.5 * (X**2 + Y**2)) / (2 * np.pi)
+    levels = [0.5, 0.9]
+    t = hpd_thresholds_grid(f, levels)
+    np.testing.assert_allclose(t * 2 * np.pi, 1 - np.array(levels), atol=2e-3)
+
+
+def test_weighted_kde_recovers_density_of_importance_sample(weighted_gaussian):
+    x, w = weighted_gaussian
+    kde = weighted_kde(x, w)
+    fmax = 1.0 / (2 * np.pi * np.sqrt(np.linalg.det(COV)))
+    # KDE smoothing lowers the peak: with Scott's factor h the KDE of a Gaussian is
+    # the Gaussian with covariance (1 + h^2) C, whose peak is fmax / (1 + h^2).
+    h2 = kde.factor**2
+    assert kde(MEAN[:, None])[0] == pytest.approx(fmax / (1 + h2), rel=0.15)
+
+
+# --------------------------------------------------------------------------- ellipses
+def test_ellipse_axes_of_diagonal_covariance():
+    semi, angle = ellipse_axes(np.diag([4.0, 1.0]), 0.9)
+    r = np.sqrt(-2 * np.log(0.1))
+    np.testing.assert_allclose(semi, [2 * r, r])
+    assert angle == pytest.approx(0.0, abs=1e-12)
+    semi, angle = ellipse_axes(np.diag([1.0, 9.0]), 0.5)
+    assert angle == pytest.approx(np.pi / 2)
+    np.testing.assert_allclose(semi, np.sqrt(chi2_radius2(0.5)) * np.array([3.0, 1.0]))
+
+
+def test_ellipse_of_rotated_covariance_has_correct_axes_and_mass():
+    th = np.deg2rad(30.0)
+    R = np.array([[np.cos(th), -np.sin(th)], [np.sin(th), np.cos(th)]])
+    cov = R @ np.diag([9.0, 1.0]) @ R.T
+    semi, angle = ellipse_axes(cov, 0.9)
+    assert angle == pytest.approx(th)
+    r = np.sqrt(chi2_radius2(0.9))
+    np.testing.assert_allclose(semi, [3 * r, r])
+    pts = ellipse_points([1.0, -2.0], cov, 0.9)
+    d = pts - [1.0, -2.0]
+    maha = np.einsum("ni,ij,nj->n", d, np.linalg.inv(cov), d)
+    np.testing.assert_allclose(maha, r**2)
+    # extreme distance from the centre is the major semi-axis
+    assert np.max(np.hypot(d[:, 0], d[:, 1])) == pytest.approx(3 * r, rel=1e-3)
+    # probability mass inside: Monte Carlo, 5 sigma of a binomial proportion
+    rng = np.random.default_rng(3)
+    z = rng.multivariate_normal([0, 0], cov, size=20000)
+    inside = np.einsum("ni,ij,nj->n", z, np.linalg.inv(cov), z) <= r**2
+    assert abs(inside.mean() - 0.9) < 5 * np.sqrt(0.09 / 20000)
+
+
+def test_ellipse_rejects_invalid_covariance():
+    with pytest.raises(ValueError, match="positive definite"):
+        ellipse_axes([[1.0, 2.0], [2.0, 1.0]], 0.9)
+    with pytest.raises(ValueError, match="symmetric"):
+        ellipse_points([0, 0], [[1.0, 0.5], [0.0, 1.0]], 0.9)
+    with pytest.raises(ValueError, match=r"\(0, 1\)"):
+        chi2_radius2(1.0)
+
+
+# --------------------------------------------------------------------------- figures
+def test_joint_posterior(outdir, weighted_gaussian):
+    x, w = weighted_gaussian
+    paths = [outdir / "joint.png", outdir / "joint.pdf"]
+    written, fig = plot_joint_posterior(
+        x, w, NAMES, UNITS, paths, prior_pdfs=(_uniform(*BOUNDS[0]), _uniform(*BOUNDS[1])),
+        map=x[np.argmax(w)], mean=w @ x, gaussian=(w @ x, np.cov(x.T, aweights=w)),
+        laplace=(MEAN, 0.5 * COV), truth=(400, 0.3), bounds=BOUNDS, return_figure=True)
+    _check_files(written, paths)
+    labels = _labels(fig)
+    assert {"E [Pa]", "ν [-]", "posterior mass per hexagon [-]", "density [1/Pa]",
+            "density [-]"} <= labels
+    legend_texts = {t.get_text() for ax in fig.axes if ax.get_legend()
+                    for t in ax.get_legend().get_texts()}
+    assert {"MAP", "posterior mean", "prior", "ground truth", "Gaussian approx. (90 %)",
+            "Laplace approx. (90 %)", "KDE HPD regions 50 %, 90 %, 99 %"} <= legend_texts
+    # the hexbin shows probability mass: all particles are inside the bounds
+    hexbins = [c for ax in fig.axes for c in ax.collections
+               if isinstance(c, PolyCollection) and c.get_array() is not None]
+    inside = np.all((x >= np.array(BOUNDS)[:, 0]) & (x <= np.array(BOUNDS)[:, 1]), axis=1)
+    assert hexbins[0].get_array().sum() == pytest.approx(w[inside].sum())
+
+
+def test_response_surface(outdir):
+    gx, gy = np.linspace(100, 800, 40), np.linspace(-0.8, 0.5, 30)
+    E, N = np.meshgrid(gx, gy)
+    L = -0.5 * ((E - 400) / 100) ** 2 - 0.5 * ((N - 0.2) / 0.2) ** 2
+    rng = np.random.default_rng(4)
+    Xt = np.column_stack([rng.uniform(100, 800, 30), rng.uniform(-0.8, 0.5, 30)])
+    paths = [outdir / "response.png", outdir / "response.pdf"]
+    written, fig = plot_response_surface(gx, gy, L, 0.1 + 0 * L, Xt[Xt[:, 0] > 150],
+                                         Xt[Xt[:, 0] <= 150], NAMES, UNITS, paths,
+                                         truth=(400, 0.3), return_figure=True)
+    _check_files(written, paths)
+    assert {"E [Pa]", "ν [-]", "normalized likelihood [-]", "log-likelihood [-]",
+            "GP std of log-likelihood [-]"} <= _labels(fig)
+    mesh = fig.axes[0].collections[0]
+    assert mesh.get_array().max() == pytest.approx(1.0)
+    # without std only two panels (plus their colour bars)
+    _, fig2 = plot_response_surface(gx, gy, L, None, Xt, None, NAMES, UNITS,
+                                    [outdir / "response2.png"], return_figure=True)
+    assert "GP std of log-likelihood [-]" not in _labels(fig2)
+    with pytest.raises(ValueError, match="loglik"):
+        plot_response_surface(gx, gy, L.T, None, Xt, None, NAMES, UNITS, [outdir / "x.png"])
+
+
+def test_gp_convergence(outdir):
+    n = np.array([10, 20, 50, 100, 200])
+    e = 3.0 * n**-0.7
+    paths = [outdir / "convergence.png", outdir / "convergence.pdf"]
+    written, fig = plot_gp_convergence(n, e, 1.2 * e, paths, relative=True, return_figure=True)
+    _check_files(written, paths)
+    ax = fig.axes[0]
+    assert ax.get_xscale() == "log" and ax.get_yscale() == "log"
+    assert ax.get_ylabel() == "relative L2 error of log-likelihood [-]"
+    assert len(ax.get_lines()) == 2
+    with pytest.raises(ValueError, match="positive"):
+        plot_gp_convergence(n, -e, None, [outdir / "x.png"])
+
+
+def test_particles(outdir, weighted_gaussian):
+    x, w = weighted_gaussian
+    paths = [outdir / "particles.png", outdir / "particles.pdf"]
+    written, fig = plot_particles(x, w, NAMES, UNITS, paths, bounds=BOUNDS, return_figure=True)
+    _check_files(written, paths)
+    assert {"E [Pa]", "ν [-]", "particle weight [-]"} <= _labels(fig)
+    sc = fig.axes[0].collections[0]
+    sizes, colours = sc.get_sizes(), sc.get_array()
+    assert np.all(np.diff(colours) >= 0)  # heaviest drawn last
+    assert sizes[-1] == pytest.approx(60.0) and np.all(np.diff(sizes) >= -1e-12)
+
+
+def test_marginals_1d(outdir, weighted_gaussian):
+    x, w = weighted_gaussian
+    paths = [outdir / "marginals.png", outdir / "marginals.pdf"]
+    written, fig = plot_marginals_1d(
+        x, w, NAMES, UNITS, paths, prior_pdfs=[_uniform(*BOUNDS[0]), None],
+        map=x[np.argmax(w)], mean=w @ x, truth=(400, 0.3), bounds=BOUNDS, return_figure=True)
+    _check_files(written, paths)
+    assert {"E [Pa]", "ν [-]", "density [1/Pa]", "density [-]"} <= _labels(fig)
+    # the filled histogram is a density: it integrates to the mass inside the bounds
+    stairs = fig.axes[0].patches[0]
+    vals, edges = stairs.get_data().values, stairs.get_data().edges
+    inside = (x[:, 0] >= BOUNDS[0][0]) & (x[:, 0] <= BOUNDS[0][1])
+    assert np.sum(vals * np.diff(edges)) == pytest.approx(w[inside].sum(), abs=1e-12)
+
+
+@pytest.mark.parametrize("d", [2, 3, 5, 7])
+def test_pair_marginals_any_dimension(outdir, d):
+    rng = np.random.default_rng(d)
+    A = np.eye(d) + 0.3 * rng.normal(size=(d, d))
+    x = rng.normal(size=(300, d)) @ A.T
+    w = rng.uniform(0.5, 1.0, 300)
+    names = [f"E{k}" for k in range(d)]
+    units = ["Pa"] * d
+    paths = [outdir / f"pairs{d}.png", outdir / f"pairs{d}.pdf"]
+    written, fig = plot_pair_marginals(x, w, names, units, paths, truth=np.zeros(d),
+                                       return_figure=True)
+    _check_files(written, paths)
+    visible = [ax for ax in fig.axes if ax.get_visible() and ax.get_label() != "<colorbar>"]
+    assert len(visible) == d * (d + 1) // 2
+    labels = _labels(fig)
+    assert {f"E{chr(0x2080 + k)} [Pa]" for k in range(d)} <= labels
+    assert "posterior mass per hexagon [-]" in labels
+
+
+def test_pair_marginals_rejects_too_many_dimensions(outdir):
+    x = np.random.default_rng(0).normal(size=(50, 8))
+    with pytest.raises(ValueError, match="number of parameters 8"):
+        plot_pair_marginals(x, None, list("abcdefgh"), ["-"] * 8, [outdir / "x.png"])
+
+
+def test_parallel_axes(outdir):
+    rng = np.random.default_rng(5)
+    x = rng.normal(size=(3000, 4))
+    logd = -0.5 * np.sum(x**2, axis=1)
+    names, units = ["E1", "nu1", "E2", "V_in"], ["Pa", "-", "Pa", "mm^2/s"]
+    paths = [outdir / "parallel.png", outdir / "parallel.pdf"]
+    written, fig = plot_parallel_axes(x, logd, names, units, paths, values_are_log=True,
+                                      max_lines=500, return_figure=True)
+    _check_files(written, paths)
+    ax = fig.axes[0]
+    ticks = [t.get_text() for t in ax.get_xticklabels()]
+    assert ticks == ["E₁ [Pa]", "ν₁ [-]", "E₂ [Pa]", "V_in [mm^2/s]",
+                     "log posterior density [-]"]
+    lc = next(c for c in ax.collections if isinstance(c, LineCollection))
+    arr = lc.get_array()
+    assert arr.size == 500
+    assert np.all(np.diff(arr) >= 0) and arr[-1] == logd.max()  # best line on top
+    assert "log posterior density [-]" in _labels(fig)
+
+
+def test_select_lines_keeps_top_and_orders_by_value():
+    v = np.arange(100.0)[::-1]
+    idx = select_lines(v, 20, seed=1)
+    assert idx.size == 20
+    assert set(np.argsort(v)[::-1][:2]) <= set(idx)
+    assert np.all(np.diff(v[idx]) >= 0)
+    assert select_lines(v, 200).size == 100
+
+
+def _bump(shift, n=150):
+    s = np.linspace(0, 2, n)
+    g = np.exp(-(((s - 1.0) / 0.3) ** 2))
+    return np.column_stack([s + shift * g, 0.3 * g * (1 - shift)])
+
+
+def test_interfaces(outdir):
+    ref, obs = _bump(0.0), _bump(0.1)
+    samples = [_bump(s) for s in np.linspace(0.05, 0.15, 20)]
+    paths = [outdir / "interfaces.png", outdir / "interfaces.pdf"]
+    written, fig = plot_interfaces(ref, obs, samples, paths, map_interface=_bump(0.09),
+                                   return_figure=True)
+    _check_files(written, paths)
+    assert len(fig.axes) == 2  # overview + zoom
+    for ax in fig.axes:
+        assert ax.get_xlabel() == "x [mm]" and ax.get_ylabel() == "y [mm]"
+        assert ax.get_aspect() == 1.0
+    texts = {t.get_text() for t in fig.legends[0].get_texts()}
+    assert {"undeformed", "observed", "MAP", "posterior samples (20)"} <= texts
+    # list of snapshots and metres -> mm conversion
+    written, fig = plot_interfaces(ref * 1e-3, [obs * 1e-3, _bump(0.12) * 1e-3], None,
+                                   [outdir / "interfaces_snap.png"], zoom=False,
+                                   length_unit_factor=1e3, return_figure=True)
+    assert len(fig.axes) == 1
+    assert fig.axes[0].get_xlim()[1] == pytest.approx(2.0 + 0.05 * 2.0 + 0.12 * 0, abs=0.2)
+
+
+def test_largest_deformation_box_contains_the_largest_deformation():
+    ref, obs = _bump(0.0), _bump(0.1)
+    x0, x1, y0, y1 = largest_deformation_box(ref, obs)
+    d = np.min(np.linalg.norm(obs[:, None] - ref[None], axis=2), axis=1)
+    px, py = obs[np.argmax(d)]
+    assert x0 < px < x1 and y0 < py < y1
+    assert x1 - x0 < 2.0  # a zoom, not the whole interface
+
+
+def test_interface_residual(outdir):
+    pts = _bump(0.1)
+    vals = np.sin(np.linspace(0, 6, pts.shape[0])) * 2.5
+    paths = [outdir / "residual.png", outdir / "residual.pdf"]
+    written, fig = plot_interface_residual(pts, vals, paths, reference=_bump(0.0),
+                                           return_figure=True)
+    _check_files(written, paths)
+    assert "standardized residual [-]" in _labels(fig)
+    lc = next(c for c in fig.axes[0].collections if isinstance(c, LineCollection))
+    assert lc.norm.vmin == pytest.approx(-lc.norm.vmax) and lc.norm(0.0) == pytest.approx(0.5)
+
+
+def _channel(nx=41, ny=21):
+    xs, ys = np.linspace(0, 2, nx), np.linspace(0, 1, ny)
+    X, Y = np.meshgrid(xs, ys)
+    pts = np.column_stack([X.ravel(), Y.ravel()])
+    tris = []
+    for j in range(ny - 1):
+        for i in range(nx - 1):
+            a = j * nx + i
+            tris += [[a, a + 1, a + nx + 1], [a, a + nx + 1, a + nx]]
+    tris = np.array(tris)
+    cen = pts[tris].mean(axis=1)
+    solid = cen[:, 1] < 0.3 * np.exp(-(((cen[:, 0] - 1.0) / 0.3) ** 2))
+    y = pts[:, 1]
+    vel = np.column_stack([600 * y * (1 - y), np.zeros_like(y)])
+    p = 5000.0 * (2 - pts[:, 0])  # mPa
+    disp = np.column_stack([0.01 * y, np.zeros_like(y)])
+    return pts, tris, vel, p, disp, solid
+
+
+def test_fields(outdir):
+    pts, tris, vel, p, disp, solid = _channel()
+    itf = _bump(0.0)
+    paths = [outdir / "fields.png", outdir / "fields.pdf"]
+    written, fig = plot_fields(pts, tris, vel, p, disp, paths, interface=itf,
+                               solid_mask_triangles=solid, pressure_unit_factor=1e-3,
+                               return_figure=True)
+    _check_files(written, paths)
+    labels = _labels(fig)
+    assert {"velocity magnitude |v| [mm/s]", "pressure p [Pa]",
+            "displacement magnitude |u| [mm]", "x [mm]", "y [mm]"} <= labels
+    # pressure converted from mPa to Pa: colour range 0..10 Pa
+    pres_mesh = fig.axes[1].collections[1]
+    assert pres_mesh.get_clim()[1] == pytest.approx(10.0)
+    with pytest.raises(ValueError, match="triangles"):
+        plot_fields(pts, tris + 10**6, vel, p, disp, [outdir / "x.png"])
+    with pytest.raises(ValueError, match="solid_mask_triangles"):
+        plot_fields(pts, tris, vel, p, disp, [outdir / "x.png"], solid_mask_triangles=solid[:-1])
+
+
+# --------------------------------------------------------------------------- bad inputs
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        ({"samples": np.zeros((10, 3))}, "expected 2 columns"),
+        ({"weights": np.ones(9)}, "does not match"),
+        ({"weights": np.r_[-1.0, np.ones(9)]}, "negative"),
+        ({"weights": np.r_[np.nan, np.ones(9)]}, "NaN"),
+        ({"samples": np.r_[[[np.nan, 0.0]], np.ones((9, 2))]}, "NaN"),
+        ({"names": ["E"]}, "names"),
+        ({"paths": ["out.xyz"]}, "unsupported output format"),
+        ({"bounds": ((800, 100), (-0.8, 0.5))}, "lo < hi"),
+        ({"levels": (0.5, 1.5)}, r"\(0, 1\)"),
+        ({"map": (1.0, 2.0, 3.0)}, "map"),
+        ({"prior_pdfs": (lambda x: np.ones(3), None)}, "returned shape"),
+        ({"gaussian": ((0, 0), [[1, 2], [2, 1]])}, "positive definite"),
+    ],
+)
+def test_joint_rejects_bad_inputs(tmp_path, kwargs, match):
+    rng = np.random.default_rng(0)
+    args = {"samples": rng.normal(size=(10, 2)) * [100, 0.1] + [400, 0],
+            "weights": np.ones(10), "names": NAMES, "units": UNITS,
+            "paths": [tmp_path / "j.png"]}
+    args.update({k: v for k, v in kwargs.items() if k in args})
+    extra = {k: v for k, v in kwargs.items() if k not in args}
+    if isinstance(args["paths"][0], str):
+        args["paths"] = [tmp_path / args["paths"][0]]
+    with pytest.raises(ValueError, match=match):
+        plot_joint_posterior(args["samples"], args["weights"], args["names"], args["units"],
+                             args["paths"], **extra)
+
+
+def test_other_functions_reject_bad_inputs(tmp_path):
+    x = np.random.default_rng(0).normal(size=(20, 3))
+    out = [tmp_path / "x.png"]
+    with pytest.raises(ValueError, match="negative"):
+        plot_marginals_1d(x, -np.ones(20), ["a", "b", "c"], ["-"] * 3, out)
+    with pytest.raises(ValueError, match="units"):
+        plot_pair_marginals(x, None, ["a", "b", "c"], ["-"] * 2, out)
+    with pytest.raises(ValueError, match="values"):
+        plot_parallel_axes(x, np.ones(19), ["a", "b", "c"], ["-"] * 3, out)
+    with pytest.raises(ValueError, match="non-negative"):
+        plot_parallel_axes(x, -np.ones(20), ["a", "b", "c"], ["-"] * 3, out)
+    with pytest.raises(ValueError, match="expected 2 columns"):
+        plot_particles(x, None, ["a", "b"], ["-"] * 2, out)
+    with pytest.raises(ValueError, match="reference"):
+        plot_interfaces(np.zeros((5, 3)), None, None, out)
+    with pytest.raises(ValueError, match="values"):
+        plot_interface_residual(np.zeros((5, 2)), np.r_[np.nan, np.zeros(4)], out)
+    with pytest.raises(ValueError, match="n_train"):
+        plot_gp_convergence([10, 20], [1.0], None, out)
+    with pytest.raises(ValueError, match="effective sample size"):
+        weighted_kde(x, np.r_[1.0, np.zeros(19)])
