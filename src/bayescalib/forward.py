@@ -310,27 +310,57 @@ class CommandModel:
 
 
 class FSIForward:
-    """The built-in NGSolve FSI model (:class:`bayescalib.fsi.model.FSIModel`)."""
+    """The built-in NGSolve FSI model (:class:`bayescalib.fsi.model.FSIModel`).
+
+    Parameters
+    ----------
+    fsi_config
+        The ``forward_model.fsi`` section.
+    warm_start
+        State file (``.npz`` from :meth:`FSIModel.save_state`) to start from.
+    time_limit_s
+        Wall-clock limit of one solve (the solver's own limit).
+    vtu_path
+        When given, the fields of every solve are written there (ParaView).
+    state_path
+        When given, the converged state of every successful solve is saved there.
+    """
 
     def __init__(self, fsi_config: Mapping[str, Any], warm_start: str | Path | None = None,
-                 time_limit_s: float | None = None):
+                 time_limit_s: float | None = None, vtu_path: str | Path | None = None,
+                 state_path: str | Path | None = None):
         from bayescalib.fsi.model import FSIModel
 
         self.model = FSIModel(dict(fsi_config))
         self.warm_start = warm_start
         self.time_limit_s = time_limit_s
+        self.vtu_path = vtu_path
+        self.state_path = state_path
 
     def solve(self, params: Mapping[str, float]) -> SolveResult:
-        return self.model.solve(dict(params), warm_start=self.warm_start,
-                                time_limit=self.time_limit_s)
+        res = self.model.solve(dict(params), warm_start=self.warm_start,
+                               time_limit=self.time_limit_s)
+        if self.vtu_path is not None and res.status == "ok":
+            self.model.write_vtu(self.vtu_path)
+            res.stats["vtu"] = str(self.vtu_path)
+        if self.state_path is not None and res.status == "ok":
+            self.model.save_state(self.state_path)
+            res.stats["state_file"] = str(self.state_path)
+        return res
 
 
 def make_forward_model(fm: Mapping[str, Any], *, workdir: str | Path = ".",
-                       warm_start: str | Path | None = None) -> ForwardModel:
-    """Build the forward model described by a validated ``forward_model`` section."""
+                       warm_start: str | Path | None = None,
+                       extra_outputs: Mapping[str, str] | None = None) -> ForwardModel:
+    """Build the forward model described by a validated ``forward_model`` section.
+
+    ``extra_outputs`` may name a ``vtu`` and a ``state`` path (fsi only).
+    """
     kind = fm.get("type")
+    extra = dict(extra_outputs or {})
     if kind == "fsi":
-        return FSIForward(fm["fsi"], warm_start=warm_start, time_limit_s=fm.get("time_limit_s"))
+        return FSIForward(fm["fsi"], warm_start=warm_start, time_limit_s=fm.get("time_limit_s"),
+                          vtu_path=extra.get("vtu"), state_path=extra.get("state"))
     if kind == "python":
         py = fm.get("python") or {}
         return PythonModel(py.get("function"), py.get("options"))
@@ -347,9 +377,10 @@ def make_forward_model(fm: Mapping[str, Any], *, workdir: str | Path = ".",
 
 
 def _child(fm: Mapping[str, Any], params: Mapping[str, float], workdir: str,
-           warm_start: str | None, conn) -> None:
+           warm_start: str | None, extra: Mapping[str, str], conn) -> None:
     try:
-        model = make_forward_model(fm, workdir=workdir, warm_start=warm_start)
+        model = make_forward_model(fm, workdir=workdir, warm_start=warm_start,
+                                   extra_outputs=extra)
         res = model.solve(params)
     except BaseException as exc:  # noqa: BLE001 - any failure is recorded
         res = failed_result(params, f"{type(exc).__name__}: {exc}",
@@ -360,7 +391,8 @@ def _child(fm: Mapping[str, Any], params: Mapping[str, float], workdir: str,
 
 def solve_point(fm: Mapping[str, Any], params: Mapping[str, float], out_path: str | Path, *,
                 time_limit_s: float | None = None, warm_start: str | Path | None = None,
-                workdir: str | Path | None = None, isolate: bool = True) -> SolveResult:
+                workdir: str | Path | None = None, isolate: bool = True,
+                extra_outputs: Mapping[str, str] | None = None) -> SolveResult:
     """Evaluate the forward model at ``params`` and write the run record.
 
     Parameters
@@ -379,6 +411,8 @@ def solve_point(fm: Mapping[str, Any], params: Mapping[str, float], out_path: st
     isolate
         Run in a forked child (default). ``False`` runs in-process (for tests
         of cheap models).
+    extra_outputs
+        Optional ``{"vtu": path, "state": path}`` written by the fsi model on success.
 
     Returns
     -------
@@ -391,7 +425,8 @@ def solve_point(fm: Mapping[str, Any], params: Mapping[str, float], out_path: st
     t0 = time.perf_counter()
     if not isolate:
         try:
-            res = make_forward_model(fm, workdir=workdir, warm_start=warm_start).solve(params)
+            res = make_forward_model(fm, workdir=workdir, warm_start=warm_start,
+                                     extra_outputs=extra_outputs).solve(params)
         except ForwardModelError:
             raise
         except Exception as exc:  # noqa: BLE001
@@ -402,7 +437,7 @@ def solve_point(fm: Mapping[str, Any], params: Mapping[str, float], out_path: st
         parent, child = ctx.Pipe(duplex=False)
         proc = ctx.Process(target=_child, args=(dict(fm), dict(params), str(workdir),
                                                 None if warm_start is None else str(warm_start),
-                                                child))
+                                                dict(extra_outputs or {}), child))
         proc.start()
         child.close()
         hard = None if limit is None else float(limit) + 30.0
@@ -425,4 +460,22 @@ def solve_point(fm: Mapping[str, Any], params: Mapping[str, float], out_path: st
                 res = failed_result(params, f"solver process died (exit code {proc.exitcode})",
                                     wall)
     write_run(out_path, res)
+    return res
+
+
+def solve_base_state(fm: Mapping[str, Any], params: Mapping[str, float], run_path: str | Path,
+                     state_path: str | Path) -> SolveResult:
+    """Solve at ``params`` (the design-box centre) and save the warm-start state.
+
+    Raises
+    ------
+    ForwardModelError
+        If the base solve fails: the design-point solves cannot start from it.
+    """
+    res = solve_point(fm, params, run_path, extra_outputs={"state": str(state_path)})
+    if res.status != "ok" or not Path(state_path).is_file():
+        raise ForwardModelError(
+            f"the warm-start base solve at the design-box centre {dict(params)} failed "
+            f"({res.reason}); set forward_model.warm_start: none or change the bounds"
+        )
     return res

@@ -381,3 +381,92 @@ def marginalize(particles_path: str | Path, surrogate_path: str | Path,
     write_netcdf(out_netcdf, result, space, np.random.default_rng(seed),
                  posterior_cfg.get("n_draws", 4000))
     return summary
+
+
+# -------------------------------------------------------------------------- summary
+def summary(study_name: str, parameters: Sequence[Mapping[str, Any]], measures: Sequence[str],
+            posterior_paths: Sequence[str | Path], training_paths: Sequence[str | Path],
+            particles_paths: Sequence[str | Path], figures: Mapping[str, Any],
+            out_path: str | Path, *, extra: Mapping[str, Any] | None = None) -> dict[str, Any]:
+    """Write ``summary.json``: the study's results in the user's units.
+
+    The first measure is the calibration measure: its results are the top-level
+    ``map``, ``posterior_mean``, ``posterior_cov`` and ``log_evidence``; every
+    measure's results are also listed under ``measures``.
+    """
+    from bayescalib.posterior import read_particles_h5
+
+    names = [p["name"] for p in parameters]
+    per_measure: dict[str, Any] = {}
+    for m, pp, tp, parts in zip(measures, posterior_paths, training_paths, particles_paths,
+                                strict=True):
+        post = read_json(pp)
+        tab = read_training(tp)
+        res = read_particles_h5(parts)
+        tr = tab["is_train"].astype(bool)
+        per_measure[m] = {
+            "posterior": post,
+            "log_evidence": float(res.log_evidence),
+            "n_smc_steps": int(res.n_steps),
+            "n_train": int(tr.sum()),
+            "n_failed": int((tab["status"][tr] == 0).sum()),
+            "n_failed_total": int(tab["n_failed"]),
+        }
+    primary = per_measure[measures[0]]
+    post = primary["posterior"]
+    truth = {p["name"]: p.get("ground_truth") for p in parameters}
+    out = {
+        "study": study_name,
+        "measure": measures[0],
+        "parameters": [
+            {"name": p["name"], "unit": p.get("unit", "-"), "uncertain": bool(p.get("uncertain")),
+             "bounds": p.get("bounds")}
+            for p in parameters
+        ],
+        "units": {"length": "mm", **{p["name"]: p.get("unit", "-") for p in parameters}},
+        "map": post["map"],
+        "map_marginal": post.get("map_marginal"),
+        "posterior_mean": post["mean"],
+        "posterior_cov": post["cov"],
+        "credible_intervals": post.get("intervals"),
+        "log_evidence": primary["log_evidence"],
+        "n_train": primary["n_train"],
+        "n_failed": primary["n_failed"],
+        "ground_truth": truth if all(v is not None for v in truth.values()) else None,
+        "measures": per_measure,
+        "figures": dict(figures),
+    }
+    if extra:
+        out.update(extra)
+    write_json(out_path, out)
+    log.info("summary of %s (%s) -> %s", study_name, ", ".join(names), out_path)
+    return out
+
+
+def collect_timings(root: str | Path) -> dict[str, Any]:
+    """Wall time per stage from Snakemake's benchmark files under ``root/benchmarks``.
+
+    Returns the summed seconds per stage (``solve``, ``discrepancy``, ...) and,
+    for solves, the median and count. Stages without benchmark files are absent.
+    """
+    import csv
+
+    base = Path(root) / "benchmarks"
+    out: dict[str, Any] = {}
+    if not base.is_dir():
+        return out
+    for tsv in sorted(base.rglob("*.tsv")):
+        stage = tsv.relative_to(base).parts[0]
+        stage = stage.removesuffix(".tsv")
+        try:
+            with open(tsv) as fh:
+                rows = list(csv.DictReader(fh, delimiter="\t"))
+            seconds = float(rows[-1]["s"])
+        except (OSError, KeyError, ValueError, IndexError):
+            continue
+        out.setdefault(stage, []).append(seconds)
+    summary: dict[str, Any] = {}
+    for stage, values in out.items():
+        summary[stage] = {"total_s": float(np.sum(values)), "median_s": float(np.median(values)),
+                          "count": len(values)}
+    return summary

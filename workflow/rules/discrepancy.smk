@@ -12,6 +12,8 @@ rule discrepancy:
     params:
         measure=study.config["measure"],
         likelihood=study.config["likelihood"],
+    benchmark:
+        f"{R}/benchmarks/discrepancy/{{measure}}/{{i}}.tsv"
     log:
         f"{R}/logs/discrepancy/{{measure}}/{{i}}.log",
     threads: 1
@@ -34,6 +36,8 @@ rule gather:
         names=[p["name"] for p in study.config["parameters"]],
         targets=study.targets(),
         n_train=study.n_train,
+    benchmark:
+        f"{R}/benchmarks/gather/{{measure}}.tsv"
     log:
         f"{R}/logs/{{measure}}/gather.log",
     script:

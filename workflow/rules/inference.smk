@@ -11,6 +11,8 @@ rule smc:
     params:
         smc=study.config["smc"],
         parameters=study.config["parameters"],
+    benchmark:
+        f"{R}/benchmarks/smc/{{measure}}.tsv"
     log:
         f"{R}/logs/{{measure}}/smc.log",
     threads: 1
@@ -29,6 +31,8 @@ rule marginalize:
         posterior=study.config["posterior"],
         parameters=study.config["parameters"],
         seed=study.config["smc"]["seed"],
+    benchmark:
+        f"{R}/benchmarks/marginalize/{{measure}}.tsv"
     log:
         f"{R}/logs/{{measure}}/marginalize.log",
     threads: 1

@@ -9,13 +9,18 @@ def _observe_inputs(wildcards):
     return {}
 
 
+FIELDS = study.config["plots"]["fields"] and study.config["forward_model"]["type"] == "fsi"
+
+
 rule ground_truth:
     output:
-        f"{R}/observations/ground_truth_run.h5",
+        run=f"{R}/observations/ground_truth_run.h5",
+        **({"vtu": f"{R}/observations/ground_truth.vtu"} if FIELDS else {}),
     params:
         forward_model=study.forward_section(),
         point=study.ground_truth(),
-        fields=study.config["plots"]["fields"],
+    benchmark:
+        f"{R}/benchmarks/ground_truth.tsv"
     log:
         f"{R}/logs/ground_truth.log",
     threads: 1
@@ -33,6 +38,8 @@ rule observe:
         f"{R}/observations/observations.h5",
     params:
         observations=study.config["observations"],
+    benchmark:
+        f"{R}/benchmarks/observe.tsv"
     log:
         f"{R}/logs/observe.log",
     threads: 1

@@ -6,17 +6,19 @@
 
 def _solve_inputs(wildcards):
     if study.config["forward_model"]["warm_start"] == "prior_centre":
-        return {"base": f"{R}/runs/base_state.h5"}
+        return {"base": f"{R}/runs/base_state.state.npz"}
     return {}
 
 
 rule base_state:
     output:
         run=f"{R}/runs/base_state.h5",
-        state=f"{R}/runs/base_state.state.h5",
+        state=f"{R}/runs/base_state.state.npz",
     params:
         forward_model=study.forward_section(),
         point=study.prior_centre(),
+    benchmark:
+        f"{R}/benchmarks/base_state.tsv"
     log:
         f"{R}/logs/solve/base_state.log",
     threads: 1
@@ -35,6 +37,8 @@ rule solve:
     params:
         forward_model=study.forward_section(),
         point=lambda wc: study.point(int(wc.i)),
+    benchmark:
+        f"{R}/benchmarks/solve/{{i}}.tsv"
     log:
         f"{R}/logs/solve/{{i}}.log",
     threads: 1

@@ -11,6 +11,8 @@ rule train_surrogate:
         surrogate=study.config["surrogate"],
         parameters=study.config["parameters"],
         n_train=study.n_train,
+    benchmark:
+        f"{R}/benchmarks/train_surrogate/{{measure}}.tsv"
     log:
         f"{R}/logs/{{measure}}/train_surrogate.log",
     threads: 1
@@ -28,6 +30,8 @@ rule convergence:
         parameters=study.config["parameters"],
         convergence=study.config["convergence"],
         n_train=study.n_train,
+    benchmark:
+        f"{R}/benchmarks/convergence/{{measure}}.tsv"
     log:
         f"{R}/logs/{{measure}}/convergence.log",
     threads: 1

@@ -1,0 +1,25 @@
+# summary.json: the study's results in the user's units (SPEC.md contract),
+# with the paths of its figures.
+
+
+rule summary:
+    input:
+        posterior=expand(f"{R}/{{measure}}/posterior.json", measure=study.measures),
+        training=expand(f"{R}/{{measure}}/training.h5", measure=study.measures),
+        particles=expand(f"{R}/{{measure}}/particles.h5", measure=study.measures),
+        figures=figure_targets(),
+        convergence=expand(f"{R}/{{measure}}/convergence.json", measure=study.measures)
+        if study.config["convergence"]["enabled"]
+        else [],
+    output:
+        report(f"{R}/summary.json", caption="../report/summary.rst", category="Summary"),
+    params:
+        study=study.name,
+        parameters=study.config["parameters"],
+        measures=study.measures,
+        figure_map=figure_map(),
+        root=R,
+    log:
+        f"{R}/logs/summary.log",
+    script:
+        "../../scripts/summary.py"
