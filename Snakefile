@@ -25,6 +25,7 @@ R = study.root
 
 wildcard_constraints:
     i=r"\d+",
+    k=r"\d+",
     measure=r"euclidean|cpp|rkhs",
 
 report: "workflow/report/workflow.rst"
