@@ -15,7 +15,6 @@ from bayescalib.config import ConfigError
 from bayescalib.fsi import FSIModel
 from bayescalib.runrecord import read_run
 
-pytestmark = pytest.mark.filterwarnings("ignore::DeprecationWarning")
 
 
 @pytest.fixture(scope="module")

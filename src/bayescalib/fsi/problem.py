@@ -58,6 +58,9 @@ class FSIProblem:
         ``ale_weight`` whatever the units.
     order
         Polynomial order of velocity and displacement (pressure: ``order - 1``).
+    viscous_form
+        ``"gradient"`` (``mu grad u : grad v``; natural outflow condition "do nothing")
+        or ``"symmetric"`` (``2 mu eps(u) : eps(v)``; natural condition: zero traction).
     """
 
     mesh: Any
@@ -75,6 +78,7 @@ class FSIProblem:
     ale_weight: float = 1e-6
     length_scale: float = 1.0
     order: int = 2
+    viscous_form: str = "gradient"
     extra: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
@@ -85,5 +89,7 @@ class FSIProblem:
             raise ValueError("an FSI problem needs a fluid region, solid regions, or both")
         if self.inflow is not None and self.inflow_profile is None:
             raise ValueError("inflow boundary given without an inflow profile")
+        if self.viscous_form not in ("gradient", "symmetric"):
+            raise ValueError(f"viscous_form must be 'gradient' or 'symmetric', got {self.viscous_form!r}")
         if self.order < 2:
             raise ValueError("order must be >= 2 (Taylor–Hood P2/P1)")

@@ -8,11 +8,12 @@ displacement ``d`` (P2, over both; in the fluid it is the ALE mesh displacement)
 ``F = I + grad d``, ``J = det F`` the steady weak form is
 
 * fluid momentum and mass (ALE, mesh velocity zero in the steady state, App. B.1), with
-  the gradient (Laplacian) form of the viscous term, whose natural outflow condition is
-  "do nothing"::
+  by default the gradient (Laplacian) form of the viscous term, whose natural outflow
+  condition is "do nothing" (``FSIProblem.viscous_form = "symmetric"`` uses
+  ``G + G^T`` with ``G = grad u F^-1`` instead, natural condition: zero traction)::
 
-      int_f  rho J (grad u F^-1 u) . v + mu J (grad u F^-1) : (grad v F^-1)
-             - p J tr(grad v F^-1) - q J tr(grad u F^-1)  dX
+      int_f  rho J (G u) . v + mu J G : (grad v F^-1)
+             - p J tr(grad v F^-1) - q J tr(G)  dX,     G = grad u F^-1
 
 * solid momentum (App. B.2), tested with the *same* velocity test function ``v``::
 
@@ -175,19 +176,15 @@ class MonolithicSolver:
             gu = ng.Grad(u) * Finv
             gv = ng.Grad(v) * Finv
             dxf = ng.dx(definedon=mesh.Materials(pb.fluid))
-            ff = (
+            visc_u = gu if pb.viscous_form == "gradient" else gu + gu.trans
+            momentum = (
                 pb.rho_fluid * J * ng.InnerProduct(gu * u, v)
-                + pb.mu_fluid * J * ng.InnerProduct(gu, gv)
+                + pb.mu_fluid * J * ng.InnerProduct(visc_u, gv)
                 - J * ng.Trace(gv) * p
-                - J * ng.Trace(gu) * q
-            ) * dxf
-            a += ff
+            )
+            a += (momentum - J * ng.Trace(gu) * q) * dxf
             fluid_form = ng.BilinearForm(X, symmetric=False)
-            fluid_form += (
-                pb.rho_fluid * J * ng.InnerProduct(gu * u, v)
-                + pb.mu_fluid * J * ng.InnerProduct(gu, gv)
-                - J * ng.Trace(gv) * p
-            ) * dxf
+            fluid_form += momentum * dxf
             if self.has_solid:
                 alpha = pb.ale_weight * pb.length_scale**2
                 a += alpha * ng.InnerProduct(ng.Grad(d), ng.Grad(w)) * dxf

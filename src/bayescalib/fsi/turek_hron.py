@@ -41,7 +41,7 @@ L = 2.5
 
 def _mesh(kind: str, h_flag: float, h_cyl: float, h_bulk: float, curve_order: int = 2):
     import ngsolve as ng
-    from netgen.occ import X, Y, Circle, Glue, OCCGeometry, WorkPlane
+    from netgen.occ import X, Glue, OCCGeometry, WorkPlane
 
     cyl = WorkPlane().Circle(0.2, 0.2, 0.05).Face()
     cyl.edges.name = "cyl"
@@ -65,7 +65,6 @@ def _mesh(kind: str, h_flag: float, h_cyl: float, h_bulk: float, curve_order: in
             if e.name == "cyl":
                 e.maxh = h_cyl
         shape = Glue([fluid, flag]) if kind == "FSI1" else fluid
-    del Circle, Y
     geo = OCCGeometry(shape, dim=2)
     mesh = ng.Mesh(geo.GenerateMesh(maxh=h_bulk, grading=0.3))
     mesh.Curve(curve_order)
@@ -73,8 +72,13 @@ def _mesh(kind: str, h_flag: float, h_cyl: float, h_bulk: float, curve_order: in
 
 
 def problem(kind: str, h_flag: float = 0.01, h_cyl: float = 0.01, h_bulk: float = 0.06,
-            order: int = 2) -> FSIProblem:
-    """The :class:`FSIProblem` of benchmark ``kind`` (``"FSI1"``, ``"CSM1"``, ``"CFD1"``)."""
+            order: int = 2, viscous_form: str = "gradient") -> FSIProblem:
+    """The :class:`FSIProblem` of benchmark ``kind`` (``"FSI1"``, ``"CSM1"``, ``"CFD1"``).
+
+    ``h_flag``, ``h_cyl``, ``h_bulk`` are the element sizes (m) on the flag, on the
+    cylinder and elsewhere; ``viscous_form`` as in :class:`FSIProblem` (the biofilm model
+    uses the default ``"gradient"``).
+    """
     import ngsolve as ng
 
     if kind not in REFERENCE:
@@ -97,7 +101,7 @@ def problem(kind: str, h_flag: float = 0.01, h_cyl: float = 0.01, h_bulk: float 
         velocity_dirichlet="inlet|wall|cyl" + ("" if kind == "FSI1" else "|interface"),
         displacement_dirichlet="inlet|wall|outlet|cyl",
         inflow="inlet", inflow_profile=profile, rho_fluid=1000.0, mu_fluid=1.0,
-        interface="interface", length_scale=h_flag, order=order,
+        interface="interface", length_scale=h_flag, order=order, viscous_form=viscous_form,
     )
 
 

@@ -55,14 +55,15 @@ def write_fields_vtu(path: str | Path, solver: Any, pressure_scale: float = _PRE
         tris.append([v.nr for v in el.vertices])
         reg.append(regions[el.mat])
     tris = np.asarray(tris, dtype=np.int64)
-    cells = np.column_stack([np.full(len(tris), 3, dtype=np.int64), tris]).ravel()
+    offsets = np.arange(0, 3 * len(tris) + 1, 3, dtype=np.int64)
 
     grid = vtk.vtkUnstructuredGrid()
     p = vtk.vtkPoints()
     p.SetData(numpy_to_vtk(pts, deep=True))
     grid.SetPoints(p)
     ca = vtk.vtkCellArray()
-    ca.SetCells(len(tris), numpy_to_vtkIdTypeArray(cells, deep=True))
+    ca.SetData(numpy_to_vtkIdTypeArray(offsets, deep=True),
+               numpy_to_vtkIdTypeArray(np.ascontiguousarray(tris.ravel()), deep=True))
     grid.SetCells(vtk.VTK_TRIANGLE, ca)
     for name, arr in (("velocity", vel), ("displacement", disp), ("pressure", pres)):
         va = numpy_to_vtk(np.ascontiguousarray(arr), deep=True)
