@@ -367,7 +367,7 @@ def test_interfaces(outdir):
                                    [outdir / "interfaces_snap.png"], zoom=False,
                                    length_unit_factor=1e3, return_figure=True)
     assert len(fig.axes) == 1
-    assert fig.axes[0].get_xlim()[1] == pytest.approx(2.0 + 0.05 * 2.0 + 0.12 * 0, abs=0.2)
+    assert fig.axes[0].get_xlim()[1] == pytest.approx(2.1, abs=0.05)  # mm, not m
 
 
 def test_largest_deformation_box_contains_the_largest_deformation():
@@ -424,6 +424,13 @@ def test_fields(outdir):
     # pressure converted from mPa to Pa: colour range 0..10 Pa
     pres_mesh = fig.axes[1].collections[1]
     assert pres_mesh.get_clim()[1] == pytest.approx(10.0)
+    # displacement colour range from solid triangles only (fluid mesh motion ignored)
+    disp_far = disp + np.column_stack([0.05 * (pts[:, 1] > 0.5), 0 * pts[:, 1]])
+    _, fig = plot_fields(pts, tris, vel, p, disp_far, [outdir / "fields2.png"],
+                         solid_mask_triangles=solid, return_figure=True)
+    solid_nodes = np.unique(tris[solid])
+    assert fig.axes[2].collections[1].get_clim()[1] == pytest.approx(
+        np.hypot(*disp_far[solid_nodes].T).max())
     with pytest.raises(ValueError, match="triangles"):
         plot_fields(pts, tris + 10**6, vel, p, disp, [outdir / "x.png"])
     with pytest.raises(ValueError, match="solid_mask_triangles"):

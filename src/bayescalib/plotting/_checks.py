@@ -145,7 +145,8 @@ def as_weights(weights: Any, n: int, name: str = "weights") -> np.ndarray:
     return w / s
 
 
-def as_names_units(names: Sequence[str], units: Sequence[str], d: int) -> tuple[list[str], list[str]]:
+def as_names_units(names: Sequence[str], units: Sequence[str],
+                   d: int) -> tuple[list[str], list[str]]:
     """Check that there is one name and one unit per parameter."""
     if isinstance(names, str) or isinstance(units, str):
         raise ValueError("names and units must be sequences of strings, one per parameter")

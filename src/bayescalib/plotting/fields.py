@@ -147,7 +147,10 @@ def plot_fields(
             # outline of the whole mesh in light grey, so masked parts stay visible
             ax.tripcolor(Triangulation(xy[:, 0], xy[:, 1], tri), np.ones(tri.shape[0]),
                          cmap="Greys", vmin=0, vmax=6, shading="flat", rasterized=True)
-            pc = ax.tripcolor(tr, val, cmap=cmap, shading="gouraud", rasterized=True)
+            shown = tri if tr.mask is None else tri[~tr.mask]
+            vis = val[np.unique(shown)] if shown.size else val
+            pc = ax.tripcolor(tr, val, cmap=cmap, shading="gouraud", rasterized=True,
+                              vmin=float(vis.min()), vmax=float(vis.max()))
             cb = fig.colorbar(pc, ax=ax, pad=0.02, shrink=0.95)
             cb.set_label(clabel, fontsize=7.5)
             if k == 0 and streamlines:

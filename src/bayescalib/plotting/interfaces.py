@@ -178,11 +178,12 @@ def plot_interfaces(
         (h,) = ax.plot(ref[:, 0], ref[:, 1], color=COLORS["reference"], ls="--", lw=1.2,
                        label="undeformed", zorder=3)
         handles.insert(0, h)
+        obs_label = "observed" if len(obs) == 1 else f"observed ({len(obs)} snapshots)"
         for k, c in enumerate(obs):
             alpha = 1.0 if k == len(obs) - 1 else 0.3 + 0.5 * k / max(len(obs) - 1, 1)
             (h,) = ax.plot(c[:, 0], c[:, 1], color=COLORS["observed"], lw=1.4, alpha=alpha,
                            zorder=4,
-                           label="observed" if len(obs) == 1 else f"observed ({len(obs)} snapshots)")
+                           label=obs_label)
             if k == len(obs) - 1:
                 handles.append(h)
         if tru is not None:
@@ -287,7 +288,8 @@ def plot_interface_residual(
     if p.shape[0] < 2:
         raise ValueError("points: need at least 2 points")
     v = as_array(values, "values", shape=(p.shape[0],))
-    ref = None if reference is None else as_points(reference, "reference") * float(length_unit_factor)
+    ref = None if reference is None else (as_points(reference, "reference")
+                                          * float(length_unit_factor))
     out_paths = as_paths(paths)
     lim = float(np.max(np.abs(v))) if vmax is None else float(vmax)
     if not lim > 0:

@@ -145,8 +145,9 @@ def plot_joint_posterior(
 
         cs = draw_hpd_contours(ax, x, w, b[0], b[1], levels)
         if cs is not None:
+            hpd = ", ".join(level_text(p) for p in levels)
             handles.append(Line2D([], [], color=COLORS["kde"], lw=0.9,
-                                  label="KDE HPD regions " + ", ".join(level_text(p) for p in levels)))
+                                  label=f"KDE HPD regions {hpd}"))
 
         styles = ("-", "--", ":", "-.")
         for approx, key, lab in ((gauss, "gaussian", "Gaussian approx."),

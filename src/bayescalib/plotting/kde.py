@@ -82,7 +82,8 @@ def weighted_kde(samples: np.ndarray, weights: np.ndarray | None = None,
         # gaussian_kde factorizes the covariance lazily in some versions: force it.
         kde(x[:1].T)
     except np.linalg.LinAlgError as exc:
-        raise ValueError(f"weighted_kde: degenerate particle cloud, singular covariance ({exc})") from None
+        raise ValueError("weighted_kde: degenerate particle cloud, singular covariance "
+                         f"({exc})") from None
     return kde
 
 
