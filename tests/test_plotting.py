@@ -490,3 +490,18 @@ def test_other_functions_reject_bad_inputs(tmp_path):
         plot_gp_convergence([10, 20], [1.0], None, out)
     with pytest.raises(ValueError, match="effective sample size"):
         weighted_kde(x, np.r_[1.0, np.zeros(19)])
+
+
+def test_degenerate_cloud_skips_kde_with_warning(tmp_path):
+    rng = np.random.default_rng(0)
+    x = np.column_stack([rng.normal(400, 50, 200), np.full(200, 0.3)])
+    with pytest.raises(ValueError, match="zero spread"):
+        weighted_kde(x)
+    with pytest.raises(ValueError, match="collinear"):
+        weighted_kde(np.column_stack([x[:, 0], 2 * x[:, 0] + 1]))
+    with pytest.warns(UserWarning, match="KDE"):
+        _, fig = plot_joint_posterior(x, None, NAMES, UNITS, [tmp_path / "degenerate.png"],
+                                      return_figure=True)
+    texts = {t.get_text() for ax in fig.axes if ax.get_legend()
+             for t in ax.get_legend().get_texts()}
+    assert not any(t.startswith("KDE HPD") for t in texts)

@@ -175,7 +175,8 @@ def plot_joint_posterior(
             handles.append(h)
 
         top = draw_marginal(ax_top, x[:, 0], w, b[0], bins=bins, prior_pdf=priors[0])
-        draw_marginal(ax_right, x[:, 1], w, b[1], horizontal=True, bins=bins, prior_pdf=priors[1])
+        right = draw_marginal(ax_right, x[:, 1], w, b[1], horizontal=True, bins=bins,
+                              prior_pdf=priors[1])
         for a, vals, vertical in ((ax_top, (mean_, map_, truth_), True),
                                   (ax_right, (mean_, map_, truth_), False)):
             k = 0 if vertical else 1
@@ -183,9 +184,10 @@ def plot_joint_posterior(
                                   ("-", "-", ":")):
                 if v is not None:
                     (a.axvline if vertical else a.axhline)(v[k], color=col, lw=1.0, ls=ls)
-        if "prior" in top or any(p is not None for p in priors):
+        if any(p is not None for p in priors):
             handles.append(Line2D([], [], color=COLORS["prior"], ls="--", label="prior"))
-        handles.insert(1, Line2D([], [], color=COLORS["kde"], lw=1.2, label="marginal KDE"))
+        if "kde" in top or "kde" in right:
+            handles.insert(1, Line2D([], [], color=COLORS["kde"], lw=1.2, label="marginal KDE"))
 
         ax.set_xlim(*b[0])
         ax.set_ylim(*b[1])

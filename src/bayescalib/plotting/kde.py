@@ -77,6 +77,13 @@ def weighted_kde(samples: np.ndarray, weights: np.ndarray | None = None,
         raise ValueError(f"bw_method: expected 'scott', 'silverman' or a float, got {bw_method!r}")
     if effective_sample_size(w) < 1.5:
         raise ValueError("weighted_kde: effective sample size < 1.5, a KDE is meaningless")
+    mu = w @ x
+    cov = np.atleast_2d(((x - mu) * w[:, None]).T @ (x - mu))
+    sd = np.sqrt(np.diag(cov))
+    if np.any(sd <= 1e-12 * np.maximum(np.abs(mu), 1e-300)):
+        raise ValueError("weighted_kde: degenerate particle cloud, a parameter has zero spread")
+    if x.shape[1] > 1 and np.linalg.eigvalsh(cov / np.outer(sd, sd)).min() < 1e-10:
+        raise ValueError("weighted_kde: degenerate particle cloud, parameters are collinear")
     try:
         kde = stats.gaussian_kde(x.T, bw_method=bw_method, weights=w)
         # gaussian_kde factorizes the covariance lazily in some versions: force it.
