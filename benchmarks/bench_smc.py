@@ -1,0 +1,154 @@
+"""Benchmark: SMC on a GP surrogate with the fast batched predictor vs. naive GPy calls.
+
+Cases (paper Sec. 4):
+
+* ``2d``: (E, nu) box [100, 800] Pa x [-0.8, 0.5]; GP on n_train = 1000 Sobol
+  points of an analytic banana-shaped log-likelihood (a curved band where low E
+  goes with low nu, like the paper's posterior); SMC with N = 5000,
+  n_rej = 20, zeta = 0.995.
+* ``7d``: six material parameters plus an uncertain inflow, ARD GP on
+  n_train = 2000 points of an analytic correlated log-likelihood; SMC with
+  N = 10000, n_rej = 30, zeta = 0.998 (the paper's 6+1D setting).
+
+For each case: GP training time (once), then ``--repeats`` SMC runs with the
+fast predictor (``GPSurrogate.predict``; median wall time, tempering steps,
+surrogate evaluations per second). The naive variant calls GPy's
+``model.predict`` (mean and variance, as GPy always computes both) on every
+batch; it is timed on the first ``--naive-steps`` tempering steps only and
+extrapolated to the full number of steps of the fast run (time per step x
+steps); the report says so.
+
+Run: ``python benchmarks/bench_smc.py [--cases 2d,7d] [--repeats 3]``
+"""
+
+from __future__ import annotations
+
+import argparse
+import platform
+import statistics
+import time
+
+import numpy as np
+
+from bayescalib.design import sobol_design
+from bayescalib.parameters import Parameter, ParameterSpace, Uniform
+from bayescalib.smc import run_smc
+from bayescalib.surrogate import fit_gp
+
+
+class _Stop(Exception):
+    pass
+
+
+def banana_2d(X: np.ndarray) -> np.ndarray:
+    e = (X[:, 0] - 100.0) / 700.0
+    n = (X[:, 1] + 0.8) / 1.3
+    return -0.5 * ((n - 0.25 - 0.8 * e**1.5) / 0.04) ** 2 - 0.5 * ((e - 0.4) / 0.2) ** 2
+
+
+BOX_7D = np.array(
+    [[100, 800], [-0.8, 0.5], [100, 800], [-0.8, 0.5], [300, 1500], [-0.8, 0.5], [0, 110]],
+    dtype=float,
+)
+
+
+def _loglik_7d_factory():
+    rng = np.random.default_rng(123)
+    A = rng.normal(size=(7, 7))
+    prec = A @ A.T / 7 + np.eye(7)
+    prec *= 40.0
+    centre = np.array([0.57, 0.77, 0.14, 0.69, 0.58, 0.85, 0.91])
+
+    def loglik(X: np.ndarray) -> np.ndarray:
+        U = (X - BOX_7D[:, 0]) / (BOX_7D[:, 1] - BOX_7D[:, 0])
+        D = U - centre
+        D[:, 1] += 0.3 * D[:, 0] ** 2  # mild curvature
+        return -0.5 * np.einsum("ni,ij,nj->n", D, prec, D)
+
+    return loglik
+
+
+def _space(box: np.ndarray, uncertain_last: bool) -> ParameterSpace:
+    ps = []
+    for j, (lo, hi) in enumerate(box):
+        ps.append(
+            Parameter(
+                f"p{j}", "-", Uniform(lo, hi), lo, hi, uncertain=uncertain_last and j == len(box) - 1
+            )
+        )
+    return ParameterSpace(ps)
+
+
+def run_case(name, space, true_loglik, n_train, N, n_rej, zeta, ard, repeats, naive_steps, max_iters):
+    print(f"\n=== case {name}: d = {space.dim}, n_train = {n_train}, N = {N}, n_rej = {n_rej}, "
+          f"zeta = {zeta}, ARD = {ard}")
+    X = sobol_design(space.bounds, n_train, 0)
+    y = true_loglik(X)
+    t = time.perf_counter()
+    gp = fit_gp(X, y, bounds=space.bounds, ard=ard, restarts=1, seed=0, max_iters=max_iters)
+    print(f"GP training (1 start, max_iters = {max_iters}): {time.perf_counter() - t:.1f} s; "
+          f"lengthscale = {np.round(gp.lengthscale, 3).tolist()}, device = {gp.device}")
+
+    walls, steps, evals = [], [], []
+    for r in range(repeats):
+        t = time.perf_counter()
+        res = run_smc(gp.predict, space, n_particles=N, n_rej=n_rej, zeta=zeta,
+                      rng=np.random.default_rng(r))
+        walls.append(time.perf_counter() - t)
+        steps.append(res.n_steps)
+        evals.append(res.n_loglik_evals)
+        print(f"  fast run {r}: {walls[-1]:.2f} s, {res.n_steps} steps, "
+              f"{res.n_loglik_evals} surrogate evaluations, log Z = {res.log_evidence:.4f}")
+    wall = statistics.median(walls)
+    n_steps = int(statistics.median(steps))
+    n_eval = int(statistics.median(evals))
+    print(f"fast: median wall {wall:.2f} s, median steps {n_steps}, "
+          f"{n_eval / wall:.3g} surrogate evaluations / s")
+
+    model = gp.gpy_model()
+
+    def naive(Xb: np.ndarray) -> np.ndarray:
+        return model.predict(gp.scale_inputs(Xb))[0][:, 0]
+
+    stamps: list[float] = []
+
+    def cb(info):
+        stamps.append(time.perf_counter())
+        if len(stamps) >= naive_steps:
+            raise _Stop
+
+    t0 = time.perf_counter()
+    try:
+        run_smc(naive, space, n_particles=N, n_rej=n_rej, zeta=zeta, rng=np.random.default_rng(0),
+                callback=cb)
+    except _Stop:
+        pass
+    per_step = (stamps[-1] - t0) / len(stamps)
+    naive_total = per_step * n_steps
+    print(f"naive GPy predict: {per_step:.2f} s per step over the first {len(stamps)} steps, "
+          f"extrapolated to {n_steps} steps: {naive_total:.1f} s")
+    print(f"speed-up (naive / fast): {naive_total / wall:.1f}x")
+    return {"wall": wall, "steps": n_steps, "evals_per_s": n_eval / wall,
+            "naive": naive_total, "speedup": naive_total / wall}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--cases", default="2d,7d")
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--naive-steps", type=int, default=2)
+    ap.add_argument("--max-iters", type=int, default=200, help="GP optimizer iterations")
+    a = ap.parse_args()
+    print(f"host: {platform.node()} ({platform.processor() or platform.machine()}), numpy {np.__version__}")
+    cases = a.cases.split(",")
+    if "2d" in cases:
+        box = np.array([[100.0, 800.0], [-0.8, 0.5]])
+        run_case("2d", _space(box, False), banana_2d, 1000, 5000, 20, 0.995, False,
+                 a.repeats, a.naive_steps, a.max_iters)
+    if "7d" in cases:
+        run_case("7d", _space(BOX_7D, True), _loglik_7d_factory(), 2000, 10000, 30, 0.998, True,
+                 a.repeats, a.naive_steps, a.max_iters)
+
+
+if __name__ == "__main__":
+    main()
