@@ -332,6 +332,11 @@ def test_parallel_axes(outdir):
     assert arr.size == 500
     assert np.all(np.diff(arr) >= 0) and arr[-1] == logd.max()  # best line on top
     assert "log posterior density [-]" in _labels(fig)
+    _, fig = plot_parallel_axes(x, logd, names, units, [outdir / "parallel2.png"],
+                                values_are_log=True, value_name="log posterior density",
+                                show_value_axis=False, return_figure=True)
+    assert "log posterior density [-]" in _labels(fig)
+    assert len(fig.axes[0].get_xticklabels()) == 4
 
 
 def test_select_lines_keeps_top_and_orders_by_value():

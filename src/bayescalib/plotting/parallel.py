@@ -93,7 +93,8 @@ def plot_parallel_axes(
     paths : path or sequence of paths
         Output files; format from the suffix.
     values_are_log : bool
-        ``values`` are log-densities (colour bar labelled "log ...").
+        ``values`` are log-densities (colour bar labelled "log ..."; no
+        second "log" if ``value_name`` already starts with it).
     value_name : str
         Name of the value for the colour bar and value axis.
     value_unit : str
@@ -131,7 +132,8 @@ def plot_parallel_axes(
     b = as_bounds(bounds, d, data=x, pad=0.0)
     max_lines = int(max_lines)
 
-    label_v = ("log " if values_are_log else "") + value_name
+    prefix = "log " if values_are_log and not value_name.lower().startswith("log") else ""
+    label_v = prefix + value_name
     idx = select_lines(v, max_lines, seed)
     cols = [(x[:, k] - b[k, 0]) / (b[k, 1] - b[k, 0]) for k in range(d)]
     axis_ranges = [tuple(b[k]) for k in range(d)]
