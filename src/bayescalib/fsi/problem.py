@@ -61,6 +61,9 @@ class FSIProblem:
     viscous_form
         ``"gradient"`` (``mu grad u : grad v``; natural outflow condition "do nothing")
         or ``"symmetric"`` (``2 mu eps(u) : eps(v)``; natural condition: zero traction).
+    compile
+        ``"tree"`` (``CoefficientFunction.Compile()``, default), ``"none"``, or ``"real"``
+        (compile to C++; needs a compiler, slow first build).
     """
 
     mesh: Any
@@ -79,6 +82,7 @@ class FSIProblem:
     length_scale: float = 1.0
     order: int = 2
     viscous_form: str = "gradient"
+    compile: str = "tree"
     extra: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:

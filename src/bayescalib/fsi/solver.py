@@ -78,19 +78,23 @@ class SolverControls:
         ``reuse_contraction`` per iteration.
     reuse_contraction
         Contraction ratio below which the factorization is kept.
+    chord_threshold
+        Chord steps only once the scaled increment (relative to the solution) is below
+        this value, i.e. in the asymptotic phase of Newton's method.
     """
 
-    rtol_velocity: float = 1e-8
+    rtol_velocity: float = 1e-6
     atol_velocity: float = 1e-10
-    atol_displacement: float = 1e-10
-    rtol_displacement: float = 1e-7
+    atol_displacement: float = 1e-9
+    rtol_displacement: float = 1e-5
     max_iterations: int = 20
     initial_step: float = 1.0
     min_step: float = 1.0 / 64
     growth: float = 2.0
     time_limit: float | None = None
     reuse_factorization: bool = True
-    reuse_contraction: float = 0.25
+    reuse_contraction: float = 0.3
+    chord_threshold: float = 0.1
 
 
 @dataclass
@@ -105,6 +109,13 @@ class SolveOutcome:
     factorizations: int
     wall_time: float
     timings: dict[str, float] = field(default_factory=dict)
+
+
+def _compiled(cf, mode: str):
+    """``cf.Compile()`` (NGSolve's expression-tree optimisation) unless ``mode == "none"``."""
+    if mode == "none":
+        return cf
+    return cf.Compile(realcompile=(mode == "real"), wait=True)
 
 
 class _Failure(Exception):
@@ -150,6 +161,7 @@ class MonolithicSolver:
         X = ng.FESpace(spaces)
         self.X = X
         self.gfu = ng.GridFunction(X)
+        self._inv = None
         self.ncomp = len(spaces)
         self.i_u = 0
         self.i_p = 1 if self.has_fluid else None
@@ -182,7 +194,7 @@ class MonolithicSolver:
                 + pb.mu_fluid * J * ng.InnerProduct(visc_u, gv)
                 - J * ng.Trace(gv) * p
             )
-            a += (momentum - J * ng.Trace(gu) * q) * dxf
+            a += _compiled(momentum - J * ng.Trace(gu) * q, pb.compile) * dxf
             fluid_form = ng.BilinearForm(X, symmetric=False)
             fluid_form += momentum * dxf
             if self.has_solid:
@@ -193,7 +205,7 @@ class MonolithicSolver:
             for name, law in pb.solids.items():
                 dxs = ng.dx(definedon=mesh.Materials(name))
                 P = piola1(law, F, self.E[name], self.nu[name])
-                a += ng.InnerProduct(P, ng.Grad(v)) * dxs
+                a += _compiled(ng.InnerProduct(P, ng.Grad(v)), pb.compile) * dxs
                 if any(pb.body_force):
                     a += -self.load * pb.rho_solid * ng.InnerProduct(g, v) * dxs
                 a += ng.InnerProduct(u, w) * dxs
@@ -324,11 +336,21 @@ class MonolithicSolver:
             raise _Failure("wall-clock time limit reached", fatal=True)
 
     def _newton(self, deadline: float | None, stats: dict) -> None:
-        """Newton (with optional chord steps) at the current load; raises _Failure."""
+        """Newton at the current load, raising :class:`_Failure` when it fails.
+
+        With ``reuse_factorization`` a factorization (also one kept from an earlier load
+        step or solve, :attr:`_inv`) is used for chord steps as long as each step
+        contracts the increment by ``reuse_contraction``; a chord step that does not
+        contract, produces NaN or inverts an element is undone and the Jacobian is
+        re-factorized instead (such steps are never counted as a failure).
+        """
         c = self.controls
         inv = self._inv if c.reuse_factorization else None
         prev = None
-        for it in range(1, c.max_iterations + 1):
+        iters_this_step = 0
+        while True:
+            if iters_this_step >= c.max_iterations:
+                break
             self._check(deadline)
             t0 = time.perf_counter()
             self.a.Apply(self.gfu.vec, self._res)
@@ -350,19 +372,29 @@ class MonolithicSolver:
             stats["t_solve"] += time.perf_counter() - t3
             du = self._du.FV().NumPy()
             stats["iterations"] += 1
+            iters_this_step += 1
+            it = iters_this_step
             if not np.all(np.isfinite(du)):
-                self._inv = None
                 if not fresh:
                     inv = None
                     continue
                 raise _Failure(f"NaN/Inf in the Newton increment (iteration {it})")
+            ok, size = self._converged(du)
+            if not fresh and prev is not None and size > prev:
+                # chord step does not contract: undo nothing (not applied yet), refactor
+                self.history.append((float(self.load.Get()), it, size, fresh))
+                inv = None
+                continue
             self._x -= du
             if not np.all(np.isfinite(self._x)):
                 raise _Failure(f"NaN/Inf in the solution (iteration {it})")
-            ok, size = self._converged(du)
             self.history.append((float(self.load.Get()), it, size, fresh))
             jmin = self.min_det_F()
             if not (jmin > 0.0):
+                if not fresh:
+                    self._x += du
+                    inv = None
+                    continue
                 raise _Failure(f"inverted element: min det F = {jmin:.3g} (iteration {it})")
             if ok:
                 self._inv = inv if c.reuse_factorization else None
@@ -371,8 +403,8 @@ class MonolithicSolver:
                 raise _Failure(f"Newton diverging (iteration {it})")
             keep = (
                 c.reuse_factorization
-                and prev is not None
-                and size <= c.reuse_contraction * prev
+                and size <= c.chord_threshold
+                and (prev is None or size <= c.reuse_contraction * prev)
             )
             if not keep:
                 inv = None
@@ -381,7 +413,7 @@ class MonolithicSolver:
         raise _Failure(f"Newton did not converge in {c.max_iterations} iterations")
 
     def solve(self, controls: SolverControls, *, initial: np.ndarray | None = None,
-              start_load: float = 0.0) -> SolveOutcome:
+              start_load: float = 0.0, keep_factorization: bool = False) -> SolveOutcome:
         """Solve at full load by continuation in the load factor.
 
         Parameters
@@ -393,6 +425,10 @@ class MonolithicSolver:
         start_load
             Load factor at which ``initial`` is an (approximate) solution; the
             continuation starts from there (0 for rest, 1 for a warm start at full load).
+        keep_factorization
+            Start with the factorization kept from the previous solve (chord steps; it is
+            replaced as soon as it stops contracting). Useful for a warm start at nearby
+            parameters.
 
         Returns
         -------
@@ -404,7 +440,8 @@ class MonolithicSolver:
         deadline = None if controls.time_limit is None else t_start + controls.time_limit
         stats = {"t_residual": 0.0, "t_assemble": 0.0, "t_factor": 0.0, "t_solve": 0.0,
                  "iterations": 0, "factorizations": 0}
-        self._inv = None
+        if not keep_factorization:
+            self._inv = None
         #: (load, iteration, scaled increment, fresh factorization) per Newton iteration
         self.history: list[tuple[float, int, float, bool]] = []
         #: messages of failed load steps (before step halving)
