@@ -228,3 +228,25 @@ def test_solve_to_file_and_vtu(tmp_path):
     for name in ("velocity", "pressure", "displacement"):
         assert grid.GetPointData().GetArray(name) is not None
     assert (tmp_path / "run.state.npz").is_file()
+
+
+def test_non_finite_parameters_are_failed_runs(coarse):
+    r = coarse.solve({"material.E": float("nan")})
+    assert r.status == "failed" and "material.E" in r.reason
+    r = coarse.solve({"inflow.rate": float("inf")})
+    assert r.status == "failed" and "inflow.rate" in r.reason
+
+
+def test_singular_jacobian_is_a_failure_not_an_exception(coarse):
+    from bayescalib.fsi.solver import SolverControls
+
+    coarse.solve({"inflow.rate": 0.0})  # make sure the model is built
+    s = coarse.solver
+    s.set_materials({"biofilm": (float("nan"), 0.3)})  # NaN stiffness: UMFPACK fails
+    s.reset()
+    out = s.solve(SolverControls(min_step=0.25))
+    assert not out.ok
+    assert "linear solver failed" in out.reason or "NaN" in out.reason
+    assert out.load_fraction == 0.0
+    # the model recovers: the next solve sets valid materials again
+    assert coarse.solve().ok

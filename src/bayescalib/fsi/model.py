@@ -314,9 +314,12 @@ class FSIModel:
             start_load = 1.0 if initial is not None else 0.0
 
         reason = ""
+        rate = float(cfg["inflow"]["rate"])
+        if not all(np.isfinite(v) for v in params.values()):
+            bad = [k for k, v in params.items() if not np.isfinite(v)]
+            reason = f"non-finite parameter(s): {', '.join(bad)}"
         for name, (_, nu) in materials.items():
             reason = reason or check_poisson(nu)
-        rate = float(cfg["inflow"]["rate"])
         base_stats: dict[str, Any] = {
             "ndof": solver.ndof,
             "nfree": solver.nfree,
@@ -337,8 +340,13 @@ class FSIModel:
         if initial is None:
             solver.reset()
         keep = bool(scfg["keep_factorization"]) and initial is not None and not built
-        outcome = solver.solve(controls, initial=initial, start_load=start_load,
-                               keep_factorization=keep)
+        try:
+            outcome = solver.solve(controls, initial=initial, start_load=start_load,
+                                   keep_factorization=keep)
+        except Exception as exc:  # a solver failure is data, never a crash of the study
+            solver.reset()
+            return self._result("failed", f"solver error: {type(exc).__name__}: {exc}", params,
+                                0.0, 0, 0, t_start, base_stats)
         base_stats.update({
             "factorizations": outcome.factorizations,
             "min_det_F": solver.min_det_F(),

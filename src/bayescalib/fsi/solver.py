@@ -357,11 +357,16 @@ class MonolithicSolver:
             t1 = time.perf_counter()
             stats["t_residual"] += t1 - t0
             if inv is None:
-                self.a.AssembleLinearization(self.gfu.vec)
-                t2 = time.perf_counter()
-                stats["t_assemble"] += t2 - t1
-                self._check(deadline)
-                inv = self.a.mat.Inverse(self._freedofs, inverse="umfpack")
+                try:
+                    self.a.AssembleLinearization(self.gfu.vec)
+                    t2 = time.perf_counter()
+                    stats["t_assemble"] += t2 - t1
+                    self._check(deadline)
+                    inv = self.a.mat.Inverse(self._freedofs, inverse="umfpack")
+                except _Failure:
+                    raise
+                except Exception as exc:  # NGSolve/UMFPACK errors, e.g. a singular Jacobian
+                    raise _Failure(f"linear solver failed: {exc} (iteration {iters_this_step + 1})") from None
                 stats["t_factor"] += time.perf_counter() - t2
                 stats["factorizations"] += 1
                 fresh = True
