@@ -24,6 +24,7 @@ Run: ``python benchmarks/bench_smc.py [--cases 2d,7d] [--repeats 3]``
 from __future__ import annotations
 
 import argparse
+import os
 import platform
 import statistics
 import time
@@ -79,13 +80,15 @@ def _space(box: np.ndarray, uncertain_last: bool) -> ParameterSpace:
     return ParameterSpace(ps)
 
 
-def run_case(name, space, true_loglik, n_train, N, n_rej, zeta, ard, repeats, naive_steps, max_iters):
+def run_case(name, space, true_loglik, n_train, N, n_rej, zeta, ard, repeats, naive_steps, max_iters,
+             threads=1):
     print(f"\n=== case {name}: d = {space.dim}, n_train = {n_train}, N = {N}, n_rej = {n_rej}, "
           f"zeta = {zeta}, ARD = {ard}")
     X = sobol_design(space.bounds, n_train, 0)
     y = true_loglik(X)
     t = time.perf_counter()
     gp = fit_gp(X, y, bounds=space.bounds, ard=ard, restarts=1, seed=0, max_iters=max_iters)
+    gp.threads = threads
     print(f"GP training (1 start, max_iters = {max_iters}): {time.perf_counter() - t:.1f} s; "
           f"lengthscale = {np.round(gp.lengthscale, 3).tolist()}, device = {gp.device}")
 
@@ -138,16 +141,18 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--naive-steps", type=int, default=2)
     ap.add_argument("--max-iters", type=int, default=200, help="GP optimizer iterations")
+    ap.add_argument("--threads", type=int, default=1, help="CPU threads of the fast predictor")
     a = ap.parse_args()
-    print(f"host: {platform.node()} ({platform.processor() or platform.machine()}), numpy {np.__version__}")
+    print(f"host: {platform.node()} ({platform.processor() or platform.machine()}), "
+          f"numpy {np.__version__}, {os.cpu_count()} CPUs, load average {os.getloadavg()}")
     cases = a.cases.split(",")
     if "2d" in cases:
         box = np.array([[100.0, 800.0], [-0.8, 0.5]])
         run_case("2d", _space(box, False), banana_2d, 1000, 5000, 20, 0.995, False,
-                 a.repeats, a.naive_steps, a.max_iters)
+                 a.repeats, a.naive_steps, a.max_iters, a.threads)
     if "7d" in cases:
         run_case("7d", _space(BOX_7D, True), _loglik_7d_factory(), 2000, 10000, 30, 0.998, True,
-                 a.repeats, a.naive_steps, a.max_iters)
+                 a.repeats, a.naive_steps, a.max_iters, a.threads)
 
 
 if __name__ == "__main__":

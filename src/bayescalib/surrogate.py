@@ -36,7 +36,9 @@ weights alpha = (K + sigma_n^2 I)^{-1} (L - m) and evaluates the formulas above
 as plain batched array algebra in float64: with NumPy on the CPU (row chunks
 small enough that each (chunk, n) kernel block stays in cache -- the algebra
 is memory-bound, and NumPy's vectorized exp/sqrt beat torch's on a small
-CPU -- spread over ``threads`` threads; squared distances come from a single
+CPU -- optionally spread over ``threads`` threads (default 1: on a small
+machine shared with parallel forward solves, extra threads measured slower);
+squared distances come from a single
 matrix product of augmented inputs, with sqrt(3)/l folded into the scaling
 and s^2 into the weights), or with torch on CUDA when a GPU is available (``device="auto"``), in
 chunks of at most ``chunk_entries`` kernel entries (GPU) or
@@ -50,7 +52,6 @@ from __future__ import annotations
 
 import logging
 import math
-import os
 import warnings
 from concurrent.futures import ThreadPoolExecutor
 from functools import lru_cache
@@ -140,7 +141,7 @@ class GPSurrogate:
     device: str = "auto"
     chunk_entries: int = 4_000_000
     cpu_chunk_entries: int = 65536
-    threads: int = field(default_factory=lambda: max(1, min(os.cpu_count() or 1, 8)))
+    threads: int = 1
     _cache: dict[str, Any] = field(default_factory=dict, repr=False)
 
     def __post_init__(self) -> None:
