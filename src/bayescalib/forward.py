@@ -392,7 +392,8 @@ def _child(fm: Mapping[str, Any], params: Mapping[str, float], workdir: str,
 def solve_point(fm: Mapping[str, Any], params: Mapping[str, float], out_path: str | Path, *,
                 time_limit_s: float | None = None, warm_start: str | Path | None = None,
                 workdir: str | Path | None = None, isolate: bool = True,
-                extra_outputs: Mapping[str, str] | None = None) -> SolveResult:
+                extra_outputs: Mapping[str, str] | None = None,
+                grace_s: float = 30.0) -> SolveResult:
     """Evaluate the forward model at ``params`` and write the run record.
 
     Parameters
@@ -406,13 +407,15 @@ def solve_point(fm: Mapping[str, Any], params: Mapping[str, float], out_path: st
     time_limit_s
         Hard wall-clock limit for the whole evaluation; past it the child
         process is killed and the run recorded as failed. Defaults to
-        ``fm["time_limit_s"]`` (plus a grace period of 30 s for the model's own
-        limit to act first).
+        ``fm["time_limit_s"]``.
     isolate
         Run in a forked child (default). ``False`` runs in-process (for tests
         of cheap models).
     extra_outputs
         Optional ``{"vtu": path, "state": path}`` written by the fsi model on success.
+    grace_s
+        Extra seconds past ``time_limit_s`` before the child is killed, so that
+        the model's own time limit (which records how far it got) acts first.
 
     Returns
     -------
@@ -440,7 +443,7 @@ def solve_point(fm: Mapping[str, Any], params: Mapping[str, float], out_path: st
                                                 dict(extra_outputs or {}), child))
         proc.start()
         child.close()
-        hard = None if limit is None else float(limit) + 30.0
+        hard = None if limit is None else float(limit) + float(grace_s)
         res = None
         if parent.poll(hard):
             try:
