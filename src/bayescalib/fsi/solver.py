@@ -171,46 +171,7 @@ class MonolithicSolver:
         self.E = {name: ng.Parameter(1.0) for name in pb.solids}
         self.nu = {name: ng.Parameter(0.0) for name in pb.solids}
 
-        trials, tests = X.TnT()
-        u, v = trials[0], tests[0]
-        if self.has_solid:
-            d, w = trials[self.i_d], tests[self.i_d]
-            F = ng.Id(2) + ng.Grad(d)
-        else:
-            d = w = None
-            F = ng.Id(2)
-        a = ng.BilinearForm(X, symmetric=False)
-        fluid_form = None
-        if self.has_fluid:
-            p, q = trials[self.i_p], tests[self.i_p]
-            J = ng.Det(F)
-            Finv = ng.Inv(F)
-            gu = ng.Grad(u) * Finv
-            gv = ng.Grad(v) * Finv
-            dxf = ng.dx(definedon=mesh.Materials(pb.fluid))
-            visc_u = gu if pb.viscous_form == "gradient" else gu + gu.trans
-            momentum = (
-                pb.rho_fluid * J * ng.InnerProduct(gu * u, v)
-                + pb.mu_fluid * J * ng.InnerProduct(visc_u, gv)
-                - J * ng.Trace(gv) * p
-            )
-            a += _compiled(momentum - J * ng.Trace(gu) * q, pb.compile) * dxf
-            fluid_form = ng.BilinearForm(X, symmetric=False)
-            fluid_form += momentum * dxf
-            if self.has_solid:
-                alpha = pb.ale_weight * pb.length_scale**2
-                a += alpha * ng.InnerProduct(ng.Grad(d), ng.Grad(w)) * dxf
-        if self.has_solid:
-            g = ng.CoefficientFunction(tuple(float(c) for c in pb.body_force))
-            for name, law in pb.solids.items():
-                dxs = ng.dx(definedon=mesh.Materials(name))
-                P = piola1(law, F, self.E[name], self.nu[name])
-                a += _compiled(ng.InnerProduct(P, ng.Grad(v)), pb.compile) * dxs
-                if any(pb.body_force):
-                    a += -self.load * pb.rho_solid * ng.InnerProduct(g, v) * dxs
-                a += ng.InnerProduct(u, w) * dxs
-        self.a = a
-        self._fluid_form = fluid_form
+        self.a, self._fluid_form = self._build_forms()
 
         # Dirichlet data of the inflow at full load, restricted to its DOFs.
         x = self.gfu.vec.FV().NumPy()
@@ -237,6 +198,53 @@ class MonolithicSolver:
             self._detF = ng.Det(ng.Id(2) + ng.Grad(self.gfu.components[self.i_d]))
             ir = ng.IntegrationRule(ng.TRIG, 2 * order)
             self._ir_points = mesh.MapToAllElements(ir, ng.VOL)
+
+    def _build_forms(self):
+        """The full nonlinear form and the fluid-momentum-only form used for forces."""
+        import ngsolve as ng
+
+        pb = self.problem
+        mesh = self.mesh
+        X = self.X
+        trials, tests = X.TnT()
+        u, v = trials[0], tests[0]
+        if self.has_solid:
+            d, w = trials[self.i_d], tests[self.i_d]
+            F = F_fluid = ng.Id(2) + ng.Grad(d)
+        else:
+            d = w = None
+            F = F_fluid = ng.Id(2)
+        a = ng.BilinearForm(X, symmetric=False)
+        fluid_form = None
+        if self.has_fluid:
+            p, q = trials[self.i_p], tests[self.i_p]
+            J = ng.Det(F_fluid)
+            Finv = ng.Inv(F_fluid)
+            gu = ng.Grad(u) * Finv
+            gv = ng.Grad(v) * Finv
+            dxf = ng.dx(definedon=mesh.Materials(pb.fluid))
+            visc_u = gu if pb.viscous_form == "gradient" else gu + gu.trans
+            momentum = (
+                pb.rho_fluid * J * ng.InnerProduct(gu * u, v)
+                + pb.mu_fluid * J * ng.InnerProduct(visc_u, gv)
+                - J * ng.Trace(gv) * p
+            )
+            a += _compiled(momentum - J * ng.Trace(gu) * q, pb.compile) * dxf
+            fluid_form = ng.BilinearForm(X, symmetric=False)
+            fluid_form += momentum * dxf
+            if self.has_solid:
+                alpha = pb.ale_weight * pb.length_scale**2
+                a += alpha * ng.InnerProduct(ng.Grad(d), ng.Grad(w)) * dxf
+        if self.has_solid:
+            g = ng.CoefficientFunction(tuple(float(c) for c in pb.body_force))
+            for name, law in pb.solids.items():
+                dxs = ng.dx(definedon=mesh.Materials(name))
+                P = piola1(law, F, self.E[name], self.nu[name])
+                a += _compiled(ng.InnerProduct(P, ng.Grad(v)), pb.compile) * dxs
+                if any(pb.body_force):
+                    a += -self.load * pb.rho_solid * ng.InnerProduct(g, v) * dxs
+                a += ng.InnerProduct(u, w) * dxs
+        return a, fluid_form
 
     # ------------------------------------------------------------------ state access
     @property
