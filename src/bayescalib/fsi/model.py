@@ -14,8 +14,18 @@ Mesh and geometry are built once per model object and reused for every solve who
 geometry/mesh/law keys are unchanged (material values and the inflow rate are NGSolve
 parameters / boundary data, so nothing is recompiled). The initial state of a solve is
 rest (continuation from zero inflow) unless a warm start is given: a state file saved by
-:meth:`FSIModel.save_state` (or the in-memory last state, ``warm_start="last"``), which
-is used as initial guess at the full load.
+:meth:`FSIModel.save_state` (e.g. the base state at the prior centre), a state vector, or
+the in-memory last state (``warm_start="last"``); it is used as initial guess at the
+full load, and the solve falls back to the continuation from rest if Newton fails from
+it. A warm-started solve in the same model object also starts with the LU
+factorization kept from the previous solve (``solver.keep_factorization``): chord steps
+only, re-factorized as soon as they stop contracting — for a sequence of nearby
+parameters no factorization is needed at all (see ``benchmarks/bench_fsi.py``).
+
+Outputs: :class:`bayescalib.runrecord.SolveResult` with the interface vertices ordered
+from the upstream to the downstream foot (reference and deformed, mm), parameters in
+user units and solver statistics (DOFs, factorizations, phase timings, ``min_det_F``,
+``max_interface_velocity`` as a slip check).
 """
 
 from __future__ import annotations
