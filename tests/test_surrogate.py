@@ -85,6 +85,21 @@ def test_fast_predictor_equals_gpy(ard):
     assert len(gp.hyperparameters["lengthscale"]) == (2 if ard else 1)
 
 
+def test_torch_backend_matches_numpy(gp64):
+    # Same algebra in torch (CPU here; CUDA when available): round-off level agreement.
+    Xt = sobol_test_points(BOX, 64, 500, 0)
+    m1, v1 = gp64.predict(Xt, return_var=True)
+    g = GPSurrogate(
+        X_train=gp64.X_train, y_train=gp64.y_train, shift=gp64.shift, scale=gp64.scale,
+        mean_const=gp64.mean_const, nugget=gp64.nugget, variance=gp64.variance,
+        lengthscale=gp64.lengthscale, ard=gp64.ard, chol=gp64.chol, alpha=gp64.alpha,
+        device="torch:cpu",
+    )
+    m2, v2 = g.predict(Xt, return_var=True)
+    assert np.max(np.abs(m1 - m2)) <= 1e-10 * np.max(np.abs(m1))
+    assert np.max(np.abs(v1 - v2)) <= 1e-10 * gp64.variance
+
+
 def test_save_load_round_trip(tmp_path, gp64):
     p = tmp_path / "gp.h5"
     gp64.save(p)

@@ -92,7 +92,11 @@ def _torch():
 
 
 def _resolve_device(device: str) -> str:
-    """"auto" -> "cuda" when torch sees a GPU, else "cpu" (the NumPy path)."""
+    """"auto" -> "cuda" when torch sees a GPU, else "cpu" (the NumPy path).
+
+    "cpu" selects the NumPy implementation; any other value is a torch device
+    ("cuda", "cuda:1"; "torch:cpu" runs the torch implementation on the CPU).
+    """
     if device != "auto":
         return device
     try:
@@ -156,6 +160,10 @@ class GPSurrogate:
 
     # ------------------------------------------------------------------
     @property
+    def _torch_device(self) -> str:
+        return self.device.removeprefix("torch:")
+
+    @property
     def n_train(self) -> int:
         return int(self.X_train.shape[0])
 
@@ -208,7 +216,7 @@ class GPSurrogate:
     def _torch_cache(self) -> dict[str, Any]:
         if "t_B" not in self._cache:
             torch = _torch()
-            dev = self.device
+            dev = self._torch_device
             B = torch.as_tensor(
                 self.scale_inputs(self.X_train) / self.lengthscale, dtype=torch.float64, device=dev
             )
@@ -273,7 +281,7 @@ class GPSurrogate:
         var = np.empty(M) if return_var else None
         chunk = max(1, self.chunk_entries // max(self.n_train, 1))
         with torch.no_grad():
-            Xt = torch.as_tensor(X, dtype=torch.float64, device=self.device)
+            Xt = torch.as_tensor(X, dtype=torch.float64, device=self._torch_device)
             for s in range(0, M, chunk):
                 A = (Xt[s : s + chunk] - c["t_shift"]) * c["t_inv_sl"]
                 r2 = (A * A).sum(1)[:, None] + c["t_Bsq"][None, :] - 2.0 * (A @ c["t_B"].T)
