@@ -69,6 +69,7 @@ log = logging.getLogger(__name__)
 
 _SQRT3 = math.sqrt(3.0)
 _FORMAT_VERSION = 1
+_GEMM_SINGLE_THREAD_MNK = 2**18
 
 
 def matern32(A: np.ndarray, B: np.ndarray, variance: float, lengthscale: np.ndarray) -> np.ndarray:
@@ -254,8 +255,13 @@ class GPSurrogate:
         # small chunks keep the (chunk, n) kernel block in cache (the algebra is
         # memory-bound); chunks run on a thread pool (NumPy releases the GIL).
         # (the variance's triangular solve is BLAS-3 and prefers larger chunks)
+        n = max(self.n_train, 1)
         entries = 16 * self.cpu_chunk_entries if return_var else self.cpu_chunk_entries
-        chunk = max(8, min(M, entries // max(self.n_train, 1)))
+        # Keep the distance product (chunk x (d+2)) @ ((d+2) x n) below OpenBLAS's
+        # multithreading threshold (~2^19 multiply-adds): on a loaded machine a threaded
+        # small GEMM was measured 100-300x slower than a single-threaded one.
+        gemm_rows = _GEMM_SINGLE_THREAD_MNK // (n * (self.dim + 2))
+        chunk = max(1, min(M, entries // n, max(gemm_rows, 1)))
 
         def job(s: int) -> None:
             K = self._unit_kernel_rows(X[s : s + chunk])
