@@ -435,7 +435,7 @@ def write_interface_csv(path: str | Path, interface: Interface) -> None:
     with p.open("w", newline="") as fh:
         fh.write("x,y\n")
         for x, y in pts:
-            fh.write(f"{x!r},{y!r}\n")
+            fh.write(f"{float(x)!r},{float(y)!r}\n")
 
 
 def write_interface_vtk(path: str | Path, interface: Interface) -> None:

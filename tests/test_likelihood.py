@@ -1,0 +1,71 @@
+"""Tests of the Gaussian static log-likelihood (eq:loglik) over observation sets."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from _interface_shapes import arc, circle
+from bayescalib.interface import Interface
+from bayescalib.likelihood import gaussian_loglik, log_likelihood, sigma_n2_from_config
+from bayescalib.measures import MeasureOptionError, compute
+from bayescalib.observations import ObservationSet
+
+
+def test_gaussian_loglik_formula():
+    # hand value: n = 3, sigma^2 = 0.0004, D = 0.02
+    expected = -1.5 * math.log(2 * math.pi * 0.0004) - 0.02**2 / (2 * 0.0004)
+    assert gaussian_loglik(0.02, 3, 0.0004) == pytest.approx(expected, rel=1e-14)
+    # equals the sum of n independent N(0, sigma^2) log densities when D = ||d||
+    d = np.array([0.01, -0.005, 0.012])
+    from scipy.stats import norm
+
+    ref = norm.logpdf(d, scale=0.02).sum()
+    assert gaussian_loglik(np.linalg.norm(d), 3, 0.0004) == pytest.approx(ref, rel=1e-12)
+    assert gaussian_loglik(math.nan, 3, 0.0004) == -math.inf
+    assert gaussian_loglik(math.inf, 1, 0.0004) == -math.inf
+    with pytest.raises(ValueError):
+        gaussian_loglik(0.1, 0, 0.1)
+    with pytest.raises(ValueError):
+        gaussian_loglik(0.1, 1, 0.0)
+
+
+@pytest.mark.parametrize("measure, opts", [("cpp", {}), ("euclidean", {"n_points": 5}), ("rkhs", {"sigma_w": 0.005})])
+def test_log_likelihood_sums_snapshots(measure, opts):
+    obs = ObservationSet([arc(0.4, 80), arc(0.42, 80)], ["q50", "q100"], [50.0, 100.0])
+    models = [arc(0.405, 66), arc(0.41, 66)]
+    total = log_likelihood(models, obs, measure, 0.0005, **opts)
+    parts = [compute(measure, m, o, **opts) for m, o in zip(models, obs.snapshots)]
+    expected = sum(gaussian_loglik(r.D, r.n, 0.0005) for r in parts)
+    assert total == pytest.approx(expected, rel=1e-12)
+    n_expected = {"cpp": 66, "euclidean": 5, "rkhs": 1}[measure]
+    assert all(r.n == n_expected for r in parts)
+
+
+def test_failed_snapshot_gives_minus_inf_never_nan():
+    obs = ObservationSet([arc(0.4, 80), arc(0.42, 80)])
+    assert log_likelihood([arc(0.4, 66), None], obs, "cpp", 0.0005) == -math.inf
+    # a model the measurement lines miss: penalty by default (finite), -inf when asked to raise
+    tiny = Interface.polyline([[5.0, 5.0], [5.1, 5.0]])
+    v = log_likelihood([tiny, tiny], obs, "euclidean", 0.0005)
+    assert math.isfinite(v)
+    assert log_likelihood([tiny, tiny], obs, "euclidean", 0.0005, on_miss="raise") == -math.inf
+
+
+def test_log_likelihood_errors():
+    obs = ObservationSet([circle(0.4, 50)])
+    with pytest.raises(ValueError, match="1 observed"):
+        log_likelihood([circle(0.4, 50), circle(0.4, 50)], obs, "cpp", 0.0005)
+    with pytest.raises(MeasureOptionError):
+        log_likelihood([circle(0.4, 50)], obs, "nope", 0.0005)
+    with pytest.raises(ValueError, match="sigma_n2"):
+        log_likelihood([circle(0.4, 50)], obs, "cpp", -1.0)
+
+
+def test_sigma_n2_from_config():
+    assert sigma_n2_from_config({"sigma_n2": 0.0005, "sigma_n": None}) == 0.0005
+    assert sigma_n2_from_config({"sigma_n2": 0.0005, "sigma_n": 0.01}) == pytest.approx(1e-4)
+    with pytest.raises(ValueError):
+        sigma_n2_from_config({"sigma_n2": -1, "sigma_n": None})
