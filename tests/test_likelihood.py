@@ -65,7 +65,37 @@ def test_log_likelihood_errors():
 
 
 def test_sigma_n2_from_config():
-    assert sigma_n2_from_config({"sigma_n2": 0.0005, "sigma_n": None}) == 0.0005
-    assert sigma_n2_from_config({"sigma_n2": 0.0005, "sigma_n": 0.01}) == pytest.approx(1e-4)
+    assert sigma_n2_from_config({"sigma_n2": 0.0004, "sigma_n": None}) == 0.0004
+    assert sigma_n2_from_config({"sigma_n2": None, "sigma_n": 0.01}) == pytest.approx(1e-4)
+    assert sigma_n2_from_config({"sigma_n2": None, "sigma_n": None}) == 0.0005
+    assert sigma_n2_from_config({}) == 0.0005
+    with pytest.raises(ValueError, match="disagree"):
+        sigma_n2_from_config({"sigma_n2": 0.0005, "sigma_n": 0.01})
     with pytest.raises(ValueError):
         sigma_n2_from_config({"sigma_n2": -1, "sigma_n": None})
+
+
+def test_schema_defaults_and_errors():
+    from bayescalib.config import ConfigError, validate
+
+    cfg = validate({}, "measures")
+    assert cfg["measure"]["rkhs"]["sigma_w"] == 0.005
+    assert cfg["measure"]["euclidean"]["n_points"] == 10
+    assert cfg["measure"]["name"] == "rkhs"
+    assert cfg["observations"]["source"] == "synthetic"
+    assert cfg["likelihood"] == {"sigma_n2": None, "sigma_n": None}
+    assert sigma_n2_from_config(cfg["likelihood"]) == 0.0005
+    files = validate(
+        {"observations": {"source": "files", "files": [{"path": "a.png", "pixel_size": 0.01}]}}, "measures"
+    )
+    assert files["observations"]["files"][0]["units"] == "mm"
+    with pytest.raises(ConfigError, match="sigma_ww"):
+        validate({"measure": {"rkhs": {"sigma_ww": 1}}}, "measures")
+    with pytest.raises(ConfigError, match="sigma_w"):
+        validate({"measure": {"rkhs": {"sigma_w": -1}}}, "measures")
+    # every option of the validated section is accepted by the measure functions
+    from _interface_shapes import arc
+
+    for name in ("rkhs", "euclidean", "cpp"):
+        res = compute(name, arc(0.4, 30), arc(0.41, 40), **cfg["measure"][name])
+        assert math.isfinite(res.D)

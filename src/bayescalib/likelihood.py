@@ -117,19 +117,22 @@ def log_likelihood(
 
 
 def sigma_n2_from_config(section: Mapping[str, Any]) -> float:
-    """sigma_N^2 from a validated ``likelihood`` config section.
+    """sigma_N^2 (mm^2) from a ``likelihood`` config section.
 
-    ``sigma_n`` (mm), when not null, takes precedence and gives ``sigma_n**2``;
-    otherwise ``sigma_n2`` (mm^2, default 0.0005) is used.
+    ``sigma_n2`` when not null, else ``sigma_n ** 2``; when both are null the
+    paper's 0.0005 mm^2. Giving both with ``sigma_n2 != sigma_n ** 2`` is an error.
     """
+    s2 = section.get("sigma_n2")
     sn = section.get("sigma_n")
+    for key, val in (("sigma_n2", s2), ("sigma_n", sn)):
+        if val is not None and not (isinstance(val, (int, float)) and math.isfinite(val) and val > 0):
+            raise ValueError(f"likelihood.{key} must be a positive number, got {val!r}")
+    if s2 is not None and sn is not None and not math.isclose(float(s2), float(sn) ** 2, rel_tol=1e-9):
+        raise ValueError(
+            f"likelihood: sigma_n2 = {s2} and sigma_n = {sn} disagree (sigma_n^2 = {float(sn) ** 2}); give one"
+        )
+    if s2 is not None:
+        return float(s2)
     if sn is not None:
-        if not (isinstance(sn, (int, float)) and sn > 0):
-            raise ValueError(f"likelihood.sigma_n must be > 0, got {sn!r}")
         return float(sn) ** 2
-    s2 = section.get("sigma_n2", DEFAULT_SIGMA_N2)
-    if s2 is None:
-        return DEFAULT_SIGMA_N2
-    if not (isinstance(s2, (int, float)) and s2 > 0):
-        raise ValueError(f"likelihood.sigma_n2 must be > 0, got {s2!r}")
-    return float(s2)
+    return DEFAULT_SIGMA_N2

@@ -51,6 +51,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -196,8 +197,10 @@ def euclidean(
     ----------
     model, obs : Interface
         Model and observed interfaces (same dimension), mm.
-    points : ndarray, shape (k, d), optional
-        Measurement points (on or near the observed interface). Default: see
+    points : ndarray, shape (k, d), or str/Path, optional
+        Measurement points (on or near the observed interface), or a CSV file
+        read by :func:`bayescalib.observations.read_points` (its optional
+        direction columns are used when ``directions`` is None). Default: see
         :func:`default_measurement_points`.
     directions : ndarray, shape (k, d), optional
         Measurement directions (normalized here). Default: the observed
@@ -219,6 +222,12 @@ def euclidean(
     """
     _check_pair(model, obs)
     d = model.dim
+    if isinstance(points, (str, Path)):
+        from bayescalib.observations import read_points
+
+        points, file_dirs = read_points(points)
+        if directions is None:
+            directions = file_dirs
     if points is None:
         if directions is not None:
             raise MeasureOptionError("directions given without points")
