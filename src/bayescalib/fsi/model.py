@@ -309,6 +309,7 @@ class FSIModel:
             time_limit=float(time_limit if time_limit is not None else scfg["time_limit_s"]),
             reuse_factorization=bool(scfg["reuse_factorization"]),
             reuse_contraction=float(scfg["reuse_contraction"]),
+            chord_threshold=float(scfg["chord_threshold"]),
         )
         initial = None
         start_load = 0.0
@@ -350,6 +351,8 @@ class FSIModel:
         if initial is None:
             solver.reset()
         keep = bool(scfg["keep_factorization"]) and initial is not None and not built
+        if initial is not None:
+            controls.chord_threshold = float(scfg["chord_threshold_warm"])
         try:
             outcome = solver.solve(controls, initial=initial, start_load=start_load,
                                    keep_factorization=keep)
