@@ -155,3 +155,20 @@ def test_convergence_study_error_decreases():
     assert out["rel_error"][2] < 0.01
     assert np.allclose(out["rmse"], np.array(e) / np.sqrt(50))
     assert all(v >= 0 for v in out["loo_rmse"])
+
+
+def test_scg_optimizer_improves_evidence():
+    # SCG (the paper's choice in 6D) must end at a higher evidence than its fixed start
+    # (s^2 = mean((y - m)^2), l = 0.3), and not far below L-BFGS-B's optimum.
+    from bayescalib.surrogate import _build_gpy
+
+    X = sobol_design(BOX, 32, 4)
+    y = smooth_loglik(X)
+    scg = fit_gp(X, y, bounds=BOX, optimizer="scg", restarts=1)
+    lbfgsb = fit_gp(X, y, bounds=BOX, optimizer="lbfgsb", restarts=1)
+    start = _build_gpy(scg.scale_inputs(X), y, scg.mean_const, np.mean((y - scg.mean_const) ** 2),
+                       np.array([0.3]), scg.nugget, False)
+    assert scg.log_marginal_likelihood > float(start.log_likelihood())
+    assert scg.log_marginal_likelihood > lbfgsb.log_marginal_likelihood - 1.0
+    with pytest.raises(ValueError, match="optimizer"):
+        fit_gp(X, y, optimizer="adam")
