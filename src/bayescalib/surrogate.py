@@ -33,19 +33,23 @@ Prediction (eq. posterior_gp)
 
 :class:`GPSurrogate` caches the Cholesky factor of K + sigma_n^2 I and the
 weights alpha = (K + sigma_n^2 I)^{-1} (L - m) and evaluates the formulas above
-as plain batched array algebra in float64: with NumPy on the CPU (row chunks
-small enough that each (chunk, n) kernel block stays in cache -- the algebra
-is memory-bound, and NumPy's vectorized exp/sqrt beat torch's on a small
-CPU -- optionally spread over ``threads`` threads (default 1: on a small
-machine shared with parallel forward solves, extra threads measured slower);
-squared distances come from a single
-matrix product of augmented inputs, with sqrt(3)/l folded into the scaling
-and s^2 into the weights), or with torch on CUDA when a GPU is available (``device="auto"``), in
-chunks of at most ``chunk_entries`` kernel entries (GPU) or
-``cpu_chunk_entries`` (CPU). This is
-what the SMC calls millions of times; it equals GPy's ``predict_noiseless``
-to round-off (tested to 1e-8 relative). ``gpy_model()`` rebuilds the GPy
-model with the stored hyperparameters for comparison.
+as plain batched array algebra in float64 -- this is what the SMC calls
+millions of times. It equals GPy's ``predict_noiseless`` to round-off (tested
+to 1e-8 relative); ``gpy_model()`` rebuilds the GPy model with the stored
+hyperparameters for comparison.
+
+* CPU (``device="cpu"``): NumPy. Squared distances come from one matrix
+  product of augmented inputs [a, |a|^2, 1] @ [-2b, 1, |b|^2]^T with
+  sqrt(3)/l folded into the input scaling and s^2 into the weights. Rows are
+  processed in chunks small enough that each (chunk, n) kernel block stays in
+  cache (the algebra is memory-bound) and that the distance product stays
+  below OpenBLAS's multithreading threshold (threaded small products were
+  measured 100x slower on a loaded machine). ``threads`` > 1 spreads chunks
+  over a thread pool (default 1: on a small machine shared with forward
+  solves, extra threads measured slower).
+* GPU (``device="auto"`` with CUDA, or any torch device; ``"torch:cpu"`` for
+  testing): the same algebra in torch, in chunks of at most
+  ``chunk_entries`` kernel entries.
 """
 
 from __future__ import annotations
@@ -54,8 +58,8 @@ import logging
 import math
 import warnings
 from concurrent.futures import ThreadPoolExecutor
-from functools import lru_cache
 from dataclasses import dataclass, field
+from functools import lru_cache
 from pathlib import Path
 from typing import Any
 
