@@ -139,8 +139,9 @@ def observe(observations: Mapping[str, Any], out_path: str | Path, *,
         )
     elif source == "files":
         snaps, labels, loads = [], [], []
-        for k, entry in enumerate(observations.get("files", [])):
-            iface = read_interface(entry["path"], **_reader_options(entry))
+        domain = observations.get("domain")
+        for entry in observations.get("files", []):
+            iface = read_interface(entry["path"], domain=domain, **_reader_options(entry))
             snaps.append(iface)
             labels.append(entry.get("label") or Path(entry["path"]).stem)
             loads.append(entry.get("load"))
@@ -149,7 +150,7 @@ def observe(observations: Mapping[str, Any], out_path: str | Path, *,
         ref = None
         if observations.get("reference"):
             ref_entry = observations["reference"]
-            ref = read_interface(ref_entry["path"], **_reader_options(ref_entry))
+            ref = read_interface(ref_entry["path"], domain=domain, **_reader_options(ref_entry))
         stored = StoredObservations(snaps, labels, loads, ref,
                                     {"source": "files", "files": observations.get("files", [])})
     else:
@@ -159,7 +160,7 @@ def observe(observations: Mapping[str, Any], out_path: str | Path, *,
 
 
 def _reader_options(entry: Mapping[str, Any]) -> dict[str, Any]:
-    keys = ("units", "pixel_size", "origin")
+    keys = ("units", "pixel_size", "origin", "drop_border")
     return {k: entry[k] for k in keys if entry.get(k) is not None}
 
 
@@ -207,11 +208,9 @@ def discrepancy(run_path: str | Path, obs_path: str | Path, measure_name: str,
 
 
 def _sigma_n2(likelihood: Mapping[str, Any]) -> float:
-    if likelihood.get("sigma_n2") is not None:
-        return float(likelihood["sigma_n2"])
-    if likelihood.get("sigma_n") is not None:
-        return float(likelihood["sigma_n"]) ** 2
-    raise PipelineError("likelihood: give sigma_n2 (mm^2) or sigma_n (mm)")
+    from bayescalib.likelihood import sigma_n2_from_config
+
+    return sigma_n2_from_config(likelihood)
 
 
 def _measure_options(name: str, measure: Mapping[str, Any], obs) -> dict[str, Any]:
@@ -352,13 +351,10 @@ def smc(surrogate_path: str | Path, smc_cfg: Mapping[str, Any],
     gp = GPSurrogate.load(surrogate_path)
     space = _space(parameters)
 
-    def progress(info: Mapping[str, Any]) -> None:
-        log.info("SMC step: %s", ", ".join(f"{k}={info[k]}" for k in sorted(info)))
-
     result = run_smc(
         lambda X: gp.predict(X), space, n_particles=smc_cfg["n_particles"],
         n_rej=smc_cfg["n_rej"], zeta=smc_cfg["zeta"], ess_min_ratio=smc_cfg["ess_min_ratio"],
-        rng=np.random.default_rng(smc_cfg["seed"]), callback=progress,
+        rng=np.random.default_rng(smc_cfg["seed"]),
     )
     write_particles_h5(out_path, result, space)
     log.info("SMC done: %d steps, log evidence %.4f", result.n_steps, result.log_evidence)

@@ -1,0 +1,181 @@
+"""The Snakemake workflow as users run it, on the analytic stand-in model.
+
+Cache awareness is the contract here (issue: partial reruns): after a complete
+run, a change of a GP, SMC, likelihood or plot setting reruns no forward solve;
+growing the design from n to 2n solves exactly n new points; a forward-model
+change reruns the solves; a run killed during the solves resumes without
+redoing finished ones.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+import yaml
+
+REPO = Path(__file__).resolve().parents[1]
+SNAKEMAKE = [sys.executable, "-m", "snakemake"]
+DATA = Path(__file__).parent / "data"
+
+pytestmark = pytest.mark.workflow
+
+
+def _setup(tmp: Path, study: dict) -> Path:
+    (tmp / "config").mkdir(parents=True, exist_ok=True)
+    (tmp / "config" / "config.yaml").write_text(yaml.safe_dump(study))
+    return tmp
+
+
+def _smk(tmp: Path, *args: str, check: bool = True, timeout: int = 600):
+    cmd = [*SNAKEMAKE, "-s", str(REPO / "Snakefile"), "--directory", str(tmp), "--cores", "2",
+           *args]
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout,
+                          env={**os.environ, "PYTHONPATH": str(tmp)})
+    if check and proc.returncode != 0:
+        raise AssertionError(f"snakemake failed:\n{proc.stdout[-4000:]}\n{proc.stderr[-6000:]}")
+    return proc
+
+
+def job_counts(tmp: Path, *extra: str) -> dict[str, int]:
+    """Jobs a dry run would execute, per rule."""
+    proc = _smk(tmp, "-n", *extra)
+    text = proc.stdout + proc.stderr
+    counts: dict[str, int] = {}
+    if "Nothing to be done" in text:
+        return counts
+    block = text.split("Job stats:", 1)[1]
+    for line in block.splitlines()[3:]:
+        m = re.match(r"^(\w+)\s+(\d+)$", line.strip())
+        if not m:
+            if counts:
+                break
+            continue
+        counts[m.group(1)] = int(m.group(2))
+    counts.pop("total", None)
+    return counts
+
+
+@pytest.fixture(scope="module")
+def base_study():
+    return yaml.safe_load((DATA / "analytic_study.yaml").read_text())
+
+
+@pytest.fixture(scope="module")
+def done_run(tmp_path_factory, base_study):
+    tmp = _setup(tmp_path_factory.mktemp("wf"), base_study)
+    _smk(tmp)
+    return tmp
+
+
+def _with(study: dict, **changes) -> dict:
+    out = json.loads(json.dumps(study))
+    for dotted, value in changes.items():
+        node = out
+        keys = dotted.split("__")
+        for k in keys[:-1]:
+            node = node.setdefault(k, {})
+        node[keys[-1]] = value
+    return out
+
+
+def _copy_run(src: Path, dst: Path) -> Path:
+    shutil.copytree(src, dst, symlinks=True)
+    return dst
+
+
+def test_complete_run_writes_summary_with_contract_keys(done_run):
+    summary = json.loads((done_run / "results" / "analytic" / "summary.json").read_text())
+    for key in ("parameters", "map", "posterior_mean", "posterior_cov", "log_evidence",
+                "n_train", "n_failed", "ground_truth", "figures"):
+        assert key in summary, key
+    assert [p["name"] for p in summary["parameters"]] == ["E", "nu"]
+    assert summary["parameters"][0]["unit"] == "Pa"
+    assert summary["n_train"] == 8
+    for files in summary["figures"].values():
+        for f in files:
+            assert (done_run / f).is_file(), f
+    assert job_counts(done_run) == {}
+
+
+@pytest.mark.parametrize(
+    "change, expect_rerun, expect_zero",
+    [
+        ({"surrogate__restarts": 2}, {"train_surrogate", "smc"}, {"solve", "discrepancy"}),
+        ({"smc__n_rej": 4}, {"smc", "marginalize"}, {"solve", "discrepancy", "train_surrogate"}),
+        ({"likelihood__sigma_n2": 0.001}, {"discrepancy", "train_surrogate"}, {"solve"}),
+        ({"measure__rkhs__sigma_w": 0.006}, {"discrepancy"}, {"solve"}),
+        ({"plots__dpi": 70}, {"fig_posterior", "fig_response"},
+         {"solve", "discrepancy", "train_surrogate", "smc"}),
+    ],
+)
+def test_downstream_change_reruns_no_solve(done_run, base_study, tmp_path, change, expect_rerun,
+                                            expect_zero):
+    tmp = _copy_run(done_run, tmp_path / "run")
+    _setup(tmp, _with(base_study, **change))
+    counts = job_counts(tmp)
+    for rule in expect_zero:
+        assert counts.get(rule, 0) == 0, (rule, counts)
+    for rule in expect_rerun:
+        assert counts.get(rule, 0) > 0, (rule, counts)
+
+
+def test_doubling_the_design_solves_only_the_new_points(done_run, base_study, tmp_path):
+    tmp = _copy_run(done_run, tmp_path / "run")
+    _setup(tmp, _with(base_study, design__n_train=16))
+    counts = job_counts(tmp)
+    assert counts.get("solve") == 8
+    assert counts.get("discrepancy") == 8
+
+
+def test_forward_model_change_reruns_the_solves(done_run, base_study, tmp_path):
+    tmp = _copy_run(done_run, tmp_path / "run")
+    _setup(tmp, _with(base_study, forward_model__python__options={"fail_below_E": 130.0,
+                                                                   "u0": 0.03}))
+    counts = job_counts(tmp)
+    assert counts.get("solve") == 8
+    assert counts.get("ground_truth") == 1
+
+
+def test_killed_run_resumes_without_redoing_finished_solves(base_study, tmp_path):
+    study = _with(base_study, design__n_train=8,
+                  forward_model__python__function="slow_model:interface")
+    tmp = _setup(tmp_path / "run", study)
+    (tmp / "slow_model.py").write_text(
+        "import time\nfrom bayescalib.analytic_model import interface as _f\n"
+        "def interface(params, **kw):\n    time.sleep(1.5)\n    return _f(params, **kw)\n"
+    )
+    cmd = [*SNAKEMAKE, "-s", str(REPO / "Snakefile"), "--directory", str(tmp), "--cores", "2"]
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                            env={**os.environ, "PYTHONPATH": str(tmp)}, start_new_session=True)
+    runs = tmp / "results" / "analytic" / "runs"
+    deadline = time.time() + 240
+    while time.time() < deadline:
+        if runs.is_dir() and len(list(runs.glob("*.h5"))) >= 3:
+            break
+        time.sleep(0.2)
+    os.killpg(proc.pid, signal.SIGKILL)
+    proc.wait()
+    finished = {p.name: p.stat().st_mtime_ns for p in runs.glob("*.h5")}
+    assert 3 <= len(finished) < 8
+    _smk(tmp, "--rerun-incomplete")
+    for name, mtime in finished.items():
+        assert (runs / name).stat().st_mtime_ns == mtime, f"{name} was solved again"
+    assert (tmp / "results" / "analytic" / "summary.json").is_file()
+
+
+def test_invalid_config_stops_before_any_job_naming_the_key(base_study, tmp_path):
+    tmp = _setup(tmp_path / "run", _with(base_study, smc__n_particels=10))
+    proc = _smk(tmp, "-n", check=False)
+    assert proc.returncode != 0
+    assert "smc.n_particels" in proc.stderr + proc.stdout
+    assert "did you mean 'n_particles'" in proc.stderr + proc.stdout
+    assert not (tmp / "results").exists()
