@@ -250,3 +250,14 @@ def test_singular_jacobian_is_a_failure_not_an_exception(coarse):
     assert out.load_fraction == 0.0
     # the model recovers: the next solve sets valid materials again
     assert coarse.solve().ok
+
+
+def test_bad_warm_start_state_falls_back_to_continuation(coarse, truth):
+    rng = np.random.default_rng(3)
+    garbage = rng.standard_normal(coarse.solver.ndof) * 10.0  # inverted mesh, wild flow
+    r = coarse.solve(warm_start=garbage)
+    assert r.ok, r.reason
+    assert any(f.startswith("start at load 1") for f in coarse.solver.failures)
+    np.testing.assert_allclose(r.interface_current, truth.interface_current, atol=1e-6)
+    with pytest.raises(ValueError, match="shape"):
+        coarse.solve(warm_start=garbage[:-1])

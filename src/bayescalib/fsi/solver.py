@@ -394,7 +394,7 @@ class MonolithicSolver:
                 raise _Failure(f"NaN/Inf in the Newton increment (iteration {it})")
             ok, size = self._converged(du)
             if not fresh and prev is not None and size > prev:
-                # chord step does not contract: undo nothing (not applied yet), refactor
+                # chord step does not contract: discard it (not applied) and re-factorize
                 self.history.append((float(self.load.Get()), it, size, fresh))
                 inv = None
                 continue
@@ -468,18 +468,18 @@ class MonolithicSolver:
             # converge at the starting load first; if the initial state is too far off,
             # fall back to the continuation from rest
             self._apply_load(lam)
-            saved = self._x.copy()
             try:
                 self._newton(deadline, stats)
                 steps += 1
             except _Failure as fail:
+                # the initial state is no solution of this problem: report rest on a
+                # fatal failure, else restart the continuation from rest
+                self.failures.append(f"start at load {lam:.4g}: {fail}")
                 self._inv = None
                 if fail.fatal:
-                    self._x[:] = saved
                     reason = str(fail)
                 lam = 0.0
-                if not reason:
-                    self._x[:] = 0.0
+                self._x[:] = 0.0
         self._apply_load(lam)
         saved = self._x.copy()
         step = float(controls.initial_step)
