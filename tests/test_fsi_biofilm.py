@@ -261,3 +261,11 @@ def test_bad_warm_start_state_falls_back_to_continuation(coarse, truth):
     np.testing.assert_allclose(r.interface_current, truth.interface_current, atol=1e-6)
     with pytest.raises(ValueError, match="shape"):
         coarse.solve(warm_start=garbage[:-1])
+
+
+def test_bad_geometry_is_a_value_error():
+    floating = [[0.8, 0.1], [1.2, 0.1], [1.0, 0.3]]
+    with pytest.raises(ValueError, match="floor"):
+        FSIModel({"geometry": {"shape": "polyline", "outline": floating}}).solve()
+    with pytest.raises(ValueError, match="inside the channel"):
+        FSIModel({"geometry": {"width": 2.5}}).solve()

@@ -97,6 +97,8 @@ def _outline_face(geometry: dict[str, Any]):
         b = float(pts[:, 1].max())
         if lo <= 0 or hi >= L or b >= float(geometry["channel_height"]) or b <= 0:
             raise ValueError("geometry.outline must lie inside the channel, above the floor")
+        if pts[:, 1].min() > 1e-12:
+            raise ValueError("geometry.outline must reach the floor (some points with y <= 0)")
     else:
         raise ValueError(f"geometry.shape: unknown shape '{geometry['shape']}'")
     below = WorkPlane().MoveTo(lo - 1.0, -10.0).Rectangle(hi - lo + 2.0, 10.0).Face()
