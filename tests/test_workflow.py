@@ -159,16 +159,21 @@ def test_killed_run_resumes_without_redoing_finished_solves(base_study, tmp_path
     runs = tmp / "results" / "analytic" / "runs"
     deadline = time.time() + 240
     while time.time() < deadline:
-        if runs.is_dir() and len(list(runs.glob("*.h5"))) >= 3:
+        if runs.is_dir() and len(list(runs.glob("*.h5"))) >= 4:
             break
         time.sleep(0.2)
     os.killpg(proc.pid, signal.SIGKILL)
     proc.wait()
     finished = {p.name: p.stat().st_mtime_ns for p in runs.glob("*.h5")}
-    assert 3 <= len(finished) < 8
+    assert 4 <= len(finished) < 8
+    # the README's resume after a hard kill: release the stale lock, rerun incomplete jobs
+    _smk(tmp, "--unlock")
     _smk(tmp, "--rerun-incomplete")
-    for name, mtime in finished.items():
-        assert (runs / name).stat().st_mtime_ns == mtime, f"{name} was solved again"
+    redone = [n for n, t in finished.items() if (runs / n).stat().st_mtime_ns != t]
+    # A file written in the instant of the kill belongs to a job Snakemake had not
+    # marked finished; --rerun-incomplete redoes it. At most the two running jobs
+    # (--cores 2) can be in that state; every finished solve is kept.
+    assert len(redone) <= 2, f"finished solves were redone: {redone}"
     assert (tmp / "results" / "analytic" / "summary.json").is_file()
 
 
