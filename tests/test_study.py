@@ -1,0 +1,68 @@
+"""Study configuration: every shipped study validates, rule sections are what
+the cache contract needs, and bad studies fail with errors naming the key."""
+
+from pathlib import Path
+
+import pytest
+
+from bayescalib.config import ConfigError, deep_merge, load_yaml
+from bayescalib.study import Study
+
+CONFIG = Path(__file__).resolve().parents[1] / "config"
+DEFAULT = load_yaml(CONFIG / "config.yaml")
+
+
+@pytest.mark.parametrize("path", sorted(CONFIG.glob("*.yaml")), ids=lambda p: p.stem)
+def test_every_shipped_study_validates_on_top_of_the_default(path):
+    study = Study(deep_merge(DEFAULT, load_yaml(path)), where=path.name)
+    assert study.n_points >= study.n_train
+    assert set(study.point(0)) == set(study.targets())
+
+
+def test_design_points_keep_their_values_when_the_design_grows():
+    small = Study(deep_merge(DEFAULT, {"design": {"n_train": 16}}))
+    large = Study(deep_merge(DEFAULT, {"design": {"n_train": 64}}))
+    for i in range(16):
+        assert small.point(i) == large.point(i)
+
+
+def test_forward_section_keeps_only_the_chosen_model():
+    study = Study(deep_merge(DEFAULT, {"forward_model": {
+        "type": "python", "python": {"function": "bayescalib.analytic_model:interface"}}}))
+    fm = study.forward_section()
+    assert "fsi" not in fm and fm["python"]["function"].endswith(":interface")
+
+
+@pytest.mark.parametrize(
+    "change, message",
+    [
+        ({"smc": {"n_particels": 10}}, "unknown key 'smc.n_particels' (did you mean 'n_particles'?)"),
+        ({"design": {"n_train": 0}}, "design.n_train"),
+        ({"measures": ["rkhs", "hausdorff"]}, "measures[1]"),
+        ({"forward_model": {"fsi": {"material": {"law": "linear"}}}}, "forward_model.fsi.material.law"),
+        ({"convergence": {"enabled": True, "n_train": [10, 5000]}}, "convergence.n_train"),
+        ({"forward_model": {"type": "python"}}, "forward_model.python.function is required"),
+        ({"forward_model": {"type": "command", "command": {"template": "/nonexistent.j2",
+                                                          "command": ["x"]}}},
+         "/nonexistent.j2' does not exist"),
+        ({"likelihood": {"sigma_n2": -1.0}}, "likelihood.sigma_n2"),
+    ],
+)
+def test_bad_study_errors_name_the_key(change, message):
+    with pytest.raises(ConfigError) as exc:
+        Study(deep_merge(DEFAULT, change), where="config.yaml")
+    assert message in str(exc.value)
+
+
+def test_synthetic_observations_need_a_ground_truth():
+    params = [dict(p) for p in DEFAULT["parameters"]]
+    params[1] = {k: v for k, v in params[1].items() if k != "ground_truth"}
+    with pytest.raises(ConfigError, match="missing for: nu"):
+        Study({**DEFAULT, "parameters": params})
+
+
+def test_parameter_errors_name_the_parameter():
+    params = [dict(p) for p in DEFAULT["parameters"]]
+    params[0] = {**params[0], "bounds": [800.0, 100.0]}
+    with pytest.raises(ConfigError, match="E"):
+        Study({**DEFAULT, "parameters": params})
