@@ -323,17 +323,20 @@ def rkhs(
     _check_pair(model, obs)
     if not (isinstance(sigma_w, (int, float)) and np.isfinite(sigma_w) and sigma_w > 0):
         raise MeasureOptionError(f"sigma_w must be a positive number in mm, got {sigma_w!r}")
-    D = _rk.rkhs_distance(
-        model,
-        obs,
-        float(sigma_w),
-        spacing=spacing,
-        backend=backend,
-        device=device,
-        dtype=dtype,
-        chunk=_rk.DEFAULT_CHUNK if chunk is None else int(chunk),
-        truncate=_rk.DEFAULT_TRUNCATE if truncate is None else truncate,
-    )
+    try:
+        D = _rk.rkhs_distance(
+            model,
+            obs,
+            float(sigma_w),
+            spacing=spacing,
+            backend=backend,
+            device=device,
+            dtype=dtype,
+            chunk=_rk.DEFAULT_CHUNK if chunk is None else int(chunk),
+            truncate=_rk.DEFAULT_TRUNCATE if truncate is None else truncate,
+        )
+    except ValueError as exc:
+        raise MeasureOptionError(str(exc)) from None
     return MeasureResult(distances=np.array([D]), D=D, n=1)
 
 

@@ -64,7 +64,9 @@ def default_spacing(sigma_w: float) -> float:
     return SPACING_FACTOR * float(sigma_w)
 
 
-def current(interface: Interface, sigma_w: float, spacing: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+def current(
+    interface: Interface, sigma_w: float, spacing: float | None = None, max_elements: float = 2e6
+) -> tuple[np.ndarray, np.ndarray]:
     """Centres and measure-scaled normals of the (resampled) interface.
 
     Parameters
@@ -75,6 +77,9 @@ def current(interface: Interface, sigma_w: float, spacing: float | None = None) 
     spacing : float, optional
         Maximum sub-element size in mm; None -> ``sigma_w / 4``;
         ``math.inf`` -> no resampling (use the cells as given).
+    max_elements : float
+        Refuse (ValueError) resampling into more elements than this: a sign of
+        a unit mismatch or of a sigma_W far below the interface size.
 
     Returns
     -------
@@ -85,8 +90,21 @@ def current(interface: Interface, sigma_w: float, spacing: float | None = None) 
     h = default_spacing(sigma_w) if spacing is None else float(spacing)
     if not (h > 0):
         raise ValueError(f"RKHS spacing must be > 0 (or inf for no resampling), got {spacing}")
-    res = interface if math.isinf(h) else interface.resampled(h)
-    return res.centres, res.current
+    if not math.isinf(h):
+        if interface.dim == 2:
+            count = float(np.sum(np.ceil(interface.measures / h)))
+        else:
+            p = interface.points[interface.cells]
+            longest = np.linalg.norm(p - np.roll(p, 1, axis=1), axis=2).max(axis=1)
+            count = float(np.sum(np.ceil(longest / h) ** 2))
+        if count > max_elements:
+            raise ValueError(
+                f"{interface.name}: resampling to spacing {h:g} mm would give {count:.3g} elements "
+                f"(limit {max_elements:.3g}); the interface is large compared with sigma_W = "
+                f"{sigma_w:g} mm -- check the units, or pass a larger spacing"
+            )
+        interface = interface.resampled(h)
+    return interface.centres, interface.current
 
 
 def _morton_order(x: np.ndarray, cell: float) -> np.ndarray:
