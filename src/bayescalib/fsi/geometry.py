@@ -25,7 +25,8 @@ Boundary names: ``inlet`` (x = 0), ``outlet`` (x = L), ``top``, ``floor`` (fluid
 the floor), ``biofilm_floor`` (the clamped biofilm base), ``interface`` (fluid–biofilm)
 and ``cut`` (inner boundaries between biofilm subdomains). Region names: ``fluid`` and
 ``biofilm`` or ``base|middle|cap``. The mesh is graded from ``h_interface`` on the
-interface to ``h_bulk`` elsewhere and curved with ``curve_order`` (``mesh.Curve``).
+interface (and the biofilm base and cuts) to ``h_solid`` inside the biofilm and
+``h_bulk`` elsewhere, and curved with ``curve_order`` (``mesh.Curve``).
 """
 
 from __future__ import annotations
@@ -114,7 +115,9 @@ def build_mesh(geometry: dict[str, Any], mesh_cfg: dict[str, Any]) -> BiofilmMes
     geometry
         Validated ``geometry`` section of the fsi config (mm).
     mesh_cfg
-        Validated ``mesh`` section: ``h_interface``, ``h_bulk`` (mm), ``curve_order``.
+        ``mesh`` section with the preset resolved: ``h_interface`` (interface and biofilm
+        base), ``h_solid`` (biofilm interior), ``h_bulk`` (elsewhere), all mm;
+        ``grading`` (netgen mesh grading, larger = faster coarsening) and ``curve_order``.
 
     Returns
     -------
@@ -165,7 +168,7 @@ def build_mesh(geometry: dict[str, Any], mesh_cfg: dict[str, Any]) -> BiofilmMes
             e.maxh = h_if
     for f in shape.faces:
         if f.name != "fluid":
-            f.maxh = float(mesh_cfg["h_solid"]) if mesh_cfg.get("h_solid") else 2 * h_if
+            f.maxh = float(mesh_cfg["h_solid"])
     geo = OCCGeometry(shape, dim=2)
     ngmesh = geo.GenerateMesh(maxh=float(mesh_cfg["h_bulk"]), grading=float(mesh_cfg["grading"]))
     mesh = ng.Mesh(ngmesh)

@@ -58,8 +58,15 @@ PA = 1.0e3
 KG_PER_M3 = 1.0e-3
 #: Pa s -> mg/(mm s)
 PA_S = 1.0e3
-#: mesh presets: name -> (h_interface, h_bulk) in mm
-MESH_PRESETS = {"paper": (0.017, 0.08), "coarse": (0.035, 0.16), "fine": (0.0085, 0.04)}
+#: mesh presets (sizes in mm). ``paper`` has 65 interface nodes (paper: 66) and a mesh
+#: graded quickly away from the interface: the same interface accuracy as a uniformly
+#: fine bulk (1.0e-4 mm against ``fine``) with half the unknowns. ``fine`` (130 nodes,
+#: slow grading) is the reference for mesh-convergence checks.
+MESH_PRESETS = {
+    "paper": {"h_interface": 0.017, "h_bulk": 0.12, "h_solid": 0.06, "grading": 0.7},
+    "coarse": {"h_interface": 0.035, "h_bulk": 0.16, "h_solid": 0.07, "grading": 0.5},
+    "fine": {"h_interface": 0.0085, "h_bulk": 0.04, "h_solid": 0.017, "grading": 0.3},
+}
 
 #: config keys that change the mesh or the compiled forms (everything else is a value)
 _STRUCTURAL = ("geometry", "mesh", "fluid", "material.law", "solver.order", "solver.ale_weight")
@@ -141,9 +148,9 @@ class FSIModel:
         t0 = time.perf_counter()
         ng.SetNumThreads(1)
         mesh_cfg = dict(cfg["mesh"])
-        h_if, h_bulk = MESH_PRESETS[mesh_cfg["preset"]]
-        mesh_cfg["h_interface"] = mesh_cfg["h_interface"] or h_if
-        mesh_cfg["h_bulk"] = mesh_cfg["h_bulk"] or h_bulk
+        for key, value in MESH_PRESETS[mesh_cfg["preset"]].items():
+            if mesh_cfg.get(key) is None:
+                mesh_cfg[key] = value
         geo = build_mesh(cfg["geometry"], mesh_cfg)
         H = float(cfg["geometry"]["channel_height"])
         law = cfg["material"]["law"]
