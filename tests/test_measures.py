@@ -123,6 +123,17 @@ def test_default_points_follow_displacement():
     np.testing.assert_allclose(pts0[:, 0], [0.25, 0.75, 1.25, 1.75])
 
 
+def test_euclidean_3d_planes_and_spheres():
+    # ray-triangle path: shifted plane, default points by farthest-point sampling
+    res = euclidean(square(1.0, 6, z=0.03), square(1.0, 4), n_points=5)
+    np.testing.assert_allclose(res.distances, 0.03, atol=1e-12)  # flat: exact
+    assert res.n == 5
+    # spheres: the observed level-3 facet centres lie inside radius 1.1 by at most
+    # ~1.1 * (1 - cos(edge/2R)) + facet sag, and the level-4 model by its own sag; < 4e-3
+    res = euclidean(icosphere(1.0, 4), icosphere(1.1, 3), n_points=8)
+    np.testing.assert_allclose(res.distances, -0.1, atol=4e-3)
+
+
 # ----------------------------------------------------------------------------- RKHS
 SW = 0.005
 
