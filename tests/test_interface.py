@@ -9,7 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from _interface_shapes import arc, circle, icosphere, square
+from _interface_shapes import arc, circle, icosphere
 from bayescalib.interface import Interface, InterfaceError, segment_intersections
 
 
