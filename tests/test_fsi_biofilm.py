@@ -270,3 +270,14 @@ def test_bad_geometry_is_a_value_error():
         FSIModel({"geometry": {"shape": "polyline", "outline": floating}}).solve()
     with pytest.raises(ValueError, match="inside the channel"):
         FSIModel({"geometry": {"width": 2.5}}).solve()
+
+
+def test_sequence_reuses_mesh_state_and_factorization(coarse):
+    first = coarse.solve({"material.E": 410.0})
+    key = coarse._key
+    nxt = coarse.solve({"material.E": 405.0, "material.nu": 0.29}, warm_start="last")
+    assert coarse._key == key  # no rebuild for new material values
+    assert nxt.ok and nxt.stats["warm_start"] == 1 and nxt.stats["build_time"] == 0.0
+    # nearby parameters: chord steps with the factorization of the previous solve only
+    assert nxt.stats["factorizations"] == 0
+    assert nxt.newton_iterations < first.newton_iterations

@@ -148,9 +148,9 @@ class FSIModel:
         t0 = time.perf_counter()
         ng.SetNumThreads(1)
         mesh_cfg = dict(cfg["mesh"])
-        for key, value in MESH_PRESETS[mesh_cfg["preset"]].items():
-            if mesh_cfg.get(key) is None:
-                mesh_cfg[key] = value
+        for name, value in MESH_PRESETS[mesh_cfg["preset"]].items():
+            if mesh_cfg.get(name) is None:
+                mesh_cfg[name] = value
         geo = build_mesh(cfg["geometry"], mesh_cfg)
         H = float(cfg["geometry"]["channel_height"])
         law = cfg["material"]["law"]
