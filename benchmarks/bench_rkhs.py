@@ -18,7 +18,7 @@ implementation evaluate fewer). Each figure is the median wall time of
 
 Usage::
 
-    python benchmarks/bench_rkhs.py [--repeats 3] [--skip-dense] [--threads N]
+    python benchmarks/bench_rkhs.py [--repeats 3] [--skip-dense] [--threads 1]
 """
 
 from __future__ import annotations
@@ -59,15 +59,14 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--skip-dense", action="store_true", help="skip the dense 3D runs")
-    ap.add_argument("--threads", type=int, default=None, help="torch CPU threads")
+    ap.add_argument("--threads", type=int, default=1, help="torch CPU threads during the computation (default 1)")
     args = ap.parse_args()
 
     import torch
 
-    if args.threads:
-        torch.set_num_threads(args.threads)
+    th = args.threads
     devices = ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
-    print(f"torch {torch.__version__}, CPU threads {torch.get_num_threads()}, devices {devices}")
+    print(f"torch {torch.__version__}, CPU threads {th}, devices {devices}")
 
     # ---------------------------------------------------------------- 2D
     model = arc(0.4, 67)  # 66 segments
@@ -75,12 +74,12 @@ def main() -> None:
     c1, a1 = current(model, 0.005, math.inf)
     c2, a2 = current(obs, 0.005, math.inf)
     for backend in ("numpy", "torch"):
-        med, ts, v = timed(lambda: rkhs_squared(c1, a1, c2, a2, 0.005, backend=backend, device="cpu"), args.repeats)
+        med, ts, v = timed(lambda: rkhs_squared(c1, a1, c2, a2, 0.005, backend=backend, device="cpu", threads=th), args.repeats)
         report(f"2D 66 vs 2000 segments, {backend} cpu float64", len(c1), len(c2), med, ts, v)
     r1, b1 = current(model, 0.005)
     r2, b2 = current(obs, 0.005)
     for dev in devices:
-        med, ts, v = timed(lambda: rkhs_squared(r1, b1, r2, b2, 0.005, backend="torch", device=dev), args.repeats)
+        med, ts, v = timed(lambda: rkhs_squared(r1, b1, r2, b2, 0.005, backend="torch", device=dev, threads=th), args.repeats)
         report(f"2D resampled to sigma_W/4 (sigma_W=0.005), torch {dev}", len(r1), len(r2), med, ts, v)
 
     # ---------------------------------------------------------------- 3D
@@ -91,13 +90,13 @@ def main() -> None:
     for dev in devices:
         for dtype in ("float32", "float64"):
             med, ts, v = timed(
-                lambda: rkhs_squared(x, a, y, b, sw, backend="torch", device=dev, dtype=dtype),
+                lambda: rkhs_squared(x, a, y, b, sw, backend="torch", device=dev, dtype=dtype, threads=th),
                 args.repeats,
             )
             report(f"3D spheres, truncated 11.9 sigma_W, torch {dev} {dtype}", len(x), len(y), med, ts, v)
             if not args.skip_dense:
                 med, ts, v = timed(
-                    lambda: rkhs_squared(x, a, y, b, sw, backend="torch", device=dev, dtype=dtype, truncate=None),
+                    lambda: rkhs_squared(x, a, y, b, sw, backend="torch", device=dev, dtype=dtype, truncate=None, threads=th),
                     args.repeats,
                 )
                 report(f"3D spheres, dense, torch {dev} {dtype}", len(x), len(y), med, ts, v)

@@ -292,6 +292,7 @@ def rkhs(
     backend: str = "auto",
     dtype: str = "float64",
     truncate: float | None = None,
+    threads: int | None = None,
 ) -> MeasureResult:
     """RKHS surface-current norm (eq:inner_prod_rkhs, eq:surfcurrontriang).
 
@@ -312,6 +313,9 @@ def rkhs(
     truncate : float, optional
         Kernel truncation radius in units of sigma_w (default: exact to double
         precision, see :func:`bayescalib.rkhs.pair_sum`).
+    threads : int, optional
+        torch CPU threads during the computation (None: 1; 0: keep the global
+        torch setting).
 
     Returns
     -------
@@ -334,6 +338,7 @@ def rkhs(
             dtype=dtype,
             chunk=_rk.DEFAULT_CHUNK if chunk is None else int(chunk),
             truncate=_rk.DEFAULT_TRUNCATE if truncate is None else truncate,
+            threads=_rk.DEFAULT_THREADS if threads is None else (int(threads) or None),
         )
     except ValueError as exc:
         raise MeasureOptionError(str(exc)) from None
@@ -352,7 +357,7 @@ MEASURES: dict[str, tuple[Any, frozenset[str]]] = {
     "cpp": (closest_point, frozenset()),
     "rkhs": (
         rkhs,
-        frozenset({"sigma_w", "spacing", "device", "chunk", "backend", "dtype", "truncate"}),
+        frozenset({"sigma_w", "spacing", "device", "chunk", "backend", "dtype", "truncate", "threads"}),
     ),
 }
 

@@ -45,9 +45,9 @@ makes the cost close to linear when sigma_W is small against the interface.
 Exponents are clipped to [-80, 0] (no subnormal floats; the clipped values
 lie beyond the truncation radius).
 
-Threads: on a loaded CPU the torch figures are best with one intra-op thread
-(``torch.set_num_threads(1)``; see ``benchmarks/bench_rkhs.py``); this module
-leaves the global thread setting alone.
+Threads: the torch path runs with one intra-op CPU thread by default
+(``threads=1``, restored afterwards): on the shared 2-core machine two threads
+made the small block products up to 40x slower (``benchmarks/bench_rkhs.py``).
 """
 
 from __future__ import annotations
@@ -71,6 +71,8 @@ DEFAULT_TRUNCATE = 11.9
 #: exponents are clipped to [MIN_EXPONENT, 0]: exp(-80) ~ 1.8e-35 is below the
 #: truncation level and keeps float32 out of (slow) subnormal numbers
 MIN_EXPONENT = -80.0
+#: torch CPU intra-op threads used by the torch path (see pair_sum)
+DEFAULT_THREADS = 1
 
 
 def default_spacing(sigma_w: float) -> float:
@@ -202,6 +204,7 @@ def pair_sum(
     chunk: int = DEFAULT_CHUNK,
     symmetric: bool = False,
     truncate: float | None = DEFAULT_TRUNCATE,
+    threads: int | None = DEFAULT_THREADS,
 ) -> float:
     """``sum_i sum_j a_i . b_j exp(-|x_i - y_j|^2 / (2 sigma_w^2))``.
 
@@ -228,6 +231,12 @@ def pair_sum(
         boxes after a Morton sort). The default 11.9 drops only kernel values
         ``< exp(-70) ~ 4e-31``, i.e. the result equals the dense sum to double
         precision. None evaluates every pair.
+    threads : int or None
+        torch intra-op threads on CPU while computing (the previous setting is
+        restored). Default 1: the blocks are small matrix products, which
+        multi-threading slows down badly on a shared, loaded CPU (measured up
+        to 40x), and the pipeline runs one job per core. None keeps the
+        global setting.
     """
     inv2s2 = 1.0 / (2.0 * float(sigma_w) ** 2)
     x = np.asarray(x, float)
@@ -270,6 +279,19 @@ def pair_sum(
         yt = torch.as_tensor(np.ascontiguousarray(y), dtype=tdt, device=dev)
         bt = torch.as_tensor(np.ascontiguousarray(b), dtype=tdt, device=dev)
     total = torch.zeros((), dtype=torch.float64, device=dev)
+    saved_threads = torch.get_num_threads()
+    if dev.type == "cpu" and threads is not None:
+        torch.set_num_threads(max(1, int(threads)))
+    try:
+        _torch_blocks(x, y, xt, at, yt, bt, cutoff, rows, symmetric, chunk, inv2s2, dev, total)
+    finally:
+        torch.set_num_threads(saved_threads)
+    return float(total)
+
+
+def _torch_blocks(x, y, xt, at, yt, bt, cutoff, rows, symmetric, chunk, inv2s2, dev, total):
+    import torch
+
     with torch.no_grad():
         for i0, i1, cols, nd in _blocks(x, y, cutoff, rows, symmetric):
             step = max(1, int(chunk) // (i1 - i0))
@@ -282,7 +304,6 @@ def pair_sum(
                     idx = torch.as_tensor(cc, device=dev)
                     yj, bj = yt[idx], bt[idx]
                 total += _block_sum_torch(xt[i0:i1], at[i0:i1], yj, bj, inv2s2, symmetric, ndc)
-    return float(total)
 
 
 def rkhs_squared(
@@ -297,6 +318,7 @@ def rkhs_squared(
     dtype: str = "float64",
     chunk: int = DEFAULT_CHUNK,
     truncate: float | None = DEFAULT_TRUNCATE,
+    threads: int | None = DEFAULT_THREADS,
 ) -> tuple[float, float, float]:
     """The three terms ``(<a1,a1>, <a1,a2>, <a2,a2>)`` of eq:surfcurrontriang.
 
@@ -313,7 +335,7 @@ def rkhs_squared(
     if backend == "auto":
         pairs = (c1.shape[0] + c2.shape[0]) ** 2
         backend = "numpy" if pairs <= AUTO_NUMPY_PAIRS else "torch"
-    kw = dict(backend=backend, device=device, dtype=dtype, chunk=chunk, truncate=truncate)
+    kw = dict(backend=backend, device=device, dtype=dtype, chunk=chunk, truncate=truncate, threads=threads)
     s11 = pair_sum(c1, a1, c1, a1, sigma_w, symmetric=True, **kw)
     s12 = pair_sum(c1, a1, c2, a2, sigma_w, **kw)
     s22 = pair_sum(c2, a2, c2, a2, sigma_w, symmetric=True, **kw)
@@ -331,6 +353,7 @@ def rkhs_distance(
     dtype: str = "float64",
     chunk: int = DEFAULT_CHUNK,
     truncate: float | None = DEFAULT_TRUNCATE,
+    threads: int | None = DEFAULT_THREADS,
 ) -> float:
     """RKHS norm D between two interfaces (after resampling; see module docstring).
 
@@ -345,7 +368,7 @@ def rkhs_distance(
     c2, a2 = current(obs, sigma_w, spacing)
     s11, s12, s22 = rkhs_squared(
         c1, a1, c2, a2, sigma_w, backend=backend, device=device, dtype=dtype, chunk=chunk,
-        truncate=truncate,
+        truncate=truncate, threads=threads,
     )
     return math.sqrt(max(0.0, s11 - 2.0 * s12 + s22))
 
