@@ -190,6 +190,29 @@ def test_floor_biofilm_mask_drops_border(tmp_path):
     assert closed.n_cells == closed.n_points
 
 
+def test_floor_inside_image_is_dropped(tmp_path):
+    from skimage import io
+
+    # half disc (radius 30 px) standing on a floor at row 80; rows below are substrate (background)
+    n = 100
+    rows, cols = np.mgrid[0:n, 0:n]
+    mask = ((cols - 50) ** 2 + (rows - 80) ** 2 <= 30**2) & (rows <= 80)
+    io.imsave(tmp_path / "inner.png", (mask * 255).astype(np.uint8), check_contrast=False)
+    s = 0.01
+    full = read_interface(tmp_path / "inner.png", pixel_size=s)
+    assert full.n_cells == full.n_points  # closed around the base
+    y_floor = (n - 1 - 80) * s  # row 80 in mm (origin at the bottom-left pixel centre)
+    c = read_interface(tmp_path / "inner.png", pixel_size=s, floor=y_floor)
+    assert c.n_cells == c.n_points - 1
+    assert c.points[:, 1].min() > y_floor + 0.5 * s
+    # the kept arc spans the patch: from near x = 20 px to x = 80 px, ordered upstream -> downstream
+    assert c.points[0, 0] < 0.25 and c.points[-1, 0] > 0.75
+    top = np.abs(c.centres[:, 0] - 0.5) < 0.05
+    assert np.mean(c.normals[top, 1]) > 0.9
+    with pytest.raises(ObservationError, match="inner.png.*floor"):
+        read_interface(tmp_path / "inner.png", pixel_size=s, floor=10.0)
+
+
 def test_image_bad_input(tmp_path):
     from skimage import io
 

@@ -21,6 +21,10 @@ Which part is kept
   consists of the fluid-biofilm boundary only.
 * ``drop_border=False``: the mask is padded with background, so the contour
   closes along the border/floor.
+* ``floor=y_f`` (mm): for a floor inside the image (e.g. substrate pixels
+  below the biofilm segmented as background), contour points with
+  ``y <= y_f + s/2`` are removed and the longest remaining piece is kept, an
+  open curve without the biofilm base.
 If several contours exist (specks, holes), the longest is used.
 
 Orientation follows :mod:`bayescalib.interface`: the curve is ordered so that
@@ -68,6 +72,7 @@ def mask_contour(
     origin: tuple[float, float] = (0.0, 0.0),
     *,
     drop_border: bool = True,
+    floor: float | None = None,
     name: str = "mask",
 ) -> Interface:
     """Sub-pixel fluid-biofilm contour of a binary mask.
@@ -82,6 +87,8 @@ def mask_contour(
         Physical position (mm) of the centre of the bottom-left pixel.
     drop_border : bool
         Keep only the part of the boundary inside the image (see module docstring).
+    floor : float, optional
+        y of the floor in mm; the contour part on it is dropped.
     name : str
         Used in error messages.
 
@@ -125,7 +132,9 @@ def mask_contour(
     s = float(pixel_size)
     x0, y0 = float(origin[0]), float(origin[1])
     pts = np.column_stack([x0 + rc[:, 1] * s, y0 + (h - 1 - rc[:, 0]) * s])
-    curve = Interface.polyline(pts, closed=closed and rc.shape[0] >= 3, name=name)
+    if floor is not None:
+        pts, closed = _drop_floor(pts, closed, float(floor) + 0.5 * s, name)
+    curve = Interface.polyline(pts, closed=closed and pts.shape[0] >= 3, name=name)
     # orientation: foreground must be on the right (opposite to the normal)
     probe_in = curve.centres - 0.5 * s * curve.normals
     probe_out = curve.centres + 0.5 * s * curve.normals
@@ -139,3 +148,22 @@ def mask_contour(
     if score < 0:
         curve = Interface.polyline(pts[::-1], closed=curve.n_cells == curve.n_points, name=name)
     return curve
+
+
+def _drop_floor(pts: np.ndarray, closed: bool, y_cut: float, name: str) -> tuple[np.ndarray, bool]:
+    """Longest run of consecutive points with ``y > y_cut`` (an open curve)."""
+    keep = pts[:, 1] > y_cut
+    if keep.all():
+        return pts, closed
+    if not keep.any():
+        raise _MaskError(f"{name}: the whole interface lies on the floor (y <= {y_cut:g} mm)")
+    if closed:  # start right after a dropped point so runs do not wrap around
+        shift = int(np.flatnonzero(~keep)[0]) + 1
+        pts, keep = np.roll(pts, -shift, axis=0), np.roll(keep, -shift)
+    edges = np.diff(np.r_[0, keep.astype(int), 0])
+    starts, ends = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
+    k = int(np.argmax(ends - starts))
+    run = pts[starts[k] : ends[k]]
+    if run.shape[0] < 2:
+        raise _MaskError(f"{name}: less than 2 contour points above the floor y = {y_cut:g} mm")
+    return run, False

@@ -345,7 +345,7 @@ def _read_vtk(path: Path, units: str, where: str) -> Interface:
 
 
 # ---------------------------------------------------------------------------- image
-def _read_image(path: Path, pixel_size, origin, drop_border: bool, units: str, where: str) -> Interface:
+def _read_image(path: Path, pixel_size, origin, drop_border: bool, floor, units: str, where: str) -> Interface:
     from bayescalib import imaging
 
     if pixel_size is None:
@@ -356,7 +356,10 @@ def _read_image(path: Path, pixel_size, origin, drop_border: bool, units: str, w
         raise ObservationError(f"{where}: origin must be two numbers (x, y), got {origin}")
     try:
         mask = imaging.load_mask(path)
-        return imaging.mask_contour(mask, float(pixel_size) * f, org, drop_border=drop_border, name=where)
+        return imaging.mask_contour(
+            mask, float(pixel_size) * f, org, drop_border=drop_border,
+            floor=None if floor is None else float(floor) * f, name=where,
+        )
     except InterfaceError as exc:
         raise ObservationError(str(exc)) from None
     except ValueError as exc:
@@ -374,6 +377,7 @@ def read_interface(
     pixel_size: float | None = None,
     origin: Sequence[float] | None = None,
     drop_border: bool = True,
+    floor: float | None = None,
     domain: Sequence[Sequence[float]] | None = None,
 ) -> Interface:
     """Read an interface from CSV, VTK or a mask image, in mm.
@@ -391,6 +395,8 @@ def read_interface(
     drop_border : bool
         Image: drop the boundary along the image border/floor (see
         :mod:`bayescalib.imaging`).
+    floor : float, optional
+        Image: y of the floor (in ``units``); the contour part on it is dropped.
     domain : sequence of (min, max) per axis in mm, optional
         Expected bounding box; an interface that does not fit raises (unit check).
 
@@ -412,7 +418,7 @@ def read_interface(
     elif suffix in VTK_SUFFIXES:
         iface = _read_vtk(p, units, where)
     elif suffix in IMAGE_SUFFIXES:
-        iface = _read_image(p, pixel_size, origin, drop_border, units, where)
+        iface = _read_image(p, pixel_size, origin, drop_border, floor, units, where)
     else:
         known = sorted(CSV_SUFFIXES | VTK_SUFFIXES | IMAGE_SUFFIXES)
         raise ObservationError(f"{where}: unknown interface file type {suffix!r}; use one of {', '.join(known)}")

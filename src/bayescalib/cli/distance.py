@@ -6,7 +6,7 @@ Example::
         --pixel-size 0.004 --origin 0 0 --json
 
 MODEL and OBS are interface files in any format :func:`bayescalib.observations.read_interface`
-reads (CSV, VTK, mask image). ``--units``, ``--pixel-size`` and ``--origin`` apply to
+reads (CSV, VTK, mask image). ``--units``, ``--pixel-size``, ``--origin`` and ``--floor`` apply to
 both files (they only matter for the formats that use them). Prints D; with
 ``--json`` one JSON object with the measure, D, n (the number of measurements of
 eq:loglik) and the distance vector. Bad input exits with status 2 and a one-line error.
@@ -37,6 +37,8 @@ def add_parser(p: argparse.ArgumentParser) -> None:
                    help="pixel size of mask images (in --units)")
     p.add_argument("--origin", type=float, nargs=2, default=None, metavar=("X", "Y"),
                    help="position of the centre of the bottom-left image pixel (in --units)")
+    p.add_argument("--floor", type=float, default=None, metavar="Y",
+                   help="mask images: y of a floor inside the image (in --units); the contour part on it is dropped")
     p.add_argument("--units", choices=["mm", "m", "um"], default="mm",
                    help="length unit of the files (default: mm)")
     p.add_argument("--json", action="store_true", help="print D, n and the distance vector as JSON")
@@ -49,7 +51,7 @@ def run(args: argparse.Namespace) -> int:
     from bayescalib.measures import compute
     from bayescalib.observations import read_interface, read_points
 
-    opts = dict(units=args.units, pixel_size=args.pixel_size, origin=args.origin)
+    opts = dict(units=args.units, pixel_size=args.pixel_size, origin=args.origin, floor=args.floor)
     model = read_interface(args.model, **opts)
     obs = read_interface(args.obs, **opts)
     options: dict = {}
