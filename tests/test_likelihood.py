@@ -83,8 +83,12 @@ def test_schema_defaults_and_errors():
     assert cfg["measure"]["euclidean"]["n_points"] == 10
     assert cfg["measure"]["name"] == "rkhs"
     assert cfg["observations"]["source"] == "synthetic"
-    assert cfg["likelihood"] == {"sigma_n2": None, "sigma_n": None}
+    assert cfg["likelihood"] == {"sigma_n2": 0.0005, "sigma_n": None}
     assert sigma_n2_from_config(cfg["likelihood"]) == 0.0005
+    # sigma_n given: no sigma_n2 default is filled in, so the two cannot disagree
+    only_sn = validate({"likelihood": {"sigma_n": 0.01}}, "measures")["likelihood"]
+    assert only_sn == {"sigma_n": 0.01}
+    assert sigma_n2_from_config(only_sn) == pytest.approx(1e-4)
     files = validate(
         {"observations": {"source": "files", "files": [{"path": "a.png", "pixel_size": 0.01}]}}, "measures"
     )
