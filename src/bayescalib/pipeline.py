@@ -160,7 +160,7 @@ def observe(observations: Mapping[str, Any], out_path: str | Path, *,
 
 
 def _reader_options(entry: Mapping[str, Any]) -> dict[str, Any]:
-    keys = ("units", "pixel_size", "origin", "drop_border")
+    keys = ("units", "pixel_size", "origin", "drop_border", "floor")
     return {k: entry[k] for k in keys if entry.get(k) is not None}
 
 
@@ -194,8 +194,18 @@ def discrepancy(run_path: str | Path, obs_path: str | Path, measure_name: str,
     sigma_n2 = _sigma_n2(likelihood)
     options = _measure_options(measure_name, measure, obs)
     total, snaps = 0.0, []
+    from bayescalib.measures import MeasureOptionError
+
     for label, snap in zip(obs.labels, obs.snapshots, strict=True):
-        res = compute(measure_name, model, snap, **options)
+        try:
+            res = compute(measure_name, model, snap, **options)
+        except MeasureOptionError:
+            raise
+        except ValueError as exc:  # e.g. a ray missing the model with on_miss: raise
+            record.update(status="failed", reason=f"measure {measure_name}: {exc}", D=None,
+                          n=None, loglik=None, snapshots=[])
+            write_json(out_path, record)
+            return record
         ll = gaussian_loglik(res.D, res.n, sigma_n2)
         total += ll
         snaps.append({"label": label, "D": res.D, "n": res.n, "loglik": ll,
