@@ -3,7 +3,7 @@
 Reference figures come from NOTES-fsi.md (an independent feasibility study): max
 interface displacement 0.0276 mm at E = 400 Pa, nu = 0.3 (half-ellipse 0.6 x 0.4 mm,
 V_in = 100 mm^2/s), displacement roughly ~ 1/E. Most tests use the coarse mesh preset
-(~32 interface nodes, ~0.5 s per solve) to stay fast.
+(32 interface nodes, ~0.2 s per solve) to stay fast.
 """
 
 from __future__ import annotations
