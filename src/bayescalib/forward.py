@@ -450,7 +450,7 @@ def solve_point(fm: Mapping[str, Any], params: Mapping[str, float], out_path: st
                 res = parent.recv()
             except EOFError:
                 res = None
-        proc.join(timeout=5)
+        proc.join(timeout=5 if res is not None else 0.1)
         if proc.is_alive():
             proc.kill()
             proc.join()
