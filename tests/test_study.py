@@ -28,7 +28,8 @@ def test_design_points_keep_their_values_when_the_design_grows():
 
 def test_forward_section_keeps_only_the_chosen_model():
     study = Study(deep_merge(DEFAULT, {"forward_model": {
-        "type": "python", "python": {"function": "bayescalib.analytic_model:interface"}}}))
+        "type": "python", "warm_start": "none",
+        "python": {"function": "bayescalib.analytic_model:interface"}}}))
     fm = study.forward_section()
     assert "fsi" not in fm and fm["python"]["function"].endswith(":interface")
 
@@ -41,7 +42,10 @@ def test_forward_section_keeps_only_the_chosen_model():
         ({"measures": ["rkhs", "hausdorff"]}, "measures[1]"),
         ({"forward_model": {"fsi": {"material": {"law": "linear"}}}}, "forward_model.fsi.material.law"),
         ({"convergence": {"enabled": True, "n_train": [10, 5000]}}, "convergence.n_train"),
-        ({"forward_model": {"type": "python"}}, "forward_model.python.function is required"),
+        ({"forward_model": {"type": "python", "warm_start": "none"}},
+         "forward_model.python.function is required"),
+        ({"forward_model": {"type": "python", "python": {"function": "m:f"}}},
+         "forward_model.warm_start: 'prior_centre' needs forward_model.type fsi"),
         ({"forward_model": {"type": "command", "command": {"template": "/nonexistent.j2",
                                                           "command": ["x"]}}},
          "/nonexistent.j2' does not exist"),
