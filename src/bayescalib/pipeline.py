@@ -22,6 +22,7 @@ from __future__ import annotations
 import json
 import logging
 import math
+import os
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -98,6 +99,46 @@ def setup_logging(path: str | Path | None) -> None:
         root.addHandler(h)
 
 
+# ------------------------------------------------------------------ broken inputs
+def _set_aside(path: str | Path, problem: str) -> PipelineError:
+    """Move a corrupt per-point file to ``<name>.corrupt`` and say how to redo it.
+
+    The file is the output of an upstream job (a run record, a discrepancy file),
+    so once it is gone, rerunning the same ``snakemake`` command recreates it
+    (that one design point only) instead of failing on it again.
+    """
+    p = Path(path)
+    aside = p.with_name(p.name + ".corrupt")
+    where = ""
+    if p.exists():
+        try:
+            os.replace(p, aside)
+            where = f"; it was moved to '{aside}'"
+        except OSError as exc:  # pragma: no cover - read-only results folder
+            where = f"; it could not be moved aside ({exc}): delete it"
+    return PipelineError(
+        f"{problem}{where}. Run the same snakemake command again: it is recomputed, "
+        "and only what depends on it."
+    )
+
+
+def _read_run_checked(path: str | Path):
+    """:func:`read_run`, but a missing, truncated or corrupt record is set aside."""
+    from bayescalib.runrecord import RunFileError, read_run
+
+    try:
+        return read_run(path)
+    except RunFileError as exc:
+        raise _set_aside(path, str(exc)) from None
+
+
+def _read_json_checked(path: str | Path) -> Any:
+    try:
+        return read_json(path)
+    except PipelineError as exc:
+        raise _set_aside(path, str(exc)) from None
+
+
 # -------------------------------------------------------------------------- observe
 def observe(observations: Mapping[str, Any], out_path: str | Path, *,
             ground_truth_run: str | Path | None = None) -> None:
@@ -113,29 +154,37 @@ def observe(observations: Mapping[str, Any], out_path: str | Path, *,
     from bayescalib.interface import Interface
     from bayescalib.observation_store import StoredObservations, write_observations
     from bayescalib.observations import add_noise, read_interface
-    from bayescalib.runrecord import read_run
 
     source = observations.get("source", "synthetic")
     if source == "synthetic":
         if ground_truth_run is None:
             raise PipelineError("synthetic observations need the ground-truth run record")
-        run = read_run(ground_truth_run)
+        run = _read_run_checked(ground_truth_run)
         if run.status != "ok":
             raise PipelineError(
                 f"the forward solve at the ground truth failed ({run.reason}); synthetic "
                 "observations cannot be made: change the ground truth or the forward model"
             )
-        current = Interface.polyline(run.interface_current, run.segments, name="observed")
         reference = Interface.polyline(run.interface_reference, run.segments, name="reference")
         sigma = float(observations.get("noise_sigma", 0.0))
         seed = int(observations.get("seed", 0))
-        if sigma > 0:
-            current = add_noise(current, sigma, np.random.default_rng(seed))
-        load = run.parameters.get("inflow.rate")
+        rng = np.random.default_rng(seed)
+        if run.loadings:  # one snapshot per loading of the series
+            curves = [ld.current for ld in run.loadings]
+            labels = [ld.label for ld in run.loadings]
+            loads = [ld.value for ld in run.loadings]
+        else:
+            curves, labels = [run.interface_current], ["ground_truth"]
+            loads = [run.parameters.get("inflow.rate")]
+        snaps = []
+        for pts, label in zip(curves, labels):
+            current = Interface.polyline(pts, run.segments, name=f"observed {label}")
+            snaps.append(add_noise(current, sigma, rng) if sigma > 0 else current)
         stored = StoredObservations(
-            [current], ["ground_truth"], [load], reference,
+            snaps, labels, loads, reference,
             {"source": "synthetic", "noise_sigma_mm": sigma, "seed": seed,
-             "ground_truth": run.parameters},
+             "ground_truth": run.parameters,
+             "hidden": dict(observations.get("hidden") or {})},
         )
     elif source == "files":
         snaps, labels, loads = [], [], []
@@ -176,9 +225,8 @@ def discrepancy(run_path: str | Path, obs_path: str | Path, measure_name: str,
     from bayescalib.likelihood import gaussian_loglik
     from bayescalib.measures import compute
     from bayescalib.observation_store import read_observations
-    from bayescalib.runrecord import read_run
 
-    run = read_run(run_path)
+    run = _read_run_checked(run_path)
     obs = read_observations(obs_path)
     record: dict[str, Any] = {
         "measure": measure_name,
@@ -190,13 +238,23 @@ def discrepancy(run_path: str | Path, obs_path: str | Path, measure_name: str,
         record.update(D=None, n=None, loglik=None, snapshots=[])
         write_json(out_path, record)
         return record
-    model = Interface.polyline(run.interface_current, run.segments, name="model")
+    if run.loadings:
+        if len(run.loadings) != len(obs.snapshots):
+            raise PipelineError(
+                f"run '{run_path}' has {len(run.loadings)} loadings but the observation set "
+                f"'{obs_path}' has {len(obs.snapshots)} snapshots: give one snapshot per loading"
+            )
+        models = [Interface.polyline(ld.current, run.segments, name=f"model {ld.label}")
+                  for ld in run.loadings]
+    else:
+        models = [Interface.polyline(run.interface_current, run.segments, name="model")] * len(
+            obs.snapshots)
     sigma_n2 = _sigma_n2(likelihood)
     options = _measure_options(measure_name, measure, obs)
     total, snaps = 0.0, []
     from bayescalib.measures import MeasureOptionError
 
-    for label, snap in zip(obs.labels, obs.snapshots, strict=True):
+    for label, snap, model in zip(obs.labels, obs.snapshots, models, strict=True):
         try:
             res = compute(measure_name, model, snap, **options)
         except MeasureOptionError:
@@ -244,8 +302,6 @@ def gather(run_paths: Sequence[str | Path], disc_paths: Sequence[str | Path],
     """
     import h5py
 
-    from bayescalib.runrecord import read_run
-
     if len(run_paths) != len(disc_paths):
         raise PipelineError("gather: the number of run records and discrepancy files differ")
     n, d = len(run_paths), len(names)
@@ -255,9 +311,14 @@ def gather(run_paths: Sequence[str | Path], disc_paths: Sequence[str | Path],
     ok = np.zeros(n, dtype=np.int8)
     reasons: list[str] = []
     for i, (rp, dp) in enumerate(zip(run_paths, disc_paths, strict=True)):
-        run = read_run(rp)
+        run = _read_run_checked(rp)
+        missing = [t for t in targets if t not in run.parameters]
+        if missing:
+            raise _set_aside(rp, f"run file '{rp}' has no value for {', '.join(missing)} "
+                                 f"(it has {', '.join(sorted(run.parameters)) or 'none'}): "
+                                 "it was written for another parameter setup")
         X[i] = [run.parameters[t] for t in targets]
-        rec = read_json(dp)
+        rec = _read_json_checked(dp)
         if run.status == "ok" and rec.get("loglik") is not None:
             L[i] = float(rec["loglik"])
             D[i] = float(rec["D"])
@@ -320,14 +381,45 @@ def train(training_path: str | Path, surrogate: Mapping[str, Any],
             f"only {int(finite.sum())} of {len(L)} design points succeeded; at least 3 are "
             "needed to train the surrogate: increase design.n_train or narrow the bounds"
         )
+    _check_distinct(X, finite, tab["names"])
     space = _space(parameters)
-    gp = fit_gp(X, L, ard=surrogate["ard"], optimizer=surrogate["optimizer"],
-                restarts=surrogate["restarts"], seed=surrogate["seed"], bounds=space.bounds,
-                mean_offset_factor=surrogate["mean_offset_factor"],
-                nugget_factor=surrogate["nugget_factor"])
+    try:
+        gp = fit_gp(X, L, ard=surrogate["ard"], optimizer=surrogate["optimizer"],
+                    restarts=surrogate["restarts"], seed=surrogate["seed"], bounds=space.bounds,
+                    mean_offset_factor=surrogate["mean_offset_factor"],
+                    nugget_factor=surrogate["nugget_factor"])
+    except (RuntimeError, ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:
+        Lf = L[finite]
+        raise PipelineError(
+            f"the GP surrogate cannot be fitted to the {int(finite.sum())} log-likelihood "
+            f"values (range {Lf.min():.6g} to {Lf.max():.6g}): {type(exc).__name__}: {exc}. "
+            "Try more surrogate.restarts (now "
+            f"{surrogate['restarts']}), the other surrogate.optimizer (now "
+            f"'{surrogate['optimizer']}'), a larger surrogate.nugget_factor (now "
+            f"{surrogate['nugget_factor']:g}), or a larger likelihood.sigma_n2 if the values "
+            "are extreme."
+        ) from None
     gp.save(out_path)
     log.info("GP surrogate on %d points (%d excluded): %s", gp.n_train, gp.n_excluded,
              gp.hyperparameters)
+
+
+def _check_distinct(X: np.ndarray, use: np.ndarray, names: Sequence[str]) -> None:
+    """Refuse repeated design points: a Sobol design never repeats one, so a repeat
+    means run records that do not belong to this design."""
+    idx = np.flatnonzero(use)
+    _, inverse, counts = np.unique(X[idx], axis=0, return_inverse=True, return_counts=True)
+    if np.all(counts == 1):
+        return
+    k = int(np.flatnonzero(counts > 1)[0])
+    pts = idx[np.flatnonzero(inverse.ravel() == k)]
+    values = ", ".join(f"{n}={v:g}" for n, v in zip(names, X[pts[0]], strict=False))
+    raise PipelineError(
+        f"design points {', '.join(map(str, pts.tolist()))} have the same parameter values "
+        f"({values}); {int((counts - 1).sum())} repeated point(s) in all. A Sobol design "
+        "never repeats a point, so these run records do not belong to the design: delete "
+        "the results/<study>/runs folder (or the repeated records) and rerun."
+    )
 
 
 def convergence(training_path: str | Path, surrogate: Mapping[str, Any],
