@@ -173,3 +173,201 @@ def test_solve_point_records_a_crashing_process(tmp_path, monkeypatch):
 def test_unknown_forward_model_type():
     with pytest.raises(ForwardModelError, match="unknown forward model type 'abaqus'"):
         make_forward_model({"type": "abaqus"})
+
+
+# ------------------------------------------------------------------ reliability of commands
+def _alive(pid: int) -> bool:
+    """True while ``pid`` runs (a killed zombie waiting for its reaper counts as dead)."""
+    try:
+        with open(f"/proc/{pid}/status") as fh:
+            state = next(line for line in fh if line.startswith("State:"))
+    except (FileNotFoundError, StopIteration):
+        return False
+    return "Z" not in state.split()[1]
+
+
+def _wait_for(path, timeout=20.0):
+    import time
+
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        if path.exists() and path.read_text().strip():
+            return int(path.read_text())
+        time.sleep(0.05)
+    raise AssertionError(f"{path} did not appear")
+
+
+SPAWNER = """
+import subprocess, sys, time
+p = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(120)"])
+open("grandchild.pid", "w").write(str(p.pid))
+print("solver started a helper", flush=True)
+time.sleep(120)
+"""
+
+
+def test_command_time_limit_kills_everything_the_command_started(tmp_path):
+    import time
+
+    script = tmp_path / "wrapper.py"
+    script.write_text(SPAWNER)
+    tpl = tmp_path / "t.j2"
+    tpl.write_text("\n")
+    model = CommandModel(tpl, [sys.executable, str(script)], input_name="in",
+                         output_name="out.csv", workdir=tmp_path / "w", time_limit_s=1.5)
+    t0 = time.monotonic()
+    res = model.solve({})
+    assert time.monotonic() - t0 < 10
+    assert res.status == "failed" and "time limit of 1.5 s" in res.reason
+    assert "solver started a helper" in res.stats["log_tail"]
+    pid = _wait_for(tmp_path / "w" / "grandchild.pid")
+    time.sleep(0.2)
+    assert not _alive(pid), "the command's child outlived the time limit"
+
+
+def test_command_dies_with_a_killed_solve_process(tmp_path):
+    import os
+    import signal
+    import subprocess
+    import time
+
+    script = tmp_path / "solver.py"
+    script.write_text("import os, time\nopen('solver.pid', 'w').write(str(os.getpid()))\n"
+                      "time.sleep(120)\n")
+    tpl = tmp_path / "t.j2"
+    tpl.write_text("\n")
+    driver = tmp_path / "driver.py"
+    driver.write_text(textwrap.dedent(f"""
+        import sys
+        from bayescalib.forward import CommandModel
+        m = CommandModel({str(tpl)!r}, [sys.executable, {str(script)!r}], input_name="in",
+                         output_name="out.csv", workdir={str(tmp_path / "w")!r},
+                         time_limit_s=300)
+        m.solve({{}})
+    """))
+    proc = subprocess.Popen([sys.executable, str(driver)])
+    try:
+        pid = _wait_for(tmp_path / "w" / "solver.pid")
+        assert _alive(pid)
+        os.kill(proc.pid, signal.SIGKILL)  # e.g. the snakemake job is killed
+        proc.wait()
+        end = time.monotonic() + 5
+        while _alive(pid) and time.monotonic() < end:
+            time.sleep(0.05)
+        assert not _alive(pid), "the external solver outlived its killed parent"
+    finally:
+        proc.kill()
+        proc.wait()
+
+
+def _command_fm(tmp_path, body, output_name="out.csv", time_limit_s=30):
+    script = tmp_path / "s.py"
+    script.write_text("import sys\nprint('solver says hello', flush=True)\n"
+                      + textwrap.dedent(body) + "\n")
+    tpl = tmp_path / "t.j2"
+    tpl.write_text("E={{ E }}\n")
+    return {"type": "command", "time_limit_s": time_limit_s,
+            "command": {"template": str(tpl), "command": [sys.executable, str(script), "{input}",
+                                                          "{output}"],
+                        "input_name": "in.txt", "output_name": output_name, "units": "mm"}}
+
+
+@pytest.mark.parametrize(
+    "body, output_name, reason",
+    [
+        ("import time; time.sleep(60)", "out.csv", "time limit of 1 s"),
+        ("sys.exit(3)", "out.csv", "exited with status 3"),
+        ("import os; os.kill(os.getpid(), 9)", "out.csv", "exited with status -9"),
+        ("pass", "out.csv", "wrote no output file"),
+        ("open(sys.argv[2], 'w').close()", "out.csv", "wrote no output file"),
+        ("open(sys.argv[2], 'wb').write(bytes(range(256)) * 4)", "out.csv", "unreadable output"),
+        ("open(sys.argv[2], 'w').write('x,y\\n0,0\\n1,0.5\\n2,')", "out.csv", "unreadable output"),
+        ("open(sys.argv[2], 'w').write('x,y\\n0,0\\nnan,1\\n2,0\\n')", "out.csv", "NaN"),
+        ("open(sys.argv[2], 'w').write('<VTKFile type=\"PolyData\"><Piece')", "out.vtp",
+         "unreadable output"),
+        ("import os; os.mkdir(sys.argv[2])", "out.csv", "wrote no output file"),
+    ],
+    ids=["hang", "exit3", "sigkill", "nothing", "empty", "binary", "cut-short", "nan",
+         "bad-vtk", "directory"],
+)
+def test_failed_external_command_is_recorded_with_its_log_tail(tmp_path, body, output_name,
+                                                              reason):
+    """Through solve_point, as the solve rule runs it: a failed-run record, never a crash."""
+    fm = _command_fm(tmp_path, body, output_name, time_limit_s=1)
+    res = solve_point(fm, {"E": 300.0}, tmp_path / "run.h5", workdir=tmp_path / "w",
+                      grace_s=5.0)
+    assert res.status == "failed" and reason in res.reason, res.reason
+    rec = read_run(tmp_path / "run.h5")
+    assert rec.status == "failed" and reason in rec.reason
+    assert "solver says hello" in rec.stats["log_tail"]
+    assert rec.parameters == {"E": 300.0}
+
+
+def test_log_tail_of_a_huge_log_is_its_end(tmp_path):
+    fm = _command_fm(tmp_path, "sys.stdout.write('x' * 5_000_000 + 'THE END')\nsys.exit(1)")
+    res = solve_point(fm, {"E": 1.0}, tmp_path / "run.h5", workdir=tmp_path / "w")
+    assert res.stats["log_tail"].endswith("THE END")
+    assert len(res.stats["log_tail"]) <= 2000
+
+
+# ------------------------------------------------------------------ numbers only, by construction
+from hypothesis import HealthCheck, given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+
+_VALUES = st.one_of(
+    st.floats(allow_nan=True, allow_infinity=True),
+    st.integers(-(10**30), 10**30),
+    st.text(max_size=30),
+    st.sampled_from(["1; rm -rf /", "$(touch pwned)", "`id`", "1 2", "-rf", "{input}",
+                     "1e3", " 7 ", "nan", "inf", "0x10", "1_000", "\n1", "{{ E }}"]),
+)
+_NAMES = st.sampled_from(["E", "nu", "material.E", "inflow.rate"])
+
+
+@settings(max_examples=200, deadline=None, derandomize=True,
+          suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(values=st.dictionaries(_NAMES, _VALUES, min_size=1, max_size=4))
+def test_command_arguments_and_input_are_numbers_only(tmp_path, values):
+    """Any value: either it is a finite number and reaches the argv and the input file
+    as that number (one argv item per template item, each parsing back to the same
+    float), or the solve is refused with ForwardModelError/ValueError/TypeError."""
+    tpl = tmp_path / "fuzz.j2"
+    tpl.write_text("{% for k, v in params.items() %}{{ k }}={{ v }}\n{% endfor %}")
+    command = ["solver", "--in", "{input}", *[f"{{{k}}}" for k in values], "tail"]
+    model = CommandModel(tpl, command, input_name="in", output_name="out.csv",
+                         workdir=tmp_path / "w")
+    try:
+        numbers = {k: float(v) for k, v in values.items()}
+    except (ValueError, TypeError, OverflowError):
+        numbers = None
+    if numbers is None or not all(np.isfinite(list(numbers.values()))):
+        with pytest.raises((ForwardModelError, ValueError, TypeError, OverflowError)):
+            model.argv(values, tmp_path / "in", tmp_path / "out")
+        with pytest.raises((ForwardModelError, ValueError, TypeError, OverflowError)):
+            model.render_input(values)
+        return
+    argv = model.argv(values, tmp_path / "in", tmp_path / "out")
+    assert len(argv) == len(command)
+    assert argv[:3] == ["solver", "--in", str(tmp_path / "in")] and argv[-1] == "tail"
+    for item, k in zip(argv[3:-1], values, strict=True):
+        assert float(item) == numbers[k] and item == repr(numbers[k])
+    lines = model.render_input(values).splitlines()
+    assert lines == [f"{k}={numbers[k]!r}" for k in values]
+
+
+def test_a_hostile_value_never_reaches_the_command(tmp_path):
+    """End to end: the program receives exactly the argv items, each a number."""
+    script = tmp_path / "record.py"
+    script.write_text("import json, sys\njson.dump(sys.argv[1:], open('argv.json', 'w'))\n"
+                      "sys.exit(1)\n")
+    tpl = tmp_path / "t.j2"
+    tpl.write_text("E={{ E }}\n")
+    model = CommandModel(tpl, [sys.executable, str(script), "{E}", "x;{nu}", "$(id)"],
+                         input_name="in", output_name="out.csv", workdir=tmp_path / "w")
+    model.solve({"E": 250.0, "nu": -0.25})
+    import json
+
+    assert json.loads((tmp_path / "w" / "argv.json").read_text()) == ["250.0", "x;-0.25", "$(id)"]
+    with pytest.raises(ValueError):
+        model.solve({"E": "250; touch pwned", "nu": 0.1})
+    assert not (tmp_path / "w" / "pwned").exists()

@@ -186,6 +186,66 @@ class PythonModel:
 _ARG_FIELD = re.compile(r"\{([A-Za-z_][A-Za-z0-9_.]*)\}")
 
 
+def _die_with_parent() -> None:  # pragma: no cover - runs in the child before exec
+    """Linux: SIGKILL this process when the solve process that started it dies."""
+    try:
+        import ctypes
+        import signal
+
+        ctypes.CDLL(None, use_errno=True).prctl(1, int(signal.SIGKILL))  # PR_SET_PDEATHSIG
+    except Exception:  # noqa: BLE001 - best effort (not Linux)
+        pass
+
+
+def _run_command(argv: list[str], cwd: Path, log: Path, time_limit_s: float) -> tuple[int, str]:
+    """Run ``argv`` (no shell) in its own session with stdout/stderr to ``log``.
+
+    Returns the exit status and a failure reason ("" on success). Whatever the
+    command leaves running when it ends or when its time limit is reached (an
+    MPI launcher's ranks, a wrapper script's solver) is killed with the whole
+    session, and the command dies with the solve process if that is killed.
+    """
+    import signal
+
+    deadline = time.monotonic() + time_limit_s
+    with open(log, "wb") as fh:
+        try:
+            proc = subprocess.Popen(argv, cwd=cwd, stdout=fh, stderr=subprocess.STDOUT,
+                                    stdin=subprocess.DEVNULL, start_new_session=True,
+                                    preexec_fn=_die_with_parent)
+        except (OSError, ValueError, subprocess.SubprocessError) as exc:
+            return -1, f"command could not be started: {exc}"
+        timed_out = False
+        try:
+            # wait without reaping, so that the session id cannot be reused meanwhile
+            while not os.waitid(os.P_PID, proc.pid, os.WEXITED | os.WNOHANG | os.WNOWAIT):
+                if time.monotonic() >= deadline:
+                    timed_out = True
+                    break
+                time.sleep(0.02)
+        finally:
+            try:
+                os.killpg(proc.pid, signal.SIGKILL)
+            except (ProcessLookupError, PermissionError):
+                pass
+            proc.wait()
+    if timed_out:
+        return -1, f"command exceeded its time limit of {time_limit_s:g} s (killed)"
+    rc = proc.returncode
+    return rc, "" if rc == 0 else f"command exited with status {rc}"
+
+
+def _log_tail(path: Path, n: int = 2000) -> str:
+    """Last ``n`` bytes of a log file as text (without reading a huge log whole)."""
+    try:
+        with open(path, "rb") as fh:
+            fh.seek(0, os.SEEK_END)
+            fh.seek(max(0, fh.tell() - n))
+            return fh.read().decode(errors="replace")
+    except OSError:
+        return ""
+
+
 class CommandModel:
     """Forward model run as an external command (no shell).
 
@@ -284,29 +344,20 @@ class CommandModel:
         inp.write_text(self.render_input(params))
         log = self.workdir / "solver.log"
         argv = self.argv(params, inp, out)
-        try:
-            with open(log, "wb") as fh:
-                proc = subprocess.run(argv, cwd=self.workdir, stdout=fh, stderr=subprocess.STDOUT,
-                                      timeout=self.time_limit_s, stdin=subprocess.DEVNULL)
-            rc = proc.returncode
-            reason = "" if rc == 0 else f"command exited with status {rc}"
-        except subprocess.TimeoutExpired:
-            rc, reason = -1, f"command exceeded its time limit of {self.time_limit_s:g} s"
-        except OSError as exc:
-            rc, reason = -1, f"command could not be started: {exc}"
-        tail = log.read_text(errors="replace")[-2000:] if log.exists() else ""
+        rc, reason = _run_command(argv, self.workdir, log, self.time_limit_s)
+        tail = _log_tail(log)
         wall = time.perf_counter() - t0
         if rc != 0:
             return failed_result(params, reason, wall, log_tail=tail)
-        if not out.exists() or out.stat().st_size == 0:
+        if not out.is_file() or out.stat().st_size == 0:
             return failed_result(params, f"command wrote no output file '{out.name}'", wall,
                                  log_tail=tail)
         try:
             iface = read_interface(out, units=self.units)
-        except (ValueError, OSError) as exc:
+            return _result_from_points(params, np.asarray(iface.points), None, wall)
+        except Exception as exc:  # noqa: BLE001 - any unreadable output is a failed run
             return failed_result(params, f"unreadable output '{out.name}': {exc}", wall,
                                  log_tail=tail)
-        return _result_from_points(params, np.asarray(iface.points), None, wall)
 
 
 class FSIForward:
