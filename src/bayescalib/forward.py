@@ -44,7 +44,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from bayescalib.runrecord import SolveResult, write_run
+from bayescalib.runrecord import LoadingResult, SolveResult, write_run
 
 __all__ = [
     "ForwardModel",
@@ -55,6 +55,8 @@ __all__ = [
     "make_forward_model",
     "failed_result",
     "solve_point",
+    "solve_series",
+    "loading_labels",
 ]
 
 
@@ -391,13 +393,116 @@ class FSIForward:
     def solve(self, params: Mapping[str, float]) -> SolveResult:
         res = self.model.solve(dict(params), warm_start=self.warm_start,
                                time_limit=self.time_limit_s)
+        self._extra_outputs(res)
+        return res
+
+    def _extra_outputs(self, res: SolveResult) -> None:
         if self.vtu_path is not None and res.status == "ok":
             self.model.write_vtu(self.vtu_path)
             res.stats["vtu"] = str(self.vtu_path)
         if self.state_path is not None and res.status == "ok":
             self.model.save_state(self.state_path)
             res.stats["state_file"] = str(self.state_path)
+
+    def solve_loadings(self, params: Mapping[str, float], parameter: str,
+                       factors: list[float], nominal: float | None) -> list[SolveResult]:
+        """Series of loadings by continuation in the inflow rate (see
+        :meth:`bayescalib.fsi.model.FSIModel.solve_loadings`); VTU/state of the last one."""
+        if parameter != "inflow.rate":
+            raise ForwardModelError(
+                f"forward_model.loadings.parameter: the fsi model loads 'inflow.rate', "
+                f"not '{parameter}'"
+            )
+        overrides = dict(params)
+        if nominal is not None and parameter not in overrides:
+            overrides[parameter] = float(nominal)
+        results = self.model.solve_loadings(overrides, factors, warm_start=self.warm_start,
+                                            time_limit=self.time_limit_s)
+        self._extra_outputs(results[-1])
+        return results
+
+
+def loading_labels(factors: list[float]) -> list[str]:
+    """Snapshot labels of a series of loadings, e.g. ``["load_0", "load_0.5", "load_1"]``."""
+    return [f"load_{float(f):g}" for f in factors]
+
+
+def solve_series(model: ForwardModel, params: Mapping[str, float],
+                 loadings: Mapping[str, Any] | None) -> SolveResult:
+    """Solve ``model`` at ``params`` for every loading of ``loadings`` and combine.
+
+    Parameters
+    ----------
+    model
+        A forward model; one with a ``solve_loadings`` method (fsi) solves the series
+        by continuation, any other is called once per loading with the loaded
+        parameter set to ``factor * nominal``.
+    params
+        Parameter values by target.
+    loadings
+        The ``forward_model.loadings`` section (``parameter``, ``nominal``,
+        ``factors``); ``None`` or ``factors == [1.0]`` is a single solve.
+
+    Returns
+    -------
+    SolveResult
+        ``ok`` when every loading converged. ``loadings`` holds one interface per
+        factor (in order); ``interface_current`` is the one at factor 1 if present,
+        else at the largest factor. On failure the reason names the loading.
+    """
+    loadings = dict(loadings or {})
+    factors = [float(f) for f in loadings.get("factors", [1.0])]
+    if factors == [1.0]:
+        return model.solve(params)
+    key = str(loadings.get("parameter", "inflow.rate"))
+    nominal = loadings.get("nominal")
+    t0 = time.perf_counter()
+    solve_loadings = getattr(model, "solve_loadings", None)
+    if solve_loadings is not None:
+        results = solve_loadings(params, key, factors, nominal)
+    else:
+        base = params.get(key, nominal)
+        if base is None:
+            raise ForwardModelError(
+                f"forward_model.loadings.nominal is required: '{key}' is not a calibrated "
+                "parameter of this study"
+            )
+        results = [model.solve({**params, key: f * float(base)}) for f in factors]
+    labels = loading_labels(factors)
+    failed = [(lab, r) for lab, r in zip(labels, results) if not r.ok]
+    primary = factors.index(1.0) if 1.0 in factors else int(np.argmax(factors))
+    first = results[primary]
+    combined_params = {k: float(v) for k, v in params.items()}
+    if key not in combined_params:  # the nominal value of a loaded parameter not calibrated
+        if nominal is not None:
+            combined_params[key] = float(nominal)
+        elif key in first.parameters and factors[primary] > 0:
+            combined_params[key] = float(first.parameters[key]) / factors[primary]
+    stats = dict(first.stats)
+    stats.update(n_loadings=len(factors), loadings_wall_time=time.perf_counter() - t0)
+    if failed:
+        reason = "; ".join(f"loading {lab}: {r.reason}" for lab, r in failed)
+        res = failed_result(combined_params, reason, time.perf_counter() - t0, **stats)
+        res.load_fraction = float(min(r.load_fraction for _, r in failed))
         return res
+    return SolveResult(
+        status="ok",
+        reason="",
+        parameters={**combined_params,
+                    **{k: v for k, v in first.parameters.items() if k not in combined_params}},
+        load_fraction=1.0,
+        newton_iterations=int(sum(r.newton_iterations for r in results)),
+        load_steps=int(sum(r.load_steps for r in results)),
+        wall_time=time.perf_counter() - t0,
+        interface_reference=first.interface_reference,
+        interface_current=first.interface_current,
+        segments=first.segments,
+        max_displacement=float(max(r.max_displacement for r in results)),
+        stats=stats,
+        loadings=[LoadingResult(lab, f, float(r.parameters.get(key, float("nan"))),
+                                r.interface_current)
+                  for lab, f, r in zip(labels, factors, results)],
+    )
 
 
 def make_forward_model(fm: Mapping[str, Any], *, workdir: str | Path = ".",
@@ -432,7 +537,7 @@ def _child(fm: Mapping[str, Any], params: Mapping[str, float], workdir: str,
     try:
         model = make_forward_model(fm, workdir=workdir, warm_start=warm_start,
                                    extra_outputs=extra)
-        res = model.solve(params)
+        res = solve_series(model, params, fm.get("loadings"))
     except BaseException as exc:  # noqa: BLE001 - any failure is recorded
         res = failed_result(params, f"{type(exc).__name__}: {exc}",
                             log_tail=traceback.format_exc()[-2000:])
@@ -479,8 +584,9 @@ def solve_point(fm: Mapping[str, Any], params: Mapping[str, float], out_path: st
     t0 = time.perf_counter()
     if not isolate:
         try:
-            res = make_forward_model(fm, workdir=workdir, warm_start=warm_start,
-                                     extra_outputs=extra_outputs).solve(params)
+            res = solve_series(make_forward_model(fm, workdir=workdir, warm_start=warm_start,
+                                                  extra_outputs=extra_outputs),
+                               params, fm.get("loadings"))
         except ForwardModelError:
             raise
         except Exception as exc:  # noqa: BLE001
@@ -526,7 +632,8 @@ def solve_base_state(fm: Mapping[str, Any], params: Mapping[str, float], run_pat
     ForwardModelError
         If the base solve fails: the design-point solves cannot start from it.
     """
-    res = solve_point(fm, params, run_path, extra_outputs={"state": str(state_path)})
+    single = {**fm, "loadings": {}}  # the warm-start state is at the nominal loading
+    res = solve_point(single, params, run_path, extra_outputs={"state": str(state_path)})
     if res.status != "ok" or not Path(state_path).is_file():
         raise ForwardModelError(
             f"the warm-start base solve at the design-box centre {dict(params)} failed "

@@ -15,6 +15,8 @@ File layout (format version :data:`FORMAT_VERSION`)::
     /interface/reference  (n, 2) float64, mm
     /interface/current    (n, 2) float64, mm
     /interface/segments   (n - 1, 2) int64
+    /loadings/<k>/current (n, 2) float64, mm: optional, one per loading of a series
+                          (attrs: label, factor, value = the loaded parameter's value)
 
 Writing is atomic: the file is written to a temporary name in the same directory and
 moved into place with :func:`os.replace`; the ``complete`` attribute is set as the last
@@ -30,7 +32,8 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["SolveResult", "RunFileError", "write_run", "read_run", "FORMAT_VERSION"]
+__all__ = ["SolveResult", "LoadingResult", "RunFileError", "write_run", "read_run",
+           "FORMAT_VERSION"]
 
 FORMAT_VERSION = 1
 _FORMAT = "bayescalib-run"
@@ -38,6 +41,28 @@ _FORMAT = "bayescalib-run"
 
 class RunFileError(ValueError):
     """A run file is missing, truncated, corrupt or incomplete (message names the file)."""
+
+
+@dataclass
+class LoadingResult:
+    """The deformed interface at one loading of a series (several snapshots per point).
+
+    Attributes
+    ----------
+    label
+        Snapshot label (matches the observation snapshot).
+    factor
+        Loading factor relative to the nominal value of the loaded parameter.
+    value
+        Value of the loaded parameter (e.g. the inflow rate, mm^2/s).
+    current
+        (n, 2) deformed interface nodes in mm (same nodes as the reference).
+    """
+
+    label: str
+    factor: float
+    value: float
+    current: np.ndarray
 
 
 @dataclass
@@ -70,6 +95,10 @@ class SolveResult:
         Max interface node displacement, mm.
     stats
         Anything else (DOFs, interface node count, timings per phase, ...).
+    loadings
+        Interfaces at each loading of a series (empty for a single loading); then
+        ``interface_current`` is the one at the nominal loading (factor 1) if the series
+        has it, else the one at the largest factor.
     """
 
     status: str
@@ -84,6 +113,7 @@ class SolveResult:
     segments: np.ndarray
     max_displacement: float
     stats: dict[str, float | int | str] = field(default_factory=dict)
+    loadings: list[LoadingResult] = field(default_factory=list)
 
     @property
     def ok(self) -> bool:
@@ -137,6 +167,13 @@ def write_run(path: str | Path, result: SolveResult) -> None:
             g.create_dataset("reference", data=np.asarray(result.interface_reference, dtype=np.float64))
             g.create_dataset("current", data=np.asarray(result.interface_current, dtype=np.float64))
             g.create_dataset("segments", data=np.asarray(result.segments, dtype=np.int64))
+            if result.loadings:
+                g = f.create_group("loadings")
+                for k, ld in enumerate(result.loadings):
+                    d = g.create_dataset(str(k), data=np.asarray(ld.current, dtype=np.float64))
+                    d.attrs["label"] = str(ld.label)
+                    d.attrs["factor"] = float(ld.factor)
+                    d.attrs["value"] = float(ld.value)
             f.flush()
             f.attrs["complete"] = 1
         os.replace(tmp, path)
@@ -193,6 +230,11 @@ def read_run(path: str | Path) -> SolveResult:
                 segments=np.array(f["interface/segments"], dtype=np.int64),
                 max_displacement=float(_plain(a["max_displacement"])),
                 stats={k: _plain(v) for k, v in f["stats"].attrs.items()},
+                loadings=[
+                    LoadingResult(str(_plain(d.attrs["label"])), float(_plain(d.attrs["factor"])),
+                                  float(_plain(d.attrs["value"])), np.array(d, dtype=float))
+                    for d in (f["loadings"][str(k)] for k in range(len(f["loadings"])))
+                ] if "loadings" in f else [],
             )
     except RunFileError:
         raise

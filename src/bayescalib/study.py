@@ -90,6 +90,65 @@ class Study:
                 )
         if len(set(names)) != len(names):
             raise ConfigError(f"{where}: parameters: duplicate parameter names in {names}")
+        Study._check_loadings(cfg, where)
+        Study._check_hidden(cfg, where)
+
+    @staticmethod
+    def _check_loadings(cfg: dict[str, Any], where: str) -> None:
+        fm = cfg["forward_model"]
+        ld = fm["loadings"]
+        factors = ld["factors"]
+        if factors == [1.0]:
+            return
+        if len(set(factors)) != len(factors):
+            raise ConfigError(f"{where}: forward_model.loadings.factors: duplicate factors in {factors}")
+        targets = [p.get("target") or p["name"] for p in cfg["parameters"]]
+        if fm["type"] == "fsi":
+            if ld["parameter"] != "inflow.rate":
+                raise ConfigError(f"{where}: forward_model.loadings.parameter: the fsi model "
+                                  f"loads 'inflow.rate', not '{ld['parameter']}'")
+        elif ld["parameter"] not in targets and ld["nominal"] is None:
+            raise ConfigError(
+                f"{where}: forward_model.loadings.nominal is required: '{ld['parameter']}' "
+                "is not the target of a calibrated parameter"
+            )
+        obs = cfg["observations"]
+        if obs.get("source") == "files" and len(obs.get("files", [])) != len(factors):
+            raise ConfigError(
+                f"{where}: observations.files has {len(obs.get('files', []))} file(s) but "
+                f"forward_model.loadings.factors has {len(factors)} loadings: give one "
+                "snapshot per loading, in the same order"
+            )
+
+    @staticmethod
+    def _check_hidden(cfg: dict[str, Any], where: str) -> None:
+        hidden = cfg["observations"].get("hidden") or {}
+        if not hidden:
+            return
+        if cfg["observations"].get("source", "synthetic") != "synthetic":
+            raise ConfigError(f"{where}: observations.hidden needs observations.source synthetic")
+        if cfg["forward_model"]["type"] != "fsi":
+            return  # passed to the python/command model as extra parameters
+        from bayescalib.config import validate
+        from bayescalib.fsi.physics import check_physics
+
+        fsi = copy.deepcopy(cfg["forward_model"]["fsi"])
+        for key, value in hidden.items():
+            node = fsi
+            parts = key.split(".")
+            for part in parts[:-1]:
+                if not isinstance(node.get(part), dict):
+                    raise ConfigError(f"{where}: observations.hidden: '{key}' is not a key of "
+                                      "forward_model.fsi")
+                node = node[part]
+            if parts[-1] not in node:
+                raise ConfigError(f"{where}: observations.hidden: '{key}' is not a key of "
+                                  "forward_model.fsi")
+            node[parts[-1]] = value
+        fsi = validate(fsi, "fsi", where=f"{where}: observations.hidden applied to forward_model.fsi")
+        msg = check_physics(fsi["physics"], "observations.hidden: physics")
+        if msg:
+            raise ConfigError(f"{where}: {msg}")
 
     # ------------------------------------------------------------------- paths
     @property
@@ -153,6 +212,11 @@ class Study:
             if p.get("ground_truth") is not None
         }
 
+    def ground_truth_point(self) -> dict[str, Any]:
+        """Inputs of the ground-truth solve: the ground truth plus ``observations.hidden``
+        (hidden physics switched on only for the synthetic data)."""
+        return {**self.ground_truth(), **dict(self.config["observations"].get("hidden") or {})}
+
     def prior_centre(self) -> dict[str, float]:
         """Centre of the design box, keyed by target (warm-start base state)."""
         b = self.space.bounds
@@ -170,4 +234,6 @@ class Study:
         for other in ("fsi", "python", "command"):
             if other != kind:
                 fm.pop(other, None)
+        if fm.get("loadings", {}).get("factors") == [1.0]:
+            fm.pop("loadings")  # a single loading: nothing for the solve to depend on
         return fm

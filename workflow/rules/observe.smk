@@ -18,7 +18,7 @@ rule ground_truth:
         **({"vtu": f"{R}/observations/ground_truth.vtu"} if FIELDS else {}),
     params:
         forward_model=study.forward_section(),
-        point=study.ground_truth(),
+        point=study.ground_truth_point(),
     benchmark:
         f"{R}/benchmarks/ground_truth.tsv"
     log:

@@ -51,7 +51,8 @@ def check_poisson(nu: float) -> str:
     return ""
 
 
-def piola1(law: str, F: Any, E: Any, nu: Any) -> Any:
+def piola1(law: str, F: Any, E: Any, nu: Any, *, growth: Any = None,
+           stiffening: Any = None) -> Any:
     """First Piola–Kirchhoff stress ``P(F)`` of ``law`` as an NGSolve coefficient function.
 
     Parameters
@@ -63,6 +64,13 @@ def piola1(law: str, F: Any, E: Any, nu: Any) -> Any:
     E, nu
         Young's modulus (solver stress units) and Poisson ratio; floats or NGSolve
         ``Parameter`` objects (so that a compiled form can be reused for new values).
+    growth
+        Growth strain ``phi`` of an isotropic growth ``F_g = (1 + phi) I_3``
+        (:mod:`bayescalib.fsi.physics`, candidate 2), or ``None``. With ``phi = 0`` the
+        stress is that of the law without growth.
+    stiffening
+        Fung stiffening parameter ``phi >= 0`` (candidate 5): ``P`` is multiplied by
+        ``exp(2 phi W / mu)`` with the law's stored energy ``W``; ``None`` for none.
 
     Returns
     -------
@@ -74,13 +82,29 @@ def piola1(law: str, F: Any, E: Any, nu: Any) -> Any:
     lam, mu = lame(E, nu)
     Id = ng.Id(2)
     C = F.trans * F
-    if law == "svk":
-        Egl = 0.5 * (C - Id)
-        S = lam * ng.Trace(Egl) * Id + 2 * mu * Egl
-    elif law == "neo_hooke":
-        Cinv = ng.Inv(C)
-        lnJ = ng.log(ng.Det(F))
-        S = mu * (Id - Cinv) + lam * lnJ * Cinv
-    else:
+    if law not in LAWS:
         raise ValueError(f"unknown material law '{law}'; expected one of {LAWS}")
-    return F * S
+    if growth is None:
+        g = None
+        Ce, c33, lnJ_shift = C, 1.0, 0.0
+    else:
+        g = 1.0 + growth
+        Ce = (1.0 / (g * g)) * C
+        c33 = 1.0 / (g * g)
+        lnJ_shift = 3.0 * ng.log(g)
+    if law == "svk":
+        Egl = 0.5 * (Ce - Id)
+        e33 = 0.5 * (c33 - 1.0)
+        trE = ng.Trace(Egl) + e33
+        S = lam * trE * Id + 2 * mu * Egl
+        W = 0.5 * lam * trE * trE + mu * (ng.InnerProduct(Egl, Egl) + e33 * e33)
+    else:
+        Cinv = ng.Inv(Ce)
+        lnJ = ng.log(ng.Det(F)) - lnJ_shift
+        S = mu * (Id - Cinv) + lam * lnJ * Cinv
+        W = 0.5 * mu * (ng.Trace(Ce) + c33 - 3.0 - 2.0 * lnJ) + 0.5 * lam * lnJ * lnJ
+    P = F * S if g is None else g * (F * S)
+    if stiffening is not None:
+        P = ng.exp(2.0 * stiffening * W / mu) * P
+    return P
+

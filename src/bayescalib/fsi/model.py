@@ -46,6 +46,8 @@ import numpy as np
 from bayescalib.config import ConfigError, validate
 from bayescalib.fsi.geometry import SOLID_SUBDOMAINS, BiofilmMesh, build_mesh
 from bayescalib.fsi.materials import check_poisson
+from bayescalib.fsi.physics import (SolidPhysics, check_physics, physics_parameters,
+                                    springs_active)
 from bayescalib.fsi.problem import FSIProblem
 from bayescalib.fsi.solver import MonolithicSolver, SolverControls
 from bayescalib.runrecord import SolveResult, write_run
@@ -69,7 +71,10 @@ MESH_PRESETS = {
 }
 
 #: config keys that change the mesh or the compiled forms (everything else is a value)
-_STRUCTURAL = ("geometry", "mesh", "fluid", "material.law", "solver.order", "solver.ale_weight")
+_STRUCTURAL = ("geometry", "mesh", "fluid", "material.law", "solver.order", "solver.ale_weight",
+               "physics.layer.enabled", "physics.layer.where", "physics.layer.thickness",
+               "physics.growth.enabled", "physics.stiffening.enabled",
+               "physics.gravity.enabled")
 
 
 def fsi_section(config: Mapping[str, Any]) -> dict[str, Any]:
@@ -103,6 +108,7 @@ def _set(cfg: dict[str, Any], dotted: str, value: Any) -> None:
 
 def _structural_key(cfg: Mapping[str, Any]) -> str:
     data = {k: _get(cfg, k) for k in _STRUCTURAL}
+    data["springs"] = springs_active(cfg["physics"])  # the base clamp or springs
     return hashlib.sha256(json.dumps(data, sort_keys=True).encode()).hexdigest()[:16]
 
 
@@ -131,6 +137,10 @@ class FSIModel:
 
     def __init__(self, config: Mapping[str, Any] | None = None):
         self.config = validate(fsi_section(config or {}), "fsi")
+        msg = check_physics(self.config["physics"])
+        if msg:
+            raise ConfigError(msg)
+        self.physics: SolidPhysics | None = None
         self._key: str | None = None
         self.geometry: BiofilmMesh | None = None
         self.solver: MonolithicSolver | None = None
@@ -159,12 +169,23 @@ class FSIModel:
             # parabolic profile with unit volume rate (scaled by the rate in solve())
             return ng.CoefficientFunction((6.0 * ng.y * (H - ng.y) / H**3, 0.0))
 
+        physics = SolidPhysics(cfg["physics"], geo.patch_height)
+        clamp = {
+            "velocity_dirichlet": "inlet|floor|top|biofilm_floor",
+            "displacement_dirichlet": "inlet|outlet|floor|top|biofilm_floor",
+        }
+        if physics.springs:
+            # imperfect attachment: the base and the ALE mesh on the floor slide in x
+            clamp.update(
+                velocity_dirichlet_xy=("inlet|floor|top", "inlet|floor|top|biofilm_floor"),
+                displacement_dirichlet_xy=("inlet|outlet|top",
+                                           "inlet|outlet|floor|top|biofilm_floor"),
+                spring_boundary="biofilm_floor",
+            )
         problem = FSIProblem(
             mesh=geo.mesh,
             fluid="fluid",
             solids={name: law for name in geo.solid_regions},
-            velocity_dirichlet="inlet|floor|top|biofilm_floor",
-            displacement_dirichlet="inlet|outlet|floor|top|biofilm_floor",
             inflow="inlet",
             inflow_profile=profile,
             rho_fluid=float(cfg["fluid"]["density"]) * KG_PER_M3,
@@ -173,9 +194,15 @@ class FSIModel:
             ale_weight=float(cfg["solver"]["ale_weight"]),
             length_scale=float(mesh_cfg["h_interface"]),
             order=int(cfg["solver"]["order"]),
+            physics=physics,
+            **clamp,
         )
         self.solver = MonolithicSolver(problem)
+        self.physics = physics
         self._unit_inflow = self.solver._inflow_val.copy()
+        # the odd part of the skewed inflow (candidate inflow_skew), unit volume rate
+        self._unit_skew = self.solver.inflow_values(ng.CoefficientFunction(
+            (6.0 * ng.y * (H - ng.y) / H**3 * (2.0 * ng.y / H - 1.0), 0.0)))
         self.geometry = geo
         self._key = key
         self._last_state = None
@@ -201,6 +228,7 @@ class FSIModel:
                 out[f"material.subdomains.{n}.E"] = float(cfg["material"]["subdomains"][n]["E"])
                 out[f"material.subdomains.{n}.nu"] = float(cfg["material"]["subdomains"][n]["nu"])
         out["inflow.rate"] = float(cfg["inflow"]["rate"])
+        out.update(physics_parameters(cfg["physics"]))
         for k, v in overrides.items():
             if isinstance(v, (int, float)) and not isinstance(v, bool):
                 out[k] = float(v)
@@ -211,7 +239,11 @@ class FSIModel:
         cfg = copy.deepcopy(self.config)
         for k, v in (overrides or {}).items():
             _set(cfg, k, v)
-        return validate(cfg, "fsi", where="overrides" if overrides else "")
+        cfg = validate(cfg, "fsi", where="overrides" if overrides else "")
+        msg = check_physics(cfg["physics"])
+        if msg:
+            raise ConfigError(msg)
+        return cfg
 
     # ------------------------------------------------------------------ states
     def save_state(self, path: str | Path) -> None:
@@ -263,6 +295,7 @@ class FSIModel:
         *,
         warm_start: str | Path | np.ndarray | None = None,
         time_limit: float | None = None,
+        start_load: float | None = None,
     ) -> SolveResult:
         """Solve the steady FSI problem.
 
@@ -278,6 +311,11 @@ class FSIModel:
             falls back to continuation from rest if Newton fails from it).
         time_limit
             Wall-clock limit in s (default ``solver.time_limit_s``).
+        start_load
+            Inflow rate at which the warm-start state is a solution, as a fraction of
+            this solve's rate (default 1: the same rate); the load continuation goes from
+            there to 1, up or down. Used for a series of loadings
+            (:meth:`solve_loadings`).
 
         Returns
         -------
@@ -319,7 +357,6 @@ class FSIModel:
             chord_threshold=float(scfg["chord_threshold"]),
         )
         initial = None
-        start_load = 0.0
         if warm_start is not None:
             if isinstance(warm_start, np.ndarray):
                 initial = np.asarray(warm_start, dtype=float)
@@ -329,7 +366,10 @@ class FSIModel:
                 initial = self._last_state
             else:
                 initial = self._load_state(warm_start)
-            start_load = 1.0 if initial is not None else 0.0
+            start = 1.0 if start_load is None else float(start_load)
+            start_load = start if initial is not None else 0.0
+        else:
+            start_load = 0.0
 
         reason = ""
         rate = float(cfg["inflow"]["rate"])
@@ -354,7 +394,12 @@ class FSIModel:
             return self._result("failed", reason, params, 0.0, 0, 0, t_start, base_stats)
 
         solver.set_materials({n: (E * PA, nu) for n, (E, nu) in materials.items()})
-        solver._inflow_val = self._unit_inflow * rate
+        assert self.physics is not None
+        self.physics.set_values(cfg["physics"], PA)
+        unit = self._unit_inflow
+        if cfg["physics"]["inflow_skew"]["enabled"]:
+            unit = unit + float(cfg["physics"]["inflow_skew"]["phi"]) * self._unit_skew
+        solver._inflow_val = unit * rate
         if initial is None:
             solver.reset()
         keep = bool(scfg["keep_factorization"]) and initial is not None and not built
@@ -380,6 +425,69 @@ class FSIModel:
         res = self._result(status, outcome.reason, params, outcome.load_fraction,
                            outcome.newton_iterations, outcome.load_steps, t_start, base_stats)
         return res
+
+    def solve_loadings(
+        self,
+        overrides: Mapping[str, Any] | None,
+        factors: list[float],
+        *,
+        warm_start: str | Path | np.ndarray | None = None,
+        time_limit: float | None = None,
+    ) -> list[SolveResult]:
+        """Solve a series of loadings ``factors * inflow.rate`` by continuation.
+
+        Without a warm start the loadings are solved in increasing order, each starting
+        from the previous converged state (the first from rest). With a warm start (a
+        state at the nominal rate, factor 1) the factors <= 1 are solved downwards from
+        it and those > 1 upwards from it. A zero loading is solved from rest. After a
+        failed loading the next one continues from the last converged state.
+
+        Parameters
+        ----------
+        overrides
+            As in :meth:`solve` (the nominal ``inflow.rate`` included).
+        factors
+            Loading factors (>= 0) relative to the nominal inflow rate.
+        warm_start
+            As in :meth:`solve`; a state at the nominal rate.
+        time_limit
+            Wall-clock limit in s for the whole series (default ``solver.time_limit_s``).
+
+        Returns
+        -------
+        list of SolveResult
+            One per factor, in the order of ``factors``; ``inflow.rate`` in each
+            result's parameters is the loading's rate.
+        """
+        overrides = dict(overrides or {})
+        cfg = self.resolved_config(overrides)
+        nominal = float(cfg["inflow"]["rate"])
+        limit = float(time_limit if time_limit is not None else cfg["solver"]["time_limit_s"])
+        t_end = time.perf_counter() + limit
+        f = [float(x) for x in factors]
+        if any(x < 0 or not np.isfinite(x) for x in f):
+            raise ConfigError(f"loading factors must be finite and >= 0, got {factors}")
+        if warm_start is None:
+            chains = [sorted(range(len(f)), key=lambda k: f[k])]
+        else:
+            chains = [sorted((k for k in range(len(f)) if f[k] <= 1.0), key=lambda k: -f[k]),
+                      sorted((k for k in range(len(f)) if f[k] > 1.0), key=lambda k: f[k])]
+        results: dict[int, SolveResult] = {}
+        for chain in chains:
+            state: Any = warm_start
+            state_factor = 1.0 if warm_start is not None else None
+            for k in chain:
+                ov = {**overrides, "inflow.rate": f[k] * nominal}
+                remaining = max(t_end - time.perf_counter(), 1e-3)
+                if state is None or f[k] == 0.0 or state_factor is None:
+                    res = self.solve(ov, time_limit=remaining)
+                else:
+                    res = self.solve(ov, warm_start=state, time_limit=remaining,
+                                     start_load=state_factor / f[k])
+                if res.ok:
+                    state, state_factor = "last", f[k]
+                results[k] = res
+        return [results[k] for k in range(len(f))]
 
     def _interface_displacement(self) -> np.ndarray:
         """(n, 2) displacement (mm) of the interface vertices in the current state."""

@@ -61,6 +61,16 @@ class FSIProblem:
     viscous_form
         ``"gradient"`` (``mu grad u : grad v``; natural outflow condition "do nothing")
         or ``"symmetric"`` (``2 mu eps(u) : eps(v)``; natural condition: zero traction).
+    physics
+        Candidate physics of the solid (:class:`bayescalib.fsi.physics.SolidPhysics`):
+        stress factor, growth, stiffening, body force, base springs; ``None`` for none.
+    velocity_dirichlet_xy, displacement_dirichlet_xy
+        Component-wise Dirichlet boundaries ``(x regex, y regex)``; when given they
+        replace ``velocity_dirichlet`` / ``displacement_dirichlet`` (e.g. a base that
+        may slide tangentially).
+    spring_boundary
+        Boundary with tangential springs of stiffness ``physics.spring_stiffness``
+        (traction ``-k d_x``), or ``None``.
     compile
         ``"tree"`` (``CoefficientFunction.Compile()``, default), ``"none"``, or ``"real"``
         (compile to C++; needs a compiler, slow first build).
@@ -83,6 +93,10 @@ class FSIProblem:
     order: int = 2
     viscous_form: str = "gradient"
     compile: str = "tree"
+    physics: Any = None
+    velocity_dirichlet_xy: tuple[str, str] | None = None
+    displacement_dirichlet_xy: tuple[str, str] | None = None
+    spring_boundary: str | None = None
     extra: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
@@ -95,5 +109,7 @@ class FSIProblem:
             raise ValueError("inflow boundary given without an inflow profile")
         if self.viscous_form not in ("gradient", "symmetric"):
             raise ValueError(f"viscous_form must be 'gradient' or 'symmetric', got {self.viscous_form!r}")
+        if self.spring_boundary is not None and self.physics is None:
+            raise ValueError("spring_boundary needs physics with a spring stiffness")
         if self.order < 2:
             raise ValueError("order must be >= 2 (Taylor–Hood P2/P1)")

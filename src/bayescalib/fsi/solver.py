@@ -111,6 +111,15 @@ class SolveOutcome:
     timings: dict[str, float] = field(default_factory=dict)
 
 
+def _vector_space(mesh, order: int, dirichlet: str, dirichlet_xy: tuple[str, str] | None):
+    """P``order`` vector H1 space, Dirichlet on ``dirichlet`` or per component."""
+    import ngsolve as ng
+
+    if dirichlet_xy is None:
+        return ng.VectorH1(mesh, order=order, dirichlet=dirichlet)
+    return ng.VectorH1(mesh, order=order, dirichletx=dirichlet_xy[0], dirichlety=dirichlet_xy[1])
+
+
 def _compiled(cf, mode: str):
     """``cf.Compile()`` (NGSolve's expression-tree optimisation) unless ``mode == "none"``."""
     if mode == "none":
@@ -149,14 +158,14 @@ class MonolithicSolver:
         self.has_solid = bool(pb.solids)
 
         spaces = []
-        V = ng.VectorH1(mesh, order=order, dirichlet=pb.velocity_dirichlet)
+        V = _vector_space(mesh, order, pb.velocity_dirichlet, pb.velocity_dirichlet_xy)
         spaces.append(V)
         self.Vspace = V
         if self.has_fluid:
             Q = ng.H1(mesh, order=order - 1, definedon=pb.fluid)
             spaces.append(Q)
         if self.has_solid:
-            D = ng.VectorH1(mesh, order=order, dirichlet=pb.displacement_dirichlet)
+            D = _vector_space(mesh, order, pb.displacement_dirichlet, pb.displacement_dirichlet_xy)
             spaces.append(D)
         X = ng.FESpace(spaces)
         self.X = X
@@ -177,16 +186,14 @@ class MonolithicSolver:
         x = self.gfu.vec.FV().NumPy()
         self._inflow_idx = np.zeros(0, dtype=int)
         self._inflow_val = np.zeros(0)
+        self._inflow_local = np.zeros(0, dtype=int)
         if pb.inflow is not None:
-            tmp = ng.GridFunction(V)
-            tmp.Set(pb.inflow_profile(), ng.BND, definedon=mesh.Boundaries(pb.inflow))
             mask = np.array(list(V.GetDofs(mesh.Boundaries(pb.inflow))), dtype=bool)
             mask &= ~np.array(list(V.FreeDofs()), dtype=bool)
-            off = X.Range(0).start
+            self._inflow_local = np.nonzero(mask)[0]
             # VectorH1 DOFs: component blocks of size V.ndof // 2
-            idx = np.nonzero(mask)[0] + off
-            self._inflow_idx = idx
-            self._inflow_val = tmp.vec.FV().NumPy()[np.nonzero(mask)[0]].copy()
+            self._inflow_idx = self._inflow_local + X.Range(0).start
+            self._inflow_val = self.inflow_values(pb.inflow_profile())
         self._x = x
         self._freedofs = X.FreeDofs()
         self._free = np.array(list(self._freedofs), dtype=bool)
@@ -198,6 +205,15 @@ class MonolithicSolver:
             self._detF = ng.Det(ng.Id(2) + ng.Grad(self.gfu.components[self.i_d]))
             ir = ng.IntegrationRule(ng.TRIG, 2 * order)
             self._ir_points = mesh.MapToAllElements(ir, ng.VOL)
+
+    def inflow_values(self, profile) -> np.ndarray:
+        """Values of the velocity profile ``profile`` (vector coefficient function) at the
+        inflow Dirichlet DOFs, in the order of the solver's inflow data."""
+        import ngsolve as ng
+
+        tmp = ng.GridFunction(self.Vspace)
+        tmp.Set(profile, ng.BND, definedon=self.mesh.Boundaries(self.problem.inflow))
+        return tmp.vec.FV().NumPy()[self._inflow_local].copy()
 
     def _build_forms(self):
         """The full nonlinear form and the fluid-momentum-only form used for forces."""
@@ -237,13 +253,25 @@ class MonolithicSolver:
                 a += alpha * ng.InnerProduct(ng.Grad(d), ng.Grad(w)) * dxf
         if self.has_solid:
             g = ng.CoefficientFunction(tuple(float(c) for c in pb.body_force))
+            ph = pb.physics
             for name, law in pb.solids.items():
                 dxs = ng.dx(definedon=mesh.Materials(name))
-                P = piola1(law, F, self.E[name], self.nu[name])
+                P = piola1(law, F, self.E[name], self.nu[name],
+                           growth=None if ph is None else ph.growth(),
+                           stiffening=None if ph is None else ph.stiffening())
+                factor = None if ph is None else ph.stress_factor()
+                if factor is not None:
+                    P = factor * P
                 a += _compiled(ng.InnerProduct(P, ng.Grad(v)), pb.compile) * dxs
                 if any(pb.body_force):
                     a += -self.load * pb.rho_solid * ng.InnerProduct(g, v) * dxs
+                bf = None if ph is None else ph.body_force()
+                if bf is not None:
+                    a += -ng.InnerProduct(bf, v) * dxs
                 a += ng.InnerProduct(u, w) * dxs
+            if pb.spring_boundary is not None:
+                dsb = ng.ds(definedon=mesh.Boundaries(pb.spring_boundary))
+                a += pb.physics.spring_stiffness * d[0] * v[0] * dsb
         return a, fluid_form
 
     # ------------------------------------------------------------------ state access
@@ -437,7 +465,8 @@ class MonolithicSolver:
             Initial state (e.g. a warm start); ``None`` keeps the current state.
         start_load
             Load factor at which ``initial`` is an (approximate) solution; the
-            continuation starts from there (0 for rest, 1 for a warm start at full load).
+            continuation starts from there (0 for rest, 1 for a warm start at full load,
+            above 1 for a state at a higher load: the continuation then goes down).
         keep_factorization
             Start with the factorization kept from the previous solve (chord steps; it is
             replaced as soon as it stops contracting). Useful for a warm start at nearby
@@ -463,7 +492,7 @@ class MonolithicSolver:
             self.set_state(initial)
         steps = 0
         reason = ""
-        lam = float(min(max(start_load, 0.0), 1.0))
+        lam = float(max(start_load, 0.0))
         if lam > 0.0:
             # converge at the starting load first; if the initial state is too far off,
             # fall back to the continuation from rest
@@ -483,8 +512,10 @@ class MonolithicSolver:
         self._apply_load(lam)
         saved = self._x.copy()
         step = float(controls.initial_step)
-        while lam < 1.0 and not reason:
-            new = min(1.0, lam + step)
+        while lam != 1.0 and not reason:
+            # towards the full load from below (from rest) or from above (a state at a
+            # higher load, e.g. the previous snapshot of a series of loadings)
+            new = min(1.0, lam + step) if lam < 1.0 else max(1.0, lam - step)
             try:
                 self._apply_load(new)
                 self._newton(deadline, stats)
@@ -505,7 +536,7 @@ class MonolithicSolver:
             lam = new
             saved[:] = self._x
             step = min(step * controls.growth, 1.0)
-        ok = lam >= 1.0 and not reason
+        ok = lam == 1.0 and not reason
         wall = time.perf_counter() - t_start
         timings = {k: v for k, v in stats.items() if k.startswith("t_")}
         return SolveOutcome(
