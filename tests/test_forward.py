@@ -6,6 +6,8 @@ import textwrap
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from bayescalib.forward import (
     CommandModel,
@@ -311,9 +313,6 @@ def test_log_tail_of_a_huge_log_is_its_end(tmp_path):
 
 
 # ------------------------------------------------------------------ numbers only, by construction
-from hypothesis import HealthCheck, given, settings  # noqa: E402
-from hypothesis import strategies as st  # noqa: E402
-
 _VALUES = st.one_of(
     st.floats(allow_nan=True, allow_infinity=True),
     st.integers(-(10**30), 10**30),

@@ -19,6 +19,8 @@ from __future__ import annotations
 import copy
 import difflib
 import json
+import math
+import re
 from collections.abc import Iterable, Mapping
 from functools import lru_cache
 from importlib import resources
@@ -95,7 +97,7 @@ def schema(name: str) -> dict[str, Any]:
 
 
 def _validator_class():
-    from jsonschema import Draft7Validator, validators
+    from jsonschema import Draft7Validator, ValidationError, validators
 
     base_props = Draft7Validator.VALIDATORS["properties"]
 
@@ -106,7 +108,18 @@ def _validator_class():
                     instance[key] = copy.deepcopy(sub["default"])
         yield from base_props(validator, properties, instance, sch)
 
-    return validators.extend(Draft7Validator, {"properties": set_defaults})
+    def anchored_pattern(validator, pattern, instance, sch):
+        # Python's re lets "$" match before a final newline, so "^name$" would accept
+        # "name\n" (a study name, a folder, with a newline): anchor at the very end.
+        if not validator.is_type(instance, "string"):
+            return
+        rx = pattern[:-1] + r"\Z" if pattern.endswith("$") and not pattern.endswith("\\$") \
+            else pattern
+        if not re.search(rx, instance):
+            yield ValidationError(f"{instance!r} does not match {pattern!r}")
+
+    return validators.extend(Draft7Validator, {"properties": set_defaults,
+                                               "pattern": anchored_pattern})
 
 
 def _path_str(path: Iterable[Any]) -> str:
@@ -124,11 +137,13 @@ def _format_error(err, where: str) -> str:
     prefix = f"{where}: " if where else ""
     if err.validator == "additionalProperties":
         allowed = sorted((err.schema.get("properties") or {}).keys())
-        extra = sorted(set(err.instance) - set(allowed)) if isinstance(err.instance, dict) else []
+        extra = (sorted(set(err.instance) - set(allowed), key=repr)
+                 if isinstance(err.instance, dict) else [])
         msgs = []
         for e in extra:
             full = e if key == "<top level>" else f"{key}.{e}"
-            close = difflib.get_close_matches(e, allowed, n=1)
+            # YAML keys may be numbers, booleans or null: only names get a suggestion
+            close = difflib.get_close_matches(e, allowed, n=1) if isinstance(e, str) else []
             hint = f" (did you mean '{close[0]}'?)" if close else ""
             msgs.append(f"unknown key '{full}'{hint}; allowed here: {', '.join(allowed)}")
         return prefix + "; ".join(msgs)
@@ -171,19 +186,40 @@ def validate(config: Mapping[str, Any], schema_name: str, *, where: str = "") ->
     ConfigError
         Naming the first offending key (all problems are listed, one per line).
     """
+    prefix = f"{where}: " if where else ""
+    if not isinstance(config, Mapping):
+        raise ConfigError(
+            f"{prefix}the configuration must be a mapping of keys to values, "
+            f"got {type(config).__name__}"
+        )
     cfg = copy.deepcopy(dict(config))
     cls = _validator_class()
     validator = cls(_load_schema_file(f"{schema_name}.schema.yaml"), registry=_registry())
     # Fill defaults first (a validation pass), then collect errors on the filled config.
     errors = sorted(validator.iter_errors(cfg), key=lambda e: list(map(str, e.absolute_path)))
-    if errors:
-        lines = []
-        for e in errors:
-            msg = _format_error(e, where)
-            if msg not in lines:
-                lines.append(msg)
+    lines: list[str] = []
+    for e in errors:
+        msg = _format_error(e, where)
+        if msg not in lines:
+            lines.append(msg)
+    # JSON schema lets NaN pass every range check and has no notion of infinity
+    for path, value in _non_finite(cfg):
+        lines.append(prefix + f"key '{_path_str(path)}': value {value!r} is not a finite number")
+    if lines:
         raise ConfigError("\n".join(lines))
     return cfg
+
+
+def _non_finite(obj: Any, path: tuple = ()) -> Iterable[tuple[tuple, float]]:
+    """Paths of the NaN and infinite numbers in a nested config."""
+    if isinstance(obj, float) and not math.isfinite(obj):
+        yield path, obj
+    elif isinstance(obj, Mapping):
+        for k, v in obj.items():
+            yield from _non_finite(v, (*path, k))
+    elif isinstance(obj, (list, tuple)):
+        for i, v in enumerate(obj):
+            yield from _non_finite(v, (*path, i))
 
 
 def parse_override(text: str) -> tuple[list[str], Any]:
