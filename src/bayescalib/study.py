@@ -132,7 +132,8 @@ class Study:
         from bayescalib.config import validate
         from bayescalib.fsi.physics import check_physics
 
-        fsi = copy.deepcopy(cfg["forward_model"]["fsi"])
+        fsi = validate(copy.deepcopy(cfg["forward_model"]["fsi"]), "fsi",
+                       where=f"{where}: forward_model.fsi")
         for key, value in hidden.items():
             node = fsi
             parts = key.split(".")
