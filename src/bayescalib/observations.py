@@ -28,6 +28,7 @@ Several snapshots (e.g. one per inflow rate) form an :class:`ObservationSet`.
 from __future__ import annotations
 
 import csv
+import re
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -275,13 +276,64 @@ def _order_chain(n: int, seg: np.ndarray) -> np.ndarray | None:
     return np.array(order)
 
 
+#: largest count of points, cells or components a VTK header may declare: VTK allocates
+#: what the header says before reading, and a corrupt count aborts the process
+#: (std::bad_alloc) or takes minutes; an observed interface is far smaller
+MAX_VTK_COUNT = 50_000_000
+_VTK_COUNT = re.compile(
+    rb'NumberOf(?:Points|Cells|Verts|Lines|Strips|Polys|Components|Tuples)\s*=\s*"\s*(\d+)'
+    rb"|^[ \t]*(?:POINTS|VERTICES|LINES|POLYGONS|TRIANGLE_STRIPS|CELLS|CELL_TYPES|OFFSETS"
+    rb"|CONNECTIVITY|POINT_DATA|CELL_DATA|DIMENSIONS)[ \t]+(\d+)(?:[ \t]+(\d+))?",
+    re.MULTILINE,
+)
+
+
+def _check_vtk_header(path: Path, where: str) -> None:
+    """Refuse a VTK file whose header declares absurd sizes (before VTK allocates them)."""
+    with open(path, "rb") as fh:
+        head = fh.read(1 << 20)
+    for m in _VTK_COUNT.finditer(head):
+        n = max(int(g) for g in m.groups() if g)
+        if n > MAX_VTK_COUNT:
+            raise ObservationError(
+                f"{where}: the VTK header declares {n} points/cells/components, more than "
+                f"{MAX_VTK_COUNT:,}: the file is corrupt (or not an interface)"
+            )
+
+
+def _check_vtk_cell_ids(data, where: str) -> None:
+    """Cells must refer to existing points (VTK filters may crash otherwise)."""
+    import vtk
+    from vtk.util.numpy_support import vtk_to_numpy
+
+    if isinstance(data, vtk.vtkPolyData):
+        arrays = [data.GetVerts(), data.GetLines(), data.GetPolys(), data.GetStrips()]
+    elif isinstance(data, vtk.vtkUnstructuredGrid):
+        arrays = [data.GetCells()]
+    else:
+        return
+    n = data.GetNumberOfPoints()
+    for cells in arrays:
+        if cells is None or cells.GetNumberOfCells() == 0:
+            continue
+        conn = vtk_to_numpy(cells.GetConnectivityArray())
+        if conn.size and (conn.min() < 0 or conn.max() >= n):
+            raise ObservationError(
+                f"{where}: cells refer to point ids from {int(conn.min())} to {int(conn.max())} "
+                f"but the file has {n} point(s)"
+            )
+
+
 def _read_vtk(path: Path, units: str, where: str) -> Interface:
     import vtk
     from vtk.util.numpy_support import vtk_to_numpy
 
+    _check_vtk_header(path, where)
     data = _vtk_reader(path)
-    if data is None or data.GetNumberOfPoints() == 0:
+    # an unreadable legacy file gives a bare vtkDataObject (no points at all)
+    if not isinstance(data, vtk.vtkDataSet) or data.GetNumberOfPoints() == 0:
         raise ObservationError(f"{where}: the VTK file holds no points (empty or unreadable)")
+    _check_vtk_cell_ids(data, where)
     if not isinstance(data, vtk.vtkPolyData):
         geo = vtk.vtkGeometryFilter()
         geo.SetInputData(data)
@@ -356,6 +408,13 @@ def _read_image(path: Path, pixel_size, origin, drop_border: bool, floor, units:
         raise ObservationError(f"{where}: origin must be two numbers (x, y), got {origin}")
     try:
         mask = imaging.load_mask(path)
+    except imaging._MaskError as exc:
+        raise ObservationError(f"{where}: {exc}") from None
+    except Exception as exc:  # noqa: BLE001 - decoders raise anything on a broken file
+        raise ObservationError(
+            f"{where}: cannot read the image ({type(exc).__name__}: {exc})"
+        ) from None
+    try:
         return imaging.mask_contour(
             mask, float(pixel_size) * f, org, drop_border=drop_border,
             floor=None if floor is None else float(floor) * f, name=where,
