@@ -1,0 +1,11 @@
+"""Model-form diagnosis: check the calibrated model against the data, locate the
+mismatch on the interface, attribute it to candidate physics, calibrate the extended
+model and show the improvement (issue: model-form diagnosis).
+
+Modules: :mod:`~bayescalib.diagnosis.residuals` (posterior predictive check, bands,
+located intervals), :mod:`~bayescalib.diagnosis.attribution` (signatures, score
+tests, sparse selection), :mod:`~bayescalib.diagnosis.solves` (forward solves of the
+stage, in parallel, reused when present), :mod:`~bayescalib.diagnosis.extended`
+(calibration of the extended model and Bayes factors), :mod:`~bayescalib.diagnosis.stage`
+(the pipeline stage writing ``diagnosis.json``).
+"""

@@ -1,0 +1,201 @@
+"""Attribution of a model-form mismatch to candidate physics (step 3 of the diagnosis).
+
+Linearize the predicted interface (as normal offsets along the observed nodes, see
+:mod:`bayescalib.diagnosis.residuals`) about the posterior mean ``theta_hat`` of the
+base model, extended by candidate ``c`` with parameter ``phi_c`` (``phi_c = 0`` is the
+base model, so the extension is nested):
+
+    y = f(theta_hat) + J dtheta + g_c phi_c + e,      e ~ N(0, V),  V = diag(v)
+
+with ``J`` (n x p) the finite-difference Jacobian of the offsets in the base (and
+uncertain) parameters and ``g_c`` (n) the *signature* of candidate ``c``: the change of
+the predicted interface per unit ``phi_c`` at ``theta_hat``. What the base parameters
+can absorb is projected out: with the whitened ``A = V^-1/2 J``, ``b = V^-1/2 g_c`` and
+residual ``e = V^-1/2 r`` (``r = y - f(theta_hat)``) and the projector
+``Q = I - A A^+`` onto the complement of the columns of ``A``,
+
+    U = (Q b)^T (Q e),   I = (Q b)^T (Q b),   S = U^2 / I ~ chi2_1  under phi_c = 0,
+
+Rao's score statistic for ``phi_c = 0`` with ``dtheta`` profiled out (the score and
+the efficient information of the linear Gaussian model). ``phi_hat = U / I`` is the
+one-step estimate of ``phi_c``. The *explained fraction* is the part of the residual
+beyond noise that the candidate removes: with ``d = n - rank(A)`` (the expected
+``|Q e|^2`` under pure noise), ``S / max(|Q e|^2 - d, S)``. ``identifiable = |Q b| / |b|`` is the part of the
+signature the base parameters cannot mimic (near 0: the effect is confounded with E,
+nu, ... and cannot be told apart with these data).
+
+Selection is greedy (orthogonal matching pursuit): the best candidate is kept if its
+p-value is below ``alpha / m`` (Bonferroni over the ``m`` candidates); a second one is
+tested with ``J`` and the first signature projected out and kept if it is significant
+and adds at least ``r2_gain_min`` to the explained fraction (up to ``max_effects``).
+The selection *explains* the mismatch when together it explains at least ``r2_min`` of
+the residual beyond noise; otherwise the verdict is "no candidate explains the
+mismatch" (a significant but partial fit is reported as such, never as the cause).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.stats import chi2
+
+__all__ = ["ScoreTest", "score_test", "attribute", "signature_from_offsets", "jacobian_from_offsets"]
+
+
+@dataclass
+class ScoreTest:
+    """Score test of one candidate (or of a candidate given others)."""
+
+    name: str
+    statistic: float
+    p_value: float
+    phi_hat: float
+    explained: float
+    identifiable: float
+
+    def to_json(self) -> dict:
+        return {"candidate": self.name, "score_statistic": self.statistic,
+                "p_value": self.p_value, "phi_hat": self.phi_hat,
+                "explained_fraction": self.explained, "identifiable_fraction": self.identifiable}
+
+
+def _projector(A: np.ndarray) -> np.ndarray:
+    n = A.shape[0]
+    if A.size == 0:
+        return np.eye(n)
+    U, s, _ = np.linalg.svd(A, full_matrices=False)
+    keep = s > s.max() * 1e-10 if s.size else np.zeros(0, dtype=bool)
+    U = U[:, keep]
+    return np.eye(n) - U @ U.T
+
+
+def score_test(name: str, r: np.ndarray, J: np.ndarray, g: np.ndarray, v: np.ndarray) -> ScoreTest:
+    """Score test of ``phi = 0`` for signature ``g`` with nuisance Jacobian ``J``.
+
+    Parameters
+    ----------
+    r
+        (n,) residual, mm.
+    J
+        (n, p) nuisance Jacobian (mm per parameter unit); may have p = 0 columns.
+    g
+        (n,) signature, mm per unit phi.
+    v
+        (n,) residual variances, mm^2.
+    """
+    w = 1.0 / np.sqrt(np.asarray(v, dtype=float))
+    A = np.asarray(J, dtype=float).reshape(len(r), -1) * w[:, None]
+    b = np.asarray(g, dtype=float) * w
+    e = np.asarray(r, dtype=float) * w
+    Q = _projector(A)
+    qb, qe = Q @ b, Q @ e
+    info = float(qb @ qb)
+    nb = float(np.linalg.norm(b))
+    ident = float(np.sqrt(info) / nb) if nb > 0 else 0.0
+    if info <= 1e-300 or ident < 1e-8:
+        return ScoreTest(name, 0.0, 1.0, 0.0, 0.0, ident)
+    U = float(qb @ qe)
+    S = U * U / info
+    dof = len(r) - int(np.linalg.matrix_rank(A)) if A.size else len(r)
+    return ScoreTest(name, S, float(chi2.sf(S, 1)), U / info,
+                     _excess_fraction(float(qe @ qe), float(qe @ qe) - S, dof), ident)
+
+
+def _excess_fraction(before: float, after: float, dof: int) -> float:
+    """Fraction of the residual *beyond noise* that a fit removed.
+
+    ``before`` and ``after`` are whitened squared residual norms; under pure noise
+    ``before`` is about ``dof``. The structured part is ``before - dof``; the fraction
+    removed is ``(before - after) / max(before - dof, before - after)`` (1 when the
+    remainder is at the noise level or below).
+    """
+    removed = before - after
+    denom = max(before - dof, removed)
+    return float(removed / denom) if denom > 0 else 0.0
+
+
+def attribute(
+    r: np.ndarray,
+    J: np.ndarray,
+    signatures: Mapping[str, np.ndarray],
+    v: np.ndarray,
+    *,
+    alpha: float = 0.05,
+    r2_min: float = 0.5,
+    r2_gain_min: float = 0.1,
+    max_effects: int = 2,
+) -> dict:
+    """Rank candidates and select up to ``max_effects`` of them (see module docstring).
+
+    Returns
+    -------
+    dict
+        ``ranking`` (score tests, best first), ``selected`` (names), ``explained``
+        (joint explained fraction of the selection), ``threshold`` (p-value level after
+        Bonferroni), ``verdict`` (plain words) and ``steps`` (the greedy selection).
+    """
+    names = list(signatures)
+    m = max(len(names), 1)
+    level = alpha / m
+    tests = sorted((score_test(n, r, J, signatures[n], v) for n in names),
+                   key=lambda t: -t.statistic)
+    selected: list[str] = []
+    steps = []
+    explained = 0.0
+    w = 1.0 / np.sqrt(np.asarray(v, dtype=float))
+    e = np.asarray(r, dtype=float) * w
+    Q0 = _projector(np.asarray(J, dtype=float).reshape(len(r), -1) * w[:, None])
+    total = float(np.sum((Q0 @ e) ** 2))
+    dof = len(r) - (int(np.linalg.matrix_rank(np.asarray(J, dtype=float).reshape(len(r), -1)))
+                    if np.size(J) else 0)
+    for step in range(max_effects):
+        nuis = np.column_stack([np.asarray(J, dtype=float).reshape(len(r), -1)]
+                               + [signatures[n][:, None] for n in selected])
+        cands = [score_test(n, r, nuis, signatures[n], v) for n in names if n not in selected]
+        if not cands:
+            break
+        best = max(cands, key=lambda t: t.statistic)
+        A = np.column_stack([nuis, signatures[best.name]]) * w[:, None]
+        joint = _excess_fraction(total, float(np.sum((_projector(A) @ e) ** 2)), dof)
+        ok = best.p_value < level and joint - explained >= (r2_gain_min if step else 0.0)
+        steps.append({**best.to_json(), "joint_explained": joint, "accepted": bool(ok)})
+        if not ok:
+            break
+        selected.append(best.name)
+        explained = joint
+        if explained >= 0.95:
+            break
+    if selected and explained < r2_min:
+        for st in steps:
+            st["accepted"] = False
+        partial, selected = selected, []
+    else:
+        partial = []
+    if selected:
+        verdict = (f"the mismatch is explained by {' + '.join(selected)} "
+                   f"({100 * explained:.0f} % of the residual beyond noise that the base "
+                   "parameters cannot absorb)")
+    elif partial:
+        verdict = (f"no candidate explains the mismatch: the best, {' + '.join(partial)}, "
+                   f"is significant but explains only {100 * explained:.0f} % of it")
+        explained = 0.0
+    else:
+        verdict = "no candidate explains the mismatch"
+    return {"ranking": [t.to_json() for t in tests], "selected": selected,
+            "explained": explained, "threshold": level, "verdict": verdict, "steps": steps}
+
+
+def signature_from_offsets(o_plus: np.ndarray, o_base: np.ndarray, h: float) -> np.ndarray:
+    """Forward-difference signature ``(o(phi = h) - o(0)) / h`` (mm per unit phi)."""
+    return (np.asarray(o_plus) - np.asarray(o_base)) / float(h)
+
+
+def jacobian_from_offsets(o_steps: Sequence[np.ndarray], o_base: np.ndarray,
+                          steps: Sequence[float]) -> np.ndarray:
+    """Forward-difference Jacobian, columns ``(o_i - o_base) / h_i``, shape (n, p)."""
+    if not o_steps:
+        return np.zeros((len(o_base), 0))
+    return np.column_stack([(np.asarray(o) - np.asarray(o_base)) / float(h)
+                            for o, h in zip(o_steps, steps, strict=True)])

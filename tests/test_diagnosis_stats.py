@@ -1,0 +1,141 @@
+"""Statistics of the model-form diagnosis on synthetic curves with known answers:
+the predictive check (calibration of its p-values and bands, detection and location
+of a localized mismatch) and the score-test attribution (null distribution, picking
+the right candidate, abstaining when none fits).
+
+Tolerances are binomial: with N independent replications of a test at level a, the
+rejection count has standard deviation sqrt(N a (1 - a)); we allow about 3 of them.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from bayescalib.diagnosis.attribution import attribute, score_test
+from bayescalib.diagnosis.residuals import estimate_noise, intervals, predictive_check
+from bayescalib.interface import Interface
+
+T = np.linspace(0.0, np.pi, 81)
+REF = np.column_stack([1.0 - 0.3 * np.cos(T), 0.4 * np.sin(T)])
+NORMAL = np.column_stack([-0.4 * np.cos(T), 0.3 * np.sin(T)])  # outward
+NORMAL /= np.linalg.norm(NORMAL, axis=1, keepdims=True)
+SHAPE = np.sin(T)[:, None] * NORMAL  # a smooth, global deformation mode (unit amplitude)
+
+
+def _curve(pts):
+    return Interface.polyline(pts)
+
+
+def _draws(rng, K=32, spread=0.002):
+    """Posterior draws: the reference moved along SHAPE by N(0, spread) amplitudes."""
+    return [[_curve(REF + rng.normal(0.0, spread) * SHAPE)] for _ in range(K)]
+
+
+def test_noise_estimate_ignores_a_smooth_mismatch():
+    rng = np.random.default_rng(0)
+    y = 0.05 * np.sin(3 * T) + rng.normal(0, 0.002, T.size)
+    assert estimate_noise(y) == pytest.approx(0.002, rel=0.25)
+
+
+def test_intervals_merge_small_gaps():
+    mask = np.array([0, 1, 1, 0, 1, 0, 0, 0, 1, 1], dtype=bool)
+    assert intervals(mask, np.arange(10.0)) == [(1, 4), (8, 9)]
+
+
+def test_adequate_model_passes_at_about_the_nominal_rate():
+    # data from the model itself (a draw plus noise): p-values ~ uniform, so the global
+    # test (level alpha = 0.05 after Bonferroni over 3 statistics) rejects rarely
+    n, rejections, coverage = 40, 0, []
+    for seed in range(n):
+        rng = np.random.default_rng(seed)
+        draws = _draws(rng)
+        obs = _curve(REF + rng.normal(0.0, 0.002) * SHAPE + rng.normal(0, 0.003, REF.shape))
+        chk = predictive_check([obs], draws, sigma=0.003, rng=rng)
+        rejections += not chk.adequate
+        coverage.append(chk.coverage)
+    # expected rate <= 0.05; binomial sd over 40 runs ~ 0.034: allow up to 4 / 40
+    assert rejections <= 4
+    # pointwise 95 % band: node-wise offsets are normal with the band's variance
+    # (up to the normal-offset geometry): mean coverage 0.95 +- 0.02
+    assert np.mean(coverage) == pytest.approx(0.95, abs=0.02)
+
+
+def test_localized_mismatch_is_detected_and_located():
+    rng = np.random.default_rng(1)
+    draws = _draws(rng)
+    bump = 0.012 * np.exp(-0.5 * ((T - 2.3) / 0.15) ** 2)  # near the downstream side
+    obs = _curve(REF + bump[:, None] * NORMAL + rng.normal(0, 0.003, REF.shape))
+    chk = predictive_check([obs], draws, sigma=0.003, rng=rng)
+    assert not chk.adequate
+    assert chk.located, "no interval located"
+    main = max(chk.located, key=lambda d: abs(d["peak_z"]))
+    i0, i1 = main["nodes"]
+    assert T[i0] < 2.3 < T[i1]  # the interval contains the bump's centre
+    assert T[i1] - T[i0] < 1.2  # and is local (the bump's +-2 sd is 0.6 wide in t)
+    assert main["peak_z"] > 0  # the bump pushes the observed curve into the fluid
+
+
+def test_estimated_noise_is_used_when_not_given():
+    rng = np.random.default_rng(2)
+    draws = _draws(rng)
+    obs = _curve(REF + rng.normal(0, 0.003, REF.shape))
+    chk = predictive_check([obs], draws, rng=rng)
+    assert chk.sigma_source == "estimated"
+    assert chk.sigma == pytest.approx(0.003, rel=0.3)
+
+
+# ----------------------------------------------------------------- attribution
+N = 120
+S_ = np.linspace(0.0, 1.0, N)
+J = np.column_stack([np.sin(np.pi * S_), S_ * (1 - S_) * 4])  # two base modes
+SIGS = {
+    "a": np.exp(-0.5 * ((S_ - 0.8) / 0.08) ** 2),
+    "b": np.cos(2 * np.pi * S_),
+    "c": np.sign(S_ - 0.5) * 0.5,
+    "absorbed": 0.7 * J[:, 0] + 0.2 * J[:, 1],  # a mix of the base modes
+}
+V = np.full(N, 0.01**2)
+
+
+def test_score_statistic_is_chi2_1_under_the_null():
+    rng = np.random.default_rng(3)
+    S = np.array([score_test("a", J @ rng.normal(size=2) + rng.normal(0, 0.01, N), J,
+                             SIGS["a"], V).statistic for _ in range(2000)])
+    assert np.mean(S) == pytest.approx(1.0, abs=0.1)  # E chi2_1 = 1, sd of mean 0.03
+    assert np.mean(S > 3.841) == pytest.approx(0.05, abs=0.015)  # sd 0.005
+
+
+def test_attribution_picks_the_hidden_candidate_and_estimates_phi():
+    rng = np.random.default_rng(4)
+    r = J @ [0.02, -0.01] + 0.03 * SIGS["b"] + rng.normal(0, 0.01, N)
+    out = attribute(r, J, SIGS, V)
+    assert out["selected"] == ["b"]
+    top = out["ranking"][0]
+    assert top["candidate"] == "b"
+    assert top["phi_hat"] == pytest.approx(0.03, abs=3 * 0.01 / np.sqrt(N / 2))
+
+
+def test_two_effects_at_once():
+    rng = np.random.default_rng(5)
+    r = 0.03 * SIGS["a"] + 0.03 * SIGS["b"] + rng.normal(0, 0.005, N)
+    out = attribute(r, J, SIGS, np.full(N, 0.005**2))
+    assert sorted(out["selected"]) == ["a", "b"]
+
+
+def test_no_attribution_under_the_null_or_out_of_library():
+    rng = np.random.default_rng(6)
+    null = attribute(J @ [0.01, 0.01] + rng.normal(0, 0.01, N), J, SIGS, V)
+    assert null["selected"] == [] and null["verdict"].startswith("no candidate")
+    wiggle = 0.03 * np.sin(9 * np.pi * S_)  # a mismatch no candidate produces
+    out = attribute(wiggle + rng.normal(0, 0.01, N), J, SIGS, V)
+    assert out["selected"] == []
+
+
+def test_a_signature_the_base_parameters_absorb_is_never_chosen():
+    rng = np.random.default_rng(7)
+    r = 0.05 * SIGS["absorbed"] + rng.normal(0, 0.01, N)
+    out = attribute(r, J, SIGS, V)
+    row = next(t for t in out["ranking"] if t["candidate"] == "absorbed")
+    assert row["identifiable_fraction"] < 1e-6 and row["p_value"] == 1.0
+    assert "absorbed" not in out["selected"]
