@@ -33,16 +33,16 @@ from bayescalib._atomic_write import atomic_path
 
 __all__ = [
     "PipelineError",
-    "write_json",
-    "read_json",
-    "observe",
+    "convergence",
     "discrepancy",
     "gather",
-    "read_training",
-    "train",
-    "convergence",
-    "smc",
     "marginalize",
+    "observe",
+    "read_json",
+    "read_training",
+    "smc",
+    "train",
+    "write_json",
 ]
 
 log = logging.getLogger("bayescalib")
@@ -300,8 +300,6 @@ def gather(run_paths: Sequence[str | Path], disc_paths: Sequence[str | Path],
     failed), ``is_train`` (first ``n_train`` points; the rest are held out for
     the convergence study), ``reason`` (str per point).
     """
-    import h5py
-
     if len(run_paths) != len(disc_paths):
         raise PipelineError("gather: the number of run records and discrepancy files differ")
     n, d = len(run_paths), len(names)
@@ -324,19 +322,29 @@ def gather(run_paths: Sequence[str | Path], disc_paths: Sequence[str | Path],
             D[i] = float(rec["D"])
             ok[i] = 1
         reasons.append(run.reason or rec.get("reason") or "")
-    with atomic_path(out_path, suffix=".h5") as tmp:
-        with h5py.File(tmp, "w") as f:
-            f["X"] = X
-            f["loglik"] = L
-            f["D"] = D
-            f["status"] = ok
-            f["is_train"] = (np.arange(n) < n_train).astype(np.int8)
-            f.create_dataset("reason", data=np.array(reasons, dtype=object),
-                             dtype=h5py.string_dtype())
-            f.attrs["names"] = json.dumps(list(names))
-            f.attrs["n_train"] = int(n_train)
-            f.attrs["n_failed"] = int(n - ok.sum())
-    log.info("training table: %d points, %d failed -> %s", n, n - int(ok.sum()), out_path)
+    write_training(out_path, X, L, D, ok, reasons, names, n_train)
+
+
+def write_training(out_path: str | Path, X: np.ndarray, L: np.ndarray, D: np.ndarray,
+                   ok: np.ndarray, reasons: Sequence[str], names: Sequence[str],
+                   n_train: int) -> None:
+    """Write a training table (layout of :func:`gather`) atomically."""
+    import h5py
+
+    n = len(L)
+    with atomic_path(out_path, suffix=".h5") as tmp, h5py.File(tmp, "w") as f:
+        f["X"] = np.asarray(X, dtype=float)
+        f["loglik"] = np.asarray(L, dtype=float)
+        f["D"] = np.asarray(D, dtype=float)
+        f["status"] = np.asarray(ok, dtype=np.int8)
+        f["is_train"] = (np.arange(n) < n_train).astype(np.int8)
+        f.create_dataset("reason", data=np.array(list(reasons), dtype=object),
+                         dtype=h5py.string_dtype())
+        f.attrs["names"] = json.dumps(list(names))
+        f.attrs["n_train"] = int(n_train)
+        f.attrs["n_failed"] = int(n - np.asarray(ok).sum())
+    log.info("training table: %d points, %d failed -> %s", n, n - int(np.asarray(ok).sum()),
+             out_path)
 
 
 def read_training(path: str | Path) -> dict[str, Any]:
