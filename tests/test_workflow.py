@@ -15,34 +15,17 @@ import re
 import shutil
 import signal
 import subprocess
-import sys
 import time
 from pathlib import Path
 
 import pytest
-import yaml
+from _workflow_helpers import REPO, SNAKEMAKE
+from _workflow_helpers import setup_study as _setup
+from _workflow_helpers import smk as _smk
 
-REPO = Path(__file__).resolve().parents[1]
-SNAKEMAKE = [sys.executable, "-m", "snakemake"]
-DATA = Path(__file__).parent / "data"
+# fixtures base_study and done_run: tests/conftest.py
 
 pytestmark = pytest.mark.workflow
-
-
-def _setup(tmp: Path, study: dict) -> Path:
-    (tmp / "config").mkdir(parents=True, exist_ok=True)
-    (tmp / "config" / "config.yaml").write_text(yaml.safe_dump(study))
-    return tmp
-
-
-def _smk(tmp: Path, *args: str, check: bool = True, timeout: int = 600):
-    cmd = [*SNAKEMAKE, "-s", str(REPO / "Snakefile"), "--directory", str(tmp), "--cores", "2",
-           *args]
-    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout,
-                          env={**os.environ, "PYTHONPATH": str(tmp)})
-    if check and proc.returncode != 0:
-        raise AssertionError(f"snakemake failed:\n{proc.stdout[-4000:]}\n{proc.stderr[-6000:]}")
-    return proc
 
 
 def job_counts(tmp: Path, *extra: str) -> dict[str, int]:
@@ -62,18 +45,6 @@ def job_counts(tmp: Path, *extra: str) -> dict[str, int]:
         counts[m.group(1)] = int(m.group(2))
     counts.pop("total", None)
     return counts
-
-
-@pytest.fixture(scope="module")
-def base_study():
-    return yaml.safe_load((DATA / "analytic_study.yaml").read_text())
-
-
-@pytest.fixture(scope="module")
-def done_run(tmp_path_factory, base_study):
-    tmp = _setup(tmp_path_factory.mktemp("wf"), base_study)
-    _smk(tmp)
-    return tmp
 
 
 def _with(study: dict, **changes) -> dict:

@@ -87,16 +87,16 @@ rule fig_posterior:
         particles=f"{R}/{{measure}}/particles.h5",
         posterior=f"{R}/{{measure}}/posterior.json",
     output:
-        report(
-            [
-                f"{R}/figures/{{measure}}/{fam}.{ext}"
-                for fam in _POSTERIOR_FAMILIES
-                for ext in FMT
-            ],
-            caption="../report/posterior.rst",
-            category="Posterior",
-            subcategory="{measure}",
-        ),
+        # one named output per figure family, each with its own report caption
+        **{
+            fam: report(
+                [f"{R}/figures/{{measure}}/{fam}.{ext}" for ext in FMT],
+                caption=f"../report/{fam}.rst",
+                category="Posterior",
+                subcategory="{measure}",
+            )
+            for fam in _POSTERIOR_FAMILIES
+        },
     params:
         parameters=study.config["parameters"],
         plots=study.config["plots"],

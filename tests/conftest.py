@@ -1,0 +1,22 @@
+"""Shared fixtures. The workflow fixtures run Snakemake on the analytic stand-in
+model (tests/data/analytic_study.yaml); the finished run is shared by every
+workflow test of the session and must not be modified (copy it first)."""
+
+from __future__ import annotations
+
+import pytest
+import yaml
+from _workflow_helpers import DATA, setup_study, smk
+
+
+@pytest.fixture(scope="session")
+def base_study():
+    return yaml.safe_load((DATA / "analytic_study.yaml").read_text())
+
+
+@pytest.fixture(scope="session")
+def done_run(tmp_path_factory, base_study):
+    """A complete run of the analytic study (8 design points, PNG figures)."""
+    tmp = setup_study(tmp_path_factory.mktemp("wf"), base_study)
+    smk(tmp)
+    return tmp
