@@ -37,9 +37,11 @@ include: "workflow/rules/surrogate.smk"
 include: "workflow/rules/inference.smk"
 include: "workflow/rules/figures.smk"
 include: "workflow/rules/summary.smk"
+include: "workflow/rules/diagnose.smk"
 
 
 rule all:
     input:
         f"{R}/summary.json",
+        *([f"{R}/diagnosis/diagnosis.json"] if study.config["diagnose"]["enabled"] else []),
     default_target: True

@@ -92,6 +92,24 @@ class Study:
             raise ConfigError(f"{where}: parameters: duplicate parameter names in {names}")
         Study._check_loadings(cfg, where)
         Study._check_hidden(cfg, where)
+        Study._check_diagnose(cfg, where)
+
+    @staticmethod
+    def _check_diagnose(cfg: dict[str, Any], where: str) -> None:
+        dg = cfg["diagnose"]
+        if not dg["enabled"]:
+            return
+        if dg["candidates"] is None and cfg["forward_model"]["type"] != "fsi":
+            raise ConfigError(
+                f"{where}: diagnose.candidates is required for a {cfg['forward_model']['type']} "
+                "forward model (the built-in candidate library is that of the fsi model)"
+            )
+        for i, c in enumerate(dg["candidates"] or []):
+            if c["step"] == 0:
+                raise ConfigError(f"{where}: diagnose.candidates[{i}].step must not be 0")
+            if not c["prior"][0] < c["prior"][1]:
+                raise ConfigError(f"{where}: diagnose.candidates[{i}].prior: lo must be < hi, "
+                                  f"got {c['prior']}")
 
     @staticmethod
     def _check_loadings(cfg: dict[str, Any], where: str) -> None:

@@ -41,7 +41,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.stats import chi2
 
-__all__ = ["ScoreTest", "score_test", "attribute", "signature_from_offsets", "jacobian_from_offsets"]
+__all__ = ["ScoreTest", "attribute", "jacobian_from_offsets", "score_test", "signature_from_offsets"]
 
 
 @dataclass

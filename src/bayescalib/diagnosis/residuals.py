@@ -50,8 +50,17 @@ from scipy.special import ndtri
 from bayescalib.interface import Interface
 from bayescalib.projection import closest_points
 
-__all__ = ["SnapshotCheck", "PredictiveCheck", "arc_length", "fluid_side_sign", "offsets",
-           "smoother", "estimate_noise", "predictive_check", "intervals"]
+__all__ = [
+    "PredictiveCheck",
+    "SnapshotCheck",
+    "arc_length",
+    "estimate_noise",
+    "fluid_side_sign",
+    "intervals",
+    "offsets",
+    "predictive_check",
+    "smoother",
+]
 
 
 def arc_length(points: np.ndarray) -> np.ndarray:

@@ -1,0 +1,100 @@
+"""Outputs of the diagnosis stage: ``diagnosis.json``, figures and an HTML section in
+plain words for the Snakemake report (side effects only; the numbers come from
+:func:`bayescalib.diagnosis.stage.run_diagnosis`)."""
+
+from __future__ import annotations
+
+import html
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from scipy.stats import chi2
+
+__all__ = ["write_diagnosis"]
+
+
+def _panels(check, located: Sequence[Mapping[str, Any]]) -> list[dict]:
+    out = []
+    for sn in check.snapshots:
+        out.append({
+            "s": sn.s, "r": sn.y - sn.mu, "r_smooth": sn.y_s - sn.mu_s,
+            "sd": np.sqrt(sn.v), "sd_smooth": np.sqrt(sn.v_s), "c_pw": check.c_pointwise,
+            "c_sim": check.c_simultaneous, "c_smooth": check.c_smooth, "label": sn.label,
+            "intervals": [loc["arc_length_mm"] for loc in located
+                          if loc["snapshot"] == sn.label],
+        })
+    return out
+
+
+def write_diagnosis(diagnosis: Mapping[str, Any], checks: Mapping[str, Any], *,
+                    json_path: str | Path, html_path: str | Path, figdir: str | Path,
+                    formats: Sequence[str], dpi: float) -> list[str]:
+    """Write the JSON, the figures (one per family and format) and the HTML section.
+
+    Returns
+    -------
+    list of str
+        The written figure paths.
+    """
+    from bayescalib.pipeline import write_json
+    from bayescalib.plotting import plot_interface_residual
+    from bayescalib.plotting.diagnosis import plot_candidate_ranking, plot_residual_bands
+
+    fig = Path(figdir)
+    written: list[str] = []
+    base = checks["base"]
+    rows, panels = ["calibrated model"], _panels(base, diagnosis["check"]["located"])
+    chosen = diagnosis["chosen_model"]
+    shown = chosen if chosen != "base" else (diagnosis["extended"][0]["candidate"]
+                                               if diagnosis["extended"] else None)
+    if shown is not None:
+        rows.append(f"with {shown}")
+        after = next(e for e in diagnosis["extended"] if e["candidate"] == shown)
+        panels += _panels(checks[shown], after["check_after"]["located"])
+    written += map(str, plot_residual_bands(panels, [fig / f"residuals.{e}" for e in formats],
+                                            row_titles=rows, dpi=dpi))
+    sn = base.snapshots[-1]
+    written += map(str, plot_interface_residual(
+        sn.xy, sn.z_s, [fig / f"interface_residual.{e}" for e in formats],
+        label=f"standardized smoothed residual ({sn.label})", unit="sd",
+        title="where the calibrated model misses the observed interface", dpi=dpi))
+    rank = diagnosis["attribution"]["ranking"]
+    thr = float(chi2.isf(diagnosis["attribution"]["threshold"], 1))
+    written += map(str, plot_candidate_ranking(
+        [r["candidate"] for r in rank], [r["score_statistic"] for r in rank],
+        [r["explained_fraction"] for r in rank], thr,
+        [fig / f"candidates.{e}" for e in formats],
+        selected=diagnosis["attribution"]["selected"], dpi=dpi))
+    write_json(json_path, {**diagnosis, "figures": written})
+    Path(html_path).write_text(_html(diagnosis))
+    return written
+
+
+def _html(d: Mapping[str, Any]) -> str:
+    rows = "".join(
+        f"<tr><td>{html.escape(r['candidate'])}</td><td>{r['score_statistic']:.3g}</td>"
+        f"<td>{r['p_value']:.2g}</td><td>{100 * r['explained_fraction']:.0f} %</td>"
+        f"<td>{100 * r['identifiable_fraction']:.0f} %</td><td>{r['phi_hat']:.3g} "
+        f"{html.escape(r.get('unit', ''))}</td></tr>"
+        for r in d["attribution"]["ranking"])
+    ext = "".join(
+        f"<tr><td>{html.escape(e['candidate'])}</td><td>{e['log_bayes_factor']:.2f}</td>"
+        f"<td>{e['phi_mean']:.3g} &plusmn; {e['phi_std']:.2g} {html.escape(e['unit'])}</td>"
+        f"<td>{1e3 * e['check_after']['residual_rms_mm']:.2f} &micro;m</td>"
+        f"<td>{100 * e['check_after']['pointwise_band_coverage']:.0f} %</td></tr>"
+        for e in d["extended"])
+    words = "".join(f"<p>{html.escape(s)}</p>" for s in d["plain_words"])
+    return (
+        "<!DOCTYPE html><html><head><meta charset='utf-8'><title>Model-form diagnosis</title>"
+        "</head><body><h1>Model-form diagnosis</h1>"
+        f"<p><b>Verdict:</b> {html.escape(d['verdict'])}</p>{words}"
+        "<h2>Candidate physics, ranked</h2><table border='1' cellpadding='3'>"
+        "<tr><th>candidate</th><th>score S</th><th>p-value</th><th>explains</th>"
+        "<th>not absorbed by E, nu, ...</th><th>estimated phi</th></tr>"
+        f"{rows}</table>"
+        + ("<h2>Extended models</h2><table border='1' cellpadding='3'><tr><th>candidate</th>"
+           "<th>ln Bayes factor</th><th>phi</th><th>residual RMS after</th>"
+           f"<th>band coverage after</th></tr>{ext}</table>" if ext else "")
+        + "</body></html>\n")

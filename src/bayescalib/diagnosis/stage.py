@@ -1,0 +1,354 @@
+"""The ``diagnose`` stage: check, locate, attribute, model, show (writes diagnosis.json).
+
+1. *Check* — K posterior draws of the base calibration (systematic resampling of the
+   SMC particles, seeded) are solved; :func:`~bayescalib.diagnosis.residuals.predictive_check`
+   gives the residual along the observed interface with its predictive bands and the
+   global p-values.
+2. *Locate* — the arc-length intervals where the smoothed residual leaves its
+   simultaneous band.
+3. *Attribute* — solves at the posterior mean, at finite-difference steps of every
+   calibrated parameter and at a step of each candidate's ``phi`` give the nuisance
+   Jacobian and the candidates' signatures;
+   :func:`~bayescalib.diagnosis.attribution.attribute` ranks the candidates.
+4. *Model* — for the ``n_extend`` best-ranked identifiable candidates (when the check
+   fails, or always with ``force_extend``), the extended model is calibrated
+   (:func:`~bayescalib.diagnosis.extended.extended_calibration`) and compared by its
+   log Bayes factor.
+5. *Show* — the predictive check is repeated with draws of each extended posterior:
+   residual RMS, band coverage and p-values before/after, the posterior of ``phi``,
+   and the change of the base parameters' error against the ground truth when known.
+
+The chosen model is the extended one with the largest log Bayes factor if it exceeds
+``ln 3`` and its predictive check improved; otherwise the base model.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from bayescalib.diagnosis.extended import CandidateSpec, extended_calibration
+from bayescalib.interface import Interface
+
+__all__ = ["resolve_candidates", "run_diagnosis", "DEFAULT_FSI_PRIORS"]
+
+log = logging.getLogger(__name__)
+
+#: prior range of phi in the extended calibration of the built-in FSI candidates
+DEFAULT_FSI_PRIORS = {
+    "layer": (-2.0, 2.0), "growth": (-0.06, 0.06), "attachment": (0.0, 8.0e-4),
+    "inflow_skew": (-0.8, 0.8), "stiffening": (0.0, 80.0), "gravity": (-200.0, 200.0),
+}
+
+LN_BF_MIN = math.log(3.0)
+
+
+def resolve_candidates(fm: Mapping[str, Any], diagnose: Mapping[str, Any]) -> list[CandidateSpec]:
+    """The candidates to test: ``diagnose.candidates`` or, for the fsi model, the built-in
+    library (:data:`bayescalib.fsi.physics.CANDIDATES`) minus those already switched on."""
+    given = diagnose.get("candidates")
+    if given:
+        return [CandidateSpec(name=c["name"], target=c["target"], step=float(c["step"]),
+                              prior=(float(c["prior"][0]), float(c["prior"][1])),
+                              unit=c.get("unit", "-"), switches=dict(c.get("switches") or {}),
+                              summary=c.get("summary", ""))
+                for c in given]
+    if fm.get("type") != "fsi":
+        raise ValueError("diagnose.candidates: list the candidate effects of a python or "
+                         "command forward model (name, target, step, prior)")
+    from bayescalib.fsi.physics import CANDIDATES
+
+    physics = (fm.get("fsi") or {}).get("physics") or {}
+    out = []
+    for name, c in CANDIDATES.items():
+        if (physics.get(name) or {}).get("enabled"):
+            continue  # already part of the model being diagnosed
+        out.append(CandidateSpec(name=name, target=c.key, step=c.typical,
+                                 prior=DEFAULT_FSI_PRIORS[name], unit=c.unit,
+                                 switches={f"physics.{name}.enabled": True}, summary=c.summary))
+    return out
+
+
+# ------------------------------------------------------------------------- helpers
+def _predicted(run, n_snap: int) -> list[Interface]:
+    if run.loadings:
+        return [Interface.polyline(ld.current, run.segments) for ld in run.loadings]
+    return [Interface.polyline(run.interface_current, run.segments)] * n_snap
+
+
+def _draw_points(particles_path: str | Path, targets: Sequence[str], k: int,
+                 rng: np.random.Generator) -> np.ndarray:
+    from bayescalib.posterior import read_particles_h5
+    from bayescalib.resampling import systematic_resample
+
+    res = read_particles_h5(particles_path)
+    idx = systematic_resample(np.asarray(res.weights), rng, k)
+    return np.asarray(res.particles)[idx]
+
+
+def _posterior_mean(particles_path: str | Path) -> np.ndarray:
+    from bayescalib.posterior import read_particles_h5
+
+    res = read_particles_h5(particles_path)
+    w = np.asarray(res.weights, dtype=float)
+    return (w[:, None] * np.asarray(res.particles)).sum(axis=0) / w.sum()
+
+
+def _check_from_particles(tag: str, particles: str | Path, targets: Sequence[str],
+                          switches: Mapping[str, Any], obs, fm, cfg, work: Path,
+                          workers: int, warm_start, sigma):
+    from bayescalib.diagnosis.residuals import predictive_check
+    from bayescalib.diagnosis.solves import solve_many
+
+    rng = np.random.default_rng(int(cfg["seed"]))
+    X = _draw_points(particles, targets, int(cfg["n_draws"]), rng)
+    points = [{**dict(zip(targets, map(float, x), strict=True)), **switches} for x in X]
+    runs = solve_many(fm, points, [work / tag / "draws" / f"{k}.h5" for k in range(len(X))],
+                      workers=workers, warm_start=warm_start)
+    good = [r for r in runs if r.ok]
+    if len(good) < 2:
+        raise ValueError(f"diagnosis ({tag}): only {len(good)} of {len(runs)} posterior draws "
+                         "solved; the predictive check needs at least 2")
+    n_snap = len(obs.snapshots)
+    check = predictive_check(obs.snapshots, [_predicted(r, n_snap) for r in good],
+                             labels=obs.labels, sigma=sigma, noise_floor=cfg["noise_floor"],
+                             ell=cfg["smoothing"], alpha=cfg["alpha"], n_noise=cfg["n_noise"],
+                             rng=rng)
+    return check, len(runs) - len(good)
+
+
+def _bias(summary: Mapping[str, Any], parameters: Sequence[Mapping[str, Any]]) -> dict | None:
+    truth = {p["name"]: p.get("ground_truth") for p in parameters}
+    if any(v is None for v in truth.values()):
+        return None
+    mean = summary["mean"]
+    return {n: {"posterior_mean": float(mean[n]), "truth": float(t),
+                "relative_error": float(abs(mean[n] - t) / abs(t)) if t else float(abs(mean[n]))}
+            for n, t in truth.items() if n in mean}
+
+
+# ----------------------------------------------------------------------------- stage
+def run_diagnosis(
+    *,
+    fm: Mapping[str, Any],
+    parameters: Sequence[Mapping[str, Any]],
+    observations: Mapping[str, Any],
+    measure_name: str,
+    measure: Mapping[str, Any],
+    likelihood: Mapping[str, Any],
+    surrogate: Mapping[str, Any],
+    smc_cfg: Mapping[str, Any],
+    posterior_cfg: Mapping[str, Any],
+    diagnose: Mapping[str, Any],
+    n_train_base: int,
+    particles_path: str | Path,
+    training_path: str | Path,
+    posterior_path: str | Path,
+    obs_path: str | Path,
+    outdir: str | Path,
+    workers: int = 1,
+    warm_start: str | Path | None = None,
+) -> tuple[dict[str, Any], dict[str, Any]]:
+    """Run the diagnosis stage (see the module docstring).
+
+    Returns
+    -------
+    diagnosis : dict
+        The ``diagnosis.json`` content (plain values).
+    checks : dict
+        :class:`~bayescalib.diagnosis.residuals.PredictiveCheck` of the base model
+        (``"base"``) and of each extended model (by candidate), for the figures.
+
+    Solves and extended calibrations are kept under ``outdir`` and reused.
+    """
+    from bayescalib.diagnosis.attribution import attribute
+    from bayescalib.diagnosis.residuals import offsets
+    from bayescalib.diagnosis.solves import solve_many
+    from bayescalib.observation_store import read_observations
+    from bayescalib.parameters import ParameterSpace
+    from bayescalib.posterior import read_particles_h5
+
+    work = Path(outdir)
+    cfg = dict(diagnose)
+    obs = read_observations(obs_path)
+    n_snap = len(obs.snapshots)
+    space = ParameterSpace.from_config(parameters)
+    targets = [p.get("target") or p["name"] for p in parameters]
+    names = [p["name"] for p in parameters]
+    sigma = cfg.get("noise_sigma")
+    if sigma is None and observations.get("source", "synthetic") == "synthetic" \
+            and float(observations.get("noise_sigma", 0.0)) > 0:
+        sigma = float(observations["noise_sigma"])
+
+    # 1-2: check and locate ------------------------------------------------------
+    check, n_failed_draws = _check_from_particles("base", particles_path, targets, {}, obs, fm,
+                                                  cfg, work, workers, warm_start, sigma)
+    log.info("predictive check: adequate=%s p=%s", check.adequate, check.p_values)
+
+    # 3: attribute ----------------------------------------------------------------
+    cands = resolve_candidates(fm, cfg)
+    theta = _posterior_mean(particles_path)
+    lo, hi = space.bounds[:, 0], space.bounds[:, 1]
+    h = float(cfg["fd_step"]) * (hi - lo)
+    # step towards the box interior so the FD point stays inside the prior support
+    h = np.where(theta + h > hi, -h, h)
+    base_point = dict(zip(targets, map(float, theta), strict=True))
+    pts = [base_point]
+    for i, t in enumerate(targets):
+        pts.append({**base_point, t: float(theta[i] + h[i])})
+    for c in cands:
+        pts.append({**base_point, c.target: c.step, **c.switches})
+    runs = solve_many(fm, pts, [work / "base" / "linearization" / f"{i}.h5"
+                                for i in range(len(pts))], workers=workers,
+                      warm_start=warm_start)
+    if not runs[0].ok:
+        raise ValueError(f"diagnosis: the solve at the posterior mean failed ({runs[0].reason})")
+    C0 = _predicted(runs[0], n_snap)
+    y_parts, o_parts = [], []
+    usable = [k for k, r in enumerate(runs[1:], start=1) if r.ok]
+    for s in range(n_snap):
+        y, o = offsets(np.asarray(obs.snapshots[s].points), C0[s],
+                       [_predicted(runs[k], n_snap)[s] for k in usable])
+        y_parts.append(y)
+        o_parts.append(o)
+    r = np.concatenate(y_parts)
+    O = np.concatenate(o_parts, axis=1)  # (len(usable), n)
+    col = {k: O[j] for j, k in enumerate(usable)}
+    J = np.column_stack([col[1 + i] / h[i] for i in range(len(targets)) if 1 + i in col]) \
+        if any(1 + i in col for i in range(len(targets))) else np.zeros((len(r), 0))
+    signatures, failed_sig = {}, {}
+    for j, c in enumerate(cands):
+        k = 1 + len(targets) + j
+        if k in col:
+            signatures[c.name] = col[k] / c.step
+        else:
+            failed_sig[c.name] = runs[k].reason
+    v = np.concatenate([sn.v for sn in check.snapshots])
+    attr = attribute(r, J, signatures, v, alpha=cfg["alpha"], r2_min=cfg["r2_min"],
+                     max_effects=cfg["max_effects"])
+    # plain-words size of each signature's effect at the step, for the report
+    for row in attr["ranking"]:
+        c = next(c for c in cands if c.name == row["candidate"])
+        row["summary"] = c.summary
+        row["step"] = c.step
+        row["unit"] = c.unit
+        row["max_shift_at_step_mm"] = float(np.max(np.abs(signatures[c.name] * c.step)))
+
+    # 4-5: model and show ------------------------------------------------------------
+    base_particles = read_particles_h5(particles_path)
+    base_summary = json.loads(Path(posterior_path).read_text())
+    extended = []
+    run_ext = (not check.adequate) or bool(cfg["force_extend"])
+    if run_ext and int(cfg["n_extend"]) > 0:
+        ranked = [row["candidate"] for row in attr["ranking"]
+                  if row["identifiable_fraction"] > 0.05]
+        chosen_names = list(dict.fromkeys(attr["selected"] + ranked))[: int(cfg["n_extend"])]
+        n_new = int(cfg["n_train"] or max(32, n_train_base // 2))
+        for name in chosen_names:
+            c = next(c for c in cands if c.name == name)
+            cal = extended_calibration(
+                c, fm=fm, parameters=parameters, base_training=training_path,
+                obs_path=obs_path, measure_name=measure_name, measure=measure,
+                likelihood=likelihood, surrogate=surrogate, smc_cfg=smc_cfg,
+                posterior_cfg=posterior_cfg, n_new=n_new, seed=int(cfg["seed"]) + 1,
+                workdir=work / name, workers=workers, warm_start=warm_start)
+            ext_targets = targets + [c.target]
+            after, n_fail_after = _check_from_particles(
+                name, cal["particles"], ext_targets, c.switches, obs, fm, cfg, work, workers,
+                warm_start, check.sigma if check.sigma_source == "given" else sigma)
+            post = cal["posterior"]
+            phi_name = f"phi_{c.name}"
+            ext = {
+                "candidate": name, "summary": c.summary, "unit": c.unit,
+                "log_evidence": cal["log_evidence"],
+                "log_bayes_factor": cal["log_evidence"] - float(base_particles.log_evidence),
+                "phi_mean": float(post["mean"][phi_name]),
+                "phi_std": float(post["std"][phi_name]),
+                "phi_prior": list(c.prior), "phi_interval": post["intervals"].get(phi_name),
+                "n_new_solves": cal["n_new"], "n_reused": cal["n_reused"],
+                "n_failed": cal["n_failed"], "check_after": after.to_json(),
+                "posterior": {k: post[k] for k in ("names", "mean", "std", "map")},
+                "bias_after": _bias(post, parameters),
+                "particles": cal["particles"],
+            }
+            ext["_check"] = after
+            extended.append(ext)
+    best = max(extended, key=lambda e: e["log_bayes_factor"], default=None)
+    chosen = "base"
+    if best is not None and best["log_bayes_factor"] > LN_BF_MIN \
+            and best["check_after"]["residual_rms_mm"] < check.rms:
+        chosen = best["candidate"]
+    if check.adequate:
+        verdict = "no significant mismatch"
+    elif attr["selected"]:
+        verdict = "mismatch explained by " + " + ".join(attr["selected"])
+    else:
+        verdict = "mismatch located; no candidate explains it"
+    out = {
+        "verdict": verdict,
+        "attribution_verdict": attr["verdict"],
+        "check": check.to_json(),
+        "n_draws": int(cfg["n_draws"]), "n_failed_draws": int(n_failed_draws),
+        "attribution": {k: attr[k] for k in ("ranking", "selected", "explained", "threshold",
+                                             "steps")},
+        "failed_signatures": failed_sig,
+        "posterior_mean": dict(zip(names, map(float, theta), strict=True)),
+        "extended": [{k: v for k, v in e.items() if k != "_check"} for e in extended],
+        "chosen_model": chosen,
+        "bias_before": _bias(base_summary, parameters),
+        "hidden_truth": obs.meta.get("hidden") or None,
+        "units": "lengths mm; phi in the candidate's unit",
+    }
+    out["plain_words"] = plain_words(out)
+    checks = {"base": check, **{e["candidate"]: e["_check"] for e in extended}}
+    return out, checks
+
+
+def plain_words(d: Mapping[str, Any]) -> list[str]:
+    """The diagnosis in a few sentences for a mechanician."""
+    chk = d["check"]
+    pmin = min(chk["p_values"].values())
+    lines = []
+    if chk["adequate"]:
+        lines.append(
+            f"The calibrated model reproduces the observed interface within its predictive "
+            f"bands (smallest posterior predictive p-value {pmin:.3g}; residual RMS "
+            f"{1e3 * chk['residual_rms_mm']:.2f} um against a noise level of "
+            f"{1e3 * chk['sigma_mm']:.2f} um). No significant mismatch: nothing to add.")
+    else:
+        lines.append(
+            f"The calibrated model misses the data (smallest posterior predictive p-value "
+            f"{pmin:.3g}; residual RMS {1e3 * chk['residual_rms_mm']:.2f} um against a noise "
+            f"level of {1e3 * chk['sigma_mm']:.2f} um).")
+        for loc in chk["located"]:
+            a, b = loc["arc_length_mm"]
+            lines.append(
+                f"Mismatch on snapshot {loc['snapshot']}: arc length {a:.3f}-{b:.3f} mm "
+                f"(x {loc['x_mm'][0]:.3f}-{loc['x_mm'][1]:.3f} mm, y {loc['y_mm'][0]:.3f}-"
+                f"{loc['y_mm'][1]:.3f} mm), {loc['direction']}, by up to "
+                f"{1e3 * abs(loc['peak_residual_mm']):.2f} um.")
+        if not chk["located"]:
+            lines.append("The mismatch is spread over the interface (no interval leaves the "
+                         "simultaneous band of the smoothed residual).")
+        lines.append(d["attribution_verdict"][0].upper() + d["attribution_verdict"][1:] + ".")
+    for e in d["extended"]:
+        ca = e["check_after"]
+        lines.append(
+            f"With {e['candidate']} ({e['summary']}): log Bayes factor "
+            f"{e['log_bayes_factor']:.2f}, phi = {e['phi_mean']:.3g} +- {e['phi_std']:.2g} "
+            f"{e['unit']}, residual RMS {1e3 * chk['residual_rms_mm']:.2f} -> "
+            f"{1e3 * ca['residual_rms_mm']:.2f} um, band coverage "
+            f"{100 * chk['pointwise_band_coverage']:.0f} % -> "
+            f"{100 * ca['pointwise_band_coverage']:.0f} %.")
+    if d["chosen_model"] != "base":
+        lines.append(f"Chosen model: base + {d['chosen_model']}.")
+    elif d["extended"]:
+        lines.append("Chosen model: the base model (no extension is supported by the evidence "
+                     "and the fit).")
+    return lines

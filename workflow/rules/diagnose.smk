@@ -1,0 +1,54 @@
+# Model-form diagnosis (switched on with diagnose.enabled): predictive check,
+# located mismatch, attribution to candidate physics, extended calibrations and
+# Bayes factors. Its forward solves run inside the job (they depend on the
+# posterior), in parallel on the job's threads, kept under diagnosis/ and reused.
+
+
+def _diagnose_inputs(wildcards):
+    m = study.primary_measure
+    out = {
+        "particles": f"{R}/{m}/particles.h5",
+        "training": f"{R}/{m}/training.h5",
+        "posterior": f"{R}/{m}/posterior.json",
+        "obs": f"{R}/observations/observations.h5",
+    }
+    if study.config["forward_model"]["warm_start"] == "prior_centre":
+        out["base"] = f"{R}/runs/base_state.state.npz"
+    return out
+
+
+rule diagnose:
+    input:
+        unpack(_diagnose_inputs),
+    output:
+        json=f"{R}/diagnosis/diagnosis.json",
+        html=report(f"{R}/diagnosis/diagnosis.html", caption="../report/diagnosis_text.rst",
+                    category="Diagnosis"),
+        figures=report(
+            [f"{R}/figures/diagnosis/{fam}.{ext}" for fam in
+             ("residuals", "interface_residual", "candidates") for ext in FMT],
+            caption="../report/diagnosis.rst",
+            category="Diagnosis",
+        ),
+    params:
+        forward_model=study.forward_section(),
+        parameters=study.config["parameters"],
+        observations=study.config["observations"],
+        measure_name=study.primary_measure,
+        measure=study.config["measure"],
+        likelihood=study.config["likelihood"],
+        surrogate=study.config["surrogate"],
+        smc=study.config["smc"],
+        posterior=study.config["posterior"],
+        diagnose=study.config["diagnose"],
+        n_train=study.n_train,
+        plots=study.config["plots"],
+        outdir=f"{R}/diagnosis",
+        figdir=f"{R}/figures/diagnosis",
+    threads: workflow.cores
+    benchmark:
+        f"{R}/benchmarks/diagnose.tsv"
+    log:
+        f"{R}/logs/diagnose.log",
+    script:
+        "../../scripts/diagnose.py"
