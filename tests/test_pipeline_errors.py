@@ -231,3 +231,17 @@ def test_a_good_table_still_trains(tmp_path):
     _train(tab, tmp_path)
     assert read_run(tmp_path / "runs" / "0.h5").status == "ok"
     assert json.loads((tmp_path / "disc" / "0.json").read_text())["loglik"] == ll[0]
+
+
+def test_each_set_aside_gets_its_own_name(tmp_path, observed):
+    """The gather rule lists the set-aside files: a second corruption of the same
+    record must add a name (else the list would not change and nothing rerun)."""
+    run = tmp_path / "runs" / "3.h5"
+    for expected in ("3.h5.corrupt", "3.h5.1.corrupt", "3.h5.2.corrupt"):
+        solve_point(ANALYTIC, {"E": 500.0, "nu": 0.2}, run, isolate=False)
+        _truncate(run)
+        with pytest.raises(PipelineError, match=expected.replace(".", r"\.")):
+            pipeline.discrepancy(run, observed, "rkhs", {"rkhs": {"sigma_w": 0.005}},
+                                 {"sigma_n2": 0.0005}, tmp_path / "d.json")
+    assert sorted(p.name for p in run.parent.glob("*.corrupt")) == [
+        "3.h5.1.corrupt", "3.h5.2.corrupt", "3.h5.corrupt"]

@@ -103,12 +103,17 @@ def setup_logging(path: str | Path | None) -> None:
 def _set_aside(path: str | Path, problem: str) -> PipelineError:
     """Move a corrupt per-point file to ``<name>.corrupt`` and say how to redo it.
 
-    The file is the output of an upstream job (a run record, a discrepancy file),
-    so once it is gone, rerunning the same ``snakemake`` command recreates it
-    (that one design point only) instead of failing on it again.
+    The file is the output of an upstream job (a run record, a discrepancy file).
+    The workflow's gather rule lists the set-aside files as a parameter, so the
+    next run of the same ``snakemake`` command recomputes the missing file (that
+    one design point only) and what depends on it, instead of failing on it again.
     """
     p = Path(path)
     aside = p.with_name(p.name + ".corrupt")
+    k = 1
+    while aside.exists():  # every event gets its own name (the gather rule lists them)
+        aside = p.with_name(f"{p.name}.{k}.corrupt")
+        k += 1
     where = ""
     if p.exists():
         try:

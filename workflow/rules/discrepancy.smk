@@ -24,6 +24,19 @@ rule discrepancy:
         "../../scripts/discrepancy.py"
 
 
+def _set_aside(wildcards):
+    """Run records and discrepancy files found corrupt and set aside (renamed to
+    *.corrupt by the job that read them). Snakemake does not recompute a missing
+    intermediate file while the results built from it are present, so this list is
+    a parameter of gather: when it grows, gather reruns, which re-solves exactly the
+    points set aside, and everything downstream follows."""
+    from pathlib import Path
+
+    found = [f"runs/{p.name}" for p in Path(R, "runs").glob("*.corrupt")]
+    found += [p.name for p in Path(R, "discrepancy", wildcards.measure).glob("*.corrupt")]
+    return sorted(found)
+
+
 rule gather:
     input:
         runs=expand(f"{R}/runs/{{i}}.h5", i=range(study.n_points)),
@@ -36,6 +49,7 @@ rule gather:
         names=[p["name"] for p in study.config["parameters"]],
         targets=study.targets(),
         n_train=study.n_train,
+        set_aside=_set_aside,
     benchmark:
         f"{R}/benchmarks/gather/{{measure}}.tsv"
     log:
