@@ -23,6 +23,18 @@ except ConfigError as exc:
 
 R = study.root
 
+
+onstart:
+    # one run of a study at a time (Snakemake's lock alone is lost when another
+    # study's run ends in this directory); released by the kernel when this ends
+    from bayescalib.study import StudyBusyError, hold_run_lock
+    from snakemake.exceptions import WorkflowError
+
+    try:
+        hold_run_lock(R, study.name)
+    except StudyBusyError as exc:
+        raise WorkflowError(f"bayescalib: {exc}") from None
+
 wildcard_constraints:
     i=r"\d+",
     k=r"\d+",

@@ -70,3 +70,32 @@ def test_parameter_errors_name_the_parameter():
     params[0] = {**params[0], "bounds": [800.0, 100.0]}
     with pytest.raises(ConfigError, match="E"):
         Study({**DEFAULT, "parameters": params})
+
+
+def test_run_lock_is_exclusive_and_dies_with_its_holder(tmp_path):
+    import subprocess
+    import sys
+    import time
+
+    from bayescalib.study import StudyBusyError, hold_run_lock
+
+    holder = subprocess.Popen(
+        [sys.executable, "-c", "import sys, time\nfrom bayescalib.study import hold_run_lock\n"
+         f"hold_run_lock({str(tmp_path)!r}, 's')\nprint('held', flush=True)\ntime.sleep(60)\n"],
+        stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout.readline().strip() == "held"
+        with pytest.raises(StudyBusyError, match=r"study 's' is already being run .*pid"):
+            hold_run_lock(tmp_path, "s")
+    finally:
+        holder.kill()  # SIGKILL: no clean-up, yet the lock is gone with the process
+        holder.wait()
+    end = time.monotonic() + 5
+    while True:
+        try:
+            assert hold_run_lock(tmp_path, "s") == tmp_path / ".run.lock"
+            break
+        except StudyBusyError:
+            assert time.monotonic() < end
+            time.sleep(0.05)
+    assert hold_run_lock(tmp_path, "s") == tmp_path / ".run.lock"  # held: a no-op

@@ -23,7 +23,59 @@ from typing import Any
 
 from bayescalib.config import ConfigError, validate
 
-__all__ = ["Study", "ConfigError"]
+__all__ = ["Study", "ConfigError", "StudyBusyError", "hold_run_lock"]
+
+
+class StudyBusyError(RuntimeError):
+    """Another process is running the same study (same results folder)."""
+
+
+#: run locks held by this process (kept open: a lock lasts as long as its file is open)
+_HELD_LOCKS: dict[str, Any] = {}
+
+
+def hold_run_lock(root: str | Path, name: str) -> Path:
+    """Take the run lock of the study whose outputs are under ``root``, for the life
+    of this process.
+
+    Snakemake's own lock refuses a second run that would write the same files, but
+    any Snakemake run that ends in the working directory deletes the locks of all
+    (``.snakemake/locks`` is removed as a whole), so with two studies running side by
+    side the first to finish unlocks the other. This lock is a kernel lock
+    (``flock``) on ``<root>/.run.lock``: the kernel releases it when the process
+    ends, however it ends (no stale lock after a kill, nothing to unlock).
+
+    Raises
+    ------
+    StudyBusyError
+        If another process holds it.
+    """
+    import fcntl
+    import os
+
+    path = Path(root) / ".run.lock"
+    key = str(path.resolve())
+    if key in _HELD_LOCKS:
+        return path
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fh = open(path, "a+")  # noqa: SIM115 - held open for the life of the process
+    try:
+        fcntl.flock(fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        fh.seek(0)
+        holder = fh.read().strip()
+        fh.close()
+        raise StudyBusyError(
+            f"study '{name}' is already being run in this directory "
+            f"({holder or 'another process'}; lock {path}). Wait for that run to end; "
+            "another study can run at the same time."
+        ) from None
+    fh.seek(0)
+    fh.truncate()
+    fh.write(f"snakemake pid {os.getpid()}\n")
+    fh.flush()
+    _HELD_LOCKS[key] = fh
+    return path
 
 
 class Study:
@@ -90,6 +142,12 @@ class Study:
                 )
         if len(set(names)) != len(names):
             raise ConfigError(f"{where}: parameters: duplicate parameter names in {names}")
+        try:
+            from bayescalib.likelihood import sigma_n2_from_config
+
+            sigma_n2_from_config(cfg["likelihood"])
+        except ValueError as exc:
+            raise ConfigError(f"{where}: {exc}") from None
         Study._check_loadings(cfg, where)
         Study._check_hidden(cfg, where)
         Study._check_diagnose(cfg, where)
