@@ -189,3 +189,15 @@ def test_series_from_a_warm_start_goes_down_and_up(tmp_path):
         assert a.ok and b.ok
         assert _shift(a, b) < 1e-8
     assert series[0].max_displacement > series[2].max_displacement > series[1].max_displacement
+
+
+def test_a_base_state_warm_starts_a_model_with_candidate_physics(tmp_path, base):
+    # the state layout depends on the mesh only: the base state at the prior centre
+    # is a valid initial guess for every candidate (the diagnosis relies on it)
+    b = FSIModel(COARSE)
+    b.solve(TRUTH)
+    b.save_state(tmp_path / "base.npz")
+    m = _model("growth")
+    res = m.solve({**TRUTH, "physics.growth.phi": 0.0}, warm_start=tmp_path / "base.npz")
+    assert res.ok and res.stats["warm_start"] == 1
+    assert _shift(res, base) < 1e-6

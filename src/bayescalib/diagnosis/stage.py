@@ -277,6 +277,10 @@ def run_diagnosis(
                 "bias_after": _bias(post, parameters),
                 "particles": cal["particles"],
             }
+            # the Bayes factor comes from GP surrogates: flag it when the real solves at
+            # the extended posterior do not fit better than the base model
+            ext["surrogate_consistent"] = bool(
+                ext["log_bayes_factor"] <= LN_BF_MIN or after.rms < check.rms)
             ext["_check"] = after
             extended.append(ext)
     best = max(extended, key=lambda e: e["log_bayes_factor"], default=None)
@@ -339,6 +343,10 @@ def plain_words(d: Mapping[str, Any]) -> list[str]:
         lines.append(d["attribution_verdict"][0].upper() + d["attribution_verdict"][1:] + ".")
     for e in d["extended"]:
         ca = e["check_after"]
+        if not e.get("surrogate_consistent", True):
+            lines.append(f"Caution: the Bayes factor of {e['candidate']} favours it, but the "
+                         "forward solves at its posterior do not fit better; the surrogate "
+                         "of the extended model is not reliable there (more design points).")
         lines.append(
             f"With {e['candidate']} ({e['summary']}): log Bayes factor "
             f"{e['log_bayes_factor']:.2f}, phi = {e['phi_mean']:.3g} +- {e['phi_std']:.2g} "

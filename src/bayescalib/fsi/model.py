@@ -106,6 +106,14 @@ def _set(cfg: dict[str, Any], dotted: str, value: Any) -> None:
     node[parts[-1]] = value
 
 
+def _space_key(cfg: Mapping[str, Any]) -> str:
+    """Key of what fixes the layout of a state vector (mesh and spaces): a state saved
+    with one key is a valid initial guess for any model with the same key, whatever
+    its material law or candidate physics."""
+    data = {k: _get(cfg, k) for k in ("geometry", "mesh", "solver.order")}
+    return hashlib.sha256(json.dumps(data, sort_keys=True).encode()).hexdigest()[:16]
+
+
 def _structural_key(cfg: Mapping[str, Any]) -> str:
     data = {k: _get(cfg, k) for k in _STRUCTURAL}
     data["springs"] = springs_active(cfg["physics"])  # the base clamp or springs
@@ -142,6 +150,7 @@ class FSIModel:
             raise ConfigError(msg)
         self.physics: SolidPhysics | None = None
         self._key: str | None = None
+        self._space: str | None = None
         self.geometry: BiofilmMesh | None = None
         self.solver: MonolithicSolver | None = None
         self._last_state: np.ndarray | None = None
@@ -205,6 +214,7 @@ class FSIModel:
             (6.0 * ng.y * (H - ng.y) / H**3 * (2.0 * ng.y / H - 1.0), 0.0)))
         self.geometry = geo
         self._key = key
+        self._space = _space_key(cfg)
         self._last_state = None
         self.build_time = time.perf_counter() - t0
 
@@ -257,7 +267,7 @@ class FSIModel:
         try:
             _chmod_default(tmp)
             with open(tmp, "wb") as fh:
-                np.savez(fh, state=self._last_state, key=np.array(self._key),
+                np.savez(fh, state=self._last_state, key=np.array(self._space),
                          parameters=np.array(json.dumps(self._last_params)))
             os.replace(tmp, path)
         except BaseException:
@@ -276,9 +286,9 @@ class FSIModel:
         except (OSError, KeyError, ValueError) as exc:
             raise ValueError(f"warm-start file '{path}' is not a saved FSI state: {exc}") from None
         assert self.solver is not None
-        if key != self._key or state.shape[0] != self.solver.ndof:
+        if key != self._space or state.shape[0] != self.solver.ndof:
             raise ValueError(
-                f"warm-start file '{path}' was saved for another geometry/mesh/law "
+                f"warm-start file '{path}' was saved for another geometry/mesh/order "
                 f"({state.shape[0]} unknowns, this model has {self.solver.ndof})"
             )
         return state
