@@ -177,9 +177,11 @@ def concurrent_runs(tmp_path_factory, base_study):
             wait_for(tmp / "results" / "other" / "logs" / "ground_truth.log", b)
             again = smk(tmp, check=False, timeout=120)
             # any snakemake run that ends here (B, or the refused one) deletes
-            # .snakemake/locks as a whole, A's lock included: try again after that
+            # .snakemake/locks as a whole, A's lock included: try again after that,
+            # with --rerun-incomplete, as Snakemake advises when it sees A's running
+            # jobs as incomplete files
             shutil.rmtree(tmp / ".snakemake" / "locks", ignore_errors=True)
-            after_unlock = smk(tmp, check=False, timeout=120)
+            after_unlock = smk(tmp, "--rerun-incomplete", check=False, timeout=120)
             still_running = a.poll() is None
             rc_a, rc_b = a.wait(timeout=600), b.wait(timeout=600)
         finally:
