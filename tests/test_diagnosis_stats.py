@@ -139,3 +139,13 @@ def test_a_signature_the_base_parameters_absorb_is_never_chosen():
     row = next(t for t in out["ranking"] if t["candidate"] == "absorbed")
     assert row["identifiable_fraction"] < 1e-6 and row["p_value"] == 1.0
     assert "absorbed" not in out["selected"]
+
+
+def test_a_candidate_needing_an_absurd_phi_is_not_selected():
+    rng = np.random.default_rng(8)
+    r = 0.03 * SIGS["b"] + rng.normal(0, 0.01, N)
+    free = attribute(r, J, SIGS, V)
+    assert free["selected"] == ["b"]
+    capped = attribute(r, J, SIGS, V, ranges={"b": (0.0, 0.001)})
+    assert "b" not in capped["selected"]
+    assert not next(t for t in capped["ranking"] if t["candidate"] == "b")["phi_hat_plausible"]

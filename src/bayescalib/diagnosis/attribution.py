@@ -27,7 +27,10 @@ nu, ... and cannot be told apart with these data).
 Selection is greedy (orthogonal matching pursuit): the best candidate is kept if its
 p-value is below ``alpha / m`` (Bonferroni over the ``m`` candidates); a second one is
 tested with ``J`` and the first signature projected out and kept if it is significant
-and adds at least ``r2_gain_min`` to the explained fraction (up to ``max_effects``).
+and adds at least ``r2_gain_min`` to the explained fraction (up to ``max_effects``). A candidate
+whose one-step estimate ``phi_hat`` lies far outside its plausible range (``ranges``,
+with a margin of half the range's width) is not selected: an effect that needs an
+absurd magnitude is not the cause.
 The selection *explains* the mismatch when together it explains at least ``r2_min`` of
 the residual beyond noise; otherwise the verdict is "no candidate explains the
 mismatch" (a significant but partial fit is reported as such, never as the cause).
@@ -126,6 +129,7 @@ def attribute(
     r2_min: float = 0.5,
     r2_gain_min: float = 0.1,
     max_effects: int = 2,
+    ranges: Mapping[str, tuple[float, float]] | None = None,
 ) -> dict:
     """Rank candidates and select up to ``max_effects`` of them (see module docstring).
 
@@ -136,6 +140,17 @@ def attribute(
         (joint explained fraction of the selection), ``threshold`` (p-value level after
         Bonferroni), ``verdict`` (plain words) and ``steps`` (the greedy selection).
     """
+    ranges = dict(ranges or {})
+
+    def plausible(t: ScoreTest) -> bool:
+        # the one-step estimate of phi must lie in the candidate's range (with a margin
+        # of half its width): an effect that needs an absurd phi is not the cause
+        if t.name not in ranges:
+            return True
+        lo, hi = ranges[t.name]
+        pad = 0.5 * (hi - lo)
+        return lo - pad <= t.phi_hat <= hi + pad
+
     names = list(signatures)
     m = max(len(names), 1)
     level = alpha / m
@@ -153,7 +168,8 @@ def attribute(
     for step in range(max_effects):
         nuis = np.column_stack([np.asarray(J, dtype=float).reshape(len(r), -1)]
                                + [signatures[n][:, None] for n in selected])
-        cands = [score_test(n, r, nuis, signatures[n], v) for n in names if n not in selected]
+        cands = [t for t in (score_test(n, r, nuis, signatures[n], v)
+                             for n in names if n not in selected) if plausible(t)]
         if not cands:
             break
         best = max(cands, key=lambda t: t.statistic)
@@ -183,7 +199,8 @@ def attribute(
         explained = 0.0
     else:
         verdict = "no candidate explains the mismatch"
-    return {"ranking": [t.to_json() for t in tests], "selected": selected,
+    ranking = [{**t.to_json(), "phi_hat_plausible": plausible(t)} for t in tests]
+    return {"ranking": ranking, "selected": selected,
             "explained": explained, "threshold": level, "verdict": verdict, "steps": steps}
 
 

@@ -231,7 +231,7 @@ def run_diagnosis(
             failed_sig[c.name] = runs[k].reason
     v = np.concatenate([sn.v for sn in check.snapshots])
     attr = attribute(r, J, signatures, v, alpha=cfg["alpha"], r2_min=cfg["r2_min"],
-                     max_effects=cfg["max_effects"])
+                     max_effects=cfg["max_effects"], ranges={c.name: c.prior for c in cands})
     # plain-words size of each signature's effect at the step, for the report
     for row in attr["ranking"]:
         c = next(c for c in cands if c.name == row["candidate"])
@@ -247,7 +247,7 @@ def run_diagnosis(
     run_ext = (not check.adequate) or bool(cfg["force_extend"])
     if run_ext and int(cfg["n_extend"]) > 0:
         ranked = [row["candidate"] for row in attr["ranking"]
-                  if row["identifiable_fraction"] > 0.05]
+                  if row["identifiable_fraction"] > 0.05 and row["phi_hat_plausible"]]
         chosen_names = list(dict.fromkeys(attr["selected"] + ranked))[: int(cfg["n_extend"])]
         n_new = int(cfg["n_train"] or max(32, n_train_base // 2))
         for name in chosen_names:
