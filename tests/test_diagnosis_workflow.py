@@ -47,3 +47,31 @@ def test_no_hidden_effect_no_claim(tmp_path, concealed):
     d, _ = _diagnosis(tmp_path, cfg)
     assert d["verdict"] == "no significant mismatch"
     assert d["extended"] == [] and d["chosen_model"] == "base"
+
+
+@pytest.mark.slow
+def test_concealed_growth_on_the_fsi_model(tmp_path):
+    """End to end on the coarse FSI mesh (about 8 min on 2 cores): data with a hidden
+    2 % growth at three loadings; the diagnosis must name growth and the extended
+    model must fit better. Run with ``pytest -m slow``."""
+    pytest.importorskip("ngsolve")
+    import shutil
+
+    from _workflow_helpers import REPO
+
+    cfg_dir = tmp_path / "config"
+    (cfg_dir / "concealed").mkdir(parents=True)
+    shutil.copy(REPO / "config" / "config.yaml", cfg_dir / "config.yaml")
+    for name in ("common", "growth"):
+        shutil.copy(REPO / "config" / "concealed" / f"{name}.yaml",
+                    cfg_dir / "concealed" / f"{name}.yaml")
+    smk(tmp_path, "--configfile", "config/concealed/common.yaml",
+        "config/concealed/growth.yaml", timeout=3000)
+    d = json.loads((tmp_path / "results" / "concealed_growth" / "diagnosis" /
+                    "diagnosis.json").read_text())
+    assert not d["check"]["adequate"]
+    assert d["attribution"]["ranking"][0]["candidate"] == "growth"
+    assert d["chosen_model"] == "growth"
+    growth = next(e for e in d["extended"] if e["candidate"] == "growth")
+    assert growth["check_after"]["residual_rms_mm"] < 0.5 * d["check"]["residual_rms_mm"]
+    assert growth["phi_mean"] == pytest.approx(0.02, rel=0.2)

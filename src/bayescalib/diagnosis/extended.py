@@ -27,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["CandidateSpec", "extended_parameters", "extended_calibration"]
+__all__ = ["CandidateSpec", "extended_calibration", "extended_parameters"]
 
 log = logging.getLogger(__name__)
 
@@ -105,8 +105,14 @@ def extended_calibration(
     from bayescalib.design import sobol_design
     from bayescalib.diagnosis.solves import solve_many
     from bayescalib.parameters import ParameterSpace
-    from bayescalib.pipeline import (discrepancy, marginalize, read_training, smc, train,
-                                     write_training)
+    from bayescalib.pipeline import (
+        discrepancy,
+        marginalize,
+        read_training,
+        smc,
+        train,
+        write_training,
+    )
     from bayescalib.posterior import read_particles_h5
 
     work = Path(workdir)

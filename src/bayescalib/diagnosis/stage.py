@@ -36,7 +36,7 @@ import numpy as np
 from bayescalib.diagnosis.extended import CandidateSpec, extended_calibration
 from bayescalib.interface import Interface
 
-__all__ = ["resolve_candidates", "run_diagnosis", "DEFAULT_FSI_PRIORS"]
+__all__ = ["DEFAULT_FSI_PRIORS", "resolve_candidates", "run_diagnosis"]
 
 log = logging.getLogger(__name__)
 
@@ -272,7 +272,8 @@ def run_diagnosis(
                 "phi_std": float(post["std"][phi_name]),
                 "phi_prior": list(c.prior), "phi_interval": post["intervals"].get(phi_name),
                 "n_new_solves": cal["n_new"], "n_reused": cal["n_reused"],
-                "n_failed": cal["n_failed"], "check_after": after.to_json(),
+                "n_failed": cal["n_failed"], "n_failed_draws_after": int(n_fail_after),
+                "check_after": after.to_json(),
                 "posterior": {k: post[k] for k in ("names", "mean", "std", "map")},
                 "bias_after": _bias(post, parameters),
                 "particles": cal["particles"],
