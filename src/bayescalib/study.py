@@ -185,8 +185,9 @@ class Study:
                                   f"loads 'inflow.rate', not '{ld['parameter']}'")
         elif ld["parameter"] not in targets and ld["nominal"] is None:
             raise ConfigError(
-                f"{where}: forward_model.loadings.nominal is required: '{ld['parameter']}' "
-                "is not the target of a calibrated parameter"
+                f"{where}: forward_model.loadings.nominal is required with several "
+                f"forward_model.loadings.factors ({factors}): '{ld['parameter']}' is not the "
+                "target of a calibrated parameter"
             )
         obs = cfg["observations"]
         if obs.get("source") == "files" and len(obs.get("files", [])) != len(factors):
