@@ -18,8 +18,9 @@
    residual RMS, band coverage and p-values before/after, the posterior of ``phi``,
    and the change of the base parameters' error against the ground truth when known.
 
-The chosen model is the extended one with the largest log Bayes factor if it exceeds
-``ln 3`` and its predictive check improved; otherwise the base model.
+The chosen model is, among the extended models whose predictive check (real forward
+solves at their posterior draws) fits better than the base model's, the one with the
+largest log Bayes factor, if that exceeds ``ln 3``; otherwise the base model.
 """
 
 from __future__ import annotations
@@ -284,11 +285,12 @@ def run_diagnosis(
                 ext["log_bayes_factor"] <= LN_BF_MIN or after.rms < check.rms)
             ext["_check"] = after
             extended.append(ext)
-    best = max(extended, key=lambda e: e["log_bayes_factor"], default=None)
-    chosen = "base"
-    if best is not None and best["log_bayes_factor"] > LN_BF_MIN \
-            and best["check_after"]["residual_rms_mm"] < check.rms:
-        chosen = best["candidate"]
+    # the chosen model: among the extensions that the real solves confirm (a better fit
+    # than the base model), the one with the largest log Bayes factor above ln 3
+    confirmed = [e for e in extended if e["check_after"]["residual_rms_mm"] < check.rms
+                 and e["log_bayes_factor"] > LN_BF_MIN]
+    best = max(confirmed, key=lambda e: e["log_bayes_factor"], default=None)
+    chosen = best["candidate"] if best is not None else "base"
     if check.adequate:
         verdict = "no significant mismatch"
     elif attr["selected"]:
