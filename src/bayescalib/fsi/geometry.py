@@ -124,7 +124,7 @@ def build_mesh(geometry: dict[str, Any], mesh_cfg: dict[str, Any]) -> BiofilmMes
     BiofilmMesh
     """
     import ngsolve as ng
-    from netgen.occ import X, Y, Glue, OCCGeometry, WorkPlane
+    from netgen.occ import Glue, OCCGeometry, WorkPlane, X, Y
 
     L = float(geometry["length"])
     H = float(geometry["channel_height"])

@@ -46,13 +46,12 @@ import numpy as np
 from bayescalib.config import ConfigError, validate
 from bayescalib.fsi.geometry import SOLID_SUBDOMAINS, BiofilmMesh, build_mesh
 from bayescalib.fsi.materials import check_poisson
-from bayescalib.fsi.physics import (SolidPhysics, check_physics, physics_parameters,
-                                    springs_active)
+from bayescalib.fsi.physics import SolidPhysics, check_physics, physics_parameters, springs_active
 from bayescalib.fsi.problem import FSIProblem
 from bayescalib.fsi.solver import MonolithicSolver, SolverControls
 from bayescalib.runrecord import SolveResult, write_run
 
-__all__ = ["FSIModel", "solve_to_file", "MESH_PRESETS", "PA", "fsi_section"]
+__all__ = ["MESH_PRESETS", "PA", "FSIModel", "fsi_section", "solve_to_file"]
 
 #: Pa -> solver stress units mg/(mm s^2) (= mPa)
 PA = 1.0e3
@@ -391,7 +390,7 @@ class FSIModel:
         base_stats: dict[str, Any] = {
             "ndof": solver.ndof,
             "nfree": solver.nfree,
-            "n_interface_nodes": int(len(geo.interface_vertices)),
+            "n_interface_nodes": len(geo.interface_vertices),
             "n_elements": int(geo.mesh.ne),
             "h_interface": float(solver.problem.length_scale),
             "law": cfg["material"]["law"],

@@ -69,8 +69,16 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
-__all__ = ["CANDIDATES", "Candidate", "SolidPhysics", "enabled_candidates", "check_physics",
-           "physics_parameters", "springs_active", "G_MM_S2"]
+__all__ = [
+    "CANDIDATES",
+    "G_MM_S2",
+    "Candidate",
+    "SolidPhysics",
+    "check_physics",
+    "enabled_candidates",
+    "physics_parameters",
+    "springs_active",
+]
 
 #: standard gravity in mm/s^2
 G_MM_S2 = 9810.0

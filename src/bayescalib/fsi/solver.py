@@ -551,4 +551,4 @@ class MonolithicSolver:
         )
 
 
-__all__ = ["MonolithicSolver", "SolverControls", "SolveOutcome"]
+__all__ = ["MonolithicSolver", "SolveOutcome", "SolverControls"]

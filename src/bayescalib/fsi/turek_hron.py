@@ -26,7 +26,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from bayescalib.fsi.problem import FSIProblem
-from bayescalib.fsi.solver import MonolithicSolver, SolverControls, SolveOutcome
+from bayescalib.fsi.solver import MonolithicSolver, SolveOutcome, SolverControls
 
 #: Reference values (Turek & Hron 2006), SI units
 REFERENCE = {
@@ -41,7 +41,7 @@ L = 2.5
 
 def _mesh(kind: str, h_flag: float, h_cyl: float, h_bulk: float, curve_order: int = 2):
     import ngsolve as ng
-    from netgen.occ import X, Glue, OCCGeometry, WorkPlane
+    from netgen.occ import Glue, OCCGeometry, WorkPlane, X
 
     cyl = WorkPlane().Circle(0.2, 0.2, 0.05).Face()
     cyl.edges.name = "cyl"

@@ -20,7 +20,7 @@ from matplotlib.figure import Figure
 from ._checks import PathsLike, as_paths, finish
 from .style import COLORS, paper_style
 
-__all__ = ["plot_residual_bands", "plot_candidate_ranking"]
+__all__ = ["plot_candidate_ranking", "plot_residual_bands"]
 
 
 def plot_residual_bands(
