@@ -133,6 +133,7 @@ def main() -> None:
     args = ap.parse_args()
     out = Path(args.out)
     rows = []
+    from bayescalib.config import deep_merge
     from bayescalib.observation_store import read_observations
     from bayescalib.study import Study
 
@@ -149,8 +150,6 @@ def main() -> None:
                 continue
             cfg = {}
             for f in [REPO / "config" / "config.yaml", *files]:
-                from bayescalib.config import deep_merge
-
                 cfg = deep_merge(cfg, yaml.safe_load(Path(f).read_text()))
             study = Study(cfg)
             root = REPO / study.root

@@ -196,13 +196,9 @@ def posterior_draws(particles_path: str | Path, parameters: Sequence[Mapping[str
     The ``n`` draws are a systematic resample of the final SMC particles with
     a generator seeded by ``seed``, so draw ``k`` is the same in every job.
     """
-    from bayescalib.posterior import read_particles_h5
-    from bayescalib.resampling import systematic_resample
+    from bayescalib.posterior import equal_weight_draws
 
-    res = read_particles_h5(particles_path)
-    rng = np.random.default_rng(seed)
-    idx = systematic_resample(np.asarray(res.weights), rng, n)
-    x = np.asarray(res.particles)[idx[int(k)]]
+    x = equal_weight_draws(particles_path, n, seed)[int(k)]
     targets = [p.get("target") or p["name"] for p in parameters]
     return {t: float(v) for t, v in zip(targets, x, strict=True)}
 

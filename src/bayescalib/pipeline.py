@@ -226,7 +226,6 @@ def discrepancy(run_path: str | Path, obs_path: str | Path, measure_name: str,
 
     A failed run gives ``loglik = None`` (i.e. -inf: excluded from training).
     """
-    from bayescalib.interface import Interface
     from bayescalib.likelihood import gaussian_loglik
     from bayescalib.measures import compute
     from bayescalib.observation_store import read_observations
@@ -243,17 +242,12 @@ def discrepancy(run_path: str | Path, obs_path: str | Path, measure_name: str,
         record.update(D=None, n=None, loglik=None, snapshots=[])
         write_json(out_path, record)
         return record
-    if run.loadings:
-        if len(run.loadings) != len(obs.snapshots):
-            raise PipelineError(
-                f"run '{run_path}' has {len(run.loadings)} loadings but the observation set "
-                f"'{obs_path}' has {len(obs.snapshots)} snapshots: give one snapshot per loading"
-            )
-        models = [Interface.polyline(ld.current, run.segments, name=f"model {ld.label}")
-                  for ld in run.loadings]
-    else:
-        models = [Interface.polyline(run.interface_current, run.segments, name="model")] * len(
-            obs.snapshots)
+    if run.loadings and len(run.loadings) != len(obs.snapshots):
+        raise PipelineError(
+            f"run '{run_path}' has {len(run.loadings)} loadings but the observation set "
+            f"'{obs_path}' has {len(obs.snapshots)} snapshots: give one snapshot per loading"
+        )
+    models = model_interfaces(run, len(obs.snapshots))
     sigma_n2 = _sigma_n2(likelihood)
     options = _measure_options(measure_name, measure, obs)
     total, snaps = 0.0, []
@@ -278,6 +272,17 @@ def discrepancy(run_path: str | Path, obs_path: str | Path, measure_name: str,
                   snapshots=snaps)
     write_json(out_path, record)
     return record
+
+
+def model_interfaces(run, n_snapshots: int) -> list:
+    """The predicted interface for each observation snapshot: one per loading of a series,
+    or the single interface repeated (every snapshot compared with the same solve)."""
+    from bayescalib.interface import Interface
+
+    if run.loadings:
+        return [Interface.polyline(ld.current, run.segments, name=f"model {ld.label}")
+                for ld in run.loadings]
+    return [Interface.polyline(run.interface_current, run.segments, name="model")] * n_snapshots
 
 
 def _sigma_n2(likelihood: Mapping[str, Any]) -> float:

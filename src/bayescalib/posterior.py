@@ -52,6 +52,7 @@ from .smc import SMCResult, weighted_cov
 
 __all__ = [
     "summarize",
+    "equal_weight_draws",
     "weighted_mean_cov",
     "credible_intervals",
     "map_estimate",
@@ -308,6 +309,17 @@ def read_particles_h5(path: str | Path) -> SMCResult:
             n_loglik_evals=int(f.attrs["n_loglik_evals"]),
             names=names,
         )
+
+
+def equal_weight_draws(particles_path: str | Path, n: int, seed: int) -> np.ndarray:
+    """``n`` equally weighted posterior draws, shape (n, d): a systematic resample of the
+    final SMC particles stored in ``particles_path``, with a generator seeded by ``seed``
+    (the same draws in every job)."""
+    from bayescalib.resampling import systematic_resample
+
+    res = read_particles_h5(particles_path)
+    idx = systematic_resample(np.asarray(res.weights), np.random.default_rng(seed), n)
+    return np.asarray(res.particles)[idx]
 
 
 def write_netcdf(

@@ -23,7 +23,7 @@ from typing import Any
 
 from bayescalib.config import ConfigError, validate
 
-__all__ = ["Study", "ConfigError", "StudyBusyError", "hold_run_lock"]
+__all__ = ["ConfigError", "Study", "StudyBusyError", "hold_run_lock"]
 
 
 class StudyBusyError(RuntimeError):
@@ -206,27 +206,12 @@ class Study:
             raise ConfigError(f"{where}: observations.hidden needs observations.source synthetic")
         if cfg["forward_model"]["type"] != "fsi":
             return  # passed to the python/command model as extra parameters
-        from bayescalib.config import validate
-        from bayescalib.fsi.physics import check_physics
+        from bayescalib.fsi.model import FSIModel
 
-        fsi = validate(copy.deepcopy(cfg["forward_model"]["fsi"]), "fsi",
-                       where=f"{where}: forward_model.fsi")
-        for key, value in hidden.items():
-            node = fsi
-            parts = key.split(".")
-            for part in parts[:-1]:
-                if not isinstance(node.get(part), dict):
-                    raise ConfigError(f"{where}: observations.hidden: '{key}' is not a key of "
-                                      "forward_model.fsi")
-                node = node[part]
-            if parts[-1] not in node:
-                raise ConfigError(f"{where}: observations.hidden: '{key}' is not a key of "
-                                  "forward_model.fsi")
-            node[parts[-1]] = value
-        fsi = validate(fsi, "fsi", where=f"{where}: observations.hidden applied to forward_model.fsi")
-        msg = check_physics(fsi["physics"], "observations.hidden: physics")
-        if msg:
-            raise ConfigError(f"{where}: {msg}")
+        try:  # the checks of a solve with these overrides (validation, physics switches)
+            FSIModel(cfg["forward_model"]["fsi"]).resolved_config(hidden)
+        except ConfigError as exc:
+            raise ConfigError(f"{where}: observations.hidden: {exc}") from None
 
     # ------------------------------------------------------------------- paths
     @property

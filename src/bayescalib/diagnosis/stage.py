@@ -35,7 +35,8 @@ from typing import Any
 import numpy as np
 
 from bayescalib.diagnosis.extended import CandidateSpec, extended_calibration
-from bayescalib.interface import Interface
+from bayescalib.pipeline import model_interfaces
+from bayescalib.posterior import equal_weight_draws
 
 __all__ = ["DEFAULT_FSI_PRIORS", "resolve_candidates", "run_diagnosis"]
 
@@ -77,38 +78,13 @@ def resolve_candidates(fm: Mapping[str, Any], diagnose: Mapping[str, Any]) -> li
 
 
 # ------------------------------------------------------------------------- helpers
-def _predicted(run, n_snap: int) -> list[Interface]:
-    if run.loadings:
-        return [Interface.polyline(ld.current, run.segments) for ld in run.loadings]
-    return [Interface.polyline(run.interface_current, run.segments)] * n_snap
-
-
-def _draw_points(particles_path: str | Path, targets: Sequence[str], k: int,
-                 rng: np.random.Generator) -> np.ndarray:
-    from bayescalib.posterior import read_particles_h5
-    from bayescalib.resampling import systematic_resample
-
-    res = read_particles_h5(particles_path)
-    idx = systematic_resample(np.asarray(res.weights), rng, k)
-    return np.asarray(res.particles)[idx]
-
-
-def _posterior_mean(particles_path: str | Path) -> np.ndarray:
-    from bayescalib.posterior import read_particles_h5
-
-    res = read_particles_h5(particles_path)
-    w = np.asarray(res.weights, dtype=float)
-    return (w[:, None] * np.asarray(res.particles)).sum(axis=0) / w.sum()
-
-
 def _check_from_particles(tag: str, particles: str | Path, targets: Sequence[str],
                           switches: Mapping[str, Any], obs, fm, cfg, work: Path,
                           workers: int, warm_start, sigma):
     from bayescalib.diagnosis.residuals import predictive_check
     from bayescalib.diagnosis.solves import solve_many
 
-    rng = np.random.default_rng(int(cfg["seed"]))
-    X = _draw_points(particles, targets, int(cfg["n_draws"]), rng)
+    X = equal_weight_draws(particles, int(cfg["n_draws"]), int(cfg["seed"]))
     points = [{**dict(zip(targets, map(float, x), strict=True)), **switches} for x in X]
     runs = solve_many(fm, points, [work / tag / "draws" / f"{k}.h5" for k in range(len(X))],
                       workers=workers, warm_start=warm_start)
@@ -117,10 +93,10 @@ def _check_from_particles(tag: str, particles: str | Path, targets: Sequence[str
         raise ValueError(f"diagnosis ({tag}): only {len(good)} of {len(runs)} posterior draws "
                          "solved; the predictive check needs at least 2")
     n_snap = len(obs.snapshots)
-    check = predictive_check(obs.snapshots, [_predicted(r, n_snap) for r in good],
+    check = predictive_check(obs.snapshots, [model_interfaces(r, n_snap) for r in good],
                              labels=obs.labels, sigma=sigma, noise_floor=cfg["noise_floor"],
                              ell=cfg["smoothing"], alpha=cfg["alpha"], n_noise=cfg["n_noise"],
-                             rng=rng)
+                             rng=np.random.default_rng(int(cfg["seed"]) + 1))
     return check, len(runs) - len(good)
 
 
@@ -168,7 +144,11 @@ def run_diagnosis(
 
     Solves and extended calibrations are kept under ``outdir`` and reused.
     """
-    from bayescalib.diagnosis.attribution import attribute
+    from bayescalib.diagnosis.attribution import (
+        attribute,
+        jacobian_from_offsets,
+        signature_from_offsets,
+    )
     from bayescalib.diagnosis.residuals import offsets
     from bayescalib.diagnosis.solves import solve_many
     from bayescalib.observation_store import read_observations
@@ -194,7 +174,8 @@ def run_diagnosis(
 
     # 3: attribute ----------------------------------------------------------------
     cands = resolve_candidates(fm, cfg)
-    theta = _posterior_mean(particles_path)
+    base_summary = json.loads(Path(posterior_path).read_text())
+    theta = np.array([float(base_summary["mean"][n]) for n in names])
     lo, hi = space.bounds[:, 0], space.bounds[:, 1]
     h = float(cfg["fd_step"]) * (hi - lo)
     # step towards the box interior so the FD point stays inside the prior support
@@ -210,24 +191,26 @@ def run_diagnosis(
                       warm_start=warm_start)
     if not runs[0].ok:
         raise ValueError(f"diagnosis: the solve at the posterior mean failed ({runs[0].reason})")
-    C0 = _predicted(runs[0], n_snap)
+    C0 = model_interfaces(runs[0], n_snap)
     y_parts, o_parts = [], []
     usable = [k for k, r in enumerate(runs[1:], start=1) if r.ok]
     for s in range(n_snap):
         y, o = offsets(np.asarray(obs.snapshots[s].points), C0[s],
-                       [_predicted(runs[k], n_snap)[s] for k in usable])
+                       [model_interfaces(runs[k], n_snap)[s] for k in usable])
         y_parts.append(y)
         o_parts.append(o)
     r = np.concatenate(y_parts)
     O = np.concatenate(o_parts, axis=1)  # (len(usable), n)
     col = {k: O[j] for j, k in enumerate(usable)}
-    J = np.column_stack([col[1 + i] / h[i] for i in range(len(targets)) if 1 + i in col]) \
-        if any(1 + i in col for i in range(len(targets))) else np.zeros((len(r), 0))
+    # offsets are measured from the posterior-mean prediction, so its own offset is 0
+    zero = np.zeros(len(r))
+    fd = [i for i in range(len(targets)) if 1 + i in col]
+    J = jacobian_from_offsets([col[1 + i] for i in fd], zero, [h[i] for i in fd])
     signatures, failed_sig = {}, {}
     for j, c in enumerate(cands):
         k = 1 + len(targets) + j
         if k in col:
-            signatures[c.name] = col[k] / c.step
+            signatures[c.name] = signature_from_offsets(col[k], zero, c.step)
         else:
             failed_sig[c.name] = runs[k].reason
     v = np.concatenate([sn.v for sn in check.snapshots])
@@ -243,7 +226,6 @@ def run_diagnosis(
 
     # 4-5: model and show ------------------------------------------------------------
     base_particles = read_particles_h5(particles_path)
-    base_summary = json.loads(Path(posterior_path).read_text())
     extended = []
     run_ext = (not check.adequate) or bool(cfg["force_extend"])
     if run_ext and int(cfg["n_extend"]) > 0:
