@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from bayescalib.diagnosis.attribution import attribute, score_test
+from bayescalib.diagnosis.attribution import attribute, refit_test, score_test
 from bayescalib.diagnosis.residuals import estimate_noise, intervals, predictive_check
 from bayescalib.interface import Interface
 
@@ -149,3 +149,31 @@ def test_a_candidate_needing_an_absurd_phi_is_not_selected():
     capped = attribute(r, J, SIGS, V, ranges={"b": (0.0, 0.001)})
     assert "b" not in capped["selected"]
     assert not next(t for t in capped["ranking"] if t["candidate"] == "b")["phi_hat_plausible"]
+
+
+# two well-separated base modes for the re-fit test (J above is nearly collinear)
+J2 = np.column_stack([np.sin(np.pi * S_), S_ - 0.5])
+
+
+def test_refit_test_is_calibrated_and_recovers_the_missed_parameters():
+    # a calibration that missed the best fit (offset along the base modes) plus noise:
+    # the Gauss-Newton step recovers the offset and the remainder is chi2_(n - 2)
+    rng = np.random.default_rng(9)
+    p = [refit_test(J2 @ [0.05, -0.03] + rng.normal(0, 0.01, N), J2, V)["p_value"]
+         for _ in range(400)]
+    # p-values uniform under the null: rejection rate at 0.05 has sd 0.011 over 400
+    assert np.mean(np.array(p) < 0.05) == pytest.approx(0.05, abs=0.035)
+    out = refit_test(J2 @ [0.05, -0.03] + rng.normal(0, 0.01, N), J2, V)
+    # the step's standard errors are sqrt(diag((A^T A)^-1)), A = J2 / 0.01; allow 4 of them
+    A = J2 / 0.01
+    se = np.sqrt(np.diag(np.linalg.inv(A.T @ A)))
+    assert np.all(np.abs(np.array(out["step"]) - [0.05, -0.03]) < 4 * se)
+    assert out["absorbed_fraction"] > 0.9 and out["dof"] == N - 2
+
+
+def test_refit_test_rejects_what_the_base_parameters_cannot_absorb():
+    # a localized bump of 5 noise sd on top of a missed fit cannot be absorbed (about
+    # half of its energy is orthogonal to the two modes: noncentrality ~ 200)
+    rng = np.random.default_rng(10)
+    out = refit_test(J2 @ [0.05, -0.03] + 0.05 * SIGS["a"] + rng.normal(0, 0.01, N), J2, V)
+    assert out["p_value"] < 1e-6

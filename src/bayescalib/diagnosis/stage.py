@@ -147,6 +147,7 @@ def run_diagnosis(
     from bayescalib.diagnosis.attribution import (
         attribute,
         jacobian_from_offsets,
+        refit_test,
         signature_from_offsets,
     )
     from bayescalib.diagnosis.residuals import offsets
@@ -227,7 +228,14 @@ def run_diagnosis(
     # 4-5: model and show ------------------------------------------------------------
     base_particles = read_particles_h5(particles_path)
     extended = []
-    run_ext = (not check.adequate) or bool(cfg["force_extend"])
+    refit = refit_test(r, J, np.full(len(r), check.sigma**2))
+    refit["step"] = dict(zip([names[i] for i in fd], refit["step"], strict=True))
+    refit["parameters"] = {n: float(theta[names.index(n)] + d) for n, d in refit["step"].items()}
+    # the mismatch is absorbed by re-fitting the base parameters: the calibration, not
+    # the physics, is off; no candidate is modelled (unless forced)
+    absorbed = (not check.adequate) and not attr["selected"] \
+        and refit["p_value"] >= float(cfg["alpha"])
+    run_ext = (not check.adequate and not absorbed) or bool(cfg["force_extend"])
     if run_ext and int(cfg["n_extend"]) > 0:
         ranked = [row["candidate"] for row in attr["ranking"]
                   if row["identifiable_fraction"] > 0.05 and row["phi_hat_plausible"]]
@@ -277,6 +285,8 @@ def run_diagnosis(
         verdict = "no significant mismatch"
     elif attr["selected"]:
         verdict = "mismatch explained by " + " + ".join(attr["selected"])
+    elif absorbed:
+        verdict = "mismatch absorbed by the base parameters; calibration off, no physics missing"
     else:
         verdict = "mismatch located; no candidate explains it"
     out = {
@@ -286,6 +296,7 @@ def run_diagnosis(
         "n_draws": int(cfg["n_draws"]), "n_failed_draws": int(n_failed_draws),
         "attribution": {k: attr[k] for k in ("ranking", "selected", "explained", "threshold",
                                              "steps")},
+        "refit": refit,
         "failed_signatures": failed_sig,
         "posterior_mean": dict(zip(names, map(float, theta), strict=True)),
         "extended": [{k: v for k, v in e.items() if k != "_check"} for e in extended],
@@ -325,7 +336,19 @@ def plain_words(d: Mapping[str, Any]) -> list[str]:
         if not chk["located"]:
             lines.append("The mismatch is spread over the interface (no interval leaves the "
                          "simultaneous band of the smoothed residual).")
-        lines.append(d["attribution_verdict"][0].upper() + d["attribution_verdict"][1:] + ".")
+        rf = d.get("refit")
+        if rf is not None and d["verdict"].startswith("mismatch absorbed"):
+            moved = ", ".join(f"{k} = {v:.4g}" for k, v in rf["parameters"].items())
+            lines.append(
+                f"Re-fitting the base parameters locally (one Gauss-Newton step from the "
+                f"posterior mean, to {moved}) leaves a residual consistent with the noise "
+                f"(chi2 = {rf['chi2']:.1f} on {rf['dof']} degrees of freedom, p = "
+                f"{rf['p_value']:.3g}): the calibration missed the best fit, no physics is "
+                "missing. The surrogate is the likely cause; add design points (design.n_train) "
+                "and rerun.")
+        else:
+            lines.append(d["attribution_verdict"][0].upper() + d["attribution_verdict"][1:]
+                         + ".")
     for e in d["extended"]:
         ca = e["check_after"]
         if not e.get("surrogate_consistent", True):
