@@ -52,6 +52,8 @@ rule fig_response:
         stem=lambda wc: f"{R}/figures/{wc.measure}/response",
     log:
         f"{R}/logs/{{measure}}/fig_response.log",
+    benchmark:
+        f"{R}/benchmarks/figures/{{measure}}/response.tsv"
     script:
         "../../scripts/fig_response.py"
 
@@ -71,6 +73,8 @@ rule fig_convergence:
         stem=lambda wc: f"{R}/figures/{wc.measure}/convergence",
     log:
         f"{R}/logs/{{measure}}/fig_convergence.log",
+    benchmark:
+        f"{R}/benchmarks/figures/{{measure}}/convergence.tsv"
     script:
         "../../scripts/fig_convergence.py"
 
@@ -105,6 +109,8 @@ rule fig_posterior:
         },
     log:
         f"{R}/logs/{{measure}}/fig_posterior.log",
+    benchmark:
+        f"{R}/benchmarks/figures/{{measure}}/posterior.tsv"
     script:
         "../../scripts/fig_posterior.py"
 
@@ -121,6 +127,8 @@ rule predictive_solve:
         seed=study.config["smc"]["seed"],
     log:
         f"{R}/logs/predictive/{{k}}.log",
+    benchmark:
+        f"{R}/benchmarks/predictive/{{k}}.tsv"
     threads: 1
     script:
         "../../scripts/predictive_solve.py"
@@ -146,6 +154,8 @@ rule fig_interfaces:
         stem=f"{R}/figures/interfaces",
     log:
         f"{R}/logs/fig_interfaces.log",
+    benchmark:
+        f"{R}/benchmarks/figures/interfaces.tsv"
     script:
         "../../scripts/fig_interfaces.py"
 
@@ -165,5 +175,7 @@ rule fig_fields:
         stem=f"{R}/figures/fields",
     log:
         f"{R}/logs/fig_fields.log",
+    benchmark:
+        f"{R}/benchmarks/figures/fields.tsv"
     script:
         "../../scripts/fig_fields.py"
