@@ -177,3 +177,17 @@ def test_refit_test_rejects_what_the_base_parameters_cannot_absorb():
     rng = np.random.default_rng(10)
     out = refit_test(J2 @ [0.05, -0.03] + 0.05 * SIGS["a"] + rng.normal(0, 0.01, N), J2, V)
     assert out["p_value"] < 1e-6
+
+
+def test_verdict_precedence():
+    from bayescalib.diagnosis.stage import decide_verdict
+
+    ok = {"p_value": 0.5, "in_bounds": True}
+    assert decide_verdict(True, ["a"], ok, 0.05) == "no significant mismatch"
+    assert decide_verdict(False, ["a", "b"], ok, 0.05) == "mismatch explained by a + b"
+    assert decide_verdict(False, [], ok, 0.05).startswith("mismatch absorbed")
+    # a re-fit that leaves the design box, or leaves a significant remainder, proves nothing
+    assert decide_verdict(False, [], {**ok, "in_bounds": False}, 0.05).startswith(
+        "mismatch located")
+    assert decide_verdict(False, [], {**ok, "p_value": 0.01}, 0.05).startswith(
+        "mismatch located")

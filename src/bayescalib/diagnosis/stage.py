@@ -38,7 +38,7 @@ from bayescalib.diagnosis.extended import CandidateSpec, extended_calibration
 from bayescalib.pipeline import model_interfaces
 from bayescalib.posterior import equal_weight_draws
 
-__all__ = ["DEFAULT_FSI_PRIORS", "resolve_candidates", "run_diagnosis"]
+__all__ = ["DEFAULT_FSI_PRIORS", "decide_verdict", "plain_words", "resolve_candidates", "run_diagnosis"]
 
 log = logging.getLogger(__name__)
 
@@ -231,11 +231,12 @@ def run_diagnosis(
     refit = refit_test(r, J, np.full(len(r), check.sigma**2))
     refit["step"] = dict(zip([names[i] for i in fd], refit["step"], strict=True))
     refit["parameters"] = {n: float(theta[names.index(n)] + d) for n, d in refit["step"].items()}
-    # the mismatch is absorbed by re-fitting the base parameters: the calibration, not
-    # the physics, is off; no candidate is modelled (unless forced)
-    absorbed = (not check.adequate) and not attr["selected"] \
-        and refit["p_value"] >= float(cfg["alpha"])
-    run_ext = (not check.adequate and not absorbed) or bool(cfg["force_extend"])
+    refit["in_bounds"] = bool(all(lo[names.index(n)] <= x <= hi[names.index(n)]
+                                  for n, x in refit["parameters"].items()))
+    verdict = decide_verdict(check.adequate, attr["selected"], refit, float(cfg["alpha"]))
+    # when the mismatch is absorbed by the base parameters no candidate is modelled
+    run_ext = verdict.startswith(("mismatch explained", "mismatch located")) \
+        or bool(cfg["force_extend"])
     if run_ext and int(cfg["n_extend"]) > 0:
         ranked = [row["candidate"] for row in attr["ranking"]
                   if row["identifiable_fraction"] > 0.05 and row["phi_hat_plausible"]]
@@ -281,14 +282,6 @@ def run_diagnosis(
                  and e["log_bayes_factor"] > LN_BF_MIN]
     best = max(confirmed, key=lambda e: e["log_bayes_factor"], default=None)
     chosen = best["candidate"] if best is not None else "base"
-    if check.adequate:
-        verdict = "no significant mismatch"
-    elif attr["selected"]:
-        verdict = "mismatch explained by " + " + ".join(attr["selected"])
-    elif absorbed:
-        verdict = "mismatch absorbed by the base parameters; calibration off, no physics missing"
-    else:
-        verdict = "mismatch located; no candidate explains it"
     out = {
         "verdict": verdict,
         "attribution_verdict": attr["verdict"],
@@ -308,6 +301,27 @@ def run_diagnosis(
     out["plain_words"] = plain_words(out)
     checks = {"base": check, **{e["candidate"]: e["_check"] for e in extended}}
     return out, checks
+
+
+def decide_verdict(adequate: bool, selected: Sequence[str], refit: Mapping[str, Any],
+                   alpha: float) -> str:
+    """The diagnosis verdict, in order of precedence.
+
+    1. ``"no significant mismatch"``: the predictive check passes.
+    2. ``"mismatch explained by <candidates>"``: the attribution selected candidates.
+    3. ``"mismatch absorbed by the base parameters; ..."``: the re-fit test passes
+       (``refit["p_value"] >= alpha``) at a re-fitted point inside the design box
+       (``refit["in_bounds"]``; a step that leaves the box is outside the reach of
+       the linearization and of the prior, so it proves nothing).
+    4. ``"mismatch located; no candidate explains it"``.
+    """
+    if adequate:
+        return "no significant mismatch"
+    if selected:
+        return "mismatch explained by " + " + ".join(selected)
+    if refit.get("in_bounds", False) and float(refit["p_value"]) >= alpha:
+        return "mismatch absorbed by the base parameters; calibration off, no physics missing"
+    return "mismatch located; no candidate explains it"
 
 
 def plain_words(d: Mapping[str, Any]) -> list[str]:
