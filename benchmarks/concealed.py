@@ -3,7 +3,9 @@
 out-of-library effect), each with several loadings (as configured) and with the
 nominal loading only, and writes a table.
 
-Columns: hidden effect, loadings, verdict, top-ranked candidate, selected candidates,
+Columns: hidden effect, loadings, verdict, top-ranked candidate (with the identifiable
+fraction of its signature: the part E and nu cannot mimic), p-value of the re-fit test,
+chosen model,
 localization overlap (Jaccard index, over the observed nodes, between the located
 intervals and the region where the hidden effect moves the interface by more than
 half its maximum), residual-to-noise ratio (RMS of the base model's residual over the
@@ -108,6 +110,9 @@ def _row(study_file: Path, variant: str, root: Path, regions, labels) -> dict:
         "study": study_file.stem, "hidden": effect, "loadings": variant,
         "verdict": diag["verdict"],
         "top1": diag["attribution"]["ranking"][0]["candidate"] if diag["attribution"]["ranking"] else None,
+        "identifiable_top1": diag["attribution"]["ranking"][0]["identifiable_fraction"]
+        if diag["attribution"]["ranking"] else None,
+        "refit_p": (diag.get("refit") or {}).get("p_value"),
         "selected": diag["attribution"]["selected"], "chosen": diag["chosen_model"],
         "overlap": _overlap(diag, regions, labels),
         "residual_to_noise": chk["residual_rms_mm"] / chk["sigma_mm"],
@@ -157,16 +162,18 @@ def main() -> None:
             regions = _effect_region(root, study.forward_section(), study.ground_truth()) \
                 if (cfg["observations"].get("hidden") or {}) else None
             rows.append(_row(sf, variant, root, regions, obs.labels))
-    head = ("| hidden effect | loadings | verdict | top-1 | chosen | overlap | resid/noise | "
-            "RMS before/after [um] | ln BF (best) | E err before/after | nu err before/after |")
-    lines = [head, "|" + "---|" * 11]
+    head = ("| hidden effect | loadings | verdict | top-1 (identifiable) | re-fit p | chosen | "
+            "overlap | resid/noise | RMS before/after [um] | ln BF (best) | E err before/after | "
+            "nu err before/after |")
+    lines = [head, "|" + "---|" * 12]
     for r in rows:
         if r.get("verdict") == "RUN FAILED":
-            lines.append(f"| {r['study']} | {r['loadings']} | RUN FAILED |" + " |" * 8)
+            lines.append(f"| {r['study']} | {r['loadings']} | RUN FAILED |" + " |" * 9)
             continue
         eb, ea = r["err_before"], r["err_after"]
         lines.append(
-            f"| {r['hidden']} | {r['loadings']} | {r['verdict']} | {r['top1']} | {r['chosen']} | "
+            f"| {r['hidden']} | {r['loadings']} | {r['verdict']} | {r['top1']} "
+            f"({_fmt(r['identifiable_top1'])}) | {_fmt(r['refit_p'], '{:.2g}')} | {r['chosen']} | "
             f"{_fmt(r['overlap'])} | {_fmt(r['residual_to_noise'], '{:.1f}')} | "
             f"{_fmt(r['rms_before_um'])} / {_fmt(r['rms_after_um'])} | "
             f"{_fmt(r['log_bf'], '{:.1f}')} ({r['best_extended'] or '-'}) | "
