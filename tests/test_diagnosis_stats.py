@@ -191,3 +191,17 @@ def test_verdict_precedence():
         "mismatch located")
     assert decide_verdict(False, [], {**ok, "p_value": 0.01}, 0.05).startswith(
         "mismatch located")
+
+
+def test_plain_words_of_an_absorbed_mismatch_name_the_refit_and_the_remedy():
+    from bayescalib.diagnosis.stage import ABSORBED, plain_words
+
+    d = {"verdict": ABSORBED, "attribution_verdict": "no candidate explains the mismatch",
+         "check": {"adequate": False, "p_values": {"chi2": 0.001}, "residual_rms_mm": 0.0017,
+                   "sigma_mm": 0.001, "located": []},
+         "refit": {"chi2": 58.6, "dof": 94, "p_value": 0.998,
+                   "parameters": {"E": 394.1, "nu": 0.2835}},
+         "extended": [], "chosen_model": "base"}
+    text = " ".join(plain_words(d))
+    assert "E = 394.1, nu = 0.2835" in text and "design.n_train" in text
+    assert "no candidate explains" not in text.lower()

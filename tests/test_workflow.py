@@ -71,6 +71,8 @@ def test_complete_run_writes_summary_with_contract_keys(done_run):
     assert [p["name"] for p in summary["parameters"]] == ["E", "nu"]
     assert summary["parameters"][0]["unit"] == "Pa"
     assert summary["n_train"] == 8
+    # every stage reports its job time, figures included (benchmark files of the rules)
+    assert {"solve", "train_surrogate", "smc", "figures"} <= set(summary["timings_s"])
     for files in summary["figures"].values():
         for f in files:
             assert (done_run / f).is_file(), f

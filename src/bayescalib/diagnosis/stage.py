@@ -42,6 +42,8 @@ __all__ = ["DEFAULT_FSI_PRIORS", "decide_verdict", "plain_words", "resolve_candi
 
 log = logging.getLogger(__name__)
 
+ABSORBED = "mismatch absorbed by the base parameters; calibration off, no physics missing"
+
 #: prior range of phi in the extended calibration of the built-in FSI candidates
 DEFAULT_FSI_PRIORS = {
     "layer": (-2.0, 2.0), "growth": (-0.06, 0.06), "attachment": (0.0, 8.0e-4),
@@ -235,8 +237,7 @@ def run_diagnosis(
                                   for n, x in refit["parameters"].items()))
     verdict = decide_verdict(check.adequate, attr["selected"], refit, float(cfg["alpha"]))
     # when the mismatch is absorbed by the base parameters no candidate is modelled
-    run_ext = verdict.startswith(("mismatch explained", "mismatch located")) \
-        or bool(cfg["force_extend"])
+    run_ext = (not check.adequate and verdict != ABSORBED) or bool(cfg["force_extend"])
     if run_ext and int(cfg["n_extend"]) > 0:
         ranked = [row["candidate"] for row in attr["ranking"]
                   if row["identifiable_fraction"] > 0.05 and row["phi_hat_plausible"]]
@@ -320,7 +321,7 @@ def decide_verdict(adequate: bool, selected: Sequence[str], refit: Mapping[str, 
     if selected:
         return "mismatch explained by " + " + ".join(selected)
     if refit.get("in_bounds", False) and float(refit["p_value"]) >= alpha:
-        return "mismatch absorbed by the base parameters; calibration off, no physics missing"
+        return ABSORBED
     return "mismatch located; no candidate explains it"
 
 
@@ -351,7 +352,7 @@ def plain_words(d: Mapping[str, Any]) -> list[str]:
             lines.append("The mismatch is spread over the interface (no interval leaves the "
                          "simultaneous band of the smoothed residual).")
         rf = d.get("refit")
-        if rf is not None and d["verdict"].startswith("mismatch absorbed"):
+        if rf is not None and d["verdict"] == ABSORBED:
             moved = ", ".join(f"{k} = {v:.4g}" for k, v in rf["parameters"].items())
             lines.append(
                 f"Re-fitting the base parameters locally (one Gauss-Newton step from the "
