@@ -1,5 +1,9 @@
 """The ``diagnose`` stage: check, locate, attribute, model, show (writes diagnosis.json).
 
+0. *Refine* — up to ``refine.max_rounds`` rounds of posterior-targeted design points
+   (:mod:`bayescalib.refinement`) make sure the base calibration is not limited by its
+   surrogate before the model is judged; every extended calibration gets the same
+   rounds, so that the Bayes factors compare models refined alike.
 1. *Check* — K posterior draws of the base calibration (systematic resampling of the
    SMC particles, seeded) are solved; :func:`~bayescalib.diagnosis.residuals.predictive_check`
    gives the residual along the observed interface with its predictive bands and the
@@ -34,7 +38,11 @@ from typing import Any
 
 import numpy as np
 
-from bayescalib.diagnosis.extended import CandidateSpec, extended_calibration
+from bayescalib.diagnosis.extended import (
+    CandidateSpec,
+    extended_calibration,
+    refine_calibration,
+)
 from bayescalib.pipeline import model_interfaces
 from bayescalib.posterior import equal_weight_draws
 
@@ -165,6 +173,24 @@ def run_diagnosis(
     space = ParameterSpace.from_config(parameters)
     targets = [p.get("target") or p["name"] for p in parameters]
     names = [p["name"] for p in parameters]
+    common = {"fm": fm, "obs_path": obs_path, "measure_name": measure_name,
+              "measure": measure, "likelihood": likelihood, "surrogate": surrogate,
+              "smc_cfg": smc_cfg, "posterior_cfg": posterior_cfg, "workers": workers,
+              "warm_start": warm_start}
+    refine = dict(cfg.get("refine") or {})
+    rounds, n_refine = int(refine.get("max_rounds", 0)), int(refine.get("n_points", 16))
+    tol = float(refine.get("tol", 1.0))
+
+    # 0: refine the base calibration ---------------------------------------------
+    base_cal = {"parameters": [dict(p) for p in parameters], "training": str(training_path),
+                "particles": str(particles_path),
+                "log_evidence": float(read_particles_h5(particles_path).log_evidence),
+                "posterior": json.loads(Path(posterior_path).read_text())}
+    base_cal, base_history = refine_calibration(
+        base_cal, max_rounds=rounds, n_points=n_refine, tol=tol, seed=int(cfg["seed"]) + 2, switches={},
+        workdir=work / "base" / "refine", **common)
+    particles_path, training_path = base_cal["particles"], base_cal["training"]
+    base_summary = base_cal["posterior"]
     sigma = cfg.get("noise_sigma")
     if sigma is None and observations.get("source", "synthetic") == "synthetic" \
             and float(observations.get("noise_sigma", 0.0)) > 0:
@@ -177,7 +203,6 @@ def run_diagnosis(
 
     # 3: attribute ----------------------------------------------------------------
     cands = resolve_candidates(fm, cfg)
-    base_summary = json.loads(Path(posterior_path).read_text())
     theta = np.array([float(base_summary["mean"][n]) for n in names])
     lo, hi = space.bounds[:, 0], space.bounds[:, 1]
     h = float(cfg["fd_step"]) * (hi - lo)
@@ -228,7 +253,6 @@ def run_diagnosis(
         row["max_shift_at_step_mm"] = float(np.max(np.abs(signatures[c.name] * c.step)))
 
     # 4-5: model and show ------------------------------------------------------------
-    base_particles = read_particles_h5(particles_path)
     extended = []
     refit = refit_test(r, J, np.full(len(r), check.sigma**2))
     refit["step"] = dict(zip([names[i] for i in fd], refit["step"], strict=True))
@@ -251,6 +275,9 @@ def run_diagnosis(
                 likelihood=likelihood, surrogate=surrogate, smc_cfg=smc_cfg,
                 posterior_cfg=posterior_cfg, n_new=n_new, seed=int(cfg["seed"]) + 1,
                 workdir=work / name, workers=workers, warm_start=warm_start)
+            cal, history = refine_calibration(
+                cal, max_rounds=rounds, n_points=n_refine, tol=tol, seed=int(cfg["seed"]) + 3,
+                switches=c.switches, workdir=work / name / "refine", **common)
             ext_targets = targets + [c.target]
             after, n_fail_after = _check_from_particles(
                 name, cal["particles"], ext_targets, c.switches, obs, fm, cfg, work, workers,
@@ -260,12 +287,14 @@ def run_diagnosis(
             ext = {
                 "candidate": name, "summary": c.summary, "unit": c.unit,
                 "log_evidence": cal["log_evidence"],
-                "log_bayes_factor": cal["log_evidence"] - float(base_particles.log_evidence),
+                "log_bayes_factor": cal["log_evidence"] - base_cal["log_evidence"],
                 "phi_mean": float(post["mean"][phi_name]),
                 "phi_std": float(post["std"][phi_name]),
                 "phi_prior": list(c.prior), "phi_interval": post["intervals"].get(phi_name),
-                "n_new_solves": cal["n_new"], "n_reused": cal["n_reused"],
-                "n_failed": cal["n_failed"], "n_failed_draws_after": int(n_fail_after),
+                "n_new_solves": sum(h["n_new"] for h in history),
+                "n_reused": cal["n_reused"] - sum(h["n_new"] for h in history[:-1]),
+                "n_failed": sum(h["n_failed"] for h in history),
+                "refinement": history, "n_failed_draws_after": int(n_fail_after),
                 "check_after": after.to_json(),
                 "posterior": {k: post[k] for k in ("names", "mean", "std", "map")},
                 "bias_after": _bias(post, parameters),
@@ -296,6 +325,9 @@ def run_diagnosis(
         "extended": [{k: v for k, v in e.items() if k != "_check"} for e in extended],
         "chosen_model": chosen,
         "bias_before": _bias(base_summary, parameters),
+        "refinement": {"max_rounds": rounds, "n_points": n_refine, "tol": tol,
+                       "base": base_history,
+                       "bias_before_refinement": _bias(base_history[0], parameters)},
         "hidden_truth": obs.meta.get("hidden") or None,
         "units": "lengths mm; phi in the candidate's unit",
     }
@@ -330,6 +362,22 @@ def plain_words(d: Mapping[str, Any]) -> list[str]:
     chk = d["check"]
     pmin = min(chk["p_values"].values())
     lines = []
+    ref = d.get("refinement") or {}
+    hist = ref.get("base") or []
+    if len(hist) > 1:
+        first, last = hist[0]["mean"], hist[-1]["mean"]
+        moved = ", ".join(f"{n} {first[n]:.4g} -> {last[n]:.4g}" for n in first)
+        n_new = sum(h["n_new"] for h in hist[1:])
+        settled = hist[-1]["shift_sd"] <= ref["tol"]
+        lines.append(
+            f"Before the model was judged, {len(hist) - 1} round(s) of posterior-targeted "
+            f"forward solves ({n_new} in all) refined the calibration's surrogate: posterior "
+            f"mean {moved}. " + (
+                "The last round moved no mean by more than "
+                f"{ref['tol']:g} posterior sd: the surrogate agrees with the solves where the "
+                "posterior lives." if settled else
+                "The posterior still moved in the last round: the calibration may still be "
+                "limited by its surrogate (more refine.max_rounds or design.n_train)."))
     if chk["adequate"]:
         lines.append(
             f"The calibrated model reproduces the observed interface within its predictive "
