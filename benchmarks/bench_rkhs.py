@@ -30,11 +30,11 @@ import sys
 import time
 from pathlib import Path
 
-
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
-from _interface_shapes import arc, icosphere  # noqa: E402
-from bayescalib.rkhs import current, rkhs_squared  # noqa: E402
+from _interface_shapes import arc, icosphere
+
+from bayescalib.rkhs import current, rkhs_squared
 
 
 def timed(fn, repeats):
@@ -74,12 +74,12 @@ def main() -> None:
     c1, a1 = current(model, 0.005, math.inf)
     c2, a2 = current(obs, 0.005, math.inf)
     for backend in ("numpy", "torch"):
-        med, ts, v = timed(lambda: rkhs_squared(c1, a1, c2, a2, 0.005, backend=backend, device="cpu", threads=th), args.repeats)
+        med, ts, v = timed(lambda backend=backend: rkhs_squared(c1, a1, c2, a2, 0.005, backend=backend, device="cpu", threads=th), args.repeats)
         report(f"2D 66 vs 2000 segments, {backend} cpu float64", len(c1), len(c2), med, ts, v)
     r1, b1 = current(model, 0.005)
     r2, b2 = current(obs, 0.005)
     for dev in devices:
-        med, ts, v = timed(lambda: rkhs_squared(r1, b1, r2, b2, 0.005, backend="torch", device=dev, threads=th), args.repeats)
+        med, ts, v = timed(lambda dev=dev: rkhs_squared(r1, b1, r2, b2, 0.005, backend="torch", device=dev, threads=th), args.repeats)
         report(f"2D resampled to sigma_W/4 (sigma_W=0.005), torch {dev}", len(r1), len(r2), med, ts, v)
 
     # ---------------------------------------------------------------- 3D
@@ -90,13 +90,13 @@ def main() -> None:
     for dev in devices:
         for dtype in ("float32", "float64"):
             med, ts, v = timed(
-                lambda: rkhs_squared(x, a, y, b, sw, backend="torch", device=dev, dtype=dtype, threads=th),
+                lambda dev=dev, dtype=dtype: rkhs_squared(x, a, y, b, sw, backend="torch", device=dev, dtype=dtype, threads=th),
                 args.repeats,
             )
             report(f"3D spheres, truncated 11.9 sigma_W, torch {dev} {dtype}", len(x), len(y), med, ts, v)
             if not args.skip_dense:
                 med, ts, v = timed(
-                    lambda: rkhs_squared(x, a, y, b, sw, backend="torch", device=dev, dtype=dtype, truncate=None, threads=th),
+                    lambda dev=dev, dtype=dtype: rkhs_squared(x, a, y, b, sw, backend="torch", device=dev, dtype=dtype, truncate=None, threads=th),
                     args.repeats,
                 )
                 report(f"3D spheres, dense, torch {dev} {dtype}", len(x), len(y), med, ts, v)

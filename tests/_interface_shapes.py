@@ -35,7 +35,7 @@ def icosphere(R: float, level: int) -> Interface:
     for _ in range(level):
         cache: dict[tuple[int, int], int] = {}
 
-        def mid(a, b):
+        def mid(a, b, cache=cache):
             key = (min(a, b), max(a, b))
             if key not in cache:
                 m = verts[a] + verts[b]

@@ -7,8 +7,8 @@ import math
 
 import numpy as np
 import pytest
-
 from _interface_shapes import circle
+
 from bayescalib.cli import main
 from bayescalib.measures import compute
 from bayescalib.observations import write_interface_csv, write_interface_vtk
@@ -45,7 +45,7 @@ def test_distance_rkhs_plain_and_units(files, capsys):
 
 
 def test_distance_euclidean_points_file(files, capsys):
-    d, model, obs = files
+    d, _model, _obs = files
     (d / "pts.csv").write_text("x,y\n0.41,0\n0,0.41\n")
     assert main(["distance", "--measure", "euclidean", "--points", str(d / "pts.csv"), "--json",
                  str(d / "model.csv"), str(d / "obs.vtp")]) == 0

@@ -16,7 +16,6 @@ from bayescalib.fsi import FSIModel
 from bayescalib.runrecord import read_run
 
 
-
 @pytest.fixture(scope="module")
 def coarse():
     return FSIModel({"mesh": {"preset": "coarse"}})

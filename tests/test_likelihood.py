@@ -6,8 +6,8 @@ import math
 
 import numpy as np
 import pytest
-
 from _interface_shapes import arc, circle
+
 from bayescalib.interface import Interface
 from bayescalib.likelihood import gaussian_loglik, log_likelihood, sigma_n2_from_config
 from bayescalib.measures import MeasureOptionError, compute

@@ -2,15 +2,16 @@
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import numpy as np
 import pytest
+from _interface_shapes import arc, circle, icosphere, rotation2d, square
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.special import ive
 
-from _interface_shapes import arc, circle, icosphere, rotation2d, square
 from bayescalib.interface import Interface
 from bayescalib.measures import (
     MeasureError,
@@ -168,7 +169,7 @@ def test_rkhs_grows_monotonically_with_offset():
     a = arc(R, 61)
     offsets = [0.0, 0.002, 0.005, 0.01, 0.02]
     values = [rkhs(a, arc(R + o, 61), SW).D for o in offsets]
-    assert all(x < y for x, y in zip(values, values[1:]))
+    assert all(x < y for x, y in itertools.pairwise(values))
 
 
 def test_rkhs_matches_naive_double_loop():

@@ -6,10 +6,10 @@ import math
 
 import numpy as np
 import pytest
+from _interface_shapes import arc, circle, icosphere
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from _interface_shapes import arc, circle, icosphere
 from bayescalib.interface import Interface
 from bayescalib.observations import (
     ObservationError,

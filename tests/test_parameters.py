@@ -78,7 +78,7 @@ def test_sample_prior_follows_truncated_distribution():
     b = space.bounds
     assert np.all((X >= b[:, 0]) & (X <= b[:, 1]))
     par = space.parameters[0]
-    cdf = lambda x: (par.prior.cdf(x) - par._cdf_lo) / (par._cdf_hi - par._cdf_lo)  # noqa: E731
+    cdf = lambda x: (par.prior.cdf(x) - par._cdf_lo) / (par._cdf_hi - par._cdf_lo)
     assert stats.kstest(X[:, 0], cdf).pvalue > 1e-3
     assert stats.kstest(X[:, 2], ScaledBeta(2.6, 1.4, 0, 110).cdf).pvalue > 1e-3
     assert np.all(np.isfinite(space.logprior(X)))

@@ -40,7 +40,7 @@ def uncertain_run():
         Parameter("x", "-", Uniform(-3, 3), -3, 3),
         Parameter("theta", "mm^2/s", Normal(0, 1), -5, 5, uncertain=True),
     ])
-    loglik = lambda X: stats.norm(X[:, 0] + X[:, 1], S_OBS).logpdf(Y_OBS)  # noqa: E731
+    loglik = lambda X: stats.norm(X[:, 0] + X[:, 1], S_OBS).logpdf(Y_OBS)
     r = run_smc(loglik, space, n_particles=4000, n_rej=10, zeta=0.9, rng=np.random.default_rng(7))
     return space, loglik, r
 
@@ -69,7 +69,7 @@ def test_marginalizing_theta_matches_analytic_marginal(uncertain_run):
 def test_laplace_marginal_block(uncertain_run):
     # The joint log posterior is exactly quadratic in (x, theta) near the MAP (flat prior
     # in x, Gaussian in theta): Laplace covariance of x = marginal variance 1.25.
-    space, loglik, r = uncertain_run
+    space, loglik, _r = uncertain_run
     lap = laplace_approximation(loglik, space, np.array([0.5, 0.0]))
     assert lap["positive_definite"] and lap["names"] == ["x"]
     assert lap["cov"][0][0] == pytest.approx(1 + S_OBS**2, rel=1e-5)

@@ -11,8 +11,8 @@ from scipy import stats
 from scipy.special import logsumexp
 
 from bayescalib.parameters import Normal, Parameter, ParameterSpace, Uniform
-from bayescalib.smc import next_gamma, run_smc
 from bayescalib.resampling import systematic_resample
+from bayescalib.smc import next_gamma, run_smc
 
 
 def wmean_var(r, j=0):
@@ -26,7 +26,7 @@ def test_conjugate_gaussian_1d():
     # Over 20 seeds (N=2000, n_rej=5, zeta=0.9): sd(log Z)=0.011, sd(mean)=0.019, sd(var)=0.013.
     # Tolerances = 5 sd. The box [-8, 12] truncates < 1e-15 of the prior mass.
     space = ParameterSpace([Parameter("x", "-", Normal(2.0, 1.0), -8.0, 12.0)])
-    loglik = lambda X: -0.5 * X[:, 0] ** 2 - 0.5 * np.log(2 * np.pi)  # noqa: E731
+    loglik = lambda X: -0.5 * X[:, 0] ** 2 - 0.5 * np.log(2 * np.pi)
     r = run_smc(loglik, space, n_particles=2000, n_rej=5, zeta=0.9, rng=np.random.default_rng(0))
     m, v = wmean_var(r)
     assert r.log_evidence == pytest.approx(-1 - 0.5 * np.log(4 * np.pi), abs=0.06)
@@ -47,7 +47,7 @@ def test_correlated_gaussian_2d():
     S = np.array([[0.25, 0.8 * 0.5 * 0.3], [0.8 * 0.5 * 0.3, 0.09]])
     Si = np.linalg.inv(S)
     c = -0.5 * np.log(np.linalg.det(2 * np.pi * S))
-    loglik = lambda X: c - 0.5 * np.einsum("ni,ij,nj->n", X - mu, Si, X - mu)  # noqa: E731
+    loglik = lambda X: c - 0.5 * np.einsum("ni,ij,nj->n", X - mu, Si, X - mu)
     space = ParameterSpace([Parameter(n, "-", Uniform(-5, 5), -5, 5) for n in ("a", "b")])
     r = run_smc(loglik, space, n_particles=2000, n_rej=10, zeta=0.9, rng=np.random.default_rng(3))
     W, X = r.weights, r.particles
@@ -122,7 +122,7 @@ def test_banana_against_dense_grid():
     C = ((X - m) * W[:, None]).T @ (X - m)
     assert np.all(np.abs(m - m_ref) / np.sqrt(np.diag(C_ref)) < 0.1)
     assert np.allclose(np.diag(C) / np.diag(C_ref), 1.0, atol=0.15)
-    corr = lambda A: A[0, 1] / np.sqrt(A[0, 0] * A[1, 1])  # noqa: E731
+    corr = lambda A: A[0, 1] / np.sqrt(A[0, 0] * A[1, 1])
     assert corr(C) == pytest.approx(corr(C_ref), abs=0.015)
     for j, (g, pm) in enumerate([(g1, P.sum(1)), (g2, P.sum(0))]):
         o = np.argsort(X[:, j])
@@ -132,7 +132,7 @@ def test_banana_against_dense_grid():
 
 def test_seeded_reproducibility_is_bitwise():
     space = ParameterSpace([Parameter(n, "-", Uniform(-2, 2), -2, 2) for n in "ab"])
-    kw = dict(n_particles=500, n_rej=3, zeta=0.9)
+    kw = {"n_particles": 500, "n_rej": 3, "zeta": 0.9}
     r1 = run_smc(minson_loglik, space, rng=np.random.default_rng(42), **kw)
     r2 = run_smc(minson_loglik, space, rng=np.random.default_rng(42), **kw)
     r3 = run_smc(minson_loglik, space, rng=np.random.default_rng(43), **kw)
@@ -201,7 +201,7 @@ def test_systematic_resampling_counts():
 
 def test_history_and_scale_rule():
     space = ParameterSpace([Parameter("x", "-", Normal(2.0, 1.0), -8.0, 12.0)])
-    loglik = lambda X: -0.5 * X[:, 0] ** 2  # noqa: E731
+    loglik = lambda X: -0.5 * X[:, 0] ** 2
     r = run_smc(loglik, space, n_particles=300, n_rej=2, zeta=0.8, rng=np.random.default_rng(0))
     h = r.history
     # Minson et al. rule: scale_s = 2.38^2/d * (1/9 + 8/9 * acc_{s-1})^2, acc_0 = 1.

@@ -80,8 +80,8 @@ def test_run_lock_is_exclusive_and_dies_with_its_holder(tmp_path):
     from bayescalib.study import StudyBusyError, hold_run_lock
 
     holder = subprocess.Popen(
-        [sys.executable, "-c", "import sys, time\nfrom bayescalib.study import hold_run_lock\n"
-         f"hold_run_lock({str(tmp_path)!r}, 's')\nprint('held', flush=True)\ntime.sleep(60)\n"],
+        [sys.executable, "-c", ("import sys, time\nfrom bayescalib.study import hold_run_lock\n"
+         f"hold_run_lock({str(tmp_path)!r}, 's')\nprint('held', flush=True)\ntime.sleep(60)\n")],
         stdout=subprocess.PIPE, text=True)
     try:
         assert holder.stdout.readline().strip() == "held"

@@ -22,7 +22,7 @@ import json
 import math
 import re
 from collections.abc import Iterable, Mapping
-from functools import lru_cache
+from functools import cache
 from importlib import resources
 from pathlib import Path
 from typing import Any
@@ -31,12 +31,12 @@ import yaml
 
 __all__ = [
     "ConfigError",
+    "apply_overrides",
+    "deep_merge",
     "load_yaml",
+    "parse_override",
     "schema",
     "validate",
-    "apply_overrides",
-    "parse_override",
-    "deep_merge",
 ]
 
 
@@ -72,13 +72,13 @@ def _schema_dir():
     return resources.files("bayescalib") / "schemas"
 
 
-@lru_cache(maxsize=None)
+@cache
 def _load_schema_file(name: str) -> dict[str, Any]:
     text = (_schema_dir() / name).read_text()
     return yaml.safe_load(text)
 
 
-@lru_cache(maxsize=None)
+@cache
 def _registry():
     from referencing import Registry, Resource
     from referencing.jsonschema import DRAFT7

@@ -29,7 +29,7 @@ import warnings
 import numpy as np
 from scipy.stats import qmc
 
-__all__ = ["sobol_unit", "sobol_design", "sobol_test_points", "scale_to_box"]
+__all__ = ["scale_to_box", "sobol_design", "sobol_test_points", "sobol_unit"]
 
 
 def _check_bounds(bounds: np.ndarray) -> np.ndarray:

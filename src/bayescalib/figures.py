@@ -26,12 +26,12 @@ import numpy as np
 from bayescalib.pipeline import read_json, read_training
 
 __all__ = [
-    "response_figures",
     "convergence_figure",
-    "posterior_figures",
-    "interface_figure",
     "field_figure",
+    "interface_figure",
     "posterior_draws",
+    "posterior_figures",
+    "response_figures",
 ]
 
 
@@ -43,6 +43,11 @@ def _space(parameters):
 
 def _paths(stem: str | Path, formats: Sequence[str]) -> list[str]:
     return [f"{stem}.{fmt}" for fmt in formats]
+
+
+def _prior_pdf(p):
+    """The prior density of parameter ``p`` as a function of an array of values."""
+    return lambda x: np.exp(p.logpdf(np.asarray(x, float)))
 
 
 def _labels(space) -> tuple[list[str], list[str]]:
@@ -136,8 +141,7 @@ def posterior_figures(particles_path: str | Path, posterior_path: str | Path,
     dpi = plots["dpi"]
     b = space.bounds
     truth = space.ground_truth
-    prior_pdfs = [(lambda p: (lambda x: np.exp(p.logpdf(np.asarray(x, float)))))(p)
-                  for p in space.parameters]
+    prior_pdfs = [_prior_pdf(p) for p in space.parameters]
     mean_all = np.array([post["mean"][n] for n in space.names])
     map_all = np.array([post["map_full"][n] for n in space.names])
     out: dict[str, list[str]] = {}

@@ -47,16 +47,16 @@ import numpy as np
 from bayescalib.runrecord import LoadingResult, SolveResult, write_run
 
 __all__ = [
+    "CommandModel",
+    "FSIForward",
     "ForwardModel",
     "ForwardModelError",
     "PythonModel",
-    "CommandModel",
-    "FSIForward",
-    "make_forward_model",
     "failed_result",
+    "loading_labels",
+    "make_forward_model",
     "solve_point",
     "solve_series",
-    "loading_labels",
 ]
 
 
@@ -178,7 +178,7 @@ class PythonModel:
             else:
                 current, reference = _points_of(out, "the returned interface"), None
             return _result_from_points(params, current, reference, time.perf_counter() - t0)
-        except Exception as exc:  # the model's failure is data, not a crash
+        except Exception as exc:  # noqa: BLE001 - the model's failure is data, not a crash
             return failed_result(
                 params, f"{type(exc).__name__}: {exc}", time.perf_counter() - t0,
                 log_tail=traceback.format_exc()[-2000:],
@@ -190,13 +190,13 @@ _ARG_FIELD = re.compile(r"\{([A-Za-z_][A-Za-z0-9_.]*)\}")
 
 def _die_with_parent() -> None:  # pragma: no cover - runs in the child before exec
     """Linux: SIGKILL this process when the solve process that started it dies."""
-    try:
+    import contextlib
+
+    with contextlib.suppress(Exception):  # best effort (not Linux)
         import ctypes
         import signal
 
         ctypes.CDLL(None, use_errno=True).prctl(1, int(signal.SIGKILL))  # PR_SET_PDEATHSIG
-    except Exception:  # noqa: BLE001 - best effort (not Linux)
-        pass
 
 
 def _run_command(argv: list[str], cwd: Path, log: Path, time_limit_s: float) -> tuple[int, str]:
@@ -214,7 +214,7 @@ def _run_command(argv: list[str], cwd: Path, log: Path, time_limit_s: float) -> 
         try:
             proc = subprocess.Popen(argv, cwd=cwd, stdout=fh, stderr=subprocess.STDOUT,
                                     stdin=subprocess.DEVNULL, start_new_session=True,
-                                    preexec_fn=_die_with_parent)
+                                    preexec_fn=_die_with_parent)  # noqa: PLW1509 - no threads start in the child
         except (OSError, ValueError, subprocess.SubprocessError) as exc:
             return -1, f"command could not be started: {exc}"
         timed_out = False

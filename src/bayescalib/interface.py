@@ -91,9 +91,8 @@ class Interface:
         cells = np.asarray(self.cells)
         if cells.size == 0:
             raise InterfaceError(f"{where}an interface needs at least one cell")
-        if not np.issubdtype(cells.dtype, np.integer):
-            if not np.all(np.mod(cells, 1) == 0):
-                raise InterfaceError(f"{where}cell indices must be integers")
+        if not np.issubdtype(cells.dtype, np.integer) and not np.all(np.mod(cells, 1) == 0):
+            raise InterfaceError(f"{where}cell indices must be integers")
         cells = np.array(cells, dtype=np.int64, copy=True)
         if cells.ndim != 2 or cells.shape[1] != d:
             kind = "segments (m, 2)" if d == 2 else "triangles (m, 3)"

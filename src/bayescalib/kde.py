@@ -15,7 +15,7 @@ from collections.abc import Sequence
 import numpy as np
 from scipy.stats import gaussian_kde
 
-__all__ = ["weighted_quantile", "kde_1d", "kde_2d", "hpd_levels"]
+__all__ = ["hpd_levels", "kde_1d", "kde_2d", "weighted_quantile"]
 
 
 def weighted_quantile(x: np.ndarray, w: np.ndarray | None, q: np.ndarray | float) -> np.ndarray:

@@ -24,7 +24,7 @@ from bayescalib.interface import Interface, InterfaceError
 from bayescalib.measures import MeasureError, MeasureOptionError, compute
 from bayescalib.observations import ObservationSet
 
-__all__ = ["gaussian_loglik", "log_likelihood", "sigma_n2_from_config", "DEFAULT_SIGMA_N2"]
+__all__ = ["DEFAULT_SIGMA_N2", "gaussian_loglik", "log_likelihood", "sigma_n2_from_config"]
 
 #: default noise variance sigma_N^2 in mm^2 (paper Sec. 4, later examples)
 DEFAULT_SIGMA_N2 = 0.0005

@@ -60,15 +60,15 @@ from bayescalib.interface import Interface
 from bayescalib.projection import closest_points, ray_distances
 
 __all__ = [
-    "MeasureResult",
+    "MEASURES",
     "MeasureError",
     "MeasureOptionError",
-    "MEASURES",
-    "euclidean",
+    "MeasureResult",
     "closest_point",
-    "rkhs",
     "compute",
     "default_measurement_points",
+    "euclidean",
+    "rkhs",
 ]
 
 

@@ -24,7 +24,7 @@ import numpy as np
 from bayescalib._atomic_write import atomic_path
 from bayescalib.interface import Interface
 
-__all__ = ["StoredObservations", "write_observations", "read_observations"]
+__all__ = ["StoredObservations", "read_observations", "write_observations"]
 
 FORMAT_VERSION = 1
 
@@ -77,23 +77,22 @@ def write_observations(path: str | Path, obs: StoredObservations) -> None:
     """Write ``obs`` to ``path`` atomically."""
     import h5py
 
-    with atomic_path(path, suffix=".h5") as tmp:
-        with h5py.File(tmp, "w") as f:
-            snaps = f.create_group("snapshots")
-            for k, (iface, label, load) in enumerate(
-                zip(obs.snapshots, obs.labels, obs.loads, strict=True)
-            ):
-                g = snaps.create_group(str(k))
-                _write_iface(g, iface)
-                g.attrs["label"] = str(label)
-                g.attrs["load"] = float("nan") if load is None else float(load)
-            if obs.reference is not None:
-                _write_iface(f.create_group("reference"), obs.reference)
-            f.attrs["units"] = "mm"
-            f.attrs["n_snapshots"] = len(obs.snapshots)
-            f.attrs["meta"] = json.dumps(obs.meta, sort_keys=True)
-            f.attrs["format_version"] = FORMAT_VERSION
-            f.attrs["complete"] = 1
+    with atomic_path(path, suffix=".h5") as tmp, h5py.File(tmp, "w") as f:
+        snaps = f.create_group("snapshots")
+        for k, (iface, label, load) in enumerate(
+            zip(obs.snapshots, obs.labels, obs.loads, strict=True)
+        ):
+            g = snaps.create_group(str(k))
+            _write_iface(g, iface)
+            g.attrs["label"] = str(label)
+            g.attrs["load"] = float("nan") if load is None else float(load)
+        if obs.reference is not None:
+            _write_iface(f.create_group("reference"), obs.reference)
+        f.attrs["units"] = "mm"
+        f.attrs["n_snapshots"] = len(obs.snapshots)
+        f.attrs["meta"] = json.dumps(obs.meta, sort_keys=True)
+        f.attrs["format_version"] = FORMAT_VERSION
+        f.attrs["complete"] = 1
 
 
 def read_observations(path: str | Path) -> StoredObservations:

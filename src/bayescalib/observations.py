@@ -28,6 +28,7 @@ Several snapshots (e.g. one per inflow rate) form an :class:`ObservationSet`.
 from __future__ import annotations
 
 import csv
+import itertools
 import re
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -38,15 +39,15 @@ import numpy as np
 from bayescalib.interface import Interface, InterfaceError, segment_intersections
 
 __all__ = [
+    "UNITS",
     "ObservationError",
     "ObservationSet",
-    "UNITS",
+    "add_noise",
+    "check_domain",
     "read_interface",
     "read_points",
     "write_interface_csv",
     "write_interface_vtk",
-    "add_noise",
-    "check_domain",
 ]
 
 #: length unit -> factor to mm
@@ -270,9 +271,8 @@ def _order_chain(n: int, seg: np.ndarray) -> np.ndarray | None:
     pos = {v: i for i, v in enumerate(order)}
     if ends.size and pos[int(first[0])] > pos[int(first[1])]:
         order = order[::-1]
-    if not ends.size:
-        if (pos[int(first[1])] - pos[int(first[0])]) % n != 1:
-            order = [order[0]] + order[1:][::-1]
+    if not ends.size and (pos[int(first[1])] - pos[int(first[0])]) % n != 1:
+        order = [order[0]] + order[1:][::-1]
     return np.array(order)
 
 
@@ -354,7 +354,7 @@ def _read_vtk(path: Path, units: str, where: str) -> Interface:
         conn = vtk_to_numpy(lines.GetConnectivityArray()).astype(np.int64)
         offs = vtk_to_numpy(lines.GetOffsetsArray()).astype(np.int64)
         segs = []
-        for a, b in zip(offs[:-1], offs[1:]):
+        for a, b in itertools.pairwise(offs):
             ids = conn[a:b]
             if ids.size >= 2:
                 segs.append(np.stack([ids[:-1], ids[1:]], axis=1))

@@ -45,14 +45,14 @@ import numpy as np
 from scipy import stats
 
 __all__ = [
-    "ParameterError",
-    "Prior",
-    "Uniform",
-    "Normal",
     "LogNormal",
-    "ScaledBeta",
+    "Normal",
     "Parameter",
+    "ParameterError",
     "ParameterSpace",
+    "Prior",
+    "ScaledBeta",
+    "Uniform",
     "prior_from_config",
 ]
 
@@ -547,9 +547,8 @@ class ParameterSpace:
             if "prior" not in e:
                 raise ParameterError(f"parameter '{name}': missing 'prior'")
             bounds = e.get("bounds")
-            if bounds is not None:
-                if not isinstance(bounds, Sequence) or len(bounds) != 2:
-                    raise ParameterError(f"parameter '{name}': bounds must be [lo, hi], got {bounds!r}")
+            if bounds is not None and (not isinstance(bounds, Sequence) or len(bounds) != 2):
+                raise ParameterError(f"parameter '{name}': bounds must be [lo, hi], got {bounds!r}")
             prior = prior_from_config(e["prior"], bounds, name)
             if bounds is None:
                 if isinstance(prior, (Uniform, ScaledBeta)):

@@ -51,20 +51,20 @@ from .resampling import systematic_resample
 from .smc import SMCResult, weighted_cov
 
 __all__ = [
-    "summarize",
-    "equal_weight_draws",
-    "weighted_mean_cov",
     "credible_intervals",
-    "map_estimate",
-    "map_marginal",
-    "laplace_approximation",
+    "equal_weight_draws",
+    "hpd_levels",
     "kde_1d",
     "kde_2d",
-    "hpd_levels",
-    "weighted_quantile",
-    "write_particles_h5",
+    "laplace_approximation",
+    "map_estimate",
+    "map_marginal",
     "read_particles_h5",
+    "summarize",
+    "weighted_mean_cov",
+    "weighted_quantile",
     "write_netcdf",
+    "write_particles_h5",
 ]
 
 
@@ -271,23 +271,22 @@ def write_particles_h5(path: str | Path, result: SMCResult, space: ParameterSpac
     """Write particles, weights, log L, log prior, log posterior and the history (atomic)."""
     import h5py
 
-    with atomic_path(path, suffix=".h5") as tmp:
-        with h5py.File(tmp, "w") as f:
-            f.attrs["format"] = "bayescalib.SMCParticles"
-            f.attrs["names"] = np.array(space.names, dtype=h5py.string_dtype())
-            f.attrs["units"] = np.array(space.units, dtype=h5py.string_dtype())
-            f.attrs["uncertain"] = ~space.calibrated_mask
-            f.attrs["log_evidence"] = float(result.log_evidence)
-            f.attrs["n_steps"] = int(result.n_steps)
-            f.attrs["n_loglik_evals"] = int(result.n_loglik_evals)
-            f.create_dataset("particles", data=result.particles)
-            f.create_dataset("weights", data=result.weights)
-            f.create_dataset("loglik", data=result.loglik)
-            f.create_dataset("logprior", data=result.logprior)
-            f.create_dataset("log_posterior", data=result.log_posterior)
-            g = f.create_group("history")
-            for k, v in result.history.items():
-                g.create_dataset(k, data=np.asarray(v))
+    with atomic_path(path, suffix=".h5") as tmp, h5py.File(tmp, "w") as f:
+        f.attrs["format"] = "bayescalib.SMCParticles"
+        f.attrs["names"] = np.array(space.names, dtype=h5py.string_dtype())
+        f.attrs["units"] = np.array(space.units, dtype=h5py.string_dtype())
+        f.attrs["uncertain"] = ~space.calibrated_mask
+        f.attrs["log_evidence"] = float(result.log_evidence)
+        f.attrs["n_steps"] = int(result.n_steps)
+        f.attrs["n_loglik_evals"] = int(result.n_loglik_evals)
+        f.create_dataset("particles", data=result.particles)
+        f.create_dataset("weights", data=result.weights)
+        f.create_dataset("loglik", data=result.loglik)
+        f.create_dataset("logprior", data=result.logprior)
+        f.create_dataset("log_posterior", data=result.log_posterior)
+        g = f.create_group("history")
+        for k, v in result.history.items():
+            g.create_dataset(k, data=np.asarray(v))
 
 
 def read_particles_h5(path: str | Path) -> SMCResult:
@@ -346,7 +345,7 @@ def write_netcdf(
     W = W / W.sum()
     idx = systematic_resample(W, rng, n_draws)
     idx = idx[rng.permutation(n_draws)]
-    created = _dt.datetime.now(_dt.timezone.utc).isoformat()
+    created = _dt.datetime.now(_dt.UTC).isoformat()
     with np.errstate(divide="ignore"):
         logw = np.log(W[idx])
     with atomic_path(path, suffix=".nc") as tmp:

@@ -23,7 +23,7 @@ from scipy.spatial import cKDTree
 
 from bayescalib.interface import Interface
 
-__all__ = ["closest_points", "ray_distances", "project_to_segments", "project_to_triangles"]
+__all__ = ["closest_points", "project_to_segments", "project_to_triangles", "ray_distances"]
 
 
 def project_to_segments(q: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["normalize_log_weights", "ess", "systematic_resample"]
+__all__ = ["ess", "normalize_log_weights", "systematic_resample"]
 
 
 def normalize_log_weights(logw: np.ndarray) -> np.ndarray:

@@ -58,7 +58,7 @@ import numpy as np
 
 from bayescalib.interface import Interface
 
-__all__ = ["default_spacing", "current", "pair_sum", "rkhs_squared", "rkhs_distance", "naive_rkhs_squared"]
+__all__ = ["current", "default_spacing", "naive_rkhs_squared", "pair_sum", "rkhs_distance", "rkhs_squared"]
 
 #: sub-element size relative to sigma_W used when no spacing is given
 SPACING_FACTOR = 0.25
@@ -335,7 +335,7 @@ def rkhs_squared(
     if backend == "auto":
         pairs = (c1.shape[0] + c2.shape[0]) ** 2
         backend = "numpy" if pairs <= AUTO_NUMPY_PAIRS else "torch"
-    kw = dict(backend=backend, device=device, dtype=dtype, chunk=chunk, truncate=truncate, threads=threads)
+    kw = {"backend": backend, "device": device, "dtype": dtype, "chunk": chunk, "truncate": truncate, "threads": threads}
     s11 = pair_sum(c1, a1, c1, a1, sigma_w, symmetric=True, **kw)
     s12 = pair_sum(c1, a1, c2, a2, sigma_w, **kw)
     s22 = pair_sum(c2, a2, c2, a2, sigma_w, symmetric=True, **kw)

@@ -32,8 +32,14 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["SolveResult", "LoadingResult", "RunFileError", "write_run", "read_run",
-           "FORMAT_VERSION"]
+__all__ = [
+    "FORMAT_VERSION",
+    "LoadingResult",
+    "RunFileError",
+    "SolveResult",
+    "read_run",
+    "write_run",
+]
 
 FORMAT_VERSION = 1
 _FORMAT = "bayescalib-run"

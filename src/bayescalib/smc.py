@@ -53,7 +53,7 @@ from scipy.special import logsumexp
 
 from .resampling import normalize_log_weights, systematic_resample
 
-__all__ = ["SMCResult", "run_smc", "weighted_cov", "next_gamma", "MINSON_A", "MINSON_B"]
+__all__ = ["MINSON_A", "MINSON_B", "SMCResult", "next_gamma", "run_smc", "weighted_cov"]
 
 log = logging.getLogger(__name__)
 

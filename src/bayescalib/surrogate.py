@@ -59,7 +59,7 @@ import math
 import warnings
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
-from functools import lru_cache
+from functools import cache
 from pathlib import Path
 from typing import Any
 
@@ -85,7 +85,7 @@ def matern32(A: np.ndarray, B: np.ndarray, variance: float, lengthscale: np.ndar
     return variance * (1.0 + s) * np.exp(-s)
 
 
-@lru_cache(maxsize=None)
+@cache
 def _pool(n: int) -> ThreadPoolExecutor:
     return ThreadPoolExecutor(max_workers=n, thread_name_prefix="gp-predict")
 
@@ -363,24 +363,23 @@ class GPSurrogate:
         """Write the surrogate to HDF5 (atomically): data, scaling, hyperparameters, factors."""
         import h5py
 
-        with atomic_path(path, suffix=".h5") as tmp:
-            with h5py.File(tmp, "w") as f:
-                f.attrs["format"] = "bayescalib.GPSurrogate"
-                f.attrs["format_version"] = _FORMAT_VERSION
-                f.attrs["kernel"] = "Matern32"
-                f.create_dataset("X_train", data=self.X_train)
-                f.create_dataset("y_train", data=self.y_train)
-                f.create_dataset("input_shift", data=self.shift)
-                f.create_dataset("input_scale", data=self.scale)
-                f.create_dataset("lengthscale", data=self.lengthscale)
-                f.create_dataset("chol", data=self.chol, compression="gzip")
-                f.create_dataset("alpha", data=self.alpha)
-                for k in ("mean_const", "nugget", "variance", "log_marginal_likelihood"):
-                    f.attrs[k] = float(getattr(self, k))
-                f.attrs["ard"] = bool(self.ard)
-                f.attrs["n_excluded"] = int(self.n_excluded)
-                f.attrs["optimizer"] = self.optimizer
-                f.attrs["restarts"] = int(self.restarts)
+        with atomic_path(path, suffix=".h5") as tmp, h5py.File(tmp, "w") as f:
+            f.attrs["format"] = "bayescalib.GPSurrogate"
+            f.attrs["format_version"] = _FORMAT_VERSION
+            f.attrs["kernel"] = "Matern32"
+            f.create_dataset("X_train", data=self.X_train)
+            f.create_dataset("y_train", data=self.y_train)
+            f.create_dataset("input_shift", data=self.shift)
+            f.create_dataset("input_scale", data=self.scale)
+            f.create_dataset("lengthscale", data=self.lengthscale)
+            f.create_dataset("chol", data=self.chol, compression="gzip")
+            f.create_dataset("alpha", data=self.alpha)
+            for k in ("mean_const", "nugget", "variance", "log_marginal_likelihood"):
+                f.attrs[k] = float(getattr(self, k))
+            f.attrs["ard"] = bool(self.ard)
+            f.attrs["n_excluded"] = int(self.n_excluded)
+            f.attrs["optimizer"] = self.optimizer
+            f.attrs["restarts"] = int(self.restarts)
 
     @classmethod
     def load(cls, path: str | Path, device: str = "auto") -> GPSurrogate:

@@ -51,7 +51,7 @@ def run(args: argparse.Namespace) -> int:
     from bayescalib.measures import compute
     from bayescalib.observations import read_interface, read_points
 
-    opts = dict(units=args.units, pixel_size=args.pixel_size, origin=args.origin, floor=args.floor)
+    opts = {"units": args.units, "pixel_size": args.pixel_size, "origin": args.origin, "floor": args.floor}
     model = read_interface(args.model, **opts)
     obs = read_interface(args.obs, **opts)
     options: dict = {}

@@ -218,7 +218,7 @@ def interface_chain(mesh: Any, boundary: str) -> tuple[np.ndarray, np.ndarray, n
     prev = -1
     cur = start
     while len(order) < len(adj):
-        nxt = [n for n in adj[cur] if n != prev][0]
+        nxt = next(n for n in adj[cur] if n != prev)
         prev, cur = cur, nxt
         order.append(cur)
     verts = np.array(order, dtype=int)

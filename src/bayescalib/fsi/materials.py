@@ -21,6 +21,7 @@ building anything (:func:`check_poisson`).
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 LAWS = ("svk", "neo_hooke")
@@ -39,7 +40,7 @@ def lame(E: Any, nu: Any) -> tuple[Any, Any]:
 
 def check_poisson(nu: float) -> str:
     """Return a failure reason if ``nu`` is outside the admissible open range (-1, 0.5), else ``""``."""
-    if not (nu == nu):  # NaN
+    if math.isnan(nu):
         return "Poisson ratio is NaN"
     if nu >= 0.5:
         return (

@@ -414,7 +414,7 @@ class FSIModel:
         try:
             outcome = solver.solve(controls, initial=initial, start_load=start_load,
                                    keep_factorization=keep)
-        except Exception as exc:  # a solver failure is data, never a crash of the study
+        except Exception as exc:  # noqa: BLE001 - a solver failure is data, never a crash of the study
             solver.reset()
             return self._result("failed", f"solver error: {type(exc).__name__}: {exc}", params,
                                 0.0, 0, 0, t_start, base_stats)

@@ -401,7 +401,7 @@ class MonolithicSolver:
                     inv = self.a.mat.Inverse(self._freedofs, inverse="umfpack")
                 except _Failure:
                     raise
-                except Exception as exc:  # NGSolve/UMFPACK errors, e.g. a singular Jacobian
+                except Exception as exc:  # noqa: BLE001 - NGSolve/UMFPACK errors, e.g. a singular Jacobian
                     raise _Failure(f"linear solver failed: {exc} (iteration {iters_this_step + 1})") from None
                 stats["t_factor"] += time.perf_counter() - t2
                 stats["factorizations"] += 1

@@ -20,15 +20,15 @@ from matplotlib.figure import Figure
 __all__ = [
     "PathsLike",
     "as_array",
+    "as_bounds",
+    "as_levels",
+    "as_names_units",
+    "as_paths",
     "as_points",
     "as_samples",
     "as_weights",
-    "as_names_units",
-    "as_bounds",
-    "as_paths",
-    "as_levels",
-    "save_figure",
     "finish",
+    "save_figure",
 ]
 
 PathsLike = str | os.PathLike | Sequence[str | os.PathLike]
@@ -64,11 +64,11 @@ def as_array(x: Any, name: str, *, ndim: int | None = None, shape: tuple | None 
         raise ValueError(f"{name}: cannot convert to a float array ({exc})") from None
     if ndim is not None and a.ndim != ndim:
         raise ValueError(f"{name}: expected a {ndim}-D array, got shape {a.shape}")
-    if shape is not None:
-        if a.ndim != len(shape) or any(s is not None and s != t for s, t in zip(shape, a.shape)):
-            want = "(" + ", ".join("*" if s is None else str(s) for s in shape) + \
-                ("," if len(shape) == 1 else "") + ")"
-            raise ValueError(f"{name}: expected shape {want}, got {a.shape}")
+    if shape is not None and (
+            a.ndim != len(shape) or any(s is not None and s != t for s, t in zip(shape, a.shape))):
+        want = "(" + ", ".join("*" if s is None else str(s) for s in shape) + \
+            ("," if len(shape) == 1 else "") + ")"
+        raise ValueError(f"{name}: expected shape {want}, got {a.shape}")
     if finite and not np.all(np.isfinite(a)):
         raise ValueError(f"{name}: contains NaN or infinite values")
     return a
@@ -149,7 +149,7 @@ def as_names_units(names: Sequence[str], units: Sequence[str],
                    d: int) -> tuple[list[str], list[str]]:
     """Check that there is one name and one unit per parameter."""
     if isinstance(names, str) or isinstance(units, str):
-        raise ValueError("names and units must be sequences of strings, one per parameter")
+        raise TypeError("names and units must be sequences of strings, one per parameter")
     names, units = [str(s) for s in names], [str(s) for s in units]
     if len(names) != d:
         raise ValueError(f"names: expected {d} names, got {len(names)}")

@@ -20,9 +20,9 @@ from .style import COLORS, DENSITY_CMAP
 
 __all__ = [
     "check_prior_pdf",
-    "draw_marginal",
     "draw_hexbin",
     "draw_hpd_contours",
+    "draw_marginal",
     "level_text",
 ]
 
@@ -40,7 +40,7 @@ def check_prior_pdf(pdf: Callable | None, name: str) -> Callable | None:
     if pdf is None:
         return None
     if not callable(pdf):
-        raise ValueError(f"{name}: expected a callable density or None, got {type(pdf).__name__}")
+        raise TypeError(f"{name}: expected a callable density or None, got {type(pdf).__name__}")
 
     def wrapped(x: np.ndarray) -> np.ndarray:
         y = np.asarray(pdf(x), dtype=float)

@@ -24,7 +24,7 @@ from matplotlib.lines import Line2D
 from ._checks import PathsLike, as_array, as_paths, as_points, finish
 from .style import COLORS, DIVERGING_CMAP, paper_style
 
-__all__ = ["plot_interfaces", "plot_interface_residual", "largest_deformation_box"]
+__all__ = ["largest_deformation_box", "plot_interface_residual", "plot_interfaces"]
 
 
 def _as_curve_list(curves, name: str) -> list[np.ndarray]:

@@ -16,8 +16,17 @@ from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from matplotlib.patches import Patch
 
-from ._checks import (PathsLike, as_array, as_bounds, as_levels, as_names_units, as_paths,
-                      as_samples, as_weights, finish)
+from ._checks import (
+    PathsLike,
+    as_array,
+    as_bounds,
+    as_levels,
+    as_names_units,
+    as_paths,
+    as_samples,
+    as_weights,
+    finish,
+)
 from ._draw import check_prior_pdf, draw_hexbin, draw_hpd_contours, draw_marginal, level_text
 from .gaussian import ellipse_points
 from .style import COLORS, axis_label, density_unit_label, paper_style
@@ -45,7 +54,7 @@ def plot_joint_posterior(
     paths: PathsLike,
     *,
     prior_pdfs: tuple[Callable | None, Callable | None] | None = None,
-    map: Sequence[float] | None = None,  # noqa: A002 - name used by the pipeline
+    map: Sequence[float] | None = None,
     mean: Sequence[float] | None = None,
     gaussian: Gaussian | None = None,
     laplace: Gaussian | None = None,

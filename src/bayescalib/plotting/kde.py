@@ -27,11 +27,11 @@ from scipy import stats
 from ._checks import as_levels, as_samples, as_weights
 
 __all__ = [
-    "weighted_kde",
-    "kde_on_grid",
+    "effective_sample_size",
     "hpd_thresholds",
     "hpd_thresholds_grid",
-    "effective_sample_size",
+    "kde_on_grid",
+    "weighted_kde",
 ]
 
 

@@ -17,8 +17,17 @@ from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from matplotlib.patches import Patch
 
-from ._checks import (PathsLike, as_array, as_bounds, as_levels, as_names_units, as_paths,
-                      as_samples, as_weights, finish)
+from ._checks import (
+    PathsLike,
+    as_array,
+    as_bounds,
+    as_levels,
+    as_names_units,
+    as_paths,
+    as_samples,
+    as_weights,
+    finish,
+)
 from ._draw import check_prior_pdf, draw_hexbin, draw_hpd_contours, draw_marginal, level_text
 from .style import COLORS, axis_label, density_unit_label, paper_style
 
@@ -46,7 +55,7 @@ def plot_marginals_1d(
     paths: PathsLike,
     *,
     prior_pdfs: Sequence[Callable | None] | None = None,
-    map: Sequence[float] | None = None,  # noqa: A002 - name used by the pipeline
+    map: Sequence[float] | None = None,
     mean: Sequence[float] | None = None,
     truth: Sequence[float] | None = None,
     bounds: Sequence[Sequence[float]] | None = None,
@@ -143,7 +152,7 @@ def plot_pair_marginals(
     paths: PathsLike,
     *,
     truth: Sequence[float] | None = None,
-    map: Sequence[float] | None = None,  # noqa: A002
+    map: Sequence[float] | None = None,
     mean: Sequence[float] | None = None,
     bounds: Sequence[Sequence[float]] | None = None,
     levels: Sequence[float] = (0.5, 0.9),

@@ -8,8 +8,16 @@ from collections.abc import Sequence
 import numpy as np
 from matplotlib.figure import Figure
 
-from ._checks import (PathsLike, as_array, as_bounds, as_names_units, as_paths, as_samples,
-                      as_weights, finish)
+from ._checks import (
+    PathsLike,
+    as_array,
+    as_bounds,
+    as_names_units,
+    as_paths,
+    as_samples,
+    as_weights,
+    finish,
+)
 from .style import COLORS, axis_label, paper_style
 
 __all__ = ["plot_particles"]

@@ -26,16 +26,16 @@ from collections.abc import Iterator
 import matplotlib as mpl
 
 __all__ = [
-    "OKABE_ITO",
     "COLORS",
-    "SEQUENTIAL_CMAP",
     "DENSITY_CMAP",
     "DIVERGING_CMAP",
-    "paper_style",
-    "pretty_name",
+    "OKABE_ITO",
+    "SEQUENTIAL_CMAP",
     "axis_label",
     "density_label",
     "density_unit_label",
+    "paper_style",
+    "pretty_name",
 ]
 
 #: Okabe-Ito palette, in its usual order.
