@@ -10,8 +10,9 @@ localization overlap (Jaccard index, over the observed nodes, between the locate
 intervals and the region where the hidden effect moves the interface by more than
 half its maximum), residual-to-noise ratio (RMS of the base model's residual over the
 noise sd), residual RMS before/after (the chosen model, or the best extended one),
-log Bayes factor of the best extended model, and the relative error of E and nu
-before/after.
+log Bayes factor of the best extended model, the number of refinement rounds of the
+base calibration, and the relative error of E and nu: from the pipeline's calibration,
+after the diagnosis' refinement, and in the chosen model.
 
 Usage::
 
@@ -103,6 +104,8 @@ def _row(study_file: Path, variant: str, root: Path, regions, labels) -> dict:
     best = max(ext, key=lambda e: e["log_bayes_factor"]) if ext else None
     chosen = next((e for e in ext if e["candidate"] == diag["chosen_model"]), best)
     before = diag.get("bias_before") or {}
+    refinement = diag.get("refinement") or {}
+    pipeline = refinement.get("bias_before_refinement") or before
     after = (chosen or {}).get("bias_after") or {}
     hidden = diag.get("hidden_truth") or {}
     effect = ", ".join(f"{k}={v}" for k, v in hidden.items() if not isinstance(v, bool)) or "none"
@@ -120,6 +123,8 @@ def _row(study_file: Path, variant: str, root: Path, regions, labels) -> dict:
         "rms_after_um": 1e3 * chosen["check_after"]["residual_rms_mm"] if chosen else None,
         "log_bf": best["log_bayes_factor"] if best else None,
         "best_extended": best["candidate"] if best else None,
+        "refine_rounds": max(len(refinement.get("base") or [None]) - 1, 0),
+        "err_pipeline": {k: v["relative_error"] for k, v in pipeline.items()},
         "err_before": {k: v["relative_error"] for k, v in before.items()},
         "err_after": {k: v["relative_error"] for k, v in after.items()},
     }
@@ -163,22 +168,25 @@ def main() -> None:
                 if (cfg["observations"].get("hidden") or {}) else None
             rows.append(_row(sf, variant, root, regions, obs.labels))
     head = ("| hidden effect | loadings | verdict | top-1 (identifiable) | re-fit p | chosen | "
-            "overlap | resid/noise | RMS before/after [um] | ln BF (best) | E err before/after | "
-            "nu err before/after |")
-    lines = [head, "|" + "---|" * 12]
+            "overlap | resid/noise | RMS before/after [um] | ln BF (best) | refine rounds | "
+            "E err pipeline/refined/chosen | nu err pipeline/refined/chosen |")
+    lines = [head, "|" + "---|" * 13]
     for r in rows:
         if r.get("verdict") == "RUN FAILED":
-            lines.append(f"| {r['study']} | {r['loadings']} | RUN FAILED |" + " |" * 9)
+            lines.append(f"| {r['study']} | {r['loadings']} | RUN FAILED |" + " |" * 10)
             continue
-        eb, ea = r["err_before"], r["err_after"]
+        ep, eb, ea = r["err_pipeline"], r["err_before"], r["err_after"]
         lines.append(
             f"| {r['hidden']} | {r['loadings']} | {r['verdict']} | {r['top1']} "
             f"({_fmt(r['identifiable_top1'])}) | {_fmt(r['refit_p'], '{:.2g}')} | {r['chosen']} | "
             f"{_fmt(r['overlap'])} | {_fmt(r['residual_to_noise'], '{:.1f}')} | "
             f"{_fmt(r['rms_before_um'])} / {_fmt(r['rms_after_um'])} | "
             f"{_fmt(r['log_bf'], '{:.1f}')} ({r['best_extended'] or '-'}) | "
-            f"{_fmt(eb.get('E'), '{:.1%}')} / {_fmt(ea.get('E'), '{:.1%}')} | "
-            f"{_fmt(eb.get('nu'), '{:.1%}')} / {_fmt(ea.get('nu'), '{:.1%}')} |")
+            f"{r['refine_rounds']} | "
+            f"{_fmt(ep.get('E'), '{:.1%}')} / {_fmt(eb.get('E'), '{:.1%}')} / "
+            f"{_fmt(ea.get('E'), '{:.1%}')} | "
+            f"{_fmt(ep.get('nu'), '{:.1%}')} / {_fmt(eb.get('nu'), '{:.1%}')} / "
+            f"{_fmt(ea.get('nu'), '{:.1%}')} |")
     table = "\n".join(lines)
     print(table)
     out.mkdir(parents=True, exist_ok=True)
