@@ -407,8 +407,8 @@ def plain_words(d: Mapping[str, Any]) -> list[str]:
                 f"posterior mean, to {moved}) leaves a residual consistent with the noise "
                 f"(chi2 = {rf['chi2']:.1f} on {rf['dof']} degrees of freedom, p = "
                 f"{rf['p_value']:.3g}): the calibration missed the best fit, no physics is "
-                "missing. The surrogate is the likely cause; add design points (design.n_train) "
-                "and rerun.")
+                "missing. The surrogate is the likely cause; add design points (design.n_train "
+                "or diagnose.refine.max_rounds) and rerun.")
         else:
             lines.append(d["attribution_verdict"][0].upper() + d["attribution_verdict"][1:]
                          + ".")
