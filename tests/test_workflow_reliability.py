@@ -175,14 +175,21 @@ def concurrent_runs(tmp_path_factory, base_study):
                   log="b.out")
         try:
             wait_for(tmp / "results" / "other" / "logs" / "ground_truth.log", b)
-            again = smk(tmp, check=False, timeout=120)
-            # any snakemake run that ends here (B, or the refused one) deletes
-            # .snakemake/locks as a whole, A's lock included: try again after that,
-            # with --rerun-incomplete, as Snakemake advises when it sees A's running
-            # jobs as incomplete files
-            shutil.rmtree(tmp / ".snakemake" / "locks", ignore_errors=True)
-            after_unlock = smk(tmp, "--rerun-incomplete", check=False, timeout=120)
-            still_running = a.poll() is None
+            # pause A's scheduler (its jobs in flight finish; no new one starts) so that
+            # A is certainly still running while the second run is tried, however slow
+            # the machine; its locks stay held
+            os.kill(a.pid, signal.SIGSTOP)
+            try:
+                again = smk(tmp, check=False, timeout=120)
+                # any snakemake run that ends here (B, or the refused one) deletes
+                # .snakemake/locks as a whole, A's lock included: try again after that,
+                # with --rerun-incomplete, as Snakemake advises when it sees A's running
+                # jobs as incomplete files
+                shutil.rmtree(tmp / ".snakemake" / "locks", ignore_errors=True)
+                after_unlock = smk(tmp, "--rerun-incomplete", check=False, timeout=120)
+                still_running = a.poll() is None
+            finally:
+                os.kill(a.pid, signal.SIGCONT)
             rc_a, rc_b = a.wait(timeout=600), b.wait(timeout=600)
         finally:
             if b.poll() is None:
