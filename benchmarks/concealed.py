@@ -102,7 +102,9 @@ def _row(study_file: Path, variant: str, root: Path, regions, labels) -> dict:
     chk = diag["check"]
     ext = diag["extended"]
     best = max(ext, key=lambda e: e["log_bayes_factor"]) if ext else None
-    chosen = next((e for e in ext if e["candidate"] == diag["chosen_model"]), best)
+    solved = [e for e in ext if e["check_after"] is not None]
+    chosen = next((e for e in ext if e["candidate"] == diag["chosen_model"]),
+                  max(solved, key=lambda e: e["log_bayes_factor"]) if solved else None)
     before = diag.get("bias_before") or {}
     refinement = diag.get("refinement") or {}
     pipeline = refinement.get("bias_before_refinement") or before

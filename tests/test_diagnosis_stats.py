@@ -205,3 +205,28 @@ def test_plain_words_of_an_absorbed_mismatch_name_the_refit_and_the_remedy():
     text = " ".join(plain_words(d))
     assert "E = 394.1, nu = 0.2835" in text and "design.n_train" in text
     assert "no candidate explains" not in text.lower()
+
+
+def test_an_extension_that_does_not_solve_at_its_posterior_is_reported_not_chosen():
+    """The surrogate of an extended model interpolates over failed solves, so its
+    posterior can sit where the forward model does not solve: the diagnosis reports the
+    extension as unconfirmable (plain words, HTML) instead of failing."""
+    from bayescalib.diagnosis.report import _html
+    from bayescalib.diagnosis.stage import plain_words
+
+    failed = ("diagnosis (attachment): only 0 of 16 posterior draws solved; the predictive "
+              "check needs at least 2. Failures: load continuation stalled")
+    d = {"verdict": "mismatch explained by growth", "attribution_verdict": "growth",
+         "check": {"adequate": False, "p_values": {"chi2": 0.0}, "residual_rms_mm": 0.0085,
+                   "sigma_mm": 0.001, "located": []},
+         "attribution": {"ranking": []},
+         "extended": [{"candidate": "attachment", "summary": "base attachment", "unit": "mm",
+                       "log_bayes_factor": 40.0, "phi_mean": 1e-6, "phi_std": 3e-6,
+                       "check_after": None, "check_after_failed": failed,
+                       "surrogate_consistent": False}],
+         "chosen_model": "base"}
+    d["plain_words"] = plain_words(d)
+    text = " ".join(d["plain_words"])
+    assert "does not solve at its posterior draws" in text and "0 of 16" in text
+    assert "cannot be confirmed" in text
+    assert "not solvable at its posterior draws" in _html(d)

@@ -47,8 +47,8 @@ def write_diagnosis(diagnosis: Mapping[str, Any], checks: Mapping[str, Any], *,
     base = checks["base"]
     rows, panels = ["calibrated model"], _panels(base, diagnosis["check"]["located"])
     chosen = diagnosis["chosen_model"]
-    shown = chosen if chosen != "base" else (diagnosis["extended"][0]["candidate"]
-                                               if diagnosis["extended"] else None)
+    solved = [e["candidate"] for e in diagnosis["extended"] if e["check_after"] is not None]
+    shown = chosen if chosen != "base" else (solved[0] if solved else None)
     if shown is not None:
         rows.append(f"with {shown}")
         after = next(e for e in diagnosis["extended"] if e["candidate"] == shown)
@@ -82,8 +82,10 @@ def _html(d: Mapping[str, Any]) -> str:
     ext = "".join(
         f"<tr><td>{html.escape(e['candidate'])}</td><td>{e['log_bayes_factor']:.2f}</td>"
         f"<td>{e['phi_mean']:.3g} &plusmn; {e['phi_std']:.2g} {html.escape(e['unit'])}</td>"
-        f"<td>{1e3 * e['check_after']['residual_rms_mm']:.2f} &micro;m</td>"
-        f"<td>{100 * e['check_after']['pointwise_band_coverage']:.0f} %</td></tr>"
+        + (f"<td>{1e3 * e['check_after']['residual_rms_mm']:.2f} &micro;m</td>"
+           f"<td>{100 * e['check_after']['pointwise_band_coverage']:.0f} %</td></tr>"
+           if e["check_after"] is not None else
+           "<td colspan='2'>not solvable at its posterior draws</td></tr>")
         for e in d["extended"])
     words = "".join(f"<p>{html.escape(s)}</p>" for s in d["plain_words"])
     return (

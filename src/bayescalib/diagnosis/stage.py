@@ -61,6 +61,10 @@ DEFAULT_FSI_PRIORS = {
 LN_BF_MIN = math.log(3.0)
 
 
+class PredictiveCheckError(ValueError):
+    """Too few posterior draws could be solved for a predictive check."""
+
+
 def resolve_candidates(fm: Mapping[str, Any], diagnose: Mapping[str, Any]) -> list[CandidateSpec]:
     """The candidates to test: ``diagnose.candidates`` or, for the fsi model, the built-in
     library (:data:`bayescalib.fsi.physics.CANDIDATES`) minus those already switched on."""
@@ -100,8 +104,10 @@ def _check_from_particles(tag: str, particles: str | Path, targets: Sequence[str
                       workers=workers, warm_start=warm_start)
     good = [r for r in runs if r.ok]
     if len(good) < 2:
-        raise ValueError(f"diagnosis ({tag}): only {len(good)} of {len(runs)} posterior draws "
-                         "solved; the predictive check needs at least 2")
+        reasons = sorted({r.reason.split(";")[0] for r in runs if not r.ok})
+        raise PredictiveCheckError(
+            f"diagnosis ({tag}): only {len(good)} of {len(runs)} posterior draws solved; the "
+            "predictive check needs at least 2. Failures: " + "; ".join(reasons[:3]))
     n_snap = len(obs.snapshots)
     check = predictive_check(obs.snapshots, [model_interfaces(r, n_snap) for r in good],
                              labels=obs.labels, sigma=sigma, noise_floor=cfg["noise_floor"],
@@ -279,9 +285,16 @@ def run_diagnosis(
                 cal, max_rounds=rounds, n_points=n_refine, tol=tol, seed=int(cfg["seed"]) + 3,
                 switches=c.switches, workdir=work / name / "refine", **common)
             ext_targets = targets + [c.target]
-            after, n_fail_after = _check_from_particles(
-                name, cal["particles"], ext_targets, c.switches, obs, fm, cfg, work, workers,
-                warm_start, check.sigma if check.sigma_source == "given" else sigma)
+            # an extended posterior where the forward model does not solve (the surrogate
+            # interpolates over failed points) cannot be confirmed: recorded, not fatal
+            try:
+                after, n_fail_after = _check_from_particles(
+                    name, cal["particles"], ext_targets, c.switches, obs, fm, cfg, work,
+                    workers, warm_start, check.sigma if check.sigma_source == "given" else sigma)
+                check_failed = None
+            except PredictiveCheckError as exc:
+                log.warning("%s", exc)
+                after, n_fail_after, check_failed = None, int(cfg["n_draws"]), str(exc)
             post = cal["posterior"]
             phi_name = f"phi_{c.name}"
             ext = {
@@ -295,7 +308,8 @@ def run_diagnosis(
                 "n_reused": cal["n_reused"] - sum(h["n_new"] for h in history[:-1]),
                 "n_failed": sum(h["n_failed"] for h in history),
                 "refinement": history, "n_failed_draws_after": int(n_fail_after),
-                "check_after": after.to_json(),
+                "check_after": None if after is None else after.to_json(),
+                "check_after_failed": check_failed,
                 "posterior": {k: post[k] for k in ("names", "mean", "std", "map")},
                 "bias_after": _bias(post, parameters),
                 "particles": cal["particles"],
@@ -303,12 +317,13 @@ def run_diagnosis(
             # the Bayes factor comes from GP surrogates: flag it when the real solves at
             # the extended posterior do not fit better than the base model
             ext["surrogate_consistent"] = bool(
-                ext["log_bayes_factor"] <= LN_BF_MIN or after.rms < check.rms)
+                ext["log_bayes_factor"] <= LN_BF_MIN or (after is not None and after.rms < check.rms))
             ext["_check"] = after
             extended.append(ext)
     # the chosen model: among the extensions that the real solves confirm (a better fit
     # than the base model), the one with the largest log Bayes factor above ln 3
-    confirmed = [e for e in extended if e["check_after"]["residual_rms_mm"] < check.rms
+    confirmed = [e for e in extended if e["check_after"] is not None
+                 and e["check_after"]["residual_rms_mm"] < check.rms
                  and e["log_bayes_factor"] > LN_BF_MIN]
     best = max(confirmed, key=lambda e: e["log_bayes_factor"], default=None)
     chosen = best["candidate"] if best is not None else "base"
@@ -332,7 +347,8 @@ def run_diagnosis(
         "units": "lengths mm; phi in the candidate's unit",
     }
     out["plain_words"] = plain_words(out)
-    checks = {"base": check, **{e["candidate"]: e["_check"] for e in extended}}
+    checks = {"base": check, **{e["candidate"]: e["_check"] for e in extended
+                                if e["_check"] is not None}}
     return out, checks
 
 
@@ -414,6 +430,14 @@ def plain_words(d: Mapping[str, Any]) -> list[str]:
                          + ".")
     for e in d["extended"]:
         ca = e["check_after"]
+        if ca is None:
+            lines.append(
+                f"With {e['candidate']} ({e['summary']}): log Bayes factor "
+                f"{e['log_bayes_factor']:.2f}, phi = {e['phi_mean']:.3g} +- "
+                f"{e['phi_std']:.2g} {e['unit']}, but the forward model does not solve at its "
+                f"posterior draws ({e['check_after_failed']}), so the extension cannot be "
+                "confirmed and is not chosen.")
+            continue
         if not e.get("surrogate_consistent", True):
             lines.append(f"Caution: the Bayes factor of {e['candidate']} favours it, but the "
                          "forward solves at its posterior do not fit better; the surrogate "
