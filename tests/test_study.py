@@ -99,3 +99,16 @@ def test_run_lock_is_exclusive_and_dies_with_its_holder(tmp_path):
             assert time.monotonic() < end
             time.sleep(0.05)
     assert hold_run_lock(tmp_path, "s") == tmp_path / ".run.lock"  # held: a no-op
+
+
+def test_the_workflow_schemas_are_the_packaged_schemas():
+    """workflow/schemas/ (what Snakemake users look at) links to the schemas the library
+    validates with; an edit must change both, or defaults would silently differ."""
+    from pathlib import Path
+
+    repo = Path(__file__).resolve().parents[1]
+    packaged = repo / "src" / "bayescalib" / "schemas"
+    shown = sorted((repo / "workflow" / "schemas").glob("*.yaml"))
+    assert [p.name for p in shown] == sorted(p.name for p in packaged.glob("*.yaml"))
+    for p in shown:
+        assert p.read_text() == (packaged / p.name).read_text(), p.name
