@@ -90,3 +90,47 @@ def test_bad_arguments_are_named(kw, match):
     args.update(kw)
     with pytest.raises(ValueError, match=match):
         refinement_points(**args)
+
+
+def test_rounds_stop_once_the_posterior_settles_and_at_most_max_rounds(monkeypatch):
+    """refine_calibration's stopping rule, with the solves, surrogate and SMC replaced by
+    a calibration whose posterior mean of E moves by 10, 3, 0.5 and 0.1 sd (sd 10 Pa)."""
+    import bayescalib.diagnosis.extended as ext
+    from bayescalib import posterior
+    from bayescalib.smc import SMCResult
+
+    means = iter([500.0, 470.0, 465.0, 464.0])
+    calls = []
+
+    def fake_calibrate(*, parameters, X_new, reused, workdir, **_):
+        calls.append((len(X_new), len(reused["X"]), str(workdir)))
+        m = next(means)
+        return {"parameters": parameters, "training": "t.h5", "particles": "p.h5",
+                "log_evidence": 0.0, "n_new": len(X_new), "n_failed": 0,
+                "posterior": {"mean": {"E": m}, "std": {"E": 10.0}}}
+
+    X = np.full((20, 1), 400.0)
+    monkeypatch.setattr(ext, "calibrate_with_points", fake_calibrate)
+    monkeypatch.setattr(ext, "training_rows", lambda _: {"X": np.zeros((3, 1))})
+    monkeypatch.setattr(posterior, "read_particles_h5", lambda _: SMCResult(
+        particles=X, weights=np.full(20, 0.05), loglik=np.zeros(20), logprior=np.zeros(20),
+        log_evidence=0.0, n_steps=1, n_loglik_evals=1, history={}))
+    start = {"parameters": [{"name": "E", "unit": "Pa", "prior": {"type": "uniform", "lo": 100.0,
+                                                                   "hi": 800.0}}],
+             "training": "t.h5", "particles": "p.h5", "log_evidence": 0.0,
+             "posterior": {"mean": {"E": 400.0}, "std": {"E": 10.0}}}
+
+    _, hist = ext.refine_calibration(start, max_rounds=10, n_points=4, tol=1.0, seed=0,
+                                     switches={}, workdir="w")
+    assert [h["shift_sd"] for h in hist] == [None, 10.0, 3.0, 0.5]  # stops at <= 1 sd
+    assert [c[0] for c in calls] == [4, 4, 4] and calls[0][2].endswith("round_1")
+
+    means = iter([500.0, 470.0, 465.0, 464.0])
+    calls.clear()
+    _, hist = ext.refine_calibration(start, max_rounds=2, n_points=4, tol=1.0, seed=0,
+                                     switches={}, workdir="w")
+    assert len(hist) == 3 and hist[-1]["shift_sd"] == 3.0  # capped, not settled
+
+    _, hist = ext.refine_calibration(start, max_rounds=0, n_points=4, tol=1.0, seed=0,
+                                     switches={}, workdir="w")
+    assert len(hist) == 1 and len(calls) == 2  # off: the calibration as given

@@ -167,12 +167,12 @@ def calibrate_with_points(
             "surrogate": str(surrogate_path)}
 
 
-def training_rows(training: str | Path, train_only: bool = True) -> dict[str, Any]:
-    """The rows of a training table (by default only those used for training)."""
+def training_rows(training: str | Path) -> dict[str, Any]:
+    """The rows of a training table that are used for training."""
     from bayescalib.pipeline import read_training
 
     tab = read_training(training)
-    use = tab["is_train"].astype(bool) if train_only else np.ones(len(tab["loglik"]), bool)
+    use = tab["is_train"].astype(bool)
     return {"X": tab["X"][use], "loglik": tab["loglik"][use], "D": tab["D"][use],
             "status": tab["status"][use],
             "reason": [r for r, u in zip(tab["reason"], use, strict=True) if u]}

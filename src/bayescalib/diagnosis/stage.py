@@ -183,9 +183,8 @@ def run_diagnosis(
               "measure": measure, "likelihood": likelihood, "surrogate": surrogate,
               "smc_cfg": smc_cfg, "posterior_cfg": posterior_cfg, "workers": workers,
               "warm_start": warm_start}
-    refine = dict(cfg.get("refine") or {})
-    rounds, n_refine = int(refine.get("max_rounds", 0)), int(refine.get("n_points", 16))
-    tol = float(refine.get("tol", 1.0))
+    rounds, n_refine = int(cfg["refine"]["max_rounds"]), int(cfg["refine"]["n_points"])
+    tol = float(cfg["refine"]["tol"])
 
     # 0: refine the base calibration ---------------------------------------------
     base_cal = {"parameters": [dict(p) for p in parameters], "training": str(training_path),
@@ -193,8 +192,8 @@ def run_diagnosis(
                 "log_evidence": float(read_particles_h5(particles_path).log_evidence),
                 "posterior": json.loads(Path(posterior_path).read_text())}
     base_cal, base_history = refine_calibration(
-        base_cal, max_rounds=rounds, n_points=n_refine, tol=tol, seed=int(cfg["seed"]) + 2, switches={},
-        workdir=work / "base" / "refine", **common)
+        base_cal, max_rounds=rounds, n_points=n_refine, tol=tol, seed=int(cfg["seed"]) + 2,
+        switches={}, workdir=work / "base" / "refine", **common)
     particles_path, training_path = base_cal["particles"], base_cal["training"]
     base_summary = base_cal["posterior"]
     sigma = cfg.get("noise_sigma")
@@ -393,7 +392,7 @@ def plain_words(d: Mapping[str, Any]) -> list[str]:
                 f"{ref['tol']:g} posterior sd: the surrogate agrees with the solves where the "
                 "posterior lives." if settled else
                 "The posterior still moved in the last round: the calibration may still be "
-                "limited by its surrogate (more refine.max_rounds or design.n_train)."))
+                "limited by its surrogate (more diagnose.refine.max_rounds or design.n_train)."))
     if chk["adequate"]:
         lines.append(
             f"The calibrated model reproduces the observed interface within its predictive "
