@@ -82,7 +82,7 @@ def convergence_study(
         err = gp.predict(Xt) - yt
         l2 = float(np.linalg.norm(err))
         loo = gp.loo_residuals()
-        ytr = gp.y_train
+        ytr = gp.loglik_train
         tr_spread = float(np.linalg.norm(ytr - ytr.mean())) or 1.0
         out["n_train"].append(n)
         out["n_used"].append(gp.n_train)

@@ -53,7 +53,8 @@ from scipy.special import logsumexp
 
 from .resampling import normalize_log_weights, systematic_resample
 
-__all__ = ["MINSON_A", "MINSON_B", "SMCResult", "next_gamma", "run_smc", "weighted_cov"]
+__all__ = ["MINSON_A", "MINSON_B", "SMCResult", "next_gamma", "run_smc", "smc_from_config",
+           "weighted_cov"]
 
 log = logging.getLogger(__name__)
 
@@ -425,3 +426,12 @@ def run_smc(
         n_loglik_evals=n_evals,
         names=names,
     )
+
+
+def smc_from_config(loglik: Callable[[np.ndarray], np.ndarray], space: Any,
+                    smc: dict[str, Any]) -> SMCResult:
+    """:func:`run_smc` with the settings of a validated ``smc`` config section
+    (its ``seed`` seeds the generator)."""
+    return run_smc(loglik, space, n_particles=smc["n_particles"], n_rej=smc["n_rej"],
+                   zeta=smc["zeta"], ess_min_ratio=smc["ess_min_ratio"],
+                   max_steps=smc["max_steps"], rng=np.random.default_rng(smc["seed"]))

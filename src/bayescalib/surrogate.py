@@ -27,6 +27,22 @@ Training (eq. gploglikeli)
     evidence wins. Failed forward runs (non-finite L) are excluded before
     training; their number is kept in ``n_excluded``.
 
+Log-misfit warping (``bound``; the default of the pipeline)
+    The Gaussian log-likelihood (eq. loglik) is L = B - Phi with the known
+    upper bound B = -n/2 log(2 pi sigma_N^2) and the misfit Phi = D^2 / (2
+    sigma_N^2) >= 0. With ``bound=B`` the GP models the warped output
+    g = log(1 + Phi) = log(1 + B - L) instead of L, and predictions map back
+    through L = B - expm1(max(g, 0)). Hence (i) the surrogate never exceeds the
+    bound, so neither does the SMC log-evidence; (ii) the many orders of
+    magnitude that Phi spans over a prior box (sharply peaked likelihoods) are
+    compressed to a few units of g, where a stationary GP fits well; (iii) far
+    from the data the GP reverts to its constant mean, which is placed *above*
+    the largest g (m = max(g) + f_m (max(g) - min(g))): a low likelihood, never a
+    spurious mode between training points. This is the log-discrepancy model of
+    GP-accelerated ABC (Wilkinson 2014; Jarvenpaa et al. 2018), applied to the
+    Gaussian likelihood's misfit. The latent variance maps to the likelihood
+    scale by the delta method, var(L) = exp(2 g) var(g).
+
 Prediction (eq. posterior_gp)
     mean(x*) = m + k*^T (K + sigma_n^2 I)^{-1} (L - m)
     var(x*)  = k(x*, x*) - k*^T (K + sigma_n^2 I)^{-1} k*     (latent, noise-free)
@@ -67,12 +83,12 @@ import numpy as np
 
 from ._atomic_write import atomic_path
 
-__all__ = ["GPSurrogate", "fit_gp", "matern32"]
+__all__ = ["GPSurrogate", "fit_from_config", "fit_gp", "matern32"]
 
 log = logging.getLogger(__name__)
 
 _SQRT3 = math.sqrt(3.0)
-_FORMAT_VERSION = 1
+_FORMAT_VERSION = 2
 _GEMM_SINGLE_THREAD_MNK = 2**18
 
 
@@ -118,7 +134,8 @@ class GPSurrogate:
     Attributes
     ----------
     X_train : (n, d) training inputs in user units (failed runs removed).
-    y_train : (n,) training log-likelihoods.
+    y_train : (n,) GP targets: the log-likelihoods, or their warped values
+        g = log(1 + bound - L) when ``bound`` is set (see :attr:`loglik_train`).
     shift, scale : (d,) input scaling u = (x - shift) / scale.
     mean_const : constant prior mean m.
     nugget : fixed nugget variance sigma_n^2.
@@ -130,6 +147,10 @@ class GPSurrogate:
     optimizer, restarts : training settings (metadata).
     chol : (n, n) lower Cholesky factor of K + sigma_n^2 I.
     alpha : (n,) (K + sigma_n^2 I)^{-1} (y - m).
+    bound : upper bound B of the log-likelihood (None: unknown). Predictions never
+        exceed it.
+    warp : the GP models the log-misfit g = log(1 + B - L) (``y_train`` holds g);
+        otherwise it models L and predictions are capped at ``bound``.
     """
 
     X_train: np.ndarray
@@ -151,6 +172,8 @@ class GPSurrogate:
     chunk_entries: int = 4_000_000
     cpu_chunk_entries: int = 65536
     threads: int = 1
+    bound: float | None = None
+    warp: bool = False
     _cache: dict[str, Any] = field(default_factory=dict, repr=False)
 
     def __post_init__(self) -> None:
@@ -177,6 +200,32 @@ class GPSurrogate:
         return int(self.X_train.shape[1])
 
     @property
+    def warped(self) -> bool:
+        """True when the GP models the log-misfit g = log(1 + bound - L)."""
+        return bool(self.warp) and self.bound is not None
+
+    @property
+    def loglik_train(self) -> np.ndarray:
+        """Training log-likelihoods L (n,), whatever the GP's output transform."""
+        return self.loglik_from_latent(self.y_train)
+
+    def loglik_from_latent(self, g: np.ndarray) -> np.ndarray:
+        """Map latent GP values to log-likelihoods: L = B - expm1(max(g, 0)) if warped."""
+        g = np.asarray(g, float)
+        if self.warped:
+            return self.bound - np.expm1(np.maximum(g, 0.0))
+        if self.bound is not None:
+            return np.minimum(g, self.bound)
+        return g
+
+    def latent_from_loglik(self, L: np.ndarray) -> np.ndarray:
+        """Inverse of :meth:`loglik_from_latent` (values above the bound map to g = 0)."""
+        L = np.asarray(L, float)
+        if not self.warped:
+            return L
+        return np.log1p(np.maximum(self.bound - L, 0.0))
+
+    @property
     def hyperparameters(self) -> dict[str, Any]:
         """Kernel variance, length scale(s), mean, nugget (JSON-serializable)."""
         return {
@@ -189,6 +238,8 @@ class GPSurrogate:
             "log_marginal_likelihood": float(self.log_marginal_likelihood),
             "input_shift": [float(v) for v in self.shift],
             "input_scale": [float(v) for v in self.scale],
+            "output": "log_misfit" if self.warped else "loglik",
+            "bound": None if self.bound is None else float(self.bound),
         }
 
     def scale_inputs(self, X: np.ndarray) -> np.ndarray:
@@ -307,7 +358,10 @@ class GPSurrogate:
     def predict(
         self, X: np.ndarray, return_var: bool = False
     ) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
-        """Posterior mean (and latent variance) of the log-likelihood (eq. posterior_gp).
+        """Posterior mean (and variance) of the log-likelihood (eq. posterior_gp).
+
+        With the log-misfit warping the mean is B - expm1(max(mean_g, 0)) (never
+        above the bound B) and the variance exp(2 mean_g) var_g (delta method).
 
         Parameters
         ----------
@@ -321,6 +375,21 @@ class GPSurrogate:
         mean : (M,) in units of log-likelihood
         var : (M,), only if ``return_var``
         """
+        if not self.warped:
+            if not return_var:
+                return self.loglik_from_latent(self.predict_latent(X))
+            g, var_g = self.predict_latent(X, True)
+            return self.loglik_from_latent(g), var_g
+        if not return_var:
+            return self.loglik_from_latent(self.predict_latent(X))
+        g, var_g = self.predict_latent(X, True)
+        return self.loglik_from_latent(g), np.exp(2.0 * np.maximum(g, 0.0)) * var_g
+
+    def predict_latent(
+        self, X: np.ndarray, return_var: bool = False
+    ) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
+        """Posterior mean (and latent variance) of the GP itself, in the units of
+        ``y_train`` (the warped output g when ``bound`` is set), shapes (M,)."""
         X = np.asarray(X, float)
         if X.ndim == 1:
             X = X[None, :]
@@ -333,6 +402,19 @@ class GPSurrogate:
         if return_var:
             return mean, var
         return mean
+
+    def latent_cov_factor(self, X: np.ndarray) -> np.ndarray:
+        """V = L^{-1} k(X_train, X), shape (n, M), for posterior covariances of the
+        latent GP: cov(a, b) = k(a, b) - V_a^T V_b (batch acquisition)."""
+        from scipy.linalg import solve_triangular
+
+        K = self.latent_kernel(self.X_train, X)
+        return solve_triangular(self.chol, K, lower=True, check_finite=False)
+
+    def latent_kernel(self, A: np.ndarray, B: np.ndarray) -> np.ndarray:
+        """Prior kernel matrix k(A, B) of the latent GP (inputs in user units), (m, n)."""
+        return matern32(self.scale_inputs(A), self.scale_inputs(B), self.variance,
+                        self.lengthscale)
 
     __call__ = predict
 
@@ -356,7 +438,10 @@ class GPSurrogate:
         """Prediction through GPy itself (slow reference; for tests and benchmarks)."""
         model = self.gpy_model() if model is None else model
         mu, var = model.predict_noiseless(self.scale_inputs(np.atleast_2d(X)))
-        return (mu[:, 0], var[:, 0]) if return_var else mu[:, 0]
+        mu, var = mu[:, 0], var[:, 0]
+        if self.warped:
+            mu, var = self.loglik_from_latent(mu), np.exp(2.0 * np.maximum(mu, 0.0)) * var
+        return (mu, var) if return_var else mu
 
     # ------------------------------------------------------------------
     def save(self, path: str | Path) -> None:
@@ -380,6 +465,8 @@ class GPSurrogate:
             f.attrs["n_excluded"] = int(self.n_excluded)
             f.attrs["optimizer"] = self.optimizer
             f.attrs["restarts"] = int(self.restarts)
+            f.attrs["bound"] = float("nan") if self.bound is None else float(self.bound)
+            f.attrs["warp"] = bool(self.warp)
 
     @classmethod
     def load(cls, path: str | Path, device: str = "auto") -> GPSurrogate:
@@ -406,6 +493,8 @@ class GPSurrogate:
                 chol=f["chol"][()],
                 alpha=f["alpha"][()],
                 device=device,
+                bound=_bound_attr(f.attrs.get("bound")),
+                warp=bool(f.attrs.get("warp", False)),
             )
 
     def loo_residuals(self) -> np.ndarray:
@@ -417,6 +506,13 @@ class GPSurrogate:
 
         Kinv = cho_solve((self.chol, True), np.eye(self.n_train))
         return self.alpha / np.diag(Kinv)
+
+
+def _bound_attr(value: Any) -> float | None:
+    """The stored bound attribute (NaN or absent: no warping; format version 1)."""
+    if value is None or not math.isfinite(float(value)):
+        return None
+    return float(value)
 
 
 def _build_gpy(U, y, mean_const, variance, lengthscale, nugget, ard):
@@ -452,6 +548,8 @@ def fit_gp(
     nugget_factor: float = 1e-5,
     max_iters: int = 1000,
     device: str = "auto",
+    bound: float | None = None,
+    warp: bool = True,
 ) -> GPSurrogate:
     """Train the GP surrogate of the log-likelihood (paper Sec. 3.2, App. D).
 
@@ -471,11 +569,19 @@ def fit_gp(
         (d, 2) design box for the input scaling; default: min/max of ``X``.
     mean_offset_factor, nugget_factor
         m = min(y) - mean_offset_factor * (max(y) - min(y));
-        sigma_n^2 = nugget_factor * (max(y) - min(y)) (fixed).
+        sigma_n^2 = nugget_factor * (max(y) - min(y)) (fixed). With ``bound``
+        the same rules act on the warped values g, with the mean placed above
+        them: m = max(g) + mean_offset_factor * (max(g) - min(g)).
     max_iters
         Iteration limit of each optimizer run.
     device
         Torch device of the fast predictor ("auto": CUDA when available).
+    bound
+        Known upper bound B of the log-likelihood; predictions never exceed it.
+        None: unknown (the paper's surrogate, uncapped).
+    warp
+        With a ``bound``: model the log-misfit g = log(1 + B - y) (module
+        docstring; values above B from round-off count as g = 0) instead of y.
 
     Returns
     -------
@@ -508,10 +614,20 @@ def fit_gp(
         scale = X.max(0) - shift
     scale = np.where(scale > 0, scale, 1.0)
     U = (X - shift) / scale
+    if bound is not None:
+        if not math.isfinite(float(bound)):
+            raise ValueError(f"bound must be finite, got {bound!r}")
+        bound = float(bound)
+    warp = bool(warp and bound is not None)
+    if warp:
+        y = np.log1p(np.maximum(bound - y, 0.0))
     y_range = float(y.max() - y.min())
     if y_range <= 0:
         y_range = max(abs(float(y.max())), 1.0)
-    mean_const = float(y.min() - mean_offset_factor * y_range)
+    if not warp:  # far from the data: below every observed log-likelihood
+        mean_const = float(y.min() - mean_offset_factor * y_range)
+    else:  # far from the data: above every observed misfit
+        mean_const = float(y.max() + mean_offset_factor * y_range)
     nugget = float(nugget_factor * y_range)
 
     v0 = float(np.mean((y - mean_const) ** 2))
@@ -557,4 +673,37 @@ def fit_gp(
         optimizer=optimizer,
         restarts=restarts,
         device=device,
+        bound=bound,
+        warp=warp,
     )
+
+
+def fit_from_config(X: np.ndarray, y: np.ndarray, surrogate: dict[str, Any],
+                    bounds: np.ndarray, *, bound: float | None = None) -> GPSurrogate:
+    """:func:`fit_gp` with the settings of a validated ``surrogate`` config section.
+
+    ``surrogate["output"]`` chooses what the GP models when the log-likelihood's
+    upper bound ``bound`` is known: ``log_misfit`` (the warped output), ``loglik``
+    (L itself, capped at the bound), or ``auto``: both are fitted and the one with
+    the larger evidence *of the log-likelihood values* wins. The warped model's
+    evidence is carried to the units of L by the Jacobian of the warping,
+    log p(L) = log p(g) + sum_i log|dg/dL|_i = log p(g) - sum_i g_i (warped GPs,
+    Snelson et al. 2004), so the two evidences compare like with like. Without a
+    bound the GP models L (the paper's surrogate).
+    """
+    kw = dict(ard=surrogate["ard"], optimizer=surrogate["optimizer"],
+              restarts=surrogate["restarts"], seed=surrogate["seed"], bounds=bounds,
+              mean_offset_factor=surrogate["mean_offset_factor"],
+              nugget_factor=surrogate["nugget_factor"], bound=bound)
+    output = surrogate["output"]
+    if bound is None or output == "loglik":
+        return fit_gp(X, y, warp=False, **kw)
+    if output == "log_misfit":
+        return fit_gp(X, y, warp=True, **kw)
+    plain = fit_gp(X, y, warp=False, **kw)
+    warped = fit_gp(X, y, warp=True, **kw)
+    ev_plain = plain.log_marginal_likelihood
+    ev_warped = warped.log_marginal_likelihood - float(np.sum(warped.y_train))
+    log.info("surrogate output: evidence of L %.6g as log-misfit, %.6g as L -> %s",
+             ev_warped, ev_plain, "log-misfit" if ev_warped >= ev_plain else "L")
+    return warped if ev_warped >= ev_plain else plain
