@@ -37,12 +37,28 @@ onstart:
 
 wildcard_constraints:
     i=r"\d+",
+    r=r"\d+",
     k=r"\d+",
     measure=r"euclidean|cpp|rkhs",
 
 report: "workflow/report/workflow.rst"
 
+
+onsuccess:
+    # one plain line: the posterior, whether it converged, the solves used
+    from pathlib import Path as _Path
+
+    _summary = _Path(R, "summary.json")
+    if _summary.is_file():
+        from bayescalib.pipeline import read_json, run_line
+
+        _s = read_json(_summary)
+        print(run_line(_s), flush=True)
+        if (_s.get("design") or {}).get("converged") is False:
+            print("WARNING: " + _s["design"]["reason"], flush=True)
+
 include: "workflow/rules/observe.smk"
+include: "workflow/rules/active.smk"
 include: "workflow/rules/solve.smk"
 include: "workflow/rules/discrepancy.smk"
 include: "workflow/rules/surrogate.smk"

@@ -1,12 +1,7 @@
-"""Rule `gather`: the training table of one measure."""
+"""Rules `gather` and `gather_round`: a training table (one measure)."""
 from bayescalib.pipeline import gather, setup_logging
 
-setup_logging(snakemake.log[0])  # noqa: F821
-gather(
-    snakemake.input.runs,  # noqa: F821
-    snakemake.input.disc,  # noqa: F821
-    snakemake.params.names,  # noqa: F821
-    snakemake.params.targets,  # noqa: F821
-    snakemake.params.n_train,  # noqa: F821
-    snakemake.output[0],  # noqa: F821
-)
+sm = snakemake  # noqa: F821
+setup_logging(sm.log[0])
+gather(sm.input.runs, sm.input.disc, sm.params.names, sm.params.targets, sm.params.n_train,
+       sm.output[0])

@@ -1,16 +1,11 @@
 """Rule `summary`: summary.json of the study."""
-from bayescalib.pipeline import collect_timings, setup_logging, summary
+from bayescalib.pipeline import collect_timings, design_summary, setup_logging, summary
 
-setup_logging(snakemake.log[0])  # noqa: F821
-summary(
-    snakemake.params.study,  # noqa: F821
-    snakemake.params.parameters,  # noqa: F821
-    snakemake.params.measures,  # noqa: F821
-    snakemake.input.posterior,  # noqa: F821
-    snakemake.input.training,  # noqa: F821
-    snakemake.input.particles,  # noqa: F821
-    snakemake.params.figure_map,  # noqa: F821
-    snakemake.output[0],  # noqa: F821
-    extra={"timings_s": collect_timings(snakemake.params.root),  # noqa: F821
-           "convergence": list(snakemake.input.convergence)},  # noqa: F821
-)
+sm = snakemake  # noqa: F821
+setup_logging(sm.log[0])
+extra = {"design": design_summary(sm.params.strategy, sm.input.active, sm.params.n_solves),
+         "timings_s": collect_timings(sm.params.root)}
+if sm.input.convergence:
+    extra["gp_convergence"] = list(sm.input.convergence)
+summary(sm.params.study, sm.params.parameters, sm.params.measures, sm.input.posterior,
+        sm.input.training, sm.input.particles, sm.params.figure_map, sm.output[0], extra=extra)

@@ -14,6 +14,7 @@ Stages (paper Sec. 3, Fig. "workflow"):
 ``train``          GP surrogate of the log-likelihood
 ``convergence``    GP error over n_train on held-out Sobol points
 ``smc``            SMC particles on the surrogate
+``acquire``        active design: checks, stop rule and next batch of a round
 ``marginalize``    posterior summaries and ArviZ export
 """
 
@@ -33,6 +34,7 @@ from bayescalib._atomic_write import atomic_path
 
 __all__ = [
     "PipelineError",
+    "acquire",
     "convergence",
     "discrepancy",
     "gather",
@@ -42,6 +44,8 @@ __all__ = [
     "read_training",
     "smc",
     "train",
+    "design_summary",
+    "run_line",
     "write_json",
 ]
 
@@ -301,15 +305,19 @@ def _measure_options(name: str, measure: Mapping[str, Any], obs) -> dict[str, An
 
 # --------------------------------------------------------------------------- gather
 def gather(run_paths: Sequence[str | Path], disc_paths: Sequence[str | Path],
-           names: Sequence[str], targets: Sequence[str], n_train: int,
+           names: Sequence[str], targets: Sequence[str], n_train: int | None,
            out_path: str | Path) -> None:
     """Training table of all design points for one measure (HDF5).
 
     Datasets: ``X (n, d)`` inputs in user units (columns = parameter names),
     ``loglik (n,)`` (-inf for failed runs), ``D (n,)``, ``status`` (1 ok, 0
     failed), ``is_train`` (first ``n_train`` points; the rest are held out for
-    the convergence study), ``reason`` (str per point).
+    the convergence study; ``n_train=None``: all), ``reason`` (str per point),
+    ``bound (n,)``: the largest value the point's Gaussian log-likelihood can take,
+    -n/2 log(2 pi sigma_N^2) summed over snapshots (NaN for failed runs).
     """
+    from bayescalib.likelihood import gaussian_loglik
+
     if len(run_paths) != len(disc_paths):
         raise PipelineError("gather: the number of run records and discrepancy files differ")
     n, d = len(run_paths), len(names)
@@ -317,6 +325,7 @@ def gather(run_paths: Sequence[str | Path], disc_paths: Sequence[str | Path],
     L = np.full(n, -np.inf)
     D = np.full(n, np.nan)
     ok = np.zeros(n, dtype=np.int8)
+    bound = np.full(n, np.nan)
     reasons: list[str] = []
     for i, (rp, dp) in enumerate(zip(run_paths, disc_paths, strict=True)):
         run = _read_run_checked(rp)
@@ -331,13 +340,17 @@ def gather(run_paths: Sequence[str | Path], disc_paths: Sequence[str | Path],
             L[i] = float(rec["loglik"])
             D[i] = float(rec["D"])
             ok[i] = 1
+            if rec.get("sigma_n2") and rec.get("snapshots"):
+                bound[i] = sum(gaussian_loglik(0.0, s["n"], rec["sigma_n2"])
+                               for s in rec["snapshots"])
         reasons.append(run.reason or rec.get("reason") or "")
-    write_training(out_path, X, L, D, ok, reasons, names, n_train)
+    write_training(out_path, X, L, D, ok, reasons, names, n if n_train is None else n_train,
+                   bound=bound)
 
 
 def write_training(out_path: str | Path, X: np.ndarray, L: np.ndarray, D: np.ndarray,
                    ok: np.ndarray, reasons: Sequence[str], names: Sequence[str],
-                   n_train: int) -> None:
+                   n_train: int, *, bound: np.ndarray | None = None) -> None:
     """Write a training table (layout of :func:`gather`) atomically."""
     import h5py
 
@@ -348,6 +361,7 @@ def write_training(out_path: str | Path, X: np.ndarray, L: np.ndarray, D: np.nda
         f["D"] = np.asarray(D, dtype=float)
         f["status"] = np.asarray(ok, dtype=np.int8)
         f["is_train"] = (np.arange(n) < n_train).astype(np.int8)
+        f["bound"] = np.full(n, np.nan) if bound is None else np.asarray(bound, dtype=float)
         f.create_dataset("reason", data=np.array(list(reasons), dtype=object),
                          dtype=h5py.string_dtype())
         f.attrs["names"] = json.dumps(list(names))
@@ -363,6 +377,7 @@ def read_training(path: str | Path) -> dict[str, Any]:
 
     with h5py.File(path, "r") as f:
         out = {k: f[k][...] for k in ("X", "loglik", "D", "status", "is_train")}
+        out["bound"] = f["bound"][...] if "bound" in f else np.full(len(out["loglik"]), np.nan)
         out["reason"] = [r.decode() if isinstance(r, bytes) else str(r) for r in f["reason"][...]]
         out["names"] = json.loads(f.attrs["names"])
         out["n_train"] = int(f.attrs["n_train"])
@@ -380,7 +395,7 @@ def _space(parameters: Sequence[Mapping[str, Any]]):
 def train(training_path: str | Path, surrogate: Mapping[str, Any],
           parameters: Sequence[Mapping[str, Any]], out_path: str | Path) -> None:
     """Fit the GP surrogate on the training points (failed runs left out)."""
-    from bayescalib.surrogate import fit_gp
+    from bayescalib.surrogate import fit_from_config
 
     tab = read_training(training_path)
     train_mask = tab["is_train"].astype(bool)
@@ -401,11 +416,9 @@ def train(training_path: str | Path, surrogate: Mapping[str, Any],
         )
     _check_distinct(X, finite, tab["names"])
     space = _space(parameters)
+    bound = loglik_bound(tab, train_mask)
     try:
-        gp = fit_gp(X, L, ard=surrogate["ard"], optimizer=surrogate["optimizer"],
-                    restarts=surrogate["restarts"], seed=surrogate["seed"], bounds=space.bounds,
-                    mean_offset_factor=surrogate["mean_offset_factor"],
-                    nugget_factor=surrogate["nugget_factor"])
+        gp = fit_from_config(X, L, surrogate, space.bounds, bound=bound)
     except (RuntimeError, ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:
         Lf = L[finite]
         raise PipelineError(
@@ -420,6 +433,16 @@ def train(training_path: str | Path, surrogate: Mapping[str, Any],
     gp.save(out_path)
     log.info("GP surrogate on %d points (%d excluded): %s", gp.n_train, gp.n_excluded,
              gp.hyperparameters)
+
+
+def loglik_bound(tab: Mapping[str, Any], use: np.ndarray | None = None) -> float | None:
+    """Upper bound of the log-likelihood over the training table's points (the
+    largest per-point bound), or None when the table has none (older tables)."""
+    b = np.asarray(tab["bound"], float)
+    if use is not None:
+        b = b[np.asarray(use, bool)]
+    b = b[np.isfinite(b)]
+    return float(b.max()) if b.size else None
 
 
 def _check_distinct(X: np.ndarray, use: np.ndarray, names: Sequence[str]) -> None:
@@ -465,19 +488,41 @@ def smc(surrogate_path: str | Path, smc_cfg: Mapping[str, Any],
         parameters: Sequence[Mapping[str, Any]], out_path: str | Path) -> None:
     """Run SMC with adaptive tempering on the GP mean of the log-likelihood."""
     from bayescalib.posterior import write_particles_h5
-    from bayescalib.smc import run_smc
+    from bayescalib.smc import smc_from_config
     from bayescalib.surrogate import GPSurrogate
 
     gp = GPSurrogate.load(surrogate_path)
     space = _space(parameters)
 
-    result = run_smc(
-        lambda X: gp.predict(X), space, n_particles=smc_cfg["n_particles"],
-        n_rej=smc_cfg["n_rej"], zeta=smc_cfg["zeta"], ess_min_ratio=smc_cfg["ess_min_ratio"],
-        rng=np.random.default_rng(smc_cfg["seed"]),
-    )
+    result = smc_from_config(gp.predict, space, smc_cfg)
     write_particles_h5(out_path, result, space)
     log.info("SMC done: %d steps, log evidence %.4f", result.n_steps, result.log_evidence)
+
+
+def acquire(round_index: int, training_path: str | Path, surrogate_path: str | Path,
+            particles_path: str | Path, previous_path: str | Path | None,
+            active: Mapping[str, Any], parameters: Sequence[Mapping[str, Any]],
+            out_path: str | Path) -> dict[str, Any]:
+    """Active design, end of round ``round_index``: trust check, posterior change,
+    stop rule and the next batch (:func:`bayescalib.active.acquire_round`), as JSON."""
+    from bayescalib.active import acquire_round
+    from bayescalib.posterior import read_particles_h5
+    from bayescalib.surrogate import GPSurrogate
+
+    tab = read_training(training_path)
+    gp = GPSurrogate.load(surrogate_path)
+    res = read_particles_h5(particles_path)
+    previous = None if previous_path is None else read_json(previous_path)
+    try:
+        rec = acquire_round(int(round_index), tab["X"], tab["loglik"], gp, res.particles,
+                            res.weights, res.log_evidence, _space(parameters), active, previous)
+    except ValueError as exc:
+        raise PipelineError(f"active round {round_index}: {exc}. Delete results/<study>/active "
+                            "and the runs of the active rounds, then rerun.") from None
+    rec["surrogate_output"] = gp.hyperparameters["output"]
+    write_json(out_path, rec)
+    log.info("active round %d (%d solves): %s", round_index, rec["n_solves"], rec["reason"])
+    return rec
 
 
 def marginalize(particles_path: str | Path, surrogate_path: str | Path,
@@ -549,6 +594,7 @@ def summary(study_name: str, parameters: Sequence[Mapping[str, Any]], measures: 
         "n_train": primary["n_train"],
         "n_failed": primary["n_failed"],
         "ground_truth": truth if all(v is not None for v in truth.values()) else None,
+        "converged": (extra or {}).get("design", {}).get("converged"),
         "measures": per_measure,
         "figures": dict(figures),
     }
@@ -557,6 +603,56 @@ def summary(study_name: str, parameters: Sequence[Mapping[str, Any]], measures: 
     write_json(out_path, out)
     log.info("summary of %s (%s) -> %s", study_name, ", ".join(names), out_path)
     return out
+
+
+def design_summary(strategy: str, acquire_paths: Sequence[str | Path],
+                   n_solves: int) -> dict[str, Any]:
+    """The ``design`` block of summary.json: how the solves were chosen and whether
+    the calibration converged (active design), with the per-round history.
+
+    A fixed design has no convergence check: ``converged`` is None and the reason
+    says so.
+    """
+    from bayescalib.active import history_table
+
+    if strategy != "active":
+        return {"strategy": strategy, "n_solves": int(n_solves), "converged": None,
+                "reason": "fixed design (design.strategy: fixed): the surrogate was not "
+                          "checked against solves placed where the posterior lives, so "
+                          "nothing says whether this posterior has converged",
+                "rounds": []}
+    rounds = [read_json(p) for p in acquire_paths]
+    last = rounds[-1]
+    return {"strategy": "active", "n_solves": int(last["n_solves"]),
+            "n_failed": int(last["n_failed"]), "n_rounds": len(rounds),
+            "converged": bool(last["converged"]), "reason": last["reason"],
+            "surrogate_output": last.get("surrogate_output"),
+            "rounds": history_table(rounds)}
+
+
+def run_line(summary_json: Mapping[str, Any]) -> str:
+    """One plain line for the end of a run: posterior mean +- sd with units,
+    convergence, solves used and failed."""
+    names = [p["name"] for p in summary_json["parameters"]]
+    units = {p["name"]: p.get("unit", "-") for p in summary_json["parameters"]}
+    cov = np.asarray(summary_json["posterior_cov"], float)
+    sd = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    mean = summary_json["posterior_mean"]
+    parts = []
+    for k, name in enumerate(names):
+        unit = "" if units[name] in ("-", "") else f" {units[name]}"
+        parts.append(f"{name} = {mean[name]:.4g} +- {sd[k]:.2g}{unit}")
+    design = summary_json.get("design") or {}
+    n_solves = design.get("n_solves", summary_json.get("n_train"))
+    n_failed = design.get("n_failed", summary_json.get("n_failed"))
+    if design.get("converged") is True:
+        state = "converged"
+    elif design.get("converged") is False:
+        state = "NOT CONVERGED"
+    else:
+        state = "convergence not checked (fixed design)"
+    return (f"bayescalib {summary_json['study']}: {', '.join(parts)}; {state}; "
+            f"{n_solves} solves, {n_failed} failed")
 
 
 def collect_timings(root: str | Path) -> dict[str, Any]:

@@ -126,6 +126,17 @@ class Study:
                 f"{where}: forward_model.warm_start: '{fm['warm_start']}' needs forward_model.type fsi"
             )
         conv = cfg["convergence"]
+        if conv["enabled"] and cfg["design"]["strategy"] != "fixed":
+            raise ConfigError(
+                f"{where}: convergence.enabled needs design.strategy: fixed (the GP convergence "
+                "study refits on prefixes of a Sobol design and tests on held-out Sobol points)"
+            )
+        act = cfg["design"]["active"]
+        if cfg["design"]["strategy"] == "active" and act["n_initial"] > act["max_solves"]:
+            raise ConfigError(
+                f"{where}: design.active.n_initial ({act['n_initial']}) exceeds "
+                f"design.active.max_solves ({act['max_solves']})"
+            )
         if conv["enabled"] and max(conv["n_train"]) > cfg["design"]["n_train"]:
             raise ConfigError(
                 f"{where}: convergence.n_train: largest value {max(conv['n_train'])} exceeds "
@@ -231,8 +242,38 @@ class Study:
         return self.config["measures"][0]
 
     @property
+    def active(self) -> bool:
+        """True for the active design (rounds chosen by the posterior)."""
+        return self.config["design"]["strategy"] == "active"
+
+    @property
     def n_train(self) -> int:
+        """Training points of the fixed design; for the active design, its budget."""
+        if self.active:
+            return int(self.config["design"]["active"]["max_solves"])
         return int(self.config["design"]["n_train"])
+
+    @property
+    def n_sobol(self) -> int:
+        """Points taken from the Sobol sequence: the whole fixed design (with its
+        held-out test points), or round 0 of the active design."""
+        if self.active:
+            return int(self.config["design"]["active"]["n_initial"])
+        return self.n_points
+
+    def round_size(self, r: int) -> int:
+        """Number of design points after active round ``r`` (0-based)."""
+        from bayescalib.active import round_sizes
+
+        a = self.config["design"]["active"]
+        return round_sizes(a["n_initial"], a["batch_size"], a["max_solves"], int(r) + 1)[-1]
+
+    def point_round(self, i: int) -> tuple[int, int]:
+        """(active round, position in its batch) of design point ``i``."""
+        from bayescalib.active import point_round
+
+        a = self.config["design"]["active"]
+        return point_round(int(i), a["n_initial"], a["batch_size"])
 
     @property
     def n_test(self) -> int:
@@ -256,15 +297,20 @@ class Study:
     def _design(self):
         from bayescalib.design import sobol_design
 
-        return sobol_design(self.space.bounds, self.n_points, self.config["design"]["seed"])
+        return sobol_design(self.space.bounds, self.n_sobol, self.config["design"]["seed"])
 
     def targets(self) -> list[str]:
         """Forward-model config key set by each parameter (its name if no target)."""
         return [p.get("target") or p["name"] for p in self.config["parameters"]]
 
     def point(self, i: int) -> dict[str, float]:
-        """Values of design point ``i`` keyed by target (plain floats)."""
-        row = self._design[int(i)]
+        """Values of Sobol design point ``i < n_sobol`` keyed by target (plain floats)."""
+        if not 0 <= int(i) < self.n_sobol:
+            raise IndexError(f"design point {i} is not one of the {self.n_sobol} Sobol points")
+        return self.point_values(self._design[int(i)])
+
+    def point_values(self, row) -> dict[str, float]:
+        """A design point's values (in parameter order) keyed by target."""
         return {t: float(v) for t, v in zip(self.targets(), row, strict=True)}
 
     def ground_truth(self) -> dict[str, float]:

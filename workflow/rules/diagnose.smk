@@ -45,7 +45,7 @@ rule diagnose:
         plots=study.config["plots"],
         outdir=f"{R}/diagnosis",
         figdir=f"{R}/figures/diagnosis",
-    threads: workflow.cores
+    threads: lambda wildcards: max(1, workflow.cores or 1)
     benchmark:
         f"{R}/benchmarks/diagnose.tsv"
     log:

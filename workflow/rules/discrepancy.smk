@@ -39,16 +39,14 @@ def _set_aside(wildcards):
 
 rule gather:
     input:
-        runs=expand(f"{R}/runs/{{i}}.h5", i=range(study.n_points)),
-        disc=lambda wc: expand(
-            f"{R}/discrepancy/{wc.measure}/{{i}}.json", i=range(study.n_points)
-        ),
+        runs=lambda wc: [f"{R}/runs/{i}.h5" for i in final_points()],
+        disc=lambda wc: [f"{R}/discrepancy/{wc.measure}/{i}.json" for i in final_points()],
     output:
         f"{R}/{{measure}}/training.h5",
     params:
         names=[p["name"] for p in study.config["parameters"]],
         targets=study.targets(),
-        n_train=study.n_train,
+        n_train=None if study.active else study.n_train,
         set_aside=_set_aside,
     benchmark:
         f"{R}/benchmarks/gather/{{measure}}.tsv"

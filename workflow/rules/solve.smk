@@ -2,12 +2,18 @@
 # params are the forward-model section and the values of point i only, so a
 # change of any downstream setting never reruns it, and growing the design
 # solves only the new points. A failed solve writes a failed-run record.
+# Points of active rounds are read from the round record that chose them
+# (active.smk).
 
 
 def _solve_inputs(wildcards):
+    out = {}
     if study.config["forward_model"]["warm_start"] == "prior_centre":
-        return {"base": f"{R}/runs/base_state.state.npz"}
-    return {}
+        out["base"] = f"{R}/runs/base_state.state.npz"
+    src = point_source(wildcards.i)  # active design: the round record that chose it
+    if src is not None:
+        out["chosen_by"] = ancient(src)
+    return out
 
 
 rule base_state:
@@ -36,7 +42,7 @@ rule solve:
         f"{R}/runs/{{i}}.h5",
     params:
         forward_model=study.forward_section(),
-        point=lambda wc: study.point(int(wc.i)),
+        point=lambda wc: point_values(wc.i),
     benchmark:
         f"{R}/benchmarks/solve/{{i}}.tsv"
     log:

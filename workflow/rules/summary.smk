@@ -11,6 +11,7 @@ rule summary:
         convergence=expand(f"{R}/{{measure}}/convergence.json", measure=study.measures)
         if study.config["convergence"]["enabled"]
         else [],
+        active=lambda wc: active_records(),
     output:
         report(f"{R}/summary.json", caption="../report/summary.rst", category="Summary"),
     params:
@@ -19,6 +20,8 @@ rule summary:
         measures=study.measures,
         figure_map=figure_map(),
         root=R,
+        strategy=study.config["design"]["strategy"],
+        n_solves=lambda wc: len(final_points()),
     log:
         f"{R}/logs/summary.log",
     script:

@@ -10,7 +10,6 @@ rule train_surrogate:
     params:
         surrogate=study.config["surrogate"],
         parameters=study.config["parameters"],
-        n_train=study.n_train,
     benchmark:
         f"{R}/benchmarks/train_surrogate/{{measure}}.tsv"
     log:
