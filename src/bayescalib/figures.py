@@ -13,6 +13,7 @@ plot setting reruns only the figures:
   marginals; parallel axes (paper Figs. sc_posteriors_twodim, 6D figures).
 * :func:`interface_figure` -- undeformed, observed and posterior-sample interfaces.
 * :func:`field_figure` -- velocity, pressure and displacement of the ground truth.
+* :func:`rounds_figure` -- active design: posterior and solves per round, stop-rule checks.
 """
 
 from __future__ import annotations
@@ -32,6 +33,7 @@ __all__ = [
     "posterior_draws",
     "posterior_figures",
     "response_figures",
+    "rounds_figure",
 ]
 
 
@@ -275,4 +277,45 @@ def field_figure(vtu_path: str | Path, run_path: str | Path, plots: Mapping[str,
         f["points"], f["triangles"], f["velocity"], f["pressure"], f["displacement"],
         _paths(stem, plots["formats"]), interface=np.asarray(run.interface_current),
         solid_mask_triangles=f["region"] > 0, dpi=plots["dpi"],
+    )
+
+
+def _shown_pair(space) -> list[int]:
+    """Indices of the two inputs shown in 2-D figures: the first two calibrated ones
+    (then uncertain conditions)."""
+    d = space.dim
+    cal = [i for i in range(d) if space.calibrated_mask[i]]
+    return (cal + [i for i in range(d) if i not in cal])[:2]
+
+
+def rounds_figure(acquire_paths: Sequence[str | Path], particles_paths: Sequence[str | Path],
+                  training_path: str | Path, parameters: Sequence[Mapping[str, Any]],
+                  active: Mapping[str, Any], plots: Mapping[str, Any],
+                  stem: str | Path) -> list[str]:
+    """Active design rounds (posterior draws, solves, chosen batches) and the stop
+    rule's checks per round; needs at least two parameters."""
+    from bayescalib.plotting.rounds import plot_rounds
+    from bayescalib.posterior import equal_weight_draws
+
+    space = _space(parameters)
+    if space.dim < 2:
+        raise ValueError("the rounds figure needs at least two parameters")
+    ix = _shown_pair(space)
+    recs = [read_json(p) for p in acquire_paths]
+    draws = [equal_weight_draws(p, 600, 0)[:, ix] for p in particles_paths]
+    tab = read_training(training_path)
+    X = tab["X"][:, ix]
+    failed = X[tab["status"] == 0]
+    batches = [np.asarray(r["next"]["points"], float)[:, ix] if "next" in r else None
+               for r in recs]
+    names, units = _labels(space)
+    truth = None if space.ground_truth is None else space.ground_truth[ix]
+    return plot_rounds(
+        draws, X, [r["n_solves"] for r in recs], batches,
+        [None if r["change"] is None else r["change"]["shift_sd"] for r in recs],
+        [None if r["trust"] is None else r["trust"]["max_abs_error"] for r in recs],
+        [names[i] for i in ix], [units[i] for i in ix], _paths(stem, plots["formats"]),
+        bounds=space.bounds[ix], shift_tol=active["stop"]["shift_tol"],
+        gp_tol=active["stop"]["gp_tol"], converged=bool(recs[-1]["converged"]),
+        truth=truth, failed=failed, dpi=plots["dpi"],
     )

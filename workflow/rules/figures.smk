@@ -24,6 +24,8 @@ def figure_map():
         out[f"{m}/parallel"] = _fig("parallel", m)
         if study.config["convergence"]["enabled"]:
             out[f"{m}/convergence"] = _fig("convergence", m)
+    if study.active and DIM >= 2:
+        out["rounds"] = _fig("rounds")
     if K > 0:
         out["interfaces"] = _fig("interfaces")
     if FIELDS:
@@ -179,3 +181,27 @@ rule fig_fields:
         f"{R}/benchmarks/figures/fields.tsv"
     script:
         "../../scripts/fig_fields.py"
+
+
+rule fig_rounds:
+    input:
+        records=lambda wc: active_records(),
+        particles=lambda wc: [f"{ACTIVE_DIR}/{r}/particles.h5" for r in range(final_round() + 1)],
+        training=f"{R}/{study.primary_measure}/training.h5",
+    output:
+        report(
+            [f"{R}/figures/rounds.{ext}" for ext in FMT],
+            caption="../report/rounds.rst",
+            category="Active design",
+        ),
+    params:
+        parameters=study.config["parameters"],
+        active=study.config["design"]["active"],
+        plots=study.config["plots"],
+        stem=f"{R}/figures/rounds",
+    log:
+        f"{R}/logs/fig_rounds.log",
+    benchmark:
+        f"{R}/benchmarks/figures/rounds.tsv"
+    script:
+        "../../scripts/fig_rounds.py"

@@ -1,0 +1,129 @@
+"""Active design rounds: where each round's posterior lay, where its solves went,
+and the two checks of the stop rule per round (:mod:`bayescalib.active`)."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+from matplotlib.figure import Figure
+
+from ._checks import PathsLike, as_names_units, as_paths, finish
+from .style import COLORS, axis_label, paper_style
+
+__all__ = ["plot_rounds"]
+
+
+def _shown_rounds(n: int, k: int) -> list[int]:
+    """Up to ``k`` round indices out of ``n``, always the first and the last."""
+    if n <= k:
+        return list(range(n))
+    return sorted({int(round(v)) for v in np.linspace(0, n - 1, k)})
+
+
+def plot_rounds(
+    draws: Sequence[np.ndarray],
+    design: np.ndarray,
+    n_solves: Sequence[int],
+    batches: Sequence[np.ndarray | None],
+    shift_sd: Sequence[float | None],
+    gp_error: Sequence[float | None],
+    names: Sequence[str],
+    units: Sequence[str],
+    paths: PathsLike,
+    *,
+    bounds: Sequence[Sequence[float]],
+    shift_tol: float,
+    gp_tol: float,
+    converged: bool,
+    truth: Sequence[float] | None = None,
+    failed: np.ndarray | None = None,
+    max_panels: int = 6,
+    dpi: float = 200,
+    return_figure: bool = False,
+):
+    """Posterior and design points per round, and the stop rule's checks.
+
+    Parameters
+    ----------
+    draws : sequence of arrays (m_r, 2)
+        Equal-weight posterior draws of each round, in the two shown parameters.
+    design : array (n, 2)
+        All design points in solve order (the first ``n_solves[r]`` belong to round <= r).
+    n_solves : sequence of int
+        Solves after each round.
+    batches : sequence of arrays (q, 2) or None
+        The batch each round chose for the next (None where it stopped).
+    shift_sd, gp_error : sequences of float or None
+        Posterior change since the previous round (sd) and the largest error of the
+        previous round's surrogate at this round's solves in the posterior region
+        (nats); None where not defined (round 0).
+    names, units : two parameter names and units.
+    paths : output files.
+    bounds : (2, 2) axis ranges (the design box).
+    shift_tol, gp_tol : tolerances of the stop rule (drawn as lines).
+    converged : whether the last round met the stop rule (title).
+    truth : (2,) ground truth, optional.
+    failed : (F, 2) points whose solves failed, optional.
+    max_panels : most rounds drawn as panels (first and last always).
+    """
+    names, units = as_names_units(names, units, 2)
+    out_paths = as_paths(paths)
+    n = len(draws)
+    if not (len(n_solves) == len(batches) == len(shift_sd) == len(gp_error) == n) or n == 0:
+        raise ValueError("plot_rounds: one entry per round expected in every sequence")
+    X = np.atleast_2d(np.asarray(design, float))
+    b = np.asarray(bounds, float)
+    shown = _shown_rounds(n, max_panels)
+    ncols = min(len(shown), 3) + 0
+    nrows = int(np.ceil(len(shown) / ncols)) + 1
+    with paper_style():
+        fig = Figure(figsize=(3.0 * ncols, 2.7 * nrows), layout="constrained")
+        gs = fig.add_gridspec(nrows, ncols)
+        for k, r in enumerate(shown):
+            ax = fig.add_subplot(gs[k // ncols, k % ncols])
+            d = np.atleast_2d(np.asarray(draws[r], float))
+            ax.scatter(d[:, 0], d[:, 1], s=2, c=COLORS["hist"], alpha=0.25, lw=0,
+                       label="posterior draws")
+            old = X[: n_solves[r - 1]] if r > 0 else np.empty((0, 2))
+            new = X[(n_solves[r - 1] if r > 0 else 0): n_solves[r]]
+            ax.plot(*old.T, ls="none", marker="o", ms=3, mfc="0.6", mec="none",
+                    label="earlier solves")
+            ax.plot(*new.T, ls="none", marker="o", ms=4, mfc=COLORS["mean"], mec="k", mew=0.3,
+                    label="this round's solves")
+            if batches[r] is not None and len(batches[r]):
+                nb = np.atleast_2d(np.asarray(batches[r], float))
+                ax.plot(*nb.T, ls="none", marker="x", ms=5, color=COLORS["map"],
+                        label="chosen for next round")
+            if failed is not None and len(failed):
+                f = np.atleast_2d(np.asarray(failed, float))
+                ax.plot(*f.T, ls="none", marker="x", ms=4, color="k", label="failed solves")
+            if truth is not None:
+                ax.plot(*truth, ls="none", marker="*", ms=10, mfc=COLORS["truth"], mec="k",
+                        mew=0.5, label="ground truth", zorder=5)
+            ax.set_xlim(*b[0])
+            ax.set_ylim(*b[1])
+            ax.set_title(f"round {r}: {n_solves[r]} solves", fontsize=8)
+            ax.set_xlabel(axis_label(names[0], units[0]))
+            ax.set_ylabel(axis_label(names[1], units[1]))
+            if k == 0:
+                ax.legend(loc="best", fontsize=6, markerscale=1.2)
+        ax = fig.add_subplot(gs[nrows - 1, :])
+        rr = np.arange(n)
+        sh = np.array([np.nan if v is None else v for v in shift_sd], float)
+        ge = np.array([np.nan if v is None else v for v in gp_error], float)
+        ax.semilogy(rr, sh, marker="o", color=COLORS["mean"],
+                    label="posterior change [posterior sd]")
+        ax.semilogy(rr, ge, marker="s", color=COLORS["hist"],
+                    label="surrogate error at new solves [nats]")
+        ax.axhline(shift_tol, color=COLORS["mean"], ls="--", lw=0.8,
+                   label=f"tolerance {shift_tol:g} sd")
+        ax.axhline(gp_tol, color=COLORS["hist"], ls=":", lw=0.8,
+                   label=f"tolerance {gp_tol:g} nats")
+        ax.set_xlabel("round")
+        ax.set_xticks(rr)
+        ax.set_ylabel("stop-rule checks")
+        ax.legend(loc="upper right", fontsize=6, ncols=2)
+        state = "converged" if converged else "NOT converged (budget spent)"
+        fig.suptitle(f"Active design: {n} rounds, {n_solves[-1]} solves, {state}", fontsize=9)
+        return finish(fig, out_paths, dpi, return_figure)
