@@ -1,0 +1,232 @@
+"""Active design (bayescalib.active) and the bounded surrogate, as specifications.
+
+Tolerances are stated where they are used; the analytic problems have closed-form
+posteriors (Gaussian misfits inside the box, so truncation is negligible: the box
+is at least 6 posterior sd from the mean in every direction).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from bayescalib.active import (
+    acquire_round,
+    calibrate,
+    point_round,
+    posterior_change,
+    round_sizes,
+    select_batch,
+    trust_check,
+)
+from bayescalib.config import validate
+from bayescalib.design import sobol_design
+from bayescalib.parameters import ParameterSpace
+from bayescalib.smc import smc_from_config
+from bayescalib.surrogate import GPSurrogate, fit_from_config, fit_gp
+
+
+def _space(bounds):
+    return ParameterSpace.from_config([
+        {"name": f"x{k}", "prior": {"type": "uniform", "lo": lo, "hi": hi}, "bounds": [lo, hi]}
+        for k, (lo, hi) in enumerate(bounds)])
+
+
+def _gaussian_misfit(mean, cov):
+    """L = -0.5 (x - m)^T C^{-1} (x - m): a Gaussian misfit with bound 0."""
+    P = np.linalg.inv(cov)
+    m = np.asarray(mean, float)
+
+    def loglik(X):
+        R = np.atleast_2d(X) - m
+        return -0.5 * np.einsum("ij,jk,ik->i", R, P, R)
+    return loglik
+
+
+def _active(**kw):
+    return validate({"design": {"active": kw}}, "inference")["design"]["active"]
+
+
+# ----------------------------------------------------------------- bounded surrogate
+@pytest.mark.parametrize("output", ["log_misfit", "loglik", "auto"])
+def test_the_surrogate_and_the_evidence_never_exceed_the_likelihood_bound(output, tmp_path):
+    """The Gaussian log-likelihood is at most B = -n/2 log(2 pi sigma^2); so must be
+    the surrogate everywhere (far extrapolation included) and the SMC evidence."""
+    space = _space([(-5, 5), (-5, 5)])
+    B = 3.7
+    ll = _gaussian_misfit([0.3, -0.2], np.diag([0.05, 0.2]))
+    X = sobol_design(space.bounds, 24, 0)
+    L = B + ll(X)
+    cfg = validate({"surrogate": {"output": output, "restarts": 1}}, "inference")["surrogate"]
+    gp = fit_from_config(X, L, cfg, space.bounds, bound=B)
+    Z = np.random.default_rng(1).uniform(-50, 50, (20000, 2))
+    Z[:100] = np.random.default_rng(2).normal([0.3, -0.2], 0.05, (100, 2))
+    assert gp.predict(Z).max() <= B
+    gp.save(tmp_path / "gp.h5")
+    again = GPSurrogate.load(tmp_path / "gp.h5")
+    np.testing.assert_allclose(again.predict(Z[:500]), gp.predict(Z[:500]), rtol=0, atol=1e-9)
+    smc = validate({"smc": {"n_particles": 500, "n_rej": 5, "zeta": 0.9}}, "inference")["smc"]
+    res = smc_from_config(gp.predict, space, smc)
+    assert res.log_evidence <= B  # uniform prior: log Z <= max L
+
+
+def test_log_misfit_warping_round_trips_and_interpolates_the_training_values():
+    space = _space([(0, 1), (0, 1)])
+    B = 10.0
+    X = sobol_design(space.bounds, 16, 3)
+    L = B - 100.0 * np.sum((X - 0.4) ** 2, axis=1)
+    gp = fit_gp(X, L, bounds=space.bounds, bound=B, warp=True, restarts=1)
+    assert gp.warped
+    np.testing.assert_allclose(gp.loglik_train, L, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(gp.latent_from_loglik(gp.loglik_from_latent(gp.y_train)),
+                               gp.y_train, atol=1e-12)
+    # the nugget is 1e-5 of the warped range, so training values are met within 0.1 nat
+    np.testing.assert_allclose(gp.predict(X), L, atol=0.1)
+
+
+def test_auto_output_prefers_the_warped_model_for_a_compliance_like_misfit():
+    """A misfit in 1/stiffness (as a displacement ~ 1/E): L spans five orders of
+    magnitude over the box, which a stationary GP of L cannot follow; the warped GP
+    explains the values far better (Jacobian-corrected evidence), so auto chooses it."""
+    space = _space([(0, 1), (0, 1)])
+    X = sobol_design(space.bounds, 32, 0)
+    L = -0.5 * ((1 / (0.05 + X[:, 0]) - 1 / 0.55) / 0.05) ** 2 \
+        - 0.5 * ((X[:, 1] - 0.5) / 0.02) ** 2
+    cfg = validate({"surrogate": {"restarts": 1}}, "inference")["surrogate"]
+    assert fit_from_config(X, L, cfg, space.bounds, bound=0.0).warped
+
+
+# ------------------------------------------------------------------------ checks
+def test_trust_check_counts_a_spurious_mode_with_its_full_error():
+    """A point the surrogate put at the top of the posterior but whose real value is
+    far below fails the check even though its real value lies outside the region."""
+    out = trust_check(np.array([0.0, -1.0]), np.array([0.1, 0.1]), np.array([-200.0, -1.2]),
+                      loglik_best=0.0, dim=2, tol_nats=1.0)
+    assert out["n_region"] == 2 and not out["passed"]
+    assert out["max_abs_error"] == pytest.approx(200.0)
+
+
+def test_trust_check_is_inconclusive_without_points_in_the_posterior_region():
+    out = trust_check(np.array([-50.0]), np.array([1.0]), np.array([-50.5]), 0.0, 2, 1.0)
+    assert out["n_region"] == 0 and not out["passed"]
+
+
+def test_trust_check_passes_accurate_predictions_and_reports_failed_solves():
+    out = trust_check(np.array([0.0, -1.0, -2.0]), np.array([0.3] * 3),
+                      np.array([0.2, -1.1, -np.inf]), 0.2, 2, 1.0)
+    assert out["passed"] and out["n_failed"] == 1 and out["n_failed_in_region"] == 1
+    assert out["max_abs_error"] == pytest.approx(0.2)
+
+
+def test_posterior_change_is_measured_in_posterior_sd():
+    a = {"mean": np.array([0.0, 0.0]), "sd": np.array([1.0, 2.0]), "cov": np.diag([1.0, 4.0])}
+    assert posterior_change(a, a)["shift_sd"] == 0 and posterior_change(a, a)["hellinger"] == 0
+    b = {"mean": np.array([0.5, 0.0]), "sd": np.array([0.5, 2.0]), "cov": np.diag([0.25, 4.0])}
+    ch = posterior_change(a, b)
+    assert ch["shift_sd"] == pytest.approx(1.0)  # 0.5 over the smaller sd 0.5
+    assert ch["sd_change"] == pytest.approx(1.0)  # sd halved: ratio 2
+    assert 0 < ch["hellinger"] < 1
+
+
+def test_round_layout_maps_every_point_to_its_round():
+    sizes = round_sizes(8, 4, 18, 5)
+    assert sizes == [8, 12, 16, 18, 18]
+    assert [point_round(i, 8, 4) for i in (0, 7, 8, 11, 12, 17)] == \
+        [(0, 0), (0, 7), (1, 0), (1, 3), (2, 0), (3, 1)]
+
+
+# ------------------------------------------------------------------- acquisition
+def _fitted(n=16, seed=0):
+    space = _space([(-3, 3), (-3, 3)])
+    ll = _gaussian_misfit([0.5, -0.5], np.array([[0.3, 0.1], [0.1, 0.2]]))
+    X = sobol_design(space.bounds, n, seed)
+    gp = fit_gp(X, ll(X), bounds=space.bounds, bound=0.0, restarts=1)
+    return space, ll, X, gp
+
+
+def test_a_batch_spreads_out_and_avoids_failed_points():
+    space, _, X, gp = _fitted()
+    rng = np.random.default_rng(0)
+    pool = space.sample_prior(3000, rng)
+    batch = select_batch(gp, pool, space.logprior(pool), 8)
+    P = batch["points"]
+    d = np.linalg.norm(P[:, None] - P[None], axis=2) + np.eye(8) * 1e9
+    top8 = pool[np.argsort(-(gp.predict(pool, True)[1]))[:8]]
+    d_top = np.linalg.norm(top8[:, None] - top8[None], axis=2) + np.eye(8) * 1e9
+    assert len({tuple(p) for p in P}) == 8
+    assert d.min() > d_top.min()  # conditioning spreads the batch
+    # a failed point at the first pick: the next batch does not return next to it
+    again = select_batch(gp, pool, space.logprior(pool), 8, failed=P[:1])
+    assert np.linalg.norm(again["points"] - P[0], axis=1).min() > 1e-3
+
+
+def test_acquire_round_refuses_records_that_are_not_the_chosen_batch():
+    space, ll, X, gp = _fitted()
+    a = _active(n_initial=16, batch_size=4, max_solves=40)
+    W = np.full(len(X), 1.0 / len(X))
+    rec0 = acquire_round(0, X, ll(X), gp, X, W, 0.0, space, a, None)
+    assert not rec0["stop"] and len(rec0["next"]["points"]) == 4
+    wrong = np.vstack([X, X[:4] + 0.01])
+    with pytest.raises(ValueError, match="not the batch"):
+        acquire_round(1, wrong, ll(wrong), gp, X, W, 0.0, space, a, rec0)
+
+
+# ------------------------------------------------------------------ the whole loop
+def test_active_calibration_converges_to_the_closed_form_posterior():
+    """Correlated 2D Gaussian (closed form). The stop rule's own tolerances (0.2 sd in
+    the mean, 20 % in the sd) plus SMC noise (N = 2000: about 0.05 sd) bound the
+    error, so means within 0.3 sd and sds within 25 % are required."""
+    mean, cov = np.array([0.4, -0.3]), np.array([[0.09, 0.06], [0.06, 0.16]])
+    space = _space([(-3, 3), (-3, 3)])
+    res = calibrate(_gaussian_misfit(mean, cov), space, bound=0.0,
+                    active={"n_initial": 16, "batch_size": 8, "max_solves": 96},
+                    surrogate={"restarts": 2}, smc={"n_particles": 2000, "zeta": 0.95,
+                                                    "n_rej": 10})
+    assert res.converged, res.reason
+    assert res.n_evaluations < 96
+    sd = np.sqrt(np.diag(cov))
+    W = res.smc.weights / res.smc.weights.sum()
+    m = W @ res.smc.particles
+    s = np.sqrt(W @ (res.smc.particles - m) ** 2)
+    assert np.all(np.abs(m - mean) / sd < 0.3), (m, mean)
+    assert np.all(np.abs(s / sd - 1) < 0.25), (s, sd)
+
+
+def test_a_spuriously_confident_start_is_caught_and_repaired():
+    """A likelihood 60x narrower than the box: 8 Sobol points miss it, and the round-0
+    surrogate is confidently wrong. The next round's trust check must catch it (no
+    convergence declared on it), and the rounds must end at the true posterior."""
+    mean, cov = np.array([0.63, 0.21]), np.diag([0.01, 0.015]) ** 2
+    space = _space([(0, 1), (0, 1)])
+    records = []
+    res = calibrate(_gaussian_misfit(mean, cov), space, bound=0.0,
+                    active={"n_initial": 8, "batch_size": 8, "max_solves": 120},
+                    surrogate={"restarts": 2}, smc={"n_particles": 2000, "zeta": 0.95,
+                                                    "n_rej": 10},
+                    callback=records.append)
+    r0 = np.asarray(records[0]["posterior"]["mean"])
+    assert np.max(np.abs(r0 - mean) / np.sqrt(np.diag(cov))) > 3  # round 0 is wrong
+    assert not records[1]["checks_passed"]
+    assert res.converged, res.reason
+    W = res.smc.weights / res.smc.weights.sum()
+    m = W @ res.smc.particles
+    assert np.all(np.abs(m - mean) / np.sqrt(np.diag(cov)) < 0.3)
+
+
+def test_a_spent_budget_is_reported_as_not_converged():
+    space = _space([(0, 1), (0, 1)])
+    res = calibrate(_gaussian_misfit([0.63, 0.21], np.diag([0.01, 0.015]) ** 2), space,
+                    bound=0.0, active={"n_initial": 8, "batch_size": 4, "max_solves": 14},
+                    surrogate={"restarts": 1}, smc={"n_particles": 300, "n_rej": 3,
+                                                    "zeta": 0.9})
+    assert res.n_evaluations == 14 and not res.converged
+    assert res.reason.startswith("NOT converged") and "max_solves = 14" in res.reason
+
+
+def test_the_rounds_are_reproducible():
+    space = _space([(-3, 3), (-3, 3)])
+    kw = dict(bound=0.0, active={"n_initial": 8, "batch_size": 4, "max_solves": 16},
+              surrogate={"restarts": 1}, smc={"n_particles": 300, "n_rej": 3, "zeta": 0.9})
+    ll = _gaussian_misfit([0.0, 0.5], np.diag([0.2, 0.3]))
+    a, b = calibrate(ll, space, **kw), calibrate(ll, space, **kw)
+    np.testing.assert_array_equal(a.X, b.X)
