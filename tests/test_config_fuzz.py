@@ -135,8 +135,8 @@ def _exercise(cfg):
     study.ground_truth()
     study.prior_centre()
     assert study.root.endswith(study.name)
-    if study.n_points <= 20_000:
-        assert set(study.point(study.n_points - 1)) == set(study.targets())
+    if study.n_sobol <= 20_000:
+        assert set(study.point(study.n_sobol - 1)) == set(study.targets())
     return None
 
 

@@ -65,7 +65,7 @@ def test_refinement_repairs_a_surrogate_limited_calibration(tmp_path, concealed)
     judged adequate."""
     cfg = {**concealed, "study": "analytic_sharp",
            "observations": {**concealed["observations"], "hidden": {}},
-           "likelihood": {"sigma_n2": 9.0e-6}, "design": {"n_train": 10, "seed": 1},
+           "likelihood": {"sigma_n2": 9.0e-6}, "design": {"strategy": "fixed", "n_train": 10, "seed": 1},
            "diagnose": {**concealed["diagnose"],
                         "refine": {"max_rounds": 6, "n_points": 8, "tol": 0.5}}}
     d, _ = _diagnosis(tmp_path, cfg)

@@ -20,8 +20,8 @@ def test_every_shipped_study_validates_on_top_of_the_default(path):
 
 
 def test_design_points_keep_their_values_when_the_design_grows():
-    small = Study(deep_merge(DEFAULT, {"design": {"n_train": 16}}))
-    large = Study(deep_merge(DEFAULT, {"design": {"n_train": 64}}))
+    small = Study(deep_merge(DEFAULT, {"design": {"strategy": "fixed", "n_train": 16}}))
+    large = Study(deep_merge(DEFAULT, {"design": {"strategy": "fixed", "n_train": 64}}))
     for i in range(16):
         assert small.point(i) == large.point(i)
 
@@ -41,7 +41,11 @@ def test_forward_section_keeps_only_the_chosen_model():
         ({"design": {"n_train": 0}}, "design.n_train"),
         ({"measures": ["rkhs", "hausdorff"]}, "measures[1]"),
         ({"forward_model": {"fsi": {"material": {"law": "linear"}}}}, "forward_model.fsi.material.law"),
-        ({"convergence": {"enabled": True, "n_train": [10, 5000]}}, "convergence.n_train"),
+        ({"design": {"strategy": "fixed"}, "convergence": {"enabled": True, "n_train": [10, 5000]}},
+         "convergence.n_train"),
+        ({"convergence": {"enabled": True}}, "convergence.enabled needs design.strategy: fixed"),
+        ({"design": {"active": {"n_initial": 64, "max_solves": 32}}},
+         "design.active.n_initial (64) exceeds design.active.max_solves (32)"),
         ({"forward_model": {"type": "python", "warm_start": "none"}},
          "forward_model.python.function is required"),
         ({"forward_model": {"type": "python", "python": {"function": "m:f"}}},

@@ -1,0 +1,137 @@
+"""The active design as users run it (Snakemake checkpoints), on the analytic model.
+
+Contract: summary.json says whether the posterior converged, with the rounds; a
+point is never solved twice (a stop-rule change re-solves nothing, a larger
+budget solves only the new rounds' points); a run killed mid-round resumes
+without redoing finished solves and ends where an uninterrupted run ends.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import signal
+import subprocess
+import time
+from pathlib import Path
+
+import pytest
+from _workflow_helpers import REPO, SNAKEMAKE
+from _workflow_helpers import setup_study as _setup
+from _workflow_helpers import smk as _smk
+
+pytestmark = pytest.mark.workflow
+
+ACTIVE = {"strategy": "active", "seed": 1,
+          "active": {"n_initial": 8, "batch_size": 4, "max_solves": 20}}
+
+
+def _study(base: dict, **design) -> dict:
+    out = json.loads(json.dumps(base))
+    out["design"] = json.loads(json.dumps(ACTIVE))
+    for k, v in design.items():
+        if isinstance(v, dict):
+            out["design"]["active"].setdefault(k, {}).update(v)
+        else:
+            out["design"]["active"][k] = v
+    return out
+
+
+@pytest.fixture(scope="module")
+def active_run(tmp_path_factory, base_study):
+    tmp = _setup(tmp_path_factory.mktemp("active"), _study(base_study))
+    proc = _smk(tmp)
+    return tmp, proc
+
+
+def _runs(tmp: Path) -> dict[str, int]:
+    return {p.name: p.stat().st_mtime_ns for p in (tmp / "results/analytic/runs").glob("*.h5")}
+
+
+def _summary(tmp: Path) -> dict:
+    return json.loads((tmp / "results/analytic/summary.json").read_text())
+
+
+def test_summary_says_whether_the_active_design_converged(active_run):
+    tmp, proc = active_run
+    s = _summary(tmp)
+    d = s["design"]
+    assert d["strategy"] == "active" and isinstance(d["converged"], bool)
+    assert s["converged"] == d["converged"]
+    assert d["n_rounds"] == len(d["rounds"]) >= 2
+    assert [r["n_solves"] for r in d["rounds"]][0] == 8
+    assert d["n_solves"] == s["n_train"] == len(_runs(tmp)) <= 20
+    if not d["converged"]:
+        assert d["reason"].startswith("NOT converged")
+    assert all((tmp / f).is_file() for f in s["figures"]["rounds"])
+    # the end of the run says it in one line
+    line = [ln for ln in proc.stdout.splitlines() if ln.startswith("bayescalib analytic:")]
+    assert line and ("converged" in line[0] or "NOT CONVERGED" in line[0]), proc.stdout[-2000:]
+    assert "Nothing to be done" in _smk(tmp, "-n").stdout
+
+
+def _copy(src: Path, dst: Path) -> Path:
+    shutil.copytree(src, dst, symlinks=True)
+    return dst
+
+
+def test_a_stop_rule_change_resolves_nothing(active_run, base_study, tmp_path):
+    tmp = _copy(active_run[0], tmp_path / "run")
+    before = _runs(tmp)
+    n_before = _summary(tmp)["design"]["n_solves"]
+    records = tmp / "results/analytic/active/0/acquire.json"
+    stamp = records.stat().st_mtime_ns
+    # tolerances so loose that the stop rule can only stop earlier: no new point
+    _setup(tmp, _study(base_study, stop={"shift_tol": 1e6, "sd_tol": 1e6, "gp_tol": 1e6}))
+    _smk(tmp)
+    s = _summary(tmp)
+    assert records.stat().st_mtime_ns != stamp  # the rounds were decided again
+    assert s["design"]["n_solves"] <= n_before
+    after = _runs(tmp)
+    assert all(after[n] == t for n, t in before.items() if n in after), "a solve was redone"
+
+
+def test_a_larger_budget_solves_only_new_points(active_run, base_study, tmp_path):
+    tmp = _copy(active_run[0], tmp_path / "run")
+    s0 = _summary(tmp)
+    if s0["design"]["converged"]:
+        pytest.skip("the base run converged within its budget")
+    before = _runs(tmp)
+    _setup(tmp, _study(base_study, max_solves=28))
+    _smk(tmp)
+    after = _runs(tmp)
+    assert all(after[n] == t for n, t in before.items()), "a finished solve was redone"
+    assert len(after) == _summary(tmp)["design"]["n_solves"] > len(before)
+
+
+def test_killed_mid_round_resumes_without_redoing_solves(active_run, base_study, tmp_path):
+    study = _study(base_study)
+    study["forward_model"]["python"]["function"] = "slow_model:interface"
+    tmp = _setup(tmp_path / "run", study)
+    (tmp / "slow_model.py").write_text(
+        "import time\nfrom bayescalib.analytic_model import interface as _f\n"
+        "def interface(params, **kw):\n    time.sleep(1.0)\n    return _f(params, **kw)\n"
+    )
+    cmd = [*SNAKEMAKE, "-s", str(REPO / "Snakefile"), "--directory", str(tmp), "--cores", "2"]
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                            env={**os.environ, "PYTHONPATH": str(tmp)}, start_new_session=True)
+    runs = tmp / "results" / "analytic" / "runs"
+    deadline = time.time() + 300
+    while time.time() < deadline:  # inside round 1: its first solves are written
+        if runs.is_dir() and len(list(runs.glob("[0-9]*.h5"))) >= 10:
+            break
+        time.sleep(0.1)
+    os.killpg(proc.pid, signal.SIGKILL)
+    proc.wait()
+    finished = _runs(tmp)
+    assert 10 <= len(finished) < 20
+    _smk(tmp, "--unlock")
+    _smk(tmp, "--rerun-incomplete")
+    after = _runs(tmp)
+    redone = [n for n, t in finished.items() if after.get(n) != t]
+    assert len(redone) <= 2, f"finished solves were redone: {redone}"
+    a, b = _summary(tmp), _summary(active_run[0])
+    for s in (a, b):
+        s.pop("timings_s")
+    assert a == b
