@@ -145,7 +145,7 @@ def _fitted(n=16, seed=0):
 
 
 def test_a_batch_spreads_out_and_avoids_failed_points():
-    space, _, X, gp = _fitted()
+    space, _, _X, gp = _fitted()
     rng = np.random.default_rng(0)
     pool = space.sample_prior(3000, rng)
     batch = select_batch(gp, pool, space.logprior(pool), 8)
@@ -225,8 +225,8 @@ def test_a_spent_budget_is_reported_as_not_converged():
 
 def test_the_rounds_are_reproducible():
     space = _space([(-3, 3), (-3, 3)])
-    kw = dict(bound=0.0, active={"n_initial": 8, "batch_size": 4, "max_solves": 16},
-              surrogate={"restarts": 1}, smc={"n_particles": 300, "n_rej": 3, "zeta": 0.9})
+    kw = {"bound": 0.0, "active": {"n_initial": 8, "batch_size": 4, "max_solves": 16},
+              "surrogate": {"restarts": 1}, "smc": {"n_particles": 300, "n_rej": 3, "zeta": 0.9}}
     ll = _gaussian_misfit([0.0, 0.5], np.diag([0.2, 0.3]))
     a, b = calibrate(ll, space, **kw), calibrate(ll, space, **kw)
     np.testing.assert_array_equal(a.X, b.X)

@@ -47,6 +47,7 @@ CATEGORY = {
     "parallel": "Posterior",
     "interfaces": "Interfaces",
     "fields": "Ground truth fields",
+    "rounds": "Active design",
 }
 
 

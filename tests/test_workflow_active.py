@@ -60,7 +60,7 @@ def test_summary_says_whether_the_active_design_converged(active_run):
     assert d["strategy"] == "active" and isinstance(d["converged"], bool)
     assert s["converged"] == d["converged"]
     assert d["n_rounds"] == len(d["rounds"]) >= 2
-    assert [r["n_solves"] for r in d["rounds"]][0] == 8
+    assert next(r["n_solves"] for r in d["rounds"]) == 8
     assert d["n_solves"] == s["n_train"] == len(_runs(tmp)) <= 20
     if not d["converged"]:
         assert d["reason"].startswith("NOT converged")
@@ -135,3 +135,16 @@ def test_killed_mid_round_resumes_without_redoing_solves(active_run, base_study,
     for s in (a, b):
         s.pop("timings_s")
     assert a == b
+
+
+def test_cli_summary_prints_the_run_line_the_table_and_the_rounds(active_run, capsys):
+    from bayescalib.cli import main
+
+    tmp, proc = active_run
+    assert main(["summary", str(tmp / "results" / "analytic")]) == 0
+    out = capsys.readouterr().out
+    last = [ln for ln in proc.stdout.splitlines() if ln.startswith("bayescalib analytic:")][0]
+    assert out.splitlines()[0] == last
+    assert "90% equal-tailed" in out and "active design:" in out
+    assert out.count("\n0 ") + out.count("\n0  ") >= 1  # round 0 row
+    assert main(["summary", str(tmp / "nowhere")]) == 2

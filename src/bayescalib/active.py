@@ -248,7 +248,7 @@ def candidate_pool(particles: np.ndarray, weights: np.ndarray, bounds: np.ndarra
     X = np.atleast_2d(np.asarray(particles, float))
     W = np.asarray(weights, float)
     W = W / W.sum()
-    n_explore = int(round(n * float(explore_fraction)))
+    n_explore = round(n * float(explore_fraction))
     n_post = int(n) - n_explore
     U = (X - lo) / width
     mean = W @ U

@@ -36,16 +36,16 @@ __all__ = [
     "PipelineError",
     "acquire",
     "convergence",
+    "design_summary",
     "discrepancy",
     "gather",
     "marginalize",
     "observe",
     "read_json",
     "read_training",
+    "run_line",
     "smc",
     "train",
-    "design_summary",
-    "run_line",
     "write_json",
 ]
 

@@ -21,6 +21,7 @@ def _register(name: str, module: str, help_: str) -> None:
     SUBCOMMANDS[name] = (module, help_)
 _register("distance", "bayescalib.cli.distance", "Discrepancy D between a model and an observed interface.")
 _register("solve", "bayescalib.cli.solve", "Run one forward FSI solve and print a one-line JSON summary.")
+_register("summary", "bayescalib.cli.summary", "Print a finished study's result (summary.json) as tables.")
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -18,7 +18,7 @@ def _shown_rounds(n: int, k: int) -> list[int]:
     """Up to ``k`` round indices out of ``n``, always the first and the last."""
     if n <= k:
         return list(range(n))
-    return sorted({int(round(v)) for v in np.linspace(0, n - 1, k)})
+    return sorted({round(v) for v in np.linspace(0, n - 1, k)})
 
 
 def plot_rounds(
