@@ -49,7 +49,7 @@ def _config(max_solves: int, strict: bool) -> dict:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from _reference import grid_posterior, hellinger
+    from _reference import grid_moments, grid_points, hellinger_to_reference, load_reference
 
     from bayescalib.surrogate import GPSurrogate
 
@@ -74,22 +74,20 @@ def main(argv: list[str] | None = None) -> int:
         return 1
     root = work / "results" / "bench_active_fsi"
     summary = json.loads((root / "summary.json").read_text())
-    ref = grid_posterior(args.ref)
-    G, p_ref = ref["points"], ref["density"]
-    m_ref = p_ref @ G
-    sd_ref = np.sqrt(p_ref @ (G - m_ref) ** 2)
+    ref = load_reference(args.ref)
+    G = grid_points(ref["E"], ref["nu"])
+    mom = grid_moments(ref["E"], ref["nu"], ref["loglik"])
+    m_ref, sd_ref = np.array(mom["mean"]), np.array(mom["sd"])
     print(f"reference: E = {m_ref[0]:.1f} +- {sd_ref[0]:.1f} Pa, nu = {m_ref[1]:.3f} +- "
-          f"{sd_ref[1]:.3f} ({ref['n_solves']} real solves on the grid)")
+          f"{sd_ref[1]:.3f} ({ref['E'].size * ref['nu'].size} real solves on a grid)")
     rows = []
     for rec in summary["design"]["rounds"]:
         gp = GPSurrogate.load(root / "active" / str(rec["round"]) / "surrogate.h5")
-        v = gp.predict(G)  # uniform prior: the log-posterior up to a constant
-        q = np.exp(v - v.max())
-        q /= q.sum()
-        m = q @ G
-        sd = np.sqrt(q @ (G - m) ** 2)
+        v = gp.predict(G).reshape(ref["loglik"].shape)  # uniform prior: log-posterior
+        mo = grid_moments(ref["E"], ref["nu"], v)
+        m, sd = np.array(mo["mean"]), np.array(mo["sd"])
         rows.append({"round": rec["round"], "n_solves": rec["n_solves"],
-                     "hellinger": hellinger(p_ref, q),
+                     "hellinger": hellinger_to_reference(v, args.ref),
                      "mean_err_sd": (np.abs(m - m_ref) / sd_ref).tolist(),
                      "sd_ratio": (sd / sd_ref).tolist(),
                      "gp_max_error_nats": rec["gp_max_error_nats"],

@@ -22,8 +22,8 @@ points). Each round r then
 
 Acquisition (:func:`select_batch`). Candidates are drawn from the current
 posterior (resampled SMC particles, jittered by half a posterior sd per
-parameter, reflected into the box) plus a share ``explore_fraction`` drawn
-uniformly over the box. Each candidate is scored by the uncertainty of the
+parameter, reflected into the box) and, as many, uniformly over the box. Most of
+a batch exploits: each candidate is scored by the uncertainty of the
 unnormalized posterior where it is large,
 
     log a(x) = log var_L(x) + mean_L(x) + log p(x),
@@ -36,10 +36,18 @@ is chosen greedily: after each pick, the GP variance of the remaining
 candidates is conditioned on that point (the variance of a GP does not depend
 on the value that will be observed, so this is exact for the variance; the mean
 is kept, as in the "kriging believer"), so the batch spreads over the
-uncertain posterior region instead of piling up at its maximum. Failed solves
-are conditioned on in the same way: the acquisition does not return to a point
-whose solve failed, while the GP itself is fitted on the successful solves only
-(a failure carries no value of the log-likelihood to fit).
+uncertain posterior region instead of piling up at its maximum. A share
+``explore_fraction`` of each batch explores: among the uniform candidates that
+the surrogate cannot rule out of the posterior region (probability at least
+``P_PLAUSIBLE`` that their log-likelihood lies within ``delta`` of the best
+solve), the one of largest GP variance, again with conditioning. Exploitation
+alone settles on the first mode it finds and can declare convergence on it; the
+exploring points probe the rest of the box where posterior mass is still
+possible, and a mode they hit shows as a large error in the next trust check.
+Failed solves are conditioned on in the same way: the acquisition does not
+return to a point whose solve failed, while the GP itself is fitted on the
+successful solves only (a failure carries no value of the log-likelihood to
+fit).
 
 All functions are pure (arrays in, arrays or plain dicts out) and seeded; the
 Snakemake rules of ``workflow/rules/active.smk`` call :func:`acquire_round` once
@@ -77,6 +85,12 @@ REGION_LEVEL = 0.99
 TEMPER = 1.0
 #: jitter of the posterior candidates, in posterior standard deviations
 BANDWIDTH = 0.5
+#: share of the candidate pool drawn uniformly over the box
+POOL_UNIFORM = 0.5
+#: smallest probability of lying in the posterior region for an exploring pick
+P_PLAUSIBLE = 1e-3
+#: exponent of the surrogate posterior in the score of exploring picks
+EXPLORE_TEMPER = 0.3
 
 
 # ------------------------------------------------------------------ round layout
@@ -233,13 +247,13 @@ def _reflect(U: np.ndarray) -> np.ndarray:
 
 
 def candidate_pool(particles: np.ndarray, weights: np.ndarray, bounds: np.ndarray, n: int,
-                   rng: np.random.Generator, *, explore_fraction: float,
+                   rng: np.random.Generator, *, uniform_fraction: float = POOL_UNIFORM,
                    bandwidth: float = BANDWIDTH) -> np.ndarray:
     """Candidate points for the next batch, (n, d) in user units.
 
-    ``(1 - explore_fraction) n`` are resampled particles jittered by ``bandwidth``
+    ``(1 - uniform_fraction) n`` are resampled particles jittered by ``bandwidth``
     posterior sd per parameter (at least 0.5 % of the box), reflected into the box;
-    the rest are uniform over the box.
+    the last ``round(uniform_fraction n)`` rows are uniform over the box.
     """
     from bayescalib.resampling import systematic_resample
 
@@ -248,7 +262,7 @@ def candidate_pool(particles: np.ndarray, weights: np.ndarray, bounds: np.ndarra
     X = np.atleast_2d(np.asarray(particles, float))
     W = np.asarray(weights, float)
     W = W / W.sum()
-    n_explore = round(n * float(explore_fraction))
+    n_explore = round(n * float(uniform_fraction))
     n_post = int(n) - n_explore
     U = (X - lo) / width
     mean = W @ U
@@ -260,7 +274,9 @@ def candidate_pool(particles: np.ndarray, weights: np.ndarray, bounds: np.ndarra
 
 
 def select_batch(gp, pool: np.ndarray, logprior: np.ndarray, q: int, *,
-                 failed: np.ndarray | None = None, beta: float = TEMPER) -> dict[str, np.ndarray]:
+                 failed: np.ndarray | None = None, n_explore: int = 0,
+                 threshold: float | None = None, explore_mask: np.ndarray | None = None,
+                 beta: float = TEMPER) -> dict[str, np.ndarray]:
     """Greedy batch of ``q`` candidates by prospective uncertainty (module docstring).
 
     Parameters
@@ -275,6 +291,13 @@ def select_batch(gp, pool: np.ndarray, logprior: np.ndarray, q: int, *,
         Batch size (<= M).
     failed
         Points (F, d) whose solves failed: conditioned on like picked points.
+    n_explore
+        How many of the ``q`` picks explore (the last ones of the batch).
+    threshold
+        Log-likelihood above which a point lies in the posterior region (exploring
+        picks need a probability of at least ``P_PLAUSIBLE`` to exceed it).
+    explore_mask
+        (M,) bool: candidates eligible for exploring picks (the uniform ones).
 
     Returns
     -------
@@ -313,11 +336,29 @@ def select_batch(gp, pool: np.ndarray, logprior: np.ndarray, q: int, *,
     for k in range(nf):
         condition(k)
     pred_sd = np.sqrt(scale2[nf:] * var_g[nf:])  # before any pick of this batch
+    n_explore = int(n_explore) if threshold is not None else 0
+    plausible = np.zeros(M, bool)
+    if n_explore:
+        from scipy.special import log_ndtr
+
+        sd_g = np.sqrt(np.maximum(var_g[nf:], 1e-300))
+        if gp.warped:  # L >= threshold  <=>  g <= log1p(B - threshold)
+            z = (np.log1p(max(gp.bound - threshold, 0.0)) - g[nf:]) / sd_g
+        else:
+            z = (g[nf:] - threshold) / sd_g
+        plausible = log_ndtr(z) >= np.log(P_PLAUSIBLE)
+        if explore_mask is not None:
+            plausible &= np.asarray(explore_mask, bool)
     picked: list[int] = []
     scores: list[float] = []
-    for _ in range(q):
+    for b in range(q):
+        explore = b >= q - n_explore and plausible.any()
         with np.errstate(divide="ignore"):
-            score = np.log(scale2[nf:] * var_g[nf:]) + base
+            if explore:  # prospective uncertainty under a flattened posterior
+                score = np.where(plausible, np.log(scale2[nf:] * var_g[nf:])
+                                 + EXPLORE_TEMPER * base / beta, -np.inf)
+            else:
+                score = np.log(scale2[nf:] * var_g[nf:]) + base
         score[picked] = -np.inf
         k = int(np.argmax(score))
         if not np.isfinite(score[k]):  # nothing uncertain left: take the best unpicked mean
@@ -432,10 +473,15 @@ def acquire_round(r: int, X: np.ndarray, L: np.ndarray, gp, particles: np.ndarra
         rec["reason"] = "continue: " + _why_not(rec, stop_cfg)
     if not rec["stop"]:
         rng = _round_seed(active["seed"], r)
-        pool = candidate_pool(particles, weights, space.bounds, int(active["pool_size"]), rng,
-                              explore_fraction=active["explore_fraction"])
+        pool = candidate_pool(particles, weights, space.bounds, int(active["pool_size"]), rng)
         q = min(int(active["batch_size"]), budget_left)
-        batch = select_batch(gp, pool, space.logprior(pool), q, failed=X[~finite])
+        n_explore = int(math.floor(q * float(active["explore_fraction"]) + 0.5))
+        uniform = np.arange(len(pool)) >= len(pool) - round(len(pool) * POOL_UNIFORM)
+        from scipy.stats import chi2
+
+        threshold = best - 0.5 * float(chi2.ppf(REGION_LEVEL, d))
+        batch = select_batch(gp, pool, space.logprior(pool), q, failed=X[~finite],
+                             n_explore=n_explore, threshold=threshold, explore_mask=uniform)
         rec["next"] = {"points": batch["points"].tolist(), "mean": batch["mean"].tolist(),
                        "sd": batch["sd"].tolist(), "score": batch["score"].tolist()}
     return rec

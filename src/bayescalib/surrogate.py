@@ -83,7 +83,7 @@ import numpy as np
 
 from ._atomic_write import atomic_path
 
-__all__ = ["GPSurrogate", "fit_from_config", "fit_gp", "matern32"]
+__all__ = ["KERNELS", "GPSurrogate", "fit_from_config", "fit_gp", "kernel_matrix", "matern32"]
 
 log = logging.getLogger(__name__)
 
@@ -92,13 +92,45 @@ _FORMAT_VERSION = 2
 _GEMM_SINGLE_THREAD_MNK = 2**18
 
 
+#: stationary kernels k(r) = s^2 f(c r) of the surrogate: name -> (c, GPy class name).
+#: With t = c r: Matérn 3/2 f = (1 + t) e^-t (the paper's, eq. matern32), Matérn 5/2
+#: f = (1 + t + t^2/3) e^-t, squared exponential (rbf) f = e^(-t^2) (c = 1/sqrt 2).
+KERNELS: dict[str, tuple[float, str]] = {
+    "matern32": (_SQRT3, "Matern32"),
+    "matern52": (math.sqrt(5.0), "Matern52"),
+    "rbf": (math.sqrt(0.5), "RBF"),
+}
+
+
+def _unit_kernel_from_t2(T2: np.ndarray, kernel: str) -> np.ndarray:
+    """f(t) of :data:`KERNELS` from t^2 (any shape), overwriting ``T2``."""
+    np.maximum(T2, 0.0, out=T2)
+    if kernel == "rbf":
+        np.negative(T2, out=T2)
+        return np.exp(T2, out=T2)
+    t2 = T2.copy() if kernel == "matern52" else None
+    np.sqrt(T2, out=T2)
+    E = np.exp(-T2)
+    T2 += 1.0
+    if t2 is not None:
+        T2 += t2 / 3.0
+    T2 *= E
+    return T2
+
+
+def kernel_matrix(A: np.ndarray, B: np.ndarray, variance: float, lengthscale: np.ndarray,
+                  kernel: str = "matern32") -> np.ndarray:
+    """Kernel matrix of :data:`KERNELS` between A (m, d) and B (n, d) -> (m, n)."""
+    c = KERNELS[kernel][0]
+    a = c * np.asarray(A, float) / lengthscale
+    b = c * np.asarray(B, float) / lengthscale
+    t2 = np.sum(a * a, 1)[:, None] + np.sum(b * b, 1)[None, :] - 2.0 * a @ b.T
+    return variance * _unit_kernel_from_t2(t2, kernel)
+
+
 def matern32(A: np.ndarray, B: np.ndarray, variance: float, lengthscale: np.ndarray) -> np.ndarray:
     """Matérn 3/2 kernel matrix (eq. matern32) between A (m, d) and B (n, d) -> (m, n)."""
-    a = np.asarray(A, float) / lengthscale
-    b = np.asarray(B, float) / lengthscale
-    r2 = np.sum(a * a, 1)[:, None] + np.sum(b * b, 1)[None, :] - 2.0 * a @ b.T
-    s = _SQRT3 * np.sqrt(np.maximum(r2, 0.0))
-    return variance * (1.0 + s) * np.exp(-s)
+    return kernel_matrix(A, B, variance, lengthscale, "matern32")
 
 
 @cache
@@ -151,6 +183,7 @@ class GPSurrogate:
         exceed it.
     warp : the GP models the log-misfit g = log(1 + B - L) (``y_train`` holds g);
         otherwise it models L and predictions are capped at ``bound``.
+    kernel : one of :data:`KERNELS` (default the paper's Matérn 3/2).
     """
 
     X_train: np.ndarray
@@ -174,6 +207,7 @@ class GPSurrogate:
     threads: int = 1
     bound: float | None = None
     warp: bool = False
+    kernel: str = "matern32"
     _cache: dict[str, Any] = field(default_factory=dict, repr=False)
 
     def __post_init__(self) -> None:
@@ -229,7 +263,7 @@ class GPSurrogate:
     def hyperparameters(self) -> dict[str, Any]:
         """Kernel variance, length scale(s), mean, nugget (JSON-serializable)."""
         return {
-            "kernel": "Matern32",
+            "kernel": KERNELS[self.kernel][1],
             "variance": float(self.variance),
             "lengthscale": [float(v) for v in self.lengthscale],
             "ard": bool(self.ard),
@@ -248,7 +282,7 @@ class GPSurrogate:
 
     def _factorize(self) -> None:
         U = self.scale_inputs(self.X_train)
-        K = matern32(U, U, self.variance, self.lengthscale)
+        K = kernel_matrix(U, U, self.variance, self.lengthscale, self.kernel)
         K[np.diag_indices_from(K)] += self.nugget
         self.chol = np.linalg.cholesky(K)
         from scipy.linalg import cho_solve
@@ -258,14 +292,15 @@ class GPSurrogate:
     # ------------------------------------------------------------------
     def _numpy_cache(self) -> dict[str, Any]:
         if "np_Baug" not in self._cache:
-            # B = sqrt(3) * u_train / l; kernel rows come from one matrix product
-            # [a, |a|^2, 1] @ [-2 B, 1, |b|^2]^T = |a - b|^2 (a = sqrt(3) u / l).
-            B = _SQRT3 * self.scale_inputs(self.X_train) / self.lengthscale
+            # B = c * u_train / l; kernel rows come from one matrix product
+            # [a, |a|^2, 1] @ [-2 B, 1, |b|^2]^T = |a - b|^2 (a = c u / l, c of KERNELS).
+            ck = KERNELS[self.kernel][0]
+            B = ck * self.scale_inputs(self.X_train) / self.lengthscale
             n = B.shape[0]
             self._cache["np_Baug"] = np.ascontiguousarray(
                 np.column_stack([-2.0 * B, np.ones(n), np.sum(B * B, 1)]).T
             )
-            self._cache["np_in_scale"] = _SQRT3 / (self.scale * self.lengthscale)
+            self._cache["np_in_scale"] = ck / (self.scale * self.lengthscale)
             self._cache["np_alpha_s2"] = self.variance * self.alpha
         return self._cache
 
@@ -291,13 +326,8 @@ class GPSurrogate:
         c = self._numpy_cache()
         A = (Xc - self.shift) * c["np_in_scale"]
         Aaug = np.column_stack([A, np.sum(A * A, 1), np.ones(A.shape[0])])
-        K = Aaug @ c["np_Baug"]  # sqrt(3) r, squared
-        np.maximum(K, 0.0, out=K)
-        np.sqrt(K, out=K)
-        E = np.negative(K)
-        np.exp(E, out=E)
-        K += 1.0
-        K *= E
+        K = Aaug @ c["np_Baug"]  # t^2 = (c r)^2
+        K = _unit_kernel_from_t2(K, self.kernel)
         return K
 
     def _predict_numpy(self, X: np.ndarray, return_var: bool):
@@ -346,8 +376,13 @@ class GPSurrogate:
             for s in range(0, M, chunk):
                 A = (Xt[s : s + chunk] - c["t_shift"]) * c["t_inv_sl"]
                 r2 = (A * A).sum(1)[:, None] + c["t_Bsq"][None, :] - 2.0 * (A @ c["t_B"].T)
-                r = torch.sqrt(torch.clamp_min_(r2, 0.0)).mul_(_SQRT3)
-                K = (1.0 + r).mul_(torch.exp(r.neg_())).mul_(self.variance)
+                t2 = torch.clamp_min_(r2, 0.0).mul_(KERNELS[self.kernel][0] ** 2)
+                if self.kernel == "rbf":
+                    K = torch.exp(t2.neg_()).mul_(self.variance)
+                else:
+                    t = torch.sqrt(t2)
+                    poly = 1.0 + t + (t2 / 3.0 if self.kernel == "matern52" else 0.0)
+                    K = poly.mul_(torch.exp(t.neg())).mul_(self.variance)
                 mean[s : s + chunk] = (K @ c["t_alpha"] + self.mean_const).cpu().numpy()
                 if return_var:
                     V = torch.linalg.solve_triangular(c["t_L"], K.T, upper=False)
@@ -413,8 +448,8 @@ class GPSurrogate:
 
     def latent_kernel(self, A: np.ndarray, B: np.ndarray) -> np.ndarray:
         """Prior kernel matrix k(A, B) of the latent GP (inputs in user units), (m, n)."""
-        return matern32(self.scale_inputs(A), self.scale_inputs(B), self.variance,
-                        self.lengthscale)
+        return kernel_matrix(self.scale_inputs(A), self.scale_inputs(B), self.variance,
+                             self.lengthscale, self.kernel)
 
     __call__ = predict
 
@@ -432,6 +467,7 @@ class GPSurrogate:
             self.lengthscale,
             self.nugget,
             self.ard,
+            self.kernel,
         )
 
     def gpy_predict(self, X: np.ndarray, return_var: bool = False, model=None):
@@ -451,7 +487,7 @@ class GPSurrogate:
         with atomic_path(path, suffix=".h5") as tmp, h5py.File(tmp, "w") as f:
             f.attrs["format"] = "bayescalib.GPSurrogate"
             f.attrs["format_version"] = _FORMAT_VERSION
-            f.attrs["kernel"] = "Matern32"
+            f.attrs["kernel"] = KERNELS[self.kernel][1]
             f.create_dataset("X_train", data=self.X_train)
             f.create_dataset("y_train", data=self.y_train)
             f.create_dataset("input_shift", data=self.shift)
@@ -495,6 +531,7 @@ class GPSurrogate:
                 device=device,
                 bound=_bound_attr(f.attrs.get("bound")),
                 warp=bool(f.attrs.get("warp", False)),
+                kernel=_kernel_name(str(f.attrs.get("kernel", "Matern32"))),
             )
 
     def loo_residuals(self) -> np.ndarray:
@@ -508,6 +545,13 @@ class GPSurrogate:
         return self.alpha / np.diag(Kinv)
 
 
+def _kernel_name(stored: str) -> str:
+    for name, (_, gpy_name) in KERNELS.items():
+        if gpy_name == stored:
+            return name
+    raise ValueError(f"unknown kernel {stored!r} in a surrogate file")
+
+
 def _bound_attr(value: Any) -> float | None:
     """The stored bound attribute (NaN or absent: no warping; format version 1)."""
     if value is None or not math.isfinite(float(value)):
@@ -515,11 +559,11 @@ def _bound_attr(value: Any) -> float | None:
     return float(value)
 
 
-def _build_gpy(U, y, mean_const, variance, lengthscale, nugget, ard):
+def _build_gpy(U, y, mean_const, variance, lengthscale, nugget, ard, kernel="matern32"):
     import GPy
 
     d = U.shape[1]
-    kern = GPy.kern.Matern32(
+    kern = getattr(GPy.kern, KERNELS[kernel][1])(
         input_dim=d,
         variance=float(variance),
         lengthscale=np.array(lengthscale, float) if ard else float(np.ravel(lengthscale)[0]),
@@ -550,6 +594,7 @@ def fit_gp(
     device: str = "auto",
     bound: float | None = None,
     warp: bool = True,
+    kernel: str = "matern32",
 ) -> GPSurrogate:
     """Train the GP surrogate of the log-likelihood (paper Sec. 3.2, App. D).
 
@@ -582,6 +627,8 @@ def fit_gp(
     warp
         With a ``bound``: model the log-misfit g = log(1 + B - y) (module
         docstring; values above B from round-off count as g = 0) instead of y.
+    kernel
+        One of :data:`KERNELS`.
 
     Returns
     -------
@@ -600,6 +647,8 @@ def fit_gp(
         raise ValueError(f"optimizer must be 'lbfgsb' or 'scg', got {optimizer!r}")
     if restarts < 1:
         raise ValueError(f"restarts must be >= 1, got {restarts}")
+    if kernel not in KERNELS:
+        raise ValueError(f"kernel must be one of {sorted(KERNELS)}, got {kernel!r}")
     ok = np.isfinite(y) & np.all(np.isfinite(X), axis=1)
     n_excluded = int((~ok).sum())
     X, y = X[ok], y[ok]
@@ -632,7 +681,7 @@ def fit_gp(
 
     v0 = float(np.mean((y - mean_const) ** 2))
     l0 = np.full(d if ard else 1, 0.3)
-    model = _build_gpy(U, y, mean_const, v0, l0, nugget, ard)
+    model = _build_gpy(U, y, mean_const, v0, l0, nugget, ard, kernel)
     rng = np.random.default_rng(seed)
     best = None
     for r in range(restarts):
@@ -675,6 +724,7 @@ def fit_gp(
         device=device,
         bound=bound,
         warp=warp,
+        kernel=kernel,
     )
 
 
@@ -684,26 +734,39 @@ def fit_from_config(X: np.ndarray, y: np.ndarray, surrogate: dict[str, Any],
 
     ``surrogate["output"]`` chooses what the GP models when the log-likelihood's
     upper bound ``bound`` is known: ``log_misfit`` (the warped output), ``loglik``
-    (L itself, capped at the bound), or ``auto``: both are fitted and the one with
-    the larger evidence *of the log-likelihood values* wins. The warped model's
-    evidence is carried to the units of L by the Jacobian of the warping,
+    (L itself, capped at the bound) or ``auto``; ``surrogate["kernel"]`` one of
+    :data:`KERNELS` or ``auto``. Every candidate model is fitted and the one with
+    the largest evidence *of the log-likelihood values* wins (type-II maximum
+    likelihood over the model's discrete choices). The warped model's evidence
+    is carried to the units of L by the Jacobian of the warping,
     log p(L) = log p(g) + sum_i log|dg/dL|_i = log p(g) - sum_i g_i (warped GPs,
-    Snelson et al. 2004), so the two evidences compare like with like. Without a
+    Snelson et al. 2004), so all evidences compare like with like. Without a
     bound the GP models L (the paper's surrogate).
     """
-    kw = {"ard": surrogate["ard"], "optimizer": surrogate["optimizer"],
-              "restarts": surrogate["restarts"], "seed": surrogate["seed"], "bounds": bounds,
-              "mean_offset_factor": surrogate["mean_offset_factor"],
-              "nugget_factor": surrogate["nugget_factor"], "bound": bound}
+    kw = dict(ard=surrogate["ard"], optimizer=surrogate["optimizer"],
+              restarts=surrogate["restarts"], seed=surrogate["seed"], bounds=bounds,
+              mean_offset_factor=surrogate["mean_offset_factor"],
+              nugget_factor=surrogate["nugget_factor"], bound=bound)
     output = surrogate["output"]
-    if bound is None or output == "loglik":
-        return fit_gp(X, y, warp=False, **kw)
-    if output == "log_misfit":
-        return fit_gp(X, y, warp=True, **kw)
-    plain = fit_gp(X, y, warp=False, **kw)
-    warped = fit_gp(X, y, warp=True, **kw)
-    ev_plain = plain.log_marginal_likelihood
-    ev_warped = warped.log_marginal_likelihood - float(np.sum(warped.y_train))
-    log.info("surrogate output: evidence of L %.6g as log-misfit, %.6g as L -> %s",
-             ev_warped, ev_plain, "log-misfit" if ev_warped >= ev_plain else "L")
-    return warped if ev_warped >= ev_plain else plain
+    warps = [False] if bound is None or output == "loglik" else \
+        [True] if output == "log_misfit" else [False, True]
+    kernels = list(KERNELS) if surrogate["kernel"] == "auto" else [surrogate["kernel"]]
+    best, best_ev = None, -math.inf
+    for kernel in kernels:
+        for warp in warps:
+            try:
+                gp = fit_gp(X, y, warp=warp, kernel=kernel, **kw)
+            except (RuntimeError, np.linalg.LinAlgError) as exc:
+                log.warning("surrogate %s (%s): fit failed: %s", kernel,
+                            "log-misfit" if warp else "L", exc)
+                continue
+            ev = gp.log_marginal_likelihood - (float(np.sum(gp.y_train)) if gp.warped else 0.0)
+            log.info("surrogate %s of %s: evidence of L %.6g", kernel,
+                     "log-misfit" if warp else "L", ev)
+            if best is None or ev > best_ev:
+                best, best_ev = gp, ev
+    if best is None:
+        raise RuntimeError("every GP surrogate fit failed")
+    if len(kernels) * len(warps) > 1:
+        log.info("surrogate chosen: %s of %s", best.kernel, "log-misfit" if best.warped else "L")
+    return best
