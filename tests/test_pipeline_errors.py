@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 from bayescalib import pipeline
+from bayescalib.config import validate
 from bayescalib.forward import failed_result, solve_point
 from bayescalib.pipeline import PipelineError
 from bayescalib.runrecord import read_run
@@ -25,8 +26,7 @@ PARAMETERS = [
     {"name": "nu", "unit": "-", "target": "nu", "prior": {"type": "uniform", "lo": -0.8, "hi": 0.45},
      "bounds": [-0.8, 0.45]},
 ]
-SURROGATE = {"ard": False, "optimizer": "lbfgsb", "restarts": 1, "seed": 0,
-             "mean_offset_factor": 1.0, "nugget_factor": 1e-5}
+SURROGATE = validate({"surrogate": {"restarts": 1}}, "inference")["surrogate"]
 
 
 def _points(n: int = 8) -> np.ndarray:

@@ -475,7 +475,7 @@ def acquire_round(r: int, X: np.ndarray, L: np.ndarray, gp, particles: np.ndarra
         rng = _round_seed(active["seed"], r)
         pool = candidate_pool(particles, weights, space.bounds, int(active["pool_size"]), rng)
         q = min(int(active["batch_size"]), budget_left)
-        n_explore = int(math.floor(q * float(active["explore_fraction"]) + 0.5))
+        n_explore = math.floor(q * float(active["explore_fraction"]) + 0.5)
         uniform = np.arange(len(pool)) >= len(pool) - round(len(pool) * POOL_UNIFORM)
         from scipy.stats import chi2
 

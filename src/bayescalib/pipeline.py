@@ -316,7 +316,6 @@ def gather(run_paths: Sequence[str | Path], disc_paths: Sequence[str | Path],
     ``bound (n,)``: the largest value the point's Gaussian log-likelihood can take,
     -n/2 log(2 pi sigma_N^2) summed over snapshots (NaN for failed runs).
     """
-    from bayescalib.likelihood import gaussian_loglik
 
     if len(run_paths) != len(disc_paths):
         raise PipelineError("gather: the number of run records and discrepancy files differ")
@@ -340,12 +339,20 @@ def gather(run_paths: Sequence[str | Path], disc_paths: Sequence[str | Path],
             L[i] = float(rec["loglik"])
             D[i] = float(rec["D"])
             ok[i] = 1
-            if rec.get("sigma_n2") and rec.get("snapshots"):
-                bound[i] = sum(gaussian_loglik(0.0, s["n"], rec["sigma_n2"])
-                               for s in rec["snapshots"])
+            bound[i] = record_bound(rec)
         reasons.append(run.reason or rec.get("reason") or "")
     write_training(out_path, X, L, D, ok, reasons, names, n if n_train is None else n_train,
                    bound=bound)
+
+
+def record_bound(rec: Mapping[str, Any]) -> float:
+    """The largest value the log-likelihood of a discrepancy record can take,
+    sum over snapshots of -n/2 log(2 pi sigma_N^2) (NaN without the record's data)."""
+    from bayescalib.likelihood import gaussian_loglik
+
+    if not (rec.get("sigma_n2") and rec.get("snapshots")):
+        return math.nan
+    return float(sum(gaussian_loglik(0.0, s["n"], rec["sigma_n2"]) for s in rec["snapshots"]))
 
 
 def write_training(out_path: str | Path, X: np.ndarray, L: np.ndarray, D: np.ndarray,

@@ -750,7 +750,12 @@ def fit_from_config(X: np.ndarray, y: np.ndarray, surrogate: dict[str, Any],
     output = surrogate["output"]
     warps = [False] if bound is None or output == "loglik" else \
         [True] if output == "log_misfit" else [False, True]
-    kernels = list(KERNELS) if surrogate["kernel"] == "auto" else [surrogate["kernel"]]
+    if surrogate["kernel"] != "auto":
+        kernels = [surrogate["kernel"]]
+    elif bound is None:  # uncapped: keep the paper's kernel (smoother ones overshoot more)
+        kernels = ["matern32"]
+    else:
+        kernels = list(KERNELS)
     best, best_ev = None, -math.inf
     for kernel in kernels:
         for warp in warps:

@@ -122,7 +122,14 @@ def calibrate_with_points(
         and the paths of the ``training``, ``particles`` and ``surrogate`` files.
     """
     from bayescalib.diagnosis.solves import solve_many
-    from bayescalib.pipeline import discrepancy, marginalize, smc, train, write_training
+    from bayescalib.pipeline import (
+        discrepancy,
+        marginalize,
+        record_bound,
+        smc,
+        train,
+        write_training,
+    )
     from bayescalib.posterior import read_particles_h5
 
     work = Path(workdir)
@@ -135,12 +142,14 @@ def calibrate_with_points(
     L = np.full(len(points), -np.inf)
     D = np.full(len(points), np.nan)
     ok = np.zeros(len(points), dtype=np.int8)
+    bound = np.full(len(points), np.nan)
     reasons = []
     for i, (run, rp) in enumerate(zip(runs, run_paths, strict=True)):
         rec = discrepancy(rp, obs_path, measure_name, measure, likelihood,
                           work / "discrepancy" / f"{i}.json")
         if run.ok and rec.get("loglik") is not None:
             L[i], D[i], ok[i] = float(rec["loglik"]), float(rec["D"]), 1
+            bound[i] = record_bound(rec)
         reasons.append(run.reason or rec.get("reason") or "")
     X = np.vstack([np.asarray(reused["X"], dtype=float), X_new])
     L_all = np.concatenate([reused["loglik"], L])
@@ -149,7 +158,9 @@ def calibrate_with_points(
     reasons_all = list(reused["reason"]) + reasons
     names = [p["name"] for p in parameters]
     training = work / "training.h5"
-    write_training(training, X, L_all, D_all, ok_all, reasons_all, names, len(L_all))
+    bound_all = np.concatenate([np.asarray(reused["bound"], float), bound])
+    write_training(training, X, L_all, D_all, ok_all, reasons_all, names, len(L_all),
+                   bound=bound_all)
     surrogate_path = work / "surrogate.h5"
     particles = work / "particles.h5"
     train(training, surrogate, parameters, surrogate_path)
@@ -174,7 +185,7 @@ def training_rows(training: str | Path) -> dict[str, Any]:
     tab = read_training(training)
     use = tab["is_train"].astype(bool)
     return {"X": tab["X"][use], "loglik": tab["loglik"][use], "D": tab["D"][use],
-            "status": tab["status"][use],
+            "status": tab["status"][use], "bound": tab["bound"][use],
             "reason": [r for r, u in zip(tab["reason"], use, strict=True) if u]}
 
 
