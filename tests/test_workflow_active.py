@@ -143,7 +143,7 @@ def test_cli_summary_prints_the_run_line_the_table_and_the_rounds(active_run, ca
     tmp, proc = active_run
     assert main(["summary", str(tmp / "results" / "analytic")]) == 0
     out = capsys.readouterr().out
-    last = [ln for ln in proc.stdout.splitlines() if ln.startswith("bayescalib analytic:")][0]
+    last = next(ln for ln in proc.stdout.splitlines() if ln.startswith("bayescalib analytic:"))
     assert out.splitlines()[0] == last
     assert "90% equal-tailed" in out and "active design:" in out
     assert out.count("\n0 ") + out.count("\n0  ") >= 1  # round 0 row

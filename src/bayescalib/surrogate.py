@@ -743,10 +743,10 @@ def fit_from_config(X: np.ndarray, y: np.ndarray, surrogate: dict[str, Any],
     Snelson et al. 2004), so all evidences compare like with like. Without a
     bound the GP models L (the paper's surrogate).
     """
-    kw = dict(ard=surrogate["ard"], optimizer=surrogate["optimizer"],
-              restarts=surrogate["restarts"], seed=surrogate["seed"], bounds=bounds,
-              mean_offset_factor=surrogate["mean_offset_factor"],
-              nugget_factor=surrogate["nugget_factor"], bound=bound)
+    kw = {"ard": surrogate["ard"], "optimizer": surrogate["optimizer"],
+              "restarts": surrogate["restarts"], "seed": surrogate["seed"], "bounds": bounds,
+              "mean_offset_factor": surrogate["mean_offset_factor"],
+              "nugget_factor": surrogate["nugget_factor"], "bound": bound}
     output = surrogate["output"]
     warps = [False] if bound is None or output == "loglik" else \
         [True] if output == "log_misfit" else [False, True]
