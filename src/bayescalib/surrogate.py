@@ -728,6 +728,19 @@ def fit_gp(
     )
 
 
+#: tolerated excess of a model of L over the likelihood's bound (nats)
+OVERSHOOT_NATS = 0.5
+
+
+def _overshoots(gp: GPSurrogate, bounds: np.ndarray, bound: float, n: int = 4096) -> bool:
+    """True when the GP mean of L exceeds ``bound + OVERSHOOT_NATS`` somewhere in the
+    box (scrambled Sobol sample of ``n`` points plus the training points)."""
+    from bayescalib.design import sobol_design
+
+    Z = np.vstack([sobol_design(np.asarray(bounds, float), n, 12345), gp.X_train])
+    return bool(np.max(gp.predict_latent(Z)) > bound + OVERSHOOT_NATS)
+
+
 def fit_from_config(X: np.ndarray, y: np.ndarray, surrogate: dict[str, Any],
                     bounds: np.ndarray, *, bound: float | None = None) -> GPSurrogate:
     """:func:`fit_gp` with the settings of a validated ``surrogate`` config section.
@@ -740,8 +753,11 @@ def fit_from_config(X: np.ndarray, y: np.ndarray, surrogate: dict[str, Any],
     likelihood over the model's discrete choices). The warped model's evidence
     is carried to the units of L by the Jacobian of the warping,
     log p(L) = log p(g) + sum_i log|dg/dL|_i = log p(g) - sum_i g_i (warped GPs,
-    Snelson et al. 2004), so all evidences compare like with like. Without a
-    bound the GP models L (the paper's surrogate).
+    Snelson et al. 2004), so all evidences compare like with like. A model of L
+    whose mean rises above the bound inside the box (by more than
+    ``OVERSHOOT_NATS``, on a Sobol sample) contradicts what is known and is not
+    chosen: capping it would leave a plateau of spurious maximal likelihood.
+    Without a bound the GP models L with the paper's kernel.
     """
     kw = {"ard": surrogate["ard"], "optimizer": surrogate["optimizer"],
               "restarts": surrogate["restarts"], "seed": surrogate["seed"], "bounds": bounds,
@@ -764,6 +780,10 @@ def fit_from_config(X: np.ndarray, y: np.ndarray, surrogate: dict[str, Any],
             except (RuntimeError, np.linalg.LinAlgError) as exc:
                 log.warning("surrogate %s (%s): fit failed: %s", kernel,
                             "log-misfit" if warp else "L", exc)
+                continue
+            if bound is not None and not gp.warped and _overshoots(gp, bounds, bound):
+                log.info("surrogate %s of L: rejected, its mean exceeds the likelihood's "
+                         "upper bound %.6g inside the box", kernel, bound)
                 continue
             ev = gp.log_marginal_likelihood - (float(np.sum(gp.y_train)) if gp.warped else 0.0)
             log.info("surrogate %s of %s: evidence of L %.6g", kernel,
