@@ -194,14 +194,17 @@ def test_active_calibration_converges_to_the_closed_form_posterior():
 
 def test_a_spuriously_confident_start_is_caught_and_repaired():
     """A likelihood 60x narrower than the box: 8 Sobol points miss it, and the round-0
-    surrogate is confidently wrong. The next round's trust check must catch it (no
-    convergence declared on it), and the rounds must end at the true posterior."""
+    surrogate (the paper's Matérn 3/2 of L; a squared-exponential kernel would fit
+    this quadratic L exactly) is confidently wrong. The next round's trust check must
+    catch it (no convergence declared on it), and the rounds must end at the true
+    posterior."""
     mean, cov = np.array([0.63, 0.21]), np.diag([0.01, 0.015]) ** 2
     space = _space([(0, 1), (0, 1)])
     records = []
     res = calibrate(_gaussian_misfit(mean, cov), space, bound=0.0,
                     active={"n_initial": 8, "batch_size": 8, "max_solves": 120},
-                    surrogate={"restarts": 2}, smc={"n_particles": 2000, "zeta": 0.95,
+                    surrogate={"restarts": 2, "kernel": "matern32", "output": "loglik"},
+                    smc={"n_particles": 2000, "zeta": 0.95,
                                                     "n_rej": 10},
                     callback=records.append)
     r0 = np.asarray(records[0]["posterior"]["mean"])
