@@ -1,0 +1,902 @@
+"""Benchmark: surrogate-based Bayesian inference methods at an equal number of likelihood evaluations.
+
+What is compared
+----------------
+Each method gets the same analytic log-likelihood, the same uniform prior on a
+box and the same budget of log-likelihood evaluations, and returns a posterior
+(weighted samples and, where it has one, a density). The posterior is compared
+with a reference that is computed from the exact density, independently of
+every method:
+
+* ``ridge2d``: a curved ridge (banana), L = -0.5 (x1/s1)^2 - 0.5 ((x2 - b x1^2)/s2)^2.
+* ``lobe2d``: a main mode and a weak second lobe with another covariance,
+  L = log(w1 N1 + w2 N2) + c; its bound B is the log of an upper bound of the mixture.
+* ``sloppy4d``: a 4D Gaussian with a rotated covariance and one sloppy direction.
+* ``hetero7d``: a made-up 7D calibration shaped like the heterogeneous biofilm
+  study: stiffnesses E1..E3 (Pa), Poisson ratios nu1..nu3 and an uncertain
+  inflow q; an interface-displacement model at 40 points, synthetic noisy data,
+  a Gaussian misfit (B = 0). E2 is poorly identified along a ridge with nu2
+  and q.
+
+Every log-likelihood has the misfit form L = B - Phi with Phi >= 0 and a known
+upper bound B (passed to the methods that take one). References: a 400 x 400
+grid of the exact density (2D); the closed-form mean and covariance
+(``sloppy4d``); a long adaptive random-walk Metropolis run on the exact
+log-posterior (``hetero7d``; 16 seeded chains, proposal covariance and scale
+adapted during burn-in only, then frozen), cached in
+``<out>/reference_hetero7d.npz`` (delete it or pass ``--refresh-reference`` to
+recompute).
+
+Methods
+-------
+* ``sobol_gp``: today's pipeline: a scrambled Sobol design of the whole budget,
+  the GP surrogate of the log-likelihood (``bayescalib.surrogate.fit_gp``) and
+  SMC on its mean (``bayescalib.smc.run_smc``, 4000 particles).
+* ``active``: ``bayescalib.active.calibrate`` (active design in batches of 8,
+  ``max_solves`` = budget, a quarter of the budget as initial design). Reported
+  as "not available" when the module does not import.
+* ``pyvbmc``: PyVBMC (``max_fun_evals`` = budget; hard bounds = box, plausible
+  bounds = the central 80 % of the box, start at the box centre); 1e5 samples
+  of the variational posterior, ``vp.pdf`` on the grid in 2D.
+* ``gpry``: GPry (``max_total`` = budget); its nested-sampling MC sample of the
+  surrogate posterior; in 2D its surrogate log-posterior on the grid.
+
+Metrics (per problem and method; medians over ``--repeats`` seeds)
+-------------------------------------------------------------------
+* ``evals``: log-likelihood evaluations actually made (counted by a wrapper).
+* ``rounds``: sequential rounds of evaluations: 1 for ``sobol_gp`` (one batch);
+  ``res.n_rounds`` for ``active``; evaluations for ``pyvbmc`` (sequential);
+  batches of truth evaluations for ``gpry`` (initial design included).
+* ``wall_s``: wall time of the method (design, fits, sampling), without the
+  metric computation.
+* ``hellinger`` (2D): Hellinger distance between the reference grid masses and
+  the method's density on the same grid (surrogate methods: exp(mean log-lik +
+  log prior) normalized on the grid; PyVBMC: ``vp.pdf``; GPry: its surrogate
+  log-posterior, or, if that fails, 30 x 30 histograms of samples on both
+  sides, marked ``hist30``).
+* ``mean_err`` / ``sd_err``: max over parameters of |mean - mean_ref| / sd_ref
+  and |sd - sd_ref| / sd_ref, from the method's (weighted) samples.
+* ``kl_gauss``: KL(reference || method) between moment-matched Gaussians.
+* ``active`` also reports ``converged`` and ``reason``.
+
+Run (repository root as working directory)::
+
+    python benchmarks/bench_active.py                       # all problems and methods
+    python benchmarks/bench_active.py --problems ridge2d,lobe2d --methods sobol_gp,pyvbmc
+    python benchmarks/bench_active.py --budget 128 --repeats 3 --out results/bench_active
+
+Writes ``<out>/table.md`` (the markdown table that is also printed) and
+``<out>/results.json`` (all numbers, per repeat). On a shared machine,
+``OMP_NUM_THREADS=1`` keeps the timings comparable.
+
+Optional peers (not dependencies of bayescalib); install them into the same
+environment without moving the pinned numerical stack::
+
+    pip freeze | grep -iE '^(torch|numpy|scipy)==' > /tmp/constraints.txt
+    pip install -c /tmp/constraints.txt pyvbmc gpry
+
+A peer that does not import is reported as "not installed".
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import math
+import os
+import platform
+import statistics
+import sys
+import time
+import traceback
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+DEFAULT_BUDGET = {2: 64, 4: 100, 7: 200}
+ALL_PROBLEMS = ["ridge2d", "lobe2d", "sloppy4d", "hetero7d"]
+ALL_METHODS = ["sobol_gp", "active", "pyvbmc", "gpry"]
+GRID_N = 400
+HIST_N = 30
+
+
+class NotAvailable(Exception):
+    """The method cannot run here (module missing); the message says why."""
+
+
+# ---------------------------------------------------------------------------
+# problems
+# ---------------------------------------------------------------------------
+
+
+@dataclass
+class Problem:
+    name: str
+    names: list[str]
+    bounds: np.ndarray  # (d, 2)
+    loglik: Callable[[np.ndarray], np.ndarray]  # (q, d) -> (q,)
+    B: float  # upper bound of loglik
+    ref_mean: np.ndarray | None = None
+    ref_cov: np.ndarray | None = None
+    grid_axes: tuple[np.ndarray, np.ndarray] | None = None  # 2D only: cell centres
+    ref_grid: np.ndarray | None = None  # 2D only: (n1, n2) cell masses, sum 1
+    ref_info: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def d(self) -> int:
+        return self.bounds.shape[0]
+
+    @property
+    def ref_sd(self) -> np.ndarray:
+        return np.sqrt(np.diag(self.ref_cov))
+
+    def grid_points(self) -> np.ndarray:
+        g1, g2 = self.grid_axes
+        G1, G2 = np.meshgrid(g1, g2, indexing="ij")
+        return np.column_stack([G1.ravel(), G2.ravel()])
+
+
+def _mvn_logpdf(X: np.ndarray, m: np.ndarray, S: np.ndarray) -> np.ndarray:
+    L = np.linalg.cholesky(S)
+    Z = np.linalg.solve(L, (X - m).T)
+    return -0.5 * np.sum(Z * Z, axis=0) - np.log(np.diag(L)).sum() - 0.5 * len(m) * np.log(2 * np.pi)
+
+
+def _cov2(sd1: float, sd2: float, rho: float) -> np.ndarray:
+    return np.array([[sd1**2, rho * sd1 * sd2], [rho * sd1 * sd2, sd2**2]])
+
+
+def _grid_reference(prob: Problem) -> None:
+    """Fill the grid, the grid masses and the moments of a 2D problem from its exact density."""
+    b = prob.bounds
+    axes = []
+    for lo, hi in b:
+        h = (hi - lo) / GRID_N
+        axes.append(lo + h * (np.arange(GRID_N) + 0.5))
+    prob.grid_axes = (axes[0], axes[1])
+    P = _normalize_log(prob.loglik(prob.grid_points())).reshape(GRID_N, GRID_N)
+    prob.ref_grid = P
+    X = prob.grid_points()
+    w = P.ravel()
+    m = w @ X
+    C = (X - m).T @ ((X - m) * w[:, None])
+    prob.ref_mean, prob.ref_cov = m, C
+    prob.ref_info = {"kind": f"exact density on a {GRID_N}x{GRID_N} grid (cell centres)"}
+
+
+def make_ridge2d() -> Problem:
+    s1, b, s2 = 1.0, 0.6, 0.25
+
+    def loglik(X):
+        X = np.atleast_2d(X)
+        return -0.5 * (X[:, 0] / s1) ** 2 - 0.5 * ((X[:, 1] - b * X[:, 0] ** 2) / s2) ** 2
+
+    prob = Problem("ridge2d", ["x1", "x2"], np.array([[-4.0, 4.0], [-3.0, 8.0]]), loglik, 0.0)
+    _grid_reference(prob)
+    return prob
+
+
+def make_lobe2d() -> Problem:
+    w1, w2 = 0.88, 0.12
+    m1, S1 = np.array([-1.0, -0.5]), _cov2(0.7, 0.5, 0.6)
+    m2, S2 = np.array([2.2, 2.3]), _cov2(0.35, 0.6, -0.5)
+    c = 0.0
+    peak1 = 1.0 / (2 * np.pi * np.sqrt(np.linalg.det(S1)))
+    peak2 = 1.0 / (2 * np.pi * np.sqrt(np.linalg.det(S2)))
+    B = float(np.log(w1 * peak1 + w2 * peak2) + c)
+
+    def loglik(X):
+        X = np.atleast_2d(X)
+        a = np.log(w1) + _mvn_logpdf(X, m1, S1)
+        bb = np.log(w2) + _mvn_logpdf(X, m2, S2)
+        return np.logaddexp(a, bb) + c
+
+    prob = Problem("lobe2d", ["x1", "x2"], np.array([[-5.0, 5.0], [-5.0, 5.0]]), loglik, B)
+    _grid_reference(prob)
+    return prob
+
+
+def make_sloppy4d() -> Problem:
+    sds = np.array([0.04, 0.12, 0.35, 1.0])  # stiffest : sloppiest = 1 : 25
+    rng = np.random.default_rng(20240601)
+    Q, R = np.linalg.qr(rng.standard_normal((4, 4)))
+    Q = Q * np.sign(np.diag(R))
+    C = Q @ np.diag(sds**2) @ Q.T
+    m = np.array([0.3, -0.2, 0.5, 0.1])
+    P = np.linalg.inv(C)
+
+    def loglik(X):
+        X = np.atleast_2d(X)
+        D = X - m
+        return -0.5 * np.einsum("ij,jk,ik->i", D, P, D)
+
+    prob = Problem(
+        "sloppy4d", ["x1", "x2", "x3", "x4"], np.tile([-5.0, 5.0], (4, 1)), loglik, 0.0, m, C
+    )
+    prob.ref_info = {
+        "kind": "closed-form Gaussian mean and covariance (box truncation beyond 4.5 sd ignored)",
+        "sd_ratio": float(sds[-1] / sds[0]),
+    }
+    return prob
+
+
+# hetero7d: made-up interface-displacement model --------------------------------
+
+H7_NAMES = ["E1", "E2", "E3", "nu1", "nu2", "nu3", "q"]
+H7_BOUNDS = np.array(
+    [[100.0, 800.0]] * 3 + [[-0.5, 0.49]] * 3 + [[85.0, 115.0]]
+)
+H7_TRUTH = np.array([400.0, 200.0, 600.0, 0.3, 0.2, 0.3, 100.0])
+H7_SIGMA = 0.004
+H7_NOISE_SEED = 12345
+H7_K = 40
+H7_RWM = {"chains": 16, "burn": 20000, "steps": 40000, "thin": 4, "seed": 7}
+
+
+def _h7_patterns() -> tuple[np.ndarray, np.ndarray]:
+    s = np.linspace(0.0, 1.0, H7_K)
+    centres, width = np.array([0.2, 0.5, 0.8]), 0.14
+    weight = np.array([1.0, 0.35, 1.0])  # region 2 is seen weakly
+    A = np.exp(-0.5 * ((s[:, None] - centres) / width) ** 2) * weight
+    C = 0.6 * np.exp(-0.5 * ((s[:, None] - centres - 0.08) / (0.7 * width)) ** 2) * weight
+    return A, C
+
+
+def h7_model(X: np.ndarray) -> np.ndarray:
+    """Interface displacement u (q, K): confined-compression and shear compliances, saturating."""
+    X = np.atleast_2d(X)
+    A, C = _h7_patterns()
+    E, nu, q = X[:, 0:3], X[:, 3:6], X[:, 6:7]
+    g = (1 + nu) * (1 - 2 * nu) / (1 - nu)  # 1 / (P-wave modulus) * E
+    h = 2 * (1 + nu) / 3  # shear compliance * E (scaled)
+    w = q * ((g / E) @ A.T + (h / E) @ C.T)
+    return w / (1.0 + w)
+
+
+def make_hetero7d(out: Path, refresh: bool) -> Problem:
+    rng = np.random.default_rng(H7_NOISE_SEED)
+    y = h7_model(H7_TRUTH)[0] + H7_SIGMA * rng.standard_normal(H7_K)
+
+    def loglik(X):
+        r = (h7_model(X) - y) / H7_SIGMA
+        return -0.5 * np.sum(r * r, axis=1)
+
+    prob = Problem("hetero7d", list(H7_NAMES), H7_BOUNDS.copy(), loglik, 0.0)
+    ref = _h7_reference(prob, out / "reference_hetero7d.npz", refresh)
+    prob.ref_mean, prob.ref_cov = ref["mean"], ref["cov"]
+    prob.ref_info = {
+        "kind": "adaptive random-walk Metropolis on the exact log-posterior",
+        "chains": int(ref["chains"]),
+        "samples": int(ref["n_samples"]),
+        "acceptance": float(ref["acceptance"]),
+        "rhat_max": float(np.max(ref["rhat"])),
+        "cache": str(out / "reference_hetero7d.npz"),
+    }
+    return prob
+
+
+def _h7_key() -> str:
+    spec = repr((H7_BOUNDS.tolist(), H7_TRUTH.tolist(), H7_SIGMA, H7_NOISE_SEED, H7_K, H7_RWM, 2))
+    return hashlib.sha256(spec.encode()).hexdigest()[:16]
+
+
+def _h7_reference(prob: Problem, path: Path, refresh: bool) -> dict[str, Any]:
+    key = _h7_key()
+    if path.exists() and not refresh:
+        with np.load(path) as z:
+            if str(z["key"]) == key:
+                return {k: z[k] for k in z.files}
+        print(f"[hetero7d] reference cache {path} is for another problem definition; recomputing")
+    print("[hetero7d] computing the reference (adaptive random-walk Metropolis) ...", flush=True)
+    t0 = time.perf_counter()
+    lo, hi = prob.bounds[:, 0], prob.bounds[:, 1]
+    d = prob.d
+    n_ch, n_burn, n_steps, thin = H7_RWM["chains"], H7_RWM["burn"], H7_RWM["steps"], H7_RWM["thin"]
+    rng = np.random.default_rng(H7_RWM["seed"])
+
+    def logpost(X):
+        out = np.full(X.shape[0], -np.inf)
+        ok = np.all((X >= lo) & (X <= hi), axis=1)
+        if ok.any():
+            out[ok] = prob.loglik(X[ok])  # uniform prior: constant
+        return out
+
+    x = np.clip(H7_TRUTH + 1e-3 * (hi - lo) * rng.standard_normal((n_ch, d)), lo, hi)
+    lp = logpost(x)
+    Lc = np.diag(0.01 * (hi - lo))
+    lam = 1.0
+    burn_hist = np.empty((n_burn, n_ch, d))
+    acc_burn = np.empty(n_burn)
+    for t in range(n_burn):
+        if t >= 2000 and t % 500 == 0:
+            H = burn_hist[t // 2 : t].reshape(-1, d)  # second half of the burn-in so far
+            cov = np.cov(H.T) * (2.38**2 / d) * lam + 1e-12 * np.diag((hi - lo) ** 2)
+            Lc = np.linalg.cholesky(cov)
+        prop = x + rng.standard_normal((n_ch, d)) @ Lc.T
+        lpp = logpost(prop)
+        a = np.log(rng.random(n_ch)) < lpp - lp
+        x[a], lp[a] = prop[a], lpp[a]
+        burn_hist[t] = x
+        acc_burn[t] = a.mean()
+        if t >= 2000 and t % 500 == 499:
+            lam *= math.exp(float(acc_burn[t - 499 : t + 1].mean()) - 0.25)
+    # frozen proposal from here on: a valid Metropolis chain
+    chain = np.empty((n_steps, n_ch, d))
+    n_acc = 0.0
+    for t in range(n_steps):
+        prop = x + rng.standard_normal((n_ch, d)) @ Lc.T
+        lpp = logpost(prop)
+        a = np.log(rng.random(n_ch)) < lpp - lp
+        x[a], lp[a] = prop[a], lpp[a]
+        chain[t] = x
+        n_acc += a.sum()
+    flat = chain.reshape(-1, d)
+    mean, cov = flat.mean(0), np.cov(flat.T)
+    cm = chain.mean(0)  # (chains, d)
+    W = chain.var(0, ddof=1).mean(0)
+    Bv = n_steps * cm.var(0, ddof=1)
+    rhat = np.sqrt(((n_steps - 1) / n_steps * W + Bv / n_steps) / W)
+    ref = {
+        "key": np.array(key),
+        "mean": mean,
+        "cov": cov,
+        "rhat": rhat,
+        "acceptance": np.array(n_acc / (n_steps * n_ch)),
+        "chains": np.array(n_ch),
+        "n_samples": np.array(n_steps * n_ch),
+        "samples": chain[::thin].reshape(-1, d),
+    }
+    path.parent.mkdir(parents=True, exist_ok=True)
+    np.savez_compressed(path, **ref)
+    print(
+        f"[hetero7d] reference: {n_steps * n_ch} samples, acceptance {float(ref['acceptance']):.3f}, "
+        f"max R-hat {rhat.max():.4f}, {time.perf_counter() - t0:.1f} s",
+        flush=True,
+    )
+    if rhat.max() > 1.02:
+        print("[hetero7d] WARNING: R-hat above 1.02; the reference may not have converged")
+    return ref
+
+
+def make_problem(name: str, out: Path, refresh: bool) -> Problem:
+    if name == "ridge2d":
+        return make_ridge2d()
+    if name == "lobe2d":
+        return make_lobe2d()
+    if name == "sloppy4d":
+        return make_sloppy4d()
+    if name == "hetero7d":
+        return make_hetero7d(out, refresh)
+    raise SystemExit(f"unknown problem {name!r}; choose from {ALL_PROBLEMS}")
+
+
+# ---------------------------------------------------------------------------
+# helpers
+# ---------------------------------------------------------------------------
+
+
+def _normalize_log(logp: np.ndarray) -> np.ndarray:
+    logp = np.asarray(logp, float)
+    logp = np.where(np.isnan(logp), -np.inf, logp)
+    m = np.max(logp)
+    if not np.isfinite(m):
+        raise ValueError("density is zero (or NaN) on the whole grid")
+    p = np.exp(logp - m)
+    return p / p.sum()
+
+
+class Counter:
+    """Wraps a vectorized log-likelihood and counts the points it is asked for."""
+
+    def __init__(self, f: Callable[[np.ndarray], np.ndarray]) -> None:
+        self.f, self.n, self.calls = f, 0, 0
+
+    def __call__(self, X: np.ndarray) -> np.ndarray:
+        X = np.atleast_2d(np.asarray(X, float))
+        self.n += X.shape[0]
+        self.calls += 1
+        return np.asarray(self.f(X), float).reshape(-1)
+
+    def scalar(self, x: np.ndarray) -> float:
+        return float(self(np.asarray(x, float).reshape(1, -1))[0])
+
+
+def make_space(prob: Problem):
+    from bayescalib.parameters import ParameterSpace
+
+    return ParameterSpace.from_config(
+        [
+            {"name": n, "prior": {"type": "uniform", "lo": float(lo), "hi": float(hi)}, "bounds": [float(lo), float(hi)]}
+            for n, (lo, hi) in zip(prob.names, prob.bounds)
+        ]
+    )
+
+
+def _log_uniform(prob: Problem) -> float:
+    return -float(np.sum(np.log(prob.bounds[:, 1] - prob.bounds[:, 0])))
+
+
+# ---------------------------------------------------------------------------
+# methods: each returns a dict with
+#   samples (n, d), weights (n,) or None, grid_logpdf (callable on (M, 2) or None),
+#   grid_kind (str), n_evals, n_rounds, extra (dict)
+# ---------------------------------------------------------------------------
+
+
+def run_sobol_gp(prob: Problem, budget: int, seed: int) -> dict[str, Any]:
+    from bayescalib.design import sobol_design
+    from bayescalib.smc import run_smc
+    from bayescalib.surrogate import fit_gp
+
+    f = Counter(prob.loglik)
+    space = make_space(prob)
+    X = sobol_design(prob.bounds, budget, seed)
+    y = f(X)
+    gp = fit_gp(X, y, ard=prob.d > 2, bounds=prob.bounds, restarts=3, seed=seed)
+    smc = run_smc(
+        lambda Z: gp.predict(Z), space, n_particles=4000, n_rej=20, zeta=0.95,
+        rng=np.random.default_rng(seed),
+    )
+    return {
+        "samples": smc.particles,
+        "weights": smc.weights,
+        "grid_logpdf": lambda G: gp.predict(G) + space.logprior(G),
+        "grid_kind": "surrogate",
+        "n_evals": f.n,
+        "n_rounds": 1,
+        "extra": {"smc_steps": int(smc.n_steps)},
+    }
+
+
+def run_active(prob: Problem, budget: int, seed: int) -> dict[str, Any]:
+    # Adapter for bayescalib.active.calibrate; kept small so that names can follow the API.
+    try:
+        from bayescalib.active import calibrate
+    except ImportError as e:
+        raise NotAvailable(f"not available (bayescalib.active: {e})") from None
+    f = Counter(prob.loglik)
+    space = make_space(prob)
+    n0 = max(2 * prob.d + 2, budget // 4)
+    res = calibrate(
+        f, space, bound=prob.B,
+        active={"n_initial": n0, "batch_size": 8, "max_solves": budget},
+        surrogate={"ard": prob.d > 2},
+        smc={"n_particles": 4000},
+        seed=seed,
+    )
+    gp = res.surrogate
+    if int(res.n_evaluations) != f.n:
+        print(f"  [active] note: res.n_evaluations={res.n_evaluations} but the counter saw {f.n}")
+    return {
+        "samples": res.smc.particles,
+        "weights": res.smc.weights,
+        "grid_logpdf": lambda G: gp.predict(G) + space.logprior(G),
+        "grid_kind": "surrogate",
+        "n_evals": f.n,
+        "n_rounds": int(res.n_rounds),
+        "extra": {
+            "converged": bool(res.converged),
+            "reason": str(res.reason),
+            "n_evaluations_reported": int(res.n_evaluations),
+            "n_initial": n0,
+        },
+    }
+
+
+def run_pyvbmc(prob: Problem, budget: int, seed: int) -> dict[str, Any]:
+    try:
+        from pyvbmc import VBMC
+    except ImportError as e:
+        raise NotAvailable(f"not installed (pyvbmc: {e})") from None
+    f = Counter(prob.loglik)
+    lo, hi = prob.bounds[:, 0], prob.bounds[:, 1]
+    width = hi - lo
+    lp0 = _log_uniform(prob)
+    # PyVBMC checks max_fun_evals only at the end of an iteration (5 new points each),
+    # so it can overshoot; start with a design that makes the budget come out exactly.
+    n_start = 10 * math.ceil((prob.d + 1) / 10)
+    n_start += (budget - n_start) % 5
+    vbmc = VBMC(
+        lambda x: f.scalar(x) + lp0,  # log joint: log-likelihood + uniform log prior
+        0.5 * (lo + hi),
+        lo,
+        hi,
+        lo + 0.1 * width,
+        hi - 0.1 * width,
+        options={
+            "max_fun_evals": budget, "fun_eval_start": n_start, "display": "off", "show_tips": False,
+        },
+        seed=seed,
+    )
+    vp, results = vbmc.optimize()
+    S = vp.sample(100000)
+    S = S[0] if isinstance(S, tuple) else S
+    return {
+        "samples": np.asarray(S),
+        "weights": None,
+        "grid_logpdf": lambda G: vp.pdf(G, log_flag=True).reshape(-1),
+        "grid_kind": "vp.pdf",
+        "n_evals": f.n,
+        "n_rounds": f.n,
+        "extra": {
+            "success_flag": bool(results.get("success_flag", False)),
+            "message": str(results.get("message", "")).strip()[:200],
+            "iterations": int(results.get("iterations", -1)),
+            "func_count": int(results.get("func_count", -1)),
+        },
+    }
+
+
+def _gpry_once(prob: Problem, budget: int, seed: int, surrogate: Any, f: Counter) -> dict[str, Any]:
+    from gpry import Runner
+
+    def loglike(x):  # one argument: GPry passes the point as one vector
+        return f.scalar(x)
+
+    d = prob.d
+    n_initial = 3 * d  # GPry's default
+    # The initial design is drawn in blocks of n_initial until enough "finite" values
+    # are found, up to max_initial: keep max_initial a multiple of n_initial so that
+    # this phase cannot overshoot the budget.
+    max_initial = n_initial * max(1, min(budget, round(30 * d**1.5)) // n_initial)
+    runner = Runner(
+        loglike,
+        bounds=prob.bounds.tolist(),
+        params=list(prob.names),
+        surrogate=surrogate,
+        options={"n_initial": n_initial, "max_initial": max_initial, "max_total": budget},
+        seed=seed,
+        plots=False,
+        verbose=1,
+    )
+    runner.run()
+    n_run = f.n
+    try:  # batches of truth evaluations (initial design included), from GPry's progress table
+        n_batches = int((runner.progress.data["evals_truth"].fillna(0) > 0).sum())
+    except Exception:  # noqa: BLE001
+        n_batches = -1
+    runner.generate_mc_sample()  # output=None: nothing written (output=False is refused)
+    mc = runner.last_mc_samples()
+    w = mc.get("w")
+
+    def grid_logpdf(G):
+        return np.asarray(runner.logp(G), float).reshape(-1)
+
+    return {
+        "samples": np.asarray(mc["X"]),
+        "weights": None if w is None else np.asarray(w, float),
+        "grid_logpdf": grid_logpdf,
+        "grid_kind": "surrogate",
+        "n_evals": n_run,
+        "n_rounds": n_batches,
+        "extra": {
+            "converged": bool(getattr(runner, "has_converged", False)),
+            "mc_evals_after_run": f.n - n_run,
+        },
+    }
+
+
+def run_gpry(prob: Problem, budget: int, seed: int) -> dict[str, Any]:
+    try:
+        import gpry  # noqa: F401
+    except ImportError as e:
+        raise NotAvailable(f"not installed (gpry: {e})") from None
+    f = Counter(prob.loglik)
+    try:
+        out = _gpry_once(prob, budget, seed, "RBF", f)  # GPry's default surrogate
+        out["extra"]["gpry_config"] = "default"
+        return out
+    except RuntimeError as e:
+        if "finite initial samples" not in str(e):
+            raise
+        # GPry's default classifier counts as "finite" only values within ~200 of the
+        # best one (20 sigma), so a wide prior box can leave it without an initial design.
+        print(f"  [gpry] default run failed in its initial design ({str(e).splitlines()[0][:120]}); "
+              "running again with the classifier's threshold at infinity")
+    # (None or False for "infinities_classifier" is refused by the merge with the defaults,
+    # and {} gets the default SVM back; an infinite threshold marks every value finite.)
+    n_failed = f.n
+    f = Counter(prob.loglik)
+    out = _gpry_once(prob, budget, seed, {"infinities_classifier": {"svm": {"threshold": np.inf}}}, f)
+    out["extra"]["gpry_config"] = (
+        f"infinite classifier threshold (the default run found no initial design in {n_failed} evaluations)"
+    )
+    return out
+
+
+METHODS = {"sobol_gp": run_sobol_gp, "active": run_active, "pyvbmc": run_pyvbmc, "gpry": run_gpry}
+
+
+# ---------------------------------------------------------------------------
+# metrics
+# ---------------------------------------------------------------------------
+
+
+def weighted_moments(X: np.ndarray, w: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    X = np.asarray(X, float)
+    w = np.full(X.shape[0], 1.0 / X.shape[0]) if w is None else np.asarray(w, float) / np.sum(w)
+    m = w @ X
+    D = X - m
+    C = D.T @ (D * w[:, None])
+    return m, C
+
+
+def kl_gauss(m0, C0, m1, C1) -> float:
+    """KL(N(m0, C0) || N(m1, C1))."""
+    d = len(m0)
+    C1i = np.linalg.inv(C1)
+    dm = m1 - m0
+    s0, ld0 = np.linalg.slogdet(C0)
+    s1, ld1 = np.linalg.slogdet(C1)
+    if s0 <= 0 or s1 <= 0:
+        return float("inf")
+    return float(0.5 * (np.trace(C1i @ C0) + dm @ C1i @ dm - d + ld1 - ld0))
+
+
+def hellinger(P: np.ndarray, Q: np.ndarray) -> float:
+    bc = float(np.sum(np.sqrt(P * Q)))
+    return math.sqrt(max(0.0, 1.0 - bc))
+
+
+def hist2d(prob: Problem, X: np.ndarray, w: np.ndarray | None) -> np.ndarray:
+    (l1, h1), (l2, h2) = prob.bounds
+    H, _, _ = np.histogram2d(X[:, 0], X[:, 1], bins=HIST_N, range=[[l1, h1], [l2, h2]], weights=w)
+    return H / H.sum()
+
+
+def ref_hist2d(prob: Problem) -> np.ndarray:
+    # aggregate the reference grid masses into the 30x30 bins, by cell centre
+    g1, g2 = prob.grid_axes
+    (l1, h1), (l2, h2) = prob.bounds
+    i1 = np.minimum(((g1 - l1) / (h1 - l1) * HIST_N).astype(int), HIST_N - 1)
+    i2 = np.minimum(((g2 - l2) / (h2 - l2) * HIST_N).astype(int), HIST_N - 1)
+    H = np.zeros((HIST_N, HIST_N))
+    np.add.at(H, (i1[:, None].repeat(GRID_N, 1), i2[None, :].repeat(GRID_N, 0)), prob.ref_grid)
+    return H / H.sum()
+
+
+def evaluate(prob: Problem, out: dict[str, Any]) -> dict[str, Any]:
+    X = np.asarray(out["samples"], float)
+    w = out.get("weights")
+    m, C = weighted_moments(X, w)
+    sd = np.sqrt(np.diag(C))
+    rsd = prob.ref_sd
+    met = {
+        "mean_err": float(np.max(np.abs(m - prob.ref_mean) / rsd)),
+        "sd_err": float(np.max(np.abs(sd - rsd) / rsd)),
+        "kl_gauss": kl_gauss(prob.ref_mean, prob.ref_cov, m, C),
+        "mean": m.tolist(),
+        "sd": sd.tolist(),
+    }
+    if prob.d == 2:
+        kind = out.get("grid_kind", "")
+        H = None
+        if out.get("grid_logpdf") is not None:
+            try:
+                Q = _normalize_log(out["grid_logpdf"](prob.grid_points())).reshape(GRID_N, GRID_N)
+                H = hellinger(prob.ref_grid, Q)
+            except Exception as e:  # noqa: BLE001 - fall back to histograms, and say so
+                print(f"  grid density failed ({type(e).__name__}: {e}); using {HIST_N}x{HIST_N} histograms")
+                H = None
+        if H is None:
+            H = hellinger(ref_hist2d(prob), hist2d(prob, X, w))
+            kind = f"hist{HIST_N}"
+        met["hellinger"] = H
+        met["hellinger_from"] = kind
+    return met
+
+
+# ---------------------------------------------------------------------------
+# driver
+# ---------------------------------------------------------------------------
+
+
+def run_one(prob: Problem, method: str, budget: int, seed: int) -> dict[str, Any]:
+    t0 = time.perf_counter()
+    try:
+        out = METHODS[method](prob, budget, seed)
+    except NotAvailable as e:
+        return {"status": str(e)}
+    except Exception as e:  # noqa: BLE001 - a failing method must not stop the benchmark
+        traceback.print_exc()
+        return {"status": f"failed: {type(e).__name__}: {str(e).splitlines()[0][:160] if str(e) else ''}"}
+    wall = time.perf_counter() - t0
+    rec = {"status": "ok", "wall_s": wall, "n_evals": int(out["n_evals"]), "n_rounds": int(out["n_rounds"])}
+    rec.update(out.get("extra", {}))
+    try:
+        rec.update(evaluate(prob, out))
+    except Exception as e:  # noqa: BLE001
+        traceback.print_exc()
+        rec["status"] = f"metrics failed: {type(e).__name__}: {e}"
+    return rec
+
+
+NUMERIC = ["n_evals", "n_rounds", "wall_s", "hellinger", "mean_err", "sd_err", "kl_gauss"]
+
+
+def summarize(runs: list[dict[str, Any]]) -> dict[str, Any]:
+    ok = [r for r in runs if r.get("status") == "ok"]
+    if not ok:
+        return {"status": runs[0].get("status", "no run") if runs else "no run"}
+    s: dict[str, Any] = {"status": "ok" if len(ok) == len(runs) else f"ok in {len(ok)}/{len(runs)}"}
+    for k in NUMERIC:
+        vals = [r[k] for r in ok if k in r and r[k] is not None and np.isfinite(r[k])]
+        if vals:
+            s[k] = float(statistics.median(vals))
+    for k in ("converged", "reason", "hellinger_from", "success_flag", "gpry_config"):
+        vals = [r[k] for r in ok if k in r]
+        if vals:
+            s[k] = vals[0] if len(set(map(str, vals))) == 1 else "/".join(map(str, vals))
+    return s
+
+
+def _short(text: str, n: int = 90) -> str:
+    """First sentence of a long message, at most n characters (the full text is in the JSON)."""
+    t = str(text).split(". ")[0]
+    head = t.split(": ", 1)[0]
+    if len(head) > 15:
+        t = head
+    return t if len(t) <= n else t[: n - 3] + "..."
+
+
+def _fmt(v, nd=3) -> str:
+    if v is None:
+        return "-"
+    if isinstance(v, float):
+        if not np.isfinite(v):
+            return "inf"
+        if abs(v) >= 1e4:
+            return f"{v:.3g}"
+        if abs(v) >= 100:
+            return f"{v:.0f}"
+        return f"{v:.{nd}g}"
+    return str(v)
+
+
+def table(
+    results: dict[str, Any], problems: list[str], methods: list[str], repeats: int, partial: bool = False
+) -> str:
+    head = (
+        "| problem | d | budget | method | evals | rounds | wall s | Hellinger | mean err | sd err "
+        "| KL gauss | notes |\n|---|---|---|---|---|---|---|---|---|---|---|---|\n"
+    )
+    rows = []
+    for p in problems:
+        pr = results["problems"][p]
+        for m in methods:
+            if m not in pr["methods"]:
+                if partial:
+                    rows.append(f"| {p} | {pr['d']} | {pr['budget']} | {m} | - | - | - | - | - | - | - | (not run yet) |")
+                continue
+            s = pr["methods"][m]["summary"]
+            if s["status"] != "ok" and not s["status"].startswith("ok in"):
+                rows.append(f"| {p} | {pr['d']} | {pr['budget']} | {m} | - | - | - | - | - | - | - | {s['status']} |")
+                continue
+            notes = []
+            if s["status"] != "ok":
+                notes.append(s["status"])
+            if "converged" in s and m == "active":
+                reason = _short(s.get("reason", ""))
+                for prefix in ("NOT converged: ", "not converged: "):
+                    reason = reason.removeprefix(prefix)
+                notes.append(f"converged={s['converged']}: {reason}")
+            elif "converged" in s:
+                notes.append(f"converged={s['converged']}")
+            if s.get("gpry_config", "default") != "default":
+                notes.append(s["gpry_config"])
+            if "success_flag" in s:
+                notes.append(f"stable={s['success_flag']}")
+            if s.get("hellinger_from", "").startswith("hist"):
+                notes.append(f"Hellinger from {s['hellinger_from']} histograms")
+            hel = _fmt(s.get("hellinger")) if pr["d"] == 2 else "-"
+            rows.append(
+                f"| {p} | {pr['d']} | {pr['budget']} | {m} | {_fmt(s.get('n_evals'))} | {_fmt(s.get('n_rounds'))} "
+                f"| {_fmt(s.get('wall_s'), 2)} | {hel} | {_fmt(s.get('mean_err'))} | {_fmt(s.get('sd_err'))} "
+                f"| {_fmt(s.get('kl_gauss'))} | {'; '.join(notes)} |"
+            )
+    legend = (
+        f"\nMedians over {repeats} repeat(s) (seeds 0..{repeats - 1}). Hellinger: 2D only, on a "
+        f"{GRID_N}x{GRID_N} grid against the exact density. mean err / sd err: max over parameters of "
+        "|error| / reference sd. KL gauss: KL(reference || method) between moment-matched Gaussians. "
+        "rounds: sequential rounds of evaluations (sobol_gp 1; pyvbmc = evaluations; gpry: "
+        "batches of truth evaluations, its initial design included).\n"
+    )
+    return head + "\n".join(rows) + "\n" + legend
+
+
+def _jsonable(o):
+    if isinstance(o, dict):
+        return {str(k): _jsonable(v) for k, v in o.items()}
+    if isinstance(o, (list, tuple)):
+        return [_jsonable(v) for v in o]
+    if isinstance(o, np.ndarray):
+        return _jsonable(o.tolist())
+    if isinstance(o, (np.floating, float)):
+        return float(o) if np.isfinite(o) else str(float(o))
+    if isinstance(o, (np.integer,)):
+        return int(o)
+    if isinstance(o, np.bool_):
+        return bool(o)
+    return o
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--problems", default=",".join(ALL_PROBLEMS))
+    ap.add_argument("--methods", default=",".join(ALL_METHODS))
+    ap.add_argument("--budget", type=int, default=None, help="evaluations per problem (default: 2D 64, 4D 100, 7D 200)")
+    ap.add_argument("--repeats", type=int, default=1)
+    ap.add_argument("--out", default="results/bench_active")
+    ap.add_argument("--refresh-reference", action="store_true", help="recompute the cached hetero7d reference")
+    args = ap.parse_args(argv)
+    problems = [p.strip() for p in args.problems.split(",") if p.strip()]
+    methods = [m.strip() for m in args.methods.split(",") if m.strip()]
+    for p in problems:
+        if p not in ALL_PROBLEMS:
+            ap.error(f"unknown problem {p!r}; choose from {ALL_PROBLEMS}")
+    for m in methods:
+        if m not in METHODS:
+            ap.error(f"unknown method {m!r}; choose from {ALL_METHODS}")
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+
+    results: dict[str, Any] = {
+        "config": {
+            "problems": problems, "methods": methods, "budget_override": args.budget,
+            "repeats": args.repeats, "grid": GRID_N, "python": platform.python_version(),
+            "machine": platform.platform(), "cpus": os.cpu_count(),
+            "omp_num_threads": os.environ.get("OMP_NUM_THREADS"),
+            "started": time.strftime("%Y-%m-%d %H:%M:%S"),
+        },
+        "problems": {},
+    }
+    for pname in problems:
+        prob = make_problem(pname, out, args.refresh_reference)
+        budget = args.budget or DEFAULT_BUDGET[prob.d]
+        pr = {
+            "d": prob.d, "budget": budget, "names": prob.names, "bounds": prob.bounds,
+            "B": prob.B, "reference": {**prob.ref_info, "mean": prob.ref_mean, "sd": prob.ref_sd},
+            "methods": {},
+        }
+        for mname in methods:
+            runs = []
+            for r in range(args.repeats):
+                print(f"[{pname}] {mname} (budget {budget}, seed {r}) ...", flush=True)
+                rec = run_one(prob, mname, budget, seed=r)
+                rec["seed"] = r
+                runs.append(rec)
+                if rec["status"] == "ok":
+                    print(
+                        f"  evals {rec['n_evals']}, rounds {rec['n_rounds']}, {rec['wall_s']:.1f} s, "
+                        + (f"Hellinger {rec['hellinger']:.3f}, " if "hellinger" in rec else "")
+                        + f"mean err {rec['mean_err']:.3g}, sd err {rec['sd_err']:.3g}, KL {rec['kl_gauss']:.3g}",
+                        flush=True,
+                    )
+                else:
+                    print(f"  {rec['status']}", flush=True)
+                    if rec["status"].startswith("not "):
+                        break  # not installed / not available: no point repeating
+            pr["methods"][mname] = {"summary": summarize(runs), "runs": runs}
+            results["problems"][pname] = pr
+            # partial results after every method, so that an interrupted run keeps them
+            (out / "results.json").write_text(json.dumps(_jsonable(results), indent=1))
+            done = [p for p in problems if p in results["problems"]]
+            (out / "table.md").write_text(
+                table(results, done, methods, args.repeats, partial=True)
+            )
+
+    md = table(results, problems, methods, args.repeats)
+    print()
+    print(md)
+    (out / "table.md").write_text(md)
+    (out / "results.json").write_text(json.dumps(_jsonable(results), indent=1))
+    print(f"wrote {out / 'table.md'} and {out / 'results.json'}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
