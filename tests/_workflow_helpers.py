@@ -31,3 +31,30 @@ def smk(tmp: Path, *args: str, check: bool = True, timeout: int = 600):
     if check and proc.returncode != 0:
         raise AssertionError(f"snakemake failed:\n{proc.stdout[-4000:]}\n{proc.stderr[-6000:]}")
     return proc
+
+
+SLOW_MODEL = (
+    "import time\nfrom bayescalib.analytic_model import interface as _f\n"
+    "def interface(params, **kw):\n    time.sleep({sleep})\n    return _f(params, **kw)\n"
+)
+
+
+def run_and_kill(tmp: Path, runs: Path, n: int, *, sleep: float = 1.0,
+                 timeout: float = 300) -> None:
+    """Run the workflow in ``tmp`` with ``slow_model:interface`` (the analytic model
+    taking ``sleep`` s a point; the study must name it) and SIGKILL Snakemake and its
+    jobs once ``runs`` holds ``n`` design-point records (or at ``timeout``)."""
+    import signal
+    import time
+
+    (tmp / "slow_model.py").write_text(SLOW_MODEL.format(sleep=sleep))
+    cmd = [*SNAKEMAKE, "-s", str(REPO / "Snakefile"), "--directory", str(tmp), "--cores", "2"]
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                            env={**os.environ, "PYTHONPATH": str(tmp)}, start_new_session=True)
+    deadline = time.time() + timeout
+    while time.time() < deadline:
+        if runs.is_dir() and len(list(runs.glob("[0-9]*.h5"))) >= n:
+            break
+        time.sleep(0.1)
+    os.killpg(proc.pid, signal.SIGKILL)
+    proc.wait()

@@ -10,16 +10,12 @@ redoing finished ones.
 from __future__ import annotations
 
 import json
-import os
 import re
 import shutil
-import signal
-import subprocess
-import time
 from pathlib import Path
 
 import pytest
-from _workflow_helpers import REPO, SNAKEMAKE
+from _workflow_helpers import run_and_kill
 from _workflow_helpers import setup_study as _setup
 from _workflow_helpers import smk as _smk
 
@@ -122,21 +118,8 @@ def test_killed_run_resumes_without_redoing_finished_solves(base_study, done_run
     study = _with(base_study, design__n_train=8,
                   forward_model__python__function="slow_model:interface")
     tmp = _setup(tmp_path / "run", study)
-    (tmp / "slow_model.py").write_text(
-        "import time\nfrom bayescalib.analytic_model import interface as _f\n"
-        "def interface(params, **kw):\n    time.sleep(1.5)\n    return _f(params, **kw)\n"
-    )
-    cmd = [*SNAKEMAKE, "-s", str(REPO / "Snakefile"), "--directory", str(tmp), "--cores", "2"]
-    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-                            env={**os.environ, "PYTHONPATH": str(tmp)}, start_new_session=True)
     runs = tmp / "results" / "analytic" / "runs"
-    deadline = time.time() + 240
-    while time.time() < deadline:
-        if runs.is_dir() and len(list(runs.glob("*.h5"))) >= 4:
-            break
-        time.sleep(0.2)
-    os.killpg(proc.pid, signal.SIGKILL)
-    proc.wait()
+    run_and_kill(tmp, runs, 4, sleep=1.5, timeout=240)
     finished = {p.name: p.stat().st_mtime_ns for p in runs.glob("*.h5")}
     assert 4 <= len(finished) < 8
     # the README's resume after a hard kill: release the stale lock, rerun incomplete jobs

@@ -9,15 +9,11 @@ without redoing finished solves and ends where an uninterrupted run ends.
 from __future__ import annotations
 
 import json
-import os
 import shutil
-import signal
-import subprocess
-import time
 from pathlib import Path
 
 import pytest
-from _workflow_helpers import REPO, SNAKEMAKE
+from _workflow_helpers import run_and_kill
 from _workflow_helpers import setup_study as _setup
 from _workflow_helpers import smk as _smk
 
@@ -109,21 +105,8 @@ def test_killed_mid_round_resumes_without_redoing_solves(active_run, base_study,
     study = _study(base_study)
     study["forward_model"]["python"]["function"] = "slow_model:interface"
     tmp = _setup(tmp_path / "run", study)
-    (tmp / "slow_model.py").write_text(
-        "import time\nfrom bayescalib.analytic_model import interface as _f\n"
-        "def interface(params, **kw):\n    time.sleep(1.0)\n    return _f(params, **kw)\n"
-    )
-    cmd = [*SNAKEMAKE, "-s", str(REPO / "Snakefile"), "--directory", str(tmp), "--cores", "2"]
-    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-                            env={**os.environ, "PYTHONPATH": str(tmp)}, start_new_session=True)
-    runs = tmp / "results" / "analytic" / "runs"
-    deadline = time.time() + 300
-    while time.time() < deadline:  # inside round 1: its first solves are written
-        if runs.is_dir() and len(list(runs.glob("[0-9]*.h5"))) >= 10:
-            break
-        time.sleep(0.1)
-    os.killpg(proc.pid, signal.SIGKILL)
-    proc.wait()
+    # killed inside round 1: its first solves are written
+    run_and_kill(tmp, tmp / "results" / "analytic" / "runs", 10)
     finished = _runs(tmp)
     assert 10 <= len(finished) < 20
     _smk(tmp, "--unlock")
