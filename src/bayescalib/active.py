@@ -81,8 +81,6 @@ log = logging.getLogger(__name__)
 
 #: probability level of the posterior region in which the surrogate is checked
 REGION_LEVEL = 0.99
-#: exponent of the surrogate posterior in the acquisition score (1: VBMC's rule)
-TEMPER = 1.0
 #: jitter of the posterior candidates, in posterior standard deviations
 BANDWIDTH = 0.5
 #: share of the candidate pool drawn uniformly over the box
@@ -275,8 +273,7 @@ def candidate_pool(particles: np.ndarray, weights: np.ndarray, bounds: np.ndarra
 
 def select_batch(gp, pool: np.ndarray, logprior: np.ndarray, q: int, *,
                  failed: np.ndarray | None = None, n_explore: int = 0,
-                 threshold: float | None = None, explore_mask: np.ndarray | None = None,
-                 beta: float = TEMPER) -> dict[str, np.ndarray]:
+                 threshold: float | None = None, explore_mask: np.ndarray | None = None) -> dict[str, np.ndarray]:
     """Greedy batch of ``q`` candidates by prospective uncertainty (module docstring).
 
     Parameters
@@ -320,7 +317,7 @@ def select_batch(gp, pool: np.ndarray, logprior: np.ndarray, q: int, *,
     V = gp.latent_cov_factor(S)  # (n, nf + M)
     mean_L = gp.loglik_from_latent(g)[nf:]
     scale2 = np.exp(2.0 * np.maximum(g, 0.0)) if gp.warped else np.ones_like(g)
-    base = beta * (mean_L + np.asarray(logprior, float))
+    base = mean_L + np.asarray(logprior, float)
     cols: list[np.ndarray] = []
 
     def condition(k: int) -> None:
@@ -356,7 +353,7 @@ def select_batch(gp, pool: np.ndarray, logprior: np.ndarray, q: int, *,
         with np.errstate(divide="ignore"):
             if explore:  # prospective uncertainty under a flattened posterior
                 score = np.where(plausible, np.log(scale2[nf:] * var_g[nf:])
-                                 + EXPLORE_TEMPER * base / beta, -np.inf)
+                                 + EXPLORE_TEMPER * base, -np.inf)
             else:
                 score = np.log(scale2[nf:] * var_g[nf:]) + base
         score[picked] = -np.inf

@@ -69,11 +69,9 @@ def response_figures(training_path: str | Path, surrogate_path: str | Path,
     tab = read_training(training_path)
     gp = GPSurrogate.load(surrogate_path)
     d = space.dim
-    cal = [i for i in range(d) if space.calibrated_mask[i]]
-    axes_idx = (cal + [i for i in range(d) if i not in cal])[:2]
     if d < 2:
         raise ValueError("response surfaces need at least two inputs")
-    ix, iy = axes_idx
+    ix, iy = _shown_pair(space)
     b = space.bounds
     n = int(plots["grid"])
     gx = np.linspace(b[ix, 0], b[ix, 1], n)

@@ -75,7 +75,7 @@ def plot_rounds(
     X = np.atleast_2d(np.asarray(design, float))
     b = np.asarray(bounds, float)
     shown = _shown_rounds(n, max_panels)
-    ncols = min(len(shown), 3) + 0
+    ncols = min(len(shown), 3)
     nrows = int(np.ceil(len(shown) / ncols)) + 1
     with paper_style():
         fig = Figure(figsize=(3.0 * ncols, 2.7 * nrows), layout="constrained")
