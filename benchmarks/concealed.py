@@ -10,9 +10,9 @@ localization overlap (Jaccard index, over the observed nodes, between the locate
 intervals and the region where the hidden effect moves the interface by more than
 half its maximum), residual-to-noise ratio (RMS of the base model's residual over the
 noise sd), residual RMS before/after (the chosen model, or the best extended one),
-log Bayes factor of the best extended model, the number of refinement rounds of the
-base calibration, and the relative error of E and nu: from the pipeline's calibration,
-after the diagnosis' refinement, and in the chosen model.
+log Bayes factor of the best extended model, the study's own calibration (solves used,
+converged or not) and the relative error of E and nu: in the study's calibration (what
+summary.json reports, which the diagnosis starts from) and in the chosen model.
 
 Usage::
 
@@ -64,14 +64,14 @@ def _effect_region(root: Path, fm: dict, truth: dict) -> list[np.ndarray] | None
     """Per snapshot, observed nodes where the hidden effect moves the interface by more
     than half its maximum (noise-free truth against the base model at the truth)."""
     from bayescalib.diagnosis.residuals import offsets
-    from bayescalib.diagnosis.solves import solve_many
+    from bayescalib.forward import solve_points
     from bayescalib.interface import Interface
     from bayescalib.runrecord import read_run
 
     gt = read_run(root / "observations" / "ground_truth_run.h5")
     if not gt.ok:
         return None
-    (base,) = solve_many(fm, [truth], [root / "diagnosis" / "base_at_truth.h5"])
+    (base,) = solve_points(fm, [truth], [root / "diagnosis" / "base_at_truth.h5"])
     if not base.ok:
         return None
     gts = [ld.current for ld in gt.loadings] or [gt.interface_current]
@@ -106,8 +106,7 @@ def _row(study_file: Path, variant: str, root: Path, regions, labels) -> dict:
     chosen = next((e for e in ext if e["candidate"] == diag["chosen_model"]),
                   max(solved, key=lambda e: e["log_bayes_factor"]) if solved else None)
     before = diag.get("bias_before") or {}
-    refinement = diag.get("refinement") or {}
-    pipeline = refinement.get("bias_before_refinement") or before
+    design = diag.get("base_calibration") or {}
     after = (chosen or {}).get("bias_after") or {}
     hidden = diag.get("hidden_truth") or {}
     effect = ", ".join(f"{k}={v}" for k, v in hidden.items() if not isinstance(v, bool)) or "none"
@@ -125,8 +124,7 @@ def _row(study_file: Path, variant: str, root: Path, regions, labels) -> dict:
         "rms_after_um": 1e3 * chosen["check_after"]["residual_rms_mm"] if chosen else None,
         "log_bf": best["log_bayes_factor"] if best else None,
         "best_extended": best["candidate"] if best else None,
-        "refine_rounds": max(len(refinement.get("base") or [None]) - 1, 0),
-        "err_pipeline": {k: v["relative_error"] for k, v in pipeline.items()},
+        "base_solves": design.get("n_solves"), "base_converged": design.get("converged"),
         "err_before": {k: v["relative_error"] for k, v in before.items()},
         "err_after": {k: v["relative_error"] for k, v in after.items()},
     }
@@ -170,25 +168,23 @@ def main() -> None:
                 if (cfg["observations"].get("hidden") or {}) else None
             rows.append(_row(sf, variant, root, regions, obs.labels))
     head = ("| hidden effect | loadings | verdict | top-1 (identifiable) | re-fit p | chosen | "
-            "overlap | resid/noise | RMS before/after [um] | ln BF (best) | refine rounds | "
-            "E err pipeline/refined/chosen | nu err pipeline/refined/chosen |")
+            "overlap | resid/noise | RMS before/after [um] | ln BF (best) | base solves (converged) | "
+            "E err study/chosen | nu err study/chosen |")
     lines = [head, "|" + "---|" * 13]
     for r in rows:
         if r.get("verdict") == "RUN FAILED":
             lines.append(f"| {r['study']} | {r['loadings']} | RUN FAILED |" + " |" * 10)
             continue
-        ep, eb, ea = r["err_pipeline"], r["err_before"], r["err_after"]
+        eb, ea = r["err_before"], r["err_after"]
         lines.append(
             f"| {r['hidden']} | {r['loadings']} | {r['verdict']} | {r['top1']} "
             f"({_fmt(r['identifiable_top1'])}) | {_fmt(r['refit_p'], '{:.2g}')} | {r['chosen']} | "
             f"{_fmt(r['overlap'])} | {_fmt(r['residual_to_noise'], '{:.1f}')} | "
             f"{_fmt(r['rms_before_um'])} / {_fmt(r['rms_after_um'])} | "
             f"{_fmt(r['log_bf'], '{:.1f}')} ({r['best_extended'] or '-'}) | "
-            f"{r['refine_rounds']} | "
-            f"{_fmt(ep.get('E'), '{:.1%}')} / {_fmt(eb.get('E'), '{:.1%}')} / "
-            f"{_fmt(ea.get('E'), '{:.1%}')} | "
-            f"{_fmt(ep.get('nu'), '{:.1%}')} / {_fmt(eb.get('nu'), '{:.1%}')} / "
-            f"{_fmt(ea.get('nu'), '{:.1%}')} |")
+            f"{r['base_solves']} ({r['base_converged']}) | "
+            f"{_fmt(eb.get('E'), '{:.1%}')} / {_fmt(ea.get('E'), '{:.1%}')} | "
+            f"{_fmt(eb.get('nu'), '{:.1%}')} / {_fmt(ea.get('nu'), '{:.1%}')} |")
     table = "\n".join(lines)
     print(table)
     out.mkdir(parents=True, exist_ok=True)

@@ -15,6 +15,7 @@ from bayescalib.forward import (
     PythonModel,
     make_forward_model,
     solve_point,
+    solve_points,
 )
 from bayescalib.runrecord import read_run
 
@@ -170,6 +171,46 @@ def test_solve_point_records_a_crashing_process(tmp_path, monkeypatch):
     fm = {"type": "python", "python": {"function": "crash_fwd:f"}}
     res = solve_point(fm, {"E": 1.0}, tmp_path / "crash.h5")
     assert res.status == "failed" and "died" in res.reason
+
+
+def test_solve_points_in_parallel_equals_one_at_a_time(tmp_path):
+    """Several points at a time give the same records as one at a time, in the order
+    of the points, failures included."""
+    fm = {"type": "python", "python": {"function": ANALYTIC, "options": {"fail_below_E": 300.0}}}
+    pts = [{"E": e, "nu": 0.2} for e in (500.0, 150.0, 420.0, 610.0, 250.0)]
+    one = solve_points(fm, pts, [tmp_path / "a" / f"{i}.h5" for i in range(5)], workers=1)
+    par = solve_points(fm, pts, [tmp_path / "b" / f"{i}.h5" for i in range(5)], workers=3)
+    assert [r.status for r in par] == ["ok", "failed", "ok", "ok", "failed"]
+    for a, b in zip(one, par, strict=True):
+        assert a.status == b.status and a.parameters == b.parameters
+        if a.ok:
+            np.testing.assert_array_equal(a.interface_current, b.interface_current)
+
+
+def test_solve_points_reuses_matching_records_and_redoes_the_rest(tmp_path):
+    fm = {"type": "python", "python": {"function": ANALYTIC}}
+    paths = [tmp_path / f"{i}.h5" for i in range(3)]
+    solve_points(fm, [{"E": 300.0 + 100 * i, "nu": 0.1} for i in range(3)], paths)
+    stamps = [p.stat().st_mtime_ns for p in paths]
+    paths[2].write_bytes(b"not a run record")  # corrupt: solved again
+    res = solve_points(fm, [{"E": 300.0, "nu": 0.1}, {"E": 999.0, "nu": 0.1},
+                            {"E": 500.0, "nu": 0.1}], paths, workers=2)
+    assert paths[0].stat().st_mtime_ns == stamps[0]  # same values: kept
+    assert res[1].parameters["E"] == 999.0  # other values: solved again
+    assert res[2].ok and res[2].parameters["E"] == 500.0
+
+
+def test_solve_points_kills_only_the_hanging_point(tmp_path, monkeypatch):
+    mod = tmp_path / "some_hang.py"
+    mod.write_text("import time\ndef f(params):\n    if params['E'] < 0:\n"
+                   "        time.sleep(600)\n    return [[0.0, 0.0], [1.0, params['E']]]\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.chdir(tmp_path)
+    fm = {"type": "python", "time_limit_s": 1.0, "python": {"function": "some_hang:f"}}
+    res = solve_points(fm, [{"E": 1.0}, {"E": -1.0}, {"E": 2.0}],
+                       [tmp_path / f"{i}.h5" for i in range(3)], workers=2, grace_s=0.5)
+    assert [r.status for r in res] == ["ok", "failed", "ok"]
+    assert "time limit" in res[1].reason
 
 
 def test_unknown_forward_model_type():

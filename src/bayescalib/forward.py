@@ -30,21 +30,25 @@ is always written atomically.
 from __future__ import annotations
 
 import importlib
+import logging
 import math
 import multiprocessing as mp
+import multiprocessing.connection
 import os
 import re
 import subprocess
 import sys
 import time
 import traceback
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any, Protocol
 
 import numpy as np
 
 from bayescalib.runrecord import LoadingResult, SolveResult, write_run
+
+log = logging.getLogger(__name__)
 
 __all__ = [
     "CommandModel",
@@ -56,6 +60,7 @@ __all__ = [
     "loading_labels",
     "make_forward_model",
     "solve_point",
+    "solve_points",
     "solve_series",
 ]
 
@@ -545,6 +550,57 @@ def _child(fm: Mapping[str, Any], params: Mapping[str, float], workdir: str,
     conn.close()
 
 
+class _Solve:
+    """One model evaluation in flight: a forked child process with its pipe."""
+
+    def __init__(self, fm: Mapping[str, Any], params: Mapping[str, float], out_path: Path,
+                 workdir: Path, warm_start: str | Path | None,
+                 extra_outputs: Mapping[str, str] | None, hard_limit: float | None) -> None:
+        ctx = mp.get_context("fork" if "fork" in mp.get_all_start_methods() else "spawn")
+        self.params, self.out_path, self.hard = dict(params), out_path, hard_limit
+        self.conn, child = ctx.Pipe(duplex=False)
+        self.proc = ctx.Process(target=_child, args=(dict(fm), dict(params), str(workdir),
+                                                     None if warm_start is None else str(warm_start),
+                                                     dict(extra_outputs or {}), child))
+        self.t0 = time.perf_counter()
+        self.proc.start()
+        child.close()
+
+    def remaining(self) -> float | None:
+        """Seconds left before the hard limit (None: no limit)."""
+        return None if self.hard is None else self.hard - (time.perf_counter() - self.t0)
+
+    def finish(self) -> SolveResult:
+        """Collect the result (killing the child past its limit) and write the run record."""
+        res = None
+        left = self.remaining()
+        if self.conn.poll(None if left is None else max(left, 0.0)):
+            try:
+                res = self.conn.recv()
+            except EOFError:
+                res = None
+        self.proc.join(timeout=5 if res is not None else 0.1)
+        if self.proc.is_alive():
+            self.proc.kill()
+            self.proc.join()
+        self.conn.close()
+        if res is None:
+            wall = time.perf_counter() - self.t0
+            if self.hard is not None and wall >= self.hard:
+                res = failed_result(self.params,
+                                    f"killed after exceeding the time limit ({self.hard:g} s)", wall)
+            else:
+                res = failed_result(self.params,
+                                    f"solver process died (exit code {self.proc.exitcode})", wall)
+        write_run(self.out_path, res)
+        return res
+
+
+def _hard_limit(fm: Mapping[str, Any], time_limit_s: float | None, grace_s: float) -> float | None:
+    limit = time_limit_s if time_limit_s is not None else fm.get("time_limit_s")
+    return None if limit is None else float(limit) + float(grace_s)
+
+
 def solve_point(fm: Mapping[str, Any], params: Mapping[str, float], out_path: str | Path, *,
                 time_limit_s: float | None = None, warm_start: str | Path | None = None,
                 workdir: str | Path | None = None, isolate: bool = True,
@@ -580,47 +636,93 @@ def solve_point(fm: Mapping[str, Any], params: Mapping[str, float], out_path: st
     """
     out_path = Path(out_path)
     workdir = Path(workdir) if workdir is not None else out_path.with_suffix(".work")
-    limit = time_limit_s if time_limit_s is not None else fm.get("time_limit_s")
-    t0 = time.perf_counter()
-    if not isolate:
-        try:
-            res = solve_series(make_forward_model(fm, workdir=workdir, warm_start=warm_start,
-                                                  extra_outputs=extra_outputs),
-                               params, fm.get("loadings"))
-        except ForwardModelError:
-            raise
-        except Exception as exc:  # noqa: BLE001
-            res = failed_result(params, f"{type(exc).__name__}: {exc}",
-                                log_tail=traceback.format_exc()[-2000:])
-    else:
-        ctx = mp.get_context("fork" if "fork" in mp.get_all_start_methods() else "spawn")
-        parent, child = ctx.Pipe(duplex=False)
-        proc = ctx.Process(target=_child, args=(dict(fm), dict(params), str(workdir),
-                                                None if warm_start is None else str(warm_start),
-                                                dict(extra_outputs or {}), child))
-        proc.start()
-        child.close()
-        hard = None if limit is None else float(limit) + float(grace_s)
-        res = None
-        if parent.poll(hard):
-            try:
-                res = parent.recv()
-            except EOFError:
-                res = None
-        proc.join(timeout=5 if res is not None else 0.1)
-        if proc.is_alive():
-            proc.kill()
-            proc.join()
-        if res is None:
-            wall = time.perf_counter() - t0
-            if hard is not None and wall >= hard:
-                res = failed_result(params, f"killed after exceeding the time limit ({hard:g} s)",
-                                    wall)
-            else:
-                res = failed_result(params, f"solver process died (exit code {proc.exitcode})",
-                                    wall)
+    if isolate:
+        return _Solve(fm, params, out_path, workdir, warm_start, extra_outputs,
+                      _hard_limit(fm, time_limit_s, grace_s)).finish()
+    try:
+        res = solve_series(make_forward_model(fm, workdir=workdir, warm_start=warm_start,
+                                              extra_outputs=extra_outputs),
+                           params, fm.get("loadings"))
+    except ForwardModelError:
+        raise
+    except Exception as exc:  # noqa: BLE001
+        res = failed_result(params, f"{type(exc).__name__}: {exc}",
+                            log_tail=traceback.format_exc()[-2000:])
     write_run(out_path, res)
     return res
+
+
+def _same_inputs(run: SolveResult, params: Mapping[str, Any]) -> bool:
+    """Whether a run record was solved at ``params`` (switches are not recorded)."""
+    for k, v in params.items():
+        if isinstance(v, bool):
+            continue
+        if k not in run.parameters or abs(run.parameters[k] - float(v)) > 1e-12 * max(1.0, abs(float(v))):
+            return False
+    return True
+
+
+def solve_points(fm: Mapping[str, Any], points: Sequence[Mapping[str, Any]],
+                 out_paths: Sequence[str | Path], *, workers: int = 1,
+                 warm_start: str | Path | None = None, grace_s: float = 30.0) -> list[SolveResult]:
+    """:func:`solve_point` at many points, ``workers`` at a time, reusing valid records.
+
+    The stages whose points are known only while they run (the diagnosis: posterior
+    draws, finite-difference steps, extended calibrations) solve through here: every
+    point is the same isolated, time-limited evaluation as a ``solve`` job of the
+    workflow. A run record that exists, reads and was solved at the same values is
+    kept, so an interrupted stage resumes without redoing finished solves.
+
+    Parameters
+    ----------
+    fm
+        Validated ``forward_model`` section (``loadings`` included).
+    points
+        Parameter values keyed by target, plus switches such as
+        ``physics.growth.enabled: True``, one mapping per point.
+    out_paths
+        One run-record path per point.
+    workers
+        Child processes at a time.
+    warm_start
+        State file every solve starts from (fsi only).
+
+    Returns
+    -------
+    list of SolveResult
+        In the order of ``points``.
+    """
+    from bayescalib.runrecord import RunFileError, read_run
+
+    if len(points) != len(out_paths):
+        raise ValueError("solve_points: one output path per point is needed")
+    todo = []
+    for p, out in zip(points, out_paths, strict=True):
+        out = Path(out)
+        if out.is_file():
+            try:
+                if _same_inputs(read_run(out), p):
+                    continue
+            except RunFileError:
+                pass  # corrupt or incomplete: solve again
+        out.parent.mkdir(parents=True, exist_ok=True)
+        todo.append((dict(p), out))
+    log.info("solves: %d of %d to do (%d reused), %d at a time", len(todo), len(points),
+             len(points) - len(todo), workers)
+    hard = _hard_limit(fm, None, grace_s)
+    running: list[_Solve] = []
+    while todo or running:
+        while todo and len(running) < max(int(workers), 1):
+            p, out = todo.pop(0)
+            running.append(_Solve(fm, p, out, out.with_suffix(".work"), warm_start, None, hard))
+        left = [s.remaining() for s in running if s.hard is not None]
+        ready = mp.connection.wait([s.conn for s in running],
+                                   timeout=max(min(left), 0.0) if left else None)
+        for s in [s for s in running if s.conn in ready or
+                  (s.remaining() is not None and s.remaining() <= 0)]:
+            s.finish()
+            running.remove(s)
+    return [read_run(p) for p in out_paths]
 
 
 def solve_base_state(fm: Mapping[str, Any], params: Mapping[str, float], run_path: str | Path,

@@ -39,6 +39,7 @@ __all__ = [
     "design_summary",
     "discrepancy",
     "gather",
+    "gather_rows",
     "marginalize",
     "observe",
     "read_json",
@@ -304,22 +305,18 @@ def _measure_options(name: str, measure: Mapping[str, Any], obs) -> dict[str, An
 
 
 # --------------------------------------------------------------------------- gather
-def gather(run_paths: Sequence[str | Path], disc_paths: Sequence[str | Path],
-           names: Sequence[str], targets: Sequence[str], n_train: int | None,
-           out_path: str | Path) -> None:
-    """Training table of all design points for one measure (HDF5).
+def gather_rows(run_paths: Sequence[str | Path], disc_paths: Sequence[str | Path],
+                targets: Sequence[str]) -> dict[str, Any]:
+    """The rows of a training table from run records and their discrepancy records.
 
-    Datasets: ``X (n, d)`` inputs in user units (columns = parameter names),
-    ``loglik (n,)`` (-inf for failed runs), ``D (n,)``, ``status`` (1 ok, 0
-    failed), ``is_train`` (first ``n_train`` points; the rest are held out for
-    the convergence study; ``n_train=None``: all), ``reason`` (str per point),
-    ``bound (n,)``: the largest value the point's Gaussian log-likelihood can take,
-    -n/2 log(2 pi sigma_N^2) summed over snapshots (NaN for failed runs).
+    Returns ``X (n, d)`` (columns in the order of ``targets``), ``loglik (n,)``
+    (-inf for failed runs), ``D (n,)``, ``status (n,)`` (1 ok, 0 failed),
+    ``bound (n,)`` (:func:`record_bound`, NaN for failed runs) and ``reason``
+    (n strings).
     """
-
     if len(run_paths) != len(disc_paths):
         raise PipelineError("gather: the number of run records and discrepancy files differ")
-    n, d = len(run_paths), len(names)
+    n, d = len(run_paths), len(targets)
     X = np.full((n, d), np.nan)
     L = np.full(n, -np.inf)
     D = np.full(n, np.nan)
@@ -341,8 +338,25 @@ def gather(run_paths: Sequence[str | Path], disc_paths: Sequence[str | Path],
             ok[i] = 1
             bound[i] = record_bound(rec)
         reasons.append(run.reason or rec.get("reason") or "")
-    write_training(out_path, X, L, D, ok, reasons, names, n if n_train is None else n_train,
-                   bound=bound)
+    return {"X": X, "loglik": L, "D": D, "status": ok, "bound": bound, "reason": reasons}
+
+
+def gather(run_paths: Sequence[str | Path], disc_paths: Sequence[str | Path],
+           names: Sequence[str], targets: Sequence[str], n_train: int | None,
+           out_path: str | Path) -> None:
+    """Training table of all design points for one measure (HDF5).
+
+    Datasets: ``X (n, d)`` inputs in user units (columns = parameter names),
+    ``loglik (n,)`` (-inf for failed runs), ``D (n,)``, ``status`` (1 ok, 0
+    failed), ``is_train`` (first ``n_train`` points; the rest are held out for
+    the convergence study; ``n_train=None``: all), ``reason`` (str per point),
+    ``bound (n,)``: the largest value the point's Gaussian log-likelihood can take,
+    -n/2 log(2 pi sigma_N^2) summed over snapshots (NaN for failed runs).
+    """
+    rows = gather_rows(run_paths, disc_paths, targets)
+    n = len(rows["loglik"])
+    write_training(out_path, rows["X"], rows["loglik"], rows["D"], rows["status"],
+                   rows["reason"], names, n if n_train is None else n_train, bound=rows["bound"])
 
 
 def record_bound(rec: Mapping[str, Any]) -> float:

@@ -1,7 +1,10 @@
 # Model-form diagnosis (switched on with diagnose.enabled): predictive check,
 # located mismatch, attribution to candidate physics, extended calibrations and
-# Bayes factors. Its forward solves run inside the job (they depend on the
-# posterior), in parallel on the job's threads, kept under diagnosis/ and reused.
+# Bayes factors. It starts from the study's calibration (the posterior and the
+# active rounds that summary.json reports). Its forward solves run inside the job
+# (they depend on the posterior) through the same solve path as `solve`, in
+# parallel on the job's threads, kept under diagnosis/ and reused; its extended
+# calibrations are the same active-design chain as the study's (bayescalib.chain).
 
 
 def _diagnose_inputs(wildcards):
@@ -14,6 +17,7 @@ def _diagnose_inputs(wildcards):
     }
     if study.config["forward_model"]["warm_start"] == "prior_centre":
         out["base"] = f"{R}/runs/base_state.state.npz"
+    out["rounds"] = active_records()
     return out
 
 
@@ -41,7 +45,8 @@ rule diagnose:
         smc=study.config["smc"],
         posterior=study.config["posterior"],
         diagnose=study.config["diagnose"],
-        n_train=study.n_train,
+        design=study.config["design"],
+        n_solves=lambda wildcards: len(final_points()),
         plots=study.config["plots"],
         outdir=f"{R}/diagnosis",
         figdir=f"{R}/figures/diagnosis",

@@ -1,9 +1,9 @@
 """The ``diagnose`` stage: check, locate, attribute, model, show (writes diagnosis.json).
 
-0. *Refine* — up to ``refine.max_rounds`` rounds of posterior-targeted design points
-   (:mod:`bayescalib.refinement`) make sure the base calibration is not limited by its
-   surrogate before the model is judged; every extended calibration gets the same
-   rounds, so that the Bayes factors compare models refined alike.
+0. *Start* from the study's own calibration: the posterior that ``summary.json``
+   reports, with its design block (active rounds converged or not). The diagnosis does
+   not re-calibrate the base model; when its calibration did not converge it says so,
+   because a mismatch may then be the surrogate's and not the physics'.
 1. *Check* — K posterior draws of the base calibration (systematic resampling of the
    SMC particles, seeded) are solved; :func:`~bayescalib.diagnosis.residuals.predictive_check`
    gives the residual along the observed interface with its predictive bands and the
@@ -15,9 +15,10 @@
    Jacobian and the candidates' signatures;
    :func:`~bayescalib.diagnosis.attribution.attribute` ranks the candidates.
 4. *Model* — for the ``n_extend`` best-ranked identifiable candidates (when the check
-   fails, or always with ``force_extend``), the extended model is calibrated
-   (:func:`~bayescalib.diagnosis.extended.extended_calibration`) and compared by its
-   log Bayes factor.
+   fails, or always with ``force_extend``), the extended model is calibrated by the
+   same active-design chain as the study
+   (:func:`~bayescalib.diagnosis.extended.extended_calibration`, which says whether it
+   converged) and compared by its log Bayes factor.
 5. *Show* — the predictive check is repeated with draws of each extended posterior:
    residual RMS, band coverage and p-values before/after, the posterior of ``phi``,
    and the change of the base parameters' error against the ground truth when known.
@@ -38,11 +39,7 @@ from typing import Any
 
 import numpy as np
 
-from bayescalib.diagnosis.extended import (
-    CandidateSpec,
-    extended_calibration,
-    refine_calibration,
-)
+from bayescalib.diagnosis.extended import CandidateSpec, extended_calibration
 from bayescalib.pipeline import model_interfaces
 from bayescalib.posterior import equal_weight_draws
 
@@ -96,11 +93,11 @@ def _check_from_particles(tag: str, particles: str | Path, targets: Sequence[str
                           switches: Mapping[str, Any], obs, fm, cfg, work: Path,
                           workers: int, warm_start, sigma):
     from bayescalib.diagnosis.residuals import predictive_check
-    from bayescalib.diagnosis.solves import solve_many
+    from bayescalib.forward import solve_points
 
     X = equal_weight_draws(particles, int(cfg["n_draws"]), int(cfg["seed"]))
     points = [{**dict(zip(targets, map(float, x), strict=True)), **switches} for x in X]
-    runs = solve_many(fm, points, [work / tag / "draws" / f"{k}.h5" for k in range(len(X))],
+    runs = solve_points(fm, points, [work / tag / "draws" / f"{k}.h5" for k in range(len(X))],
                       workers=workers, warm_start=warm_start)
     good = [r for r in runs if r.ok]
     if len(good) < 2:
@@ -139,7 +136,8 @@ def run_diagnosis(
     smc_cfg: Mapping[str, Any],
     posterior_cfg: Mapping[str, Any],
     diagnose: Mapping[str, Any],
-    n_train_base: int,
+    active: Mapping[str, Any],
+    design: Mapping[str, Any],
     particles_path: str | Path,
     training_path: str | Path,
     posterior_path: str | Path,
@@ -158,8 +156,13 @@ def run_diagnosis(
         :class:`~bayescalib.diagnosis.residuals.PredictiveCheck` of the base model
         (``"base"``) and of each extended model (by candidate), for the figures.
 
+    ``active`` is the study's validated ``design.active`` section (the extended
+    calibrations use it); ``design`` the design block of the study's calibration
+    (:func:`bayescalib.pipeline.design_summary`: strategy, solves, converged, reason).
+
     Solves and extended calibrations are kept under ``outdir`` and reused.
     """
+    from bayescalib.active import history_table
     from bayescalib.diagnosis.attribution import (
         attribute,
         jacobian_from_offsets,
@@ -167,7 +170,7 @@ def run_diagnosis(
         signature_from_offsets,
     )
     from bayescalib.diagnosis.residuals import offsets
-    from bayescalib.diagnosis.solves import solve_many
+    from bayescalib.forward import solve_points
     from bayescalib.observation_store import read_observations
     from bayescalib.parameters import ParameterSpace
     from bayescalib.posterior import read_particles_h5
@@ -179,23 +182,14 @@ def run_diagnosis(
     space = ParameterSpace.from_config(parameters)
     targets = [p.get("target") or p["name"] for p in parameters]
     names = [p["name"] for p in parameters]
-    common = {"fm": fm, "obs_path": obs_path, "measure_name": measure_name,
-              "measure": measure, "likelihood": likelihood, "surrogate": surrogate,
-              "smc_cfg": smc_cfg, "posterior_cfg": posterior_cfg, "workers": workers,
-              "warm_start": warm_start}
-    rounds, n_refine = int(cfg["refine"]["max_rounds"]), int(cfg["refine"]["n_points"])
-    tol = float(cfg["refine"]["tol"])
+    chain = {"obs_path": obs_path, "measure_name": measure_name, "measure": measure,
+             "likelihood": likelihood, "surrogate": surrogate, "smc_cfg": smc_cfg,
+             "posterior_cfg": posterior_cfg, "workers": workers, "warm_start": warm_start}
 
-    # 0: refine the base calibration ---------------------------------------------
-    base_cal = {"parameters": [dict(p) for p in parameters], "training": str(training_path),
-                "particles": str(particles_path),
-                "log_evidence": float(read_particles_h5(particles_path).log_evidence),
-                "posterior": json.loads(Path(posterior_path).read_text())}
-    base_cal, base_history = refine_calibration(
-        base_cal, max_rounds=rounds, n_points=n_refine, tol=tol, seed=int(cfg["seed"]) + 2,
-        switches={}, workdir=work / "base" / "refine", **common)
-    particles_path, training_path = base_cal["particles"], base_cal["training"]
-    base_summary = base_cal["posterior"]
+    # 0: the study's calibration, as summary.json reports it ------------------------
+    base_evidence = float(read_particles_h5(particles_path).log_evidence)
+    base_summary = json.loads(Path(posterior_path).read_text())
+    base_design = {k: design.get(k) for k in ("strategy", "n_solves", "converged", "reason")}
     sigma = cfg.get("noise_sigma")
     if sigma is None and observations.get("source", "synthetic") == "synthetic" \
             and float(observations.get("noise_sigma", 0.0)) > 0:
@@ -219,7 +213,7 @@ def run_diagnosis(
         pts.append({**base_point, t: float(theta[i] + h[i])})
     for c in cands:
         pts.append({**base_point, c.target: c.step, **c.switches})
-    runs = solve_many(fm, pts, [work / "base" / "linearization" / f"{i}.h5"
+    runs = solve_points(fm, pts, [work / "base" / "linearization" / f"{i}.h5"
                                 for i in range(len(pts))], workers=workers,
                       warm_start=warm_start)
     if not runs[0].ok:
@@ -271,18 +265,14 @@ def run_diagnosis(
         ranked = [row["candidate"] for row in attr["ranking"]
                   if row["identifiable_fraction"] > 0.05 and row["phi_hat_plausible"]]
         chosen_names = list(dict.fromkeys(attr["selected"] + ranked))[: int(cfg["n_extend"])]
-        n_new = int(cfg["n_train"] or max(32, n_train_base // 2))
+        n_new = int(cfg["n_train"] or active["n_initial"])
+        max_new = int(cfg["max_solves"] or active["max_solves"])
         for name in chosen_names:
             c = next(c for c in cands if c.name == name)
             cal = extended_calibration(
-                c, fm=fm, parameters=parameters, base_training=training_path,
-                obs_path=obs_path, measure_name=measure_name, measure=measure,
-                likelihood=likelihood, surrogate=surrogate, smc_cfg=smc_cfg,
-                posterior_cfg=posterior_cfg, n_new=n_new, seed=int(cfg["seed"]) + 1,
-                workdir=work / name, workers=workers, warm_start=warm_start)
-            cal, history = refine_calibration(
-                cal, max_rounds=rounds, n_points=n_refine, tol=tol, seed=int(cfg["seed"]) + 3,
-                switches=c.switches, workdir=work / name / "refine", **common)
+                c, fm=fm, parameters=parameters, base_training=training_path, n_new=n_new,
+                max_new=max_new, seed=int(cfg["seed"]) + 1, active=active,
+                workdir=work / name, **chain)
             ext_targets = targets + [c.target]
             # an extended posterior where the forward model does not solve (the surrogate
             # interpolates over failed points) cannot be confirmed: recorded, not fatal
@@ -299,14 +289,14 @@ def run_diagnosis(
             ext = {
                 "candidate": name, "summary": c.summary, "unit": c.unit,
                 "log_evidence": cal["log_evidence"],
-                "log_bayes_factor": cal["log_evidence"] - base_cal["log_evidence"],
+                "log_bayes_factor": cal["log_evidence"] - base_evidence,
                 "phi_mean": float(post["mean"][phi_name]),
                 "phi_std": float(post["std"][phi_name]),
                 "phi_prior": list(c.prior), "phi_interval": post["intervals"].get(phi_name),
-                "n_new_solves": sum(h["n_new"] for h in history),
-                "n_reused": cal["n_reused"] - sum(h["n_new"] for h in history[:-1]),
-                "n_failed": sum(h["n_failed"] for h in history),
-                "refinement": history, "n_failed_draws_after": int(n_fail_after),
+                "n_new_solves": cal["n_new"], "n_reused": cal["n_reused"],
+                "n_failed": cal["n_failed"], "converged": cal["converged"],
+                "reason": cal["reason"], "rounds": history_table(cal["rounds"]),
+                "n_failed_draws_after": int(n_fail_after),
                 "check_after": None if after is None else after.to_json(),
                 "check_after_failed": check_failed,
                 "posterior": {k: post[k] for k in ("names", "mean", "std", "map")},
@@ -339,9 +329,7 @@ def run_diagnosis(
         "extended": [{k: v for k, v in e.items() if k != "_check"} for e in extended],
         "chosen_model": chosen,
         "bias_before": _bias(base_summary, parameters),
-        "refinement": {"max_rounds": rounds, "n_points": n_refine, "tol": tol,
-                       "base": base_history,
-                       "bias_before_refinement": _bias(base_history[0], parameters)},
+        "base_calibration": base_design,
         "hidden_truth": obs.meta.get("hidden") or None,
         "units": "lengths mm; phi in the candidate's unit",
     }
@@ -377,22 +365,17 @@ def plain_words(d: Mapping[str, Any]) -> list[str]:
     chk = d["check"]
     pmin = min(chk["p_values"].values())
     lines = []
-    ref = d.get("refinement") or {}
-    hist = ref.get("base") or []
-    if len(hist) > 1:
-        first, last = hist[0]["mean"], hist[-1]["mean"]
-        moved = ", ".join(f"{n} {first[n]:.4g} -> {last[n]:.4g}" for n in first)
-        n_new = sum(h["n_new"] for h in hist[1:])
-        settled = hist[-1]["shift_sd"] <= ref["tol"]
+    base = d.get("base_calibration") or {}
+    if base.get("converged") is False:
         lines.append(
-            f"Before the model was judged, {len(hist) - 1} round(s) of posterior-targeted "
-            f"forward solves ({n_new} in all) refined the calibration's surrogate: posterior "
-            f"mean {moved}. " + (
-                "The last round moved no mean by more than "
-                f"{ref['tol']:g} posterior sd: the surrogate agrees with the solves where the "
-                "posterior lives." if settled else
-                "The posterior still moved in the last round: the calibration may still be "
-                "limited by its surrogate (more diagnose.refine.max_rounds or design.n_train)."))
+            f"Caution: the study's calibration did NOT converge ({base['reason']}). The "
+            "diagnosis judges the posterior it reported; a mismatch found below may be the "
+            "surrogate's, not missing physics. Raise design.active.max_solves and rerun.")
+    elif base.get("converged") is None and base.get("strategy") == "fixed":
+        lines.append(
+            "The study used a fixed design, so nothing checked that its posterior has "
+            "converged; a mismatch found below may be the surrogate's (design.strategy: "
+            "active checks it).")
     if chk["adequate"]:
         lines.append(
             f"The calibrated model reproduces the observed interface within its predictive "
@@ -422,8 +405,8 @@ def plain_words(d: Mapping[str, Any]) -> list[str]:
                 f"posterior mean, to {moved}) leaves a residual consistent with the noise "
                 f"(chi2 = {rf['chi2']:.1f} on {rf['dof']} degrees of freedom, p = "
                 f"{rf['p_value']:.3g}): the calibration missed the best fit, no physics is "
-                "missing. The surrogate is the likely cause; add design points (design.n_train "
-                "or diagnose.refine.max_rounds) and rerun.")
+                "missing. The surrogate is the likely cause; give the design more solves "
+                "(design.active.max_solves) and rerun.")
         else:
             lines.append(d["attribution_verdict"][0].upper() + d["attribution_verdict"][1:]
                          + ".")
@@ -437,6 +420,10 @@ def plain_words(d: Mapping[str, Any]) -> list[str]:
                 f"posterior draws ({e['check_after_failed']}), so the extension cannot be "
                 "confirmed and is not chosen.")
             continue
+        if not e.get("converged", True):
+            lines.append(f"Caution: the calibration of base + {e['candidate']} did not "
+                         f"converge ({e['reason']}); its Bayes factor and phi are "
+                         "provisional (raise diagnose.max_solves).")
         if not e.get("surrogate_consistent", True):
             lines.append(f"Caution: the Bayes factor of {e['candidate']} favours it, but the "
                          "forward solves at its posterior do not fit better; the surrogate "
