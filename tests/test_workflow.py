@@ -75,6 +75,22 @@ def test_complete_run_writes_summary_with_contract_keys(done_run):
     assert job_counts(done_run) == {}
 
 
+def test_every_result_file_is_readable_by_collaborators(done_run):
+    """All result files get the permissions of a normally created file (0666 minus the
+    umask), not the 0600 of a temporary file: others on a shared machine can read them."""
+    import os
+    import stat
+
+    mask = os.umask(0)
+    os.umask(mask)
+    files = [f for f in (done_run / "results").rglob("*") if f.is_file()]
+    assert len(files) > 20
+    wrong = {str(f.relative_to(done_run)): oct(stat.S_IMODE(f.stat().st_mode)) for f in files
+             if stat.S_IMODE(f.stat().st_mode) & 0o666 != 0o666 & ~mask}
+    assert not wrong, wrong
+    assert not [f for f in files if f.name.startswith(".") and ".tmp" in f.name]
+
+
 @pytest.mark.parametrize(
     "change, expect_rerun, expect_zero",
     [

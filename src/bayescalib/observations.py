@@ -36,6 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
+from bayescalib._atomic_write import atomic_path
 from bayescalib.interface import Interface, InterfaceError, segment_intersections
 
 __all__ = [
@@ -497,7 +498,7 @@ def write_interface_csv(path: str | Path, interface: Interface) -> None:
     pts = interface.points
     if interface.n_cells == interface.n_points:
         pts = np.vstack([pts, pts[:1]])
-    with p.open("w", newline="") as fh:
+    with atomic_path(p, suffix=".csv") as tmp, tmp.open("w", newline="") as fh:
         fh.write("x,y\n")
         for x, y in pts:
             fh.write(f"{float(x)!r},{float(y)!r}\n")

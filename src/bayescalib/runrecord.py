@@ -25,12 +25,12 @@ write, so a file cut short is detected by :func:`read_run` (raises :class:`RunFi
 
 from __future__ import annotations
 
-import os
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+
+from bayescalib._atomic_write import atomic_path
 
 __all__ = [
     "FORMAT_VERSION",
@@ -138,55 +138,44 @@ def _attr_value(v):
 
 
 def write_run(path: str | Path, result: SolveResult) -> None:
-    """Write ``result`` to the HDF5 file ``path`` atomically (temp file + ``os.replace``)."""
+    """Write ``result`` to the HDF5 file ``path`` atomically (:func:`atomic_path`)."""
     import h5py
 
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     if result.status not in ("ok", "failed"):
         raise ValueError(f"status must be 'ok' or 'failed', got {result.status!r}")
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    os.close(fd)
-    mask = os.umask(0)
-    os.umask(mask)
-    os.chmod(tmp, 0o666 & ~mask)
-    try:
-        with h5py.File(tmp, "w") as f:
-            f.attrs["format"] = _FORMAT
-            f.attrs["format_version"] = FORMAT_VERSION
-            f.attrs["complete"] = 0
-            f.attrs["status"] = result.status
-            f.attrs["reason"] = result.reason
-            f.attrs["load_fraction"] = float(result.load_fraction)
-            f.attrs["newton_iterations"] = int(result.newton_iterations)
-            f.attrs["load_steps"] = int(result.load_steps)
-            f.attrs["wall_time"] = float(result.wall_time)
-            f.attrs["max_displacement"] = float(result.max_displacement)
-            f.attrs["units"] = "lengths mm, stresses Pa, inflow rate mm^2/s, time s"
-            g = f.create_group("parameters")
-            for k, v in result.parameters.items():
-                g.attrs[k] = float(v)
-            g = f.create_group("stats")
-            for k, v in result.stats.items():
-                g.attrs[k] = _attr_value(v)
-            g = f.create_group("interface")
-            g.create_dataset("reference", data=np.asarray(result.interface_reference, dtype=np.float64))
-            g.create_dataset("current", data=np.asarray(result.interface_current, dtype=np.float64))
-            g.create_dataset("segments", data=np.asarray(result.segments, dtype=np.int64))
-            if result.loadings:
-                g = f.create_group("loadings")
-                for k, ld in enumerate(result.loadings):
-                    d = g.create_dataset(str(k), data=np.asarray(ld.current, dtype=np.float64))
-                    d.attrs["label"] = str(ld.label)
-                    d.attrs["factor"] = float(ld.factor)
-                    d.attrs["value"] = float(ld.value)
-            f.flush()
-            f.attrs["complete"] = 1
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    with atomic_path(path, suffix=".h5") as tmp, h5py.File(tmp, "w") as f:
+        f.attrs["format"] = _FORMAT
+        f.attrs["format_version"] = FORMAT_VERSION
+        f.attrs["complete"] = 0
+        f.attrs["status"] = result.status
+        f.attrs["reason"] = result.reason
+        f.attrs["load_fraction"] = float(result.load_fraction)
+        f.attrs["newton_iterations"] = int(result.newton_iterations)
+        f.attrs["load_steps"] = int(result.load_steps)
+        f.attrs["wall_time"] = float(result.wall_time)
+        f.attrs["max_displacement"] = float(result.max_displacement)
+        f.attrs["units"] = "lengths mm, stresses Pa, inflow rate mm^2/s, time s"
+        g = f.create_group("parameters")
+        for k, v in result.parameters.items():
+            g.attrs[k] = float(v)
+        g = f.create_group("stats")
+        for k, v in result.stats.items():
+            g.attrs[k] = _attr_value(v)
+        g = f.create_group("interface")
+        g.create_dataset("reference", data=np.asarray(result.interface_reference, dtype=np.float64))
+        g.create_dataset("current", data=np.asarray(result.interface_current, dtype=np.float64))
+        g.create_dataset("segments", data=np.asarray(result.segments, dtype=np.int64))
+        if result.loadings:
+            g = f.create_group("loadings")
+            for k, ld in enumerate(result.loadings):
+                d = g.create_dataset(str(k), data=np.asarray(ld.current, dtype=np.float64))
+                d.attrs["label"] = str(ld.label)
+                d.attrs["factor"] = float(ld.factor)
+                d.attrs["value"] = float(ld.value)
+        f.flush()
+        f.attrs["complete"] = 1
 
 
 def _plain(v):

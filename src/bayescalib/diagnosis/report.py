@@ -12,6 +12,8 @@ from typing import Any
 import numpy as np
 from scipy.stats import chi2
 
+from bayescalib._atomic_write import atomic_path
+
 __all__ = ["write_diagnosis"]
 
 
@@ -68,7 +70,8 @@ def write_diagnosis(diagnosis: Mapping[str, Any], checks: Mapping[str, Any], *,
         [fig / f"candidates.{e}" for e in formats],
         selected=diagnosis["attribution"]["selected"], dpi=dpi))
     write_json(json_path, {**diagnosis, "figures": written})
-    Path(html_path).write_text(_html(diagnosis))
+    with atomic_path(html_path, suffix=".html") as tmp:
+        tmp.write_text(_html(diagnosis))
     return written
 
 

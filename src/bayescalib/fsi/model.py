@@ -33,9 +33,7 @@ from __future__ import annotations
 import copy
 import hashlib
 import json
-import os
 import resource
-import tempfile
 import time
 from collections.abc import Mapping
 from pathlib import Path
@@ -43,6 +41,7 @@ from typing import Any
 
 import numpy as np
 
+from bayescalib._atomic_write import atomic_path
 from bayescalib.config import ConfigError, validate
 from bayescalib.fsi.geometry import SOLID_SUBDOMAINS, BiofilmMesh, build_mesh
 from bayescalib.fsi.materials import check_poisson
@@ -117,13 +116,6 @@ def _structural_key(cfg: Mapping[str, Any]) -> str:
     data = {k: _get(cfg, k) for k in _STRUCTURAL}
     data["springs"] = springs_active(cfg["physics"])  # the base clamp or springs
     return hashlib.sha256(json.dumps(data, sort_keys=True).encode()).hexdigest()[:16]
-
-
-def _chmod_default(path: str) -> None:
-    """Give a ``mkstemp`` file the permissions of a normally created file (umask)."""
-    mask = os.umask(0)
-    os.umask(mask)
-    os.chmod(path, 0o666 & ~mask)
 
 
 class FSIModel:
@@ -259,20 +251,9 @@ class FSIModel:
         """Save the last solved state (a converged solution) for a later warm start (``.npz``)."""
         if self._last_state is None:
             raise ValueError("no solved state to save: call solve() first")
-        path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".npz", dir=path.parent)
-        os.close(fd)
-        try:
-            _chmod_default(tmp)
-            with open(tmp, "wb") as fh:
-                np.savez(fh, state=self._last_state, key=np.array(self._space),
-                         parameters=np.array(json.dumps(self._last_params)))
-            os.replace(tmp, path)
-        except BaseException:
-            if os.path.exists(tmp):
-                os.unlink(tmp)
-            raise
+        with atomic_path(path, suffix=".npz") as tmp, open(tmp, "wb") as fh:
+            np.savez(fh, state=self._last_state, key=np.array(self._space),
+                     parameters=np.array(json.dumps(self._last_params)))
 
     def _load_state(self, path: str | Path) -> np.ndarray:
         path = Path(path)

@@ -8,12 +8,12 @@ of the hierarchical H1 spaces, i.e. the nodal values. The file is written atomic
 
 from __future__ import annotations
 
-import os
-import tempfile
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from bayescalib._atomic_write import atomic_path
 
 #: solver pressure unit (mPa) -> Pa
 _PRESSURE_TO_PA = 1.0e-3
@@ -73,21 +73,9 @@ def write_fields_vtu(path: str | Path, solver: Any, pressure_scale: float = _PRE
     ra.SetName("region")
     grid.GetCellData().AddArray(ra)
 
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".vtu", dir=path.parent)
-    os.close(fd)
-    mask = os.umask(0)
-    os.umask(mask)
-    os.chmod(tmp, 0o666 & ~mask)
-    try:
+    with atomic_path(path, suffix=".vtu") as tmp:
         w = vtk.vtkXMLUnstructuredGridWriter()
-        w.SetFileName(tmp)
+        w.SetFileName(str(tmp))
         w.SetInputData(grid)
         if not w.Write():
             raise OSError(f"VTK could not write '{path}'")
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise

@@ -17,6 +17,8 @@ from typing import Any
 import numpy as np
 from matplotlib.figure import Figure
 
+from bayescalib._atomic_write import atomic_path
+
 __all__ = [
     "PathsLike",
     "as_array",
@@ -242,8 +244,8 @@ def save_figure(fig: Figure, paths: PathsLike, dpi: float = 200) -> list[Path]:
     """
     out = as_paths(paths)
     for p in out:
-        p.parent.mkdir(parents=True, exist_ok=True)
-        fig.savefig(p, dpi=dpi, format=p.suffix.lower().lstrip("."))
+        with atomic_path(p, suffix=p.suffix) as tmp:
+            fig.savefig(tmp, dpi=dpi, format=p.suffix.lower().lstrip("."))
     return out
 
 
