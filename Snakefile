@@ -9,17 +9,31 @@ defaults, errors name the offending key) and imports nothing heavy; the Sobol
 design is computed only when the DAG first needs a point.
 """
 
+import os
 import sys
 
+from bayescalib.config import load_yaml, merge_layers
 from bayescalib.study import Study, ConfigError
 
-configfile: "config/config.yaml"
+DEFAULT_CONFIG = "config/config.yaml"
+
+configfile: DEFAULT_CONFIG
 
 try:
-    study = Study(config, where="config")
+    # the layers in order (defaults, --configfile files, --config values), merged so
+    # that a later layer's sigma_n replaces an earlier sigma_n2 (and vice versa)
+    _cli = getattr(workflow, "config_settings", None)
+    if _cli is None or not hasattr(_cli, "configfiles"):  # another Snakemake: its merge
+        _layers = [config]
+    else:
+        _files = [f for f in [DEFAULT_CONFIG] if os.path.isfile(f)] + list(_cli.configfiles)
+        _layers = [load_yaml(f) for f in _files] + [dict(_cli.config)]
+    study = Study(merge_layers(_layers), where="config")
 except ConfigError as exc:
     sys.stderr.write(f"bayescalib: invalid configuration:\n{exc}\n")
     sys.exit(1)
+for _note in study.notes:
+    sys.stderr.write(f"bayescalib: note: {_note}\n")
 
 R = study.root
 

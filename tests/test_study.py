@@ -5,7 +5,7 @@ from pathlib import Path
 
 import pytest
 
-from bayescalib.config import ConfigError, deep_merge, load_yaml
+from bayescalib.config import ConfigError, deep_merge, load_yaml, merge_layers
 from bayescalib.study import Study
 
 CONFIG = Path(__file__).resolve().parents[1] / "config"
@@ -48,8 +48,6 @@ def test_forward_section_keeps_only_the_chosen_model():
          "design.active.n_initial (64) exceeds design.active.max_solves (32)"),
         ({"forward_model": {"type": "python", "warm_start": "none"}},
          "forward_model.python.function is required"),
-        ({"forward_model": {"type": "python", "python": {"function": "m:f"}}},
-         "forward_model.warm_start: 'prior_centre' needs forward_model.type fsi"),
         ({"forward_model": {"type": "command", "command": {"template": "/nonexistent.j2",
                                                           "command": ["x"]}}},
          "/nonexistent.j2' does not exist"),
@@ -60,6 +58,36 @@ def test_bad_study_errors_name_the_key(change, message):
     with pytest.raises(ConfigError) as exc:
         Study(deep_merge(DEFAULT, change), where="config.yaml")
     assert message in str(exc.value)
+
+
+def test_a_study_layered_on_the_defaults_sets_the_noise_either_way():
+    """The defaults give sigma_n2; a study that gives sigma_n (or the other way round)
+    replaces it: the later layer wins, there is no conflict to resolve."""
+    study = Study(merge_layers([DEFAULT, {"likelihood": {"sigma_n": 0.002}}]))
+    assert study.config["likelihood"]["sigma_n"] == 0.002
+    assert study.config["likelihood"].get("sigma_n2") is None
+    back = merge_layers([DEFAULT, {"likelihood": {"sigma_n": 0.002}},
+                         {"likelihood": {"sigma_n2": 1.0e-6}}])
+    assert back["likelihood"] == {"sigma_n2": 1.0e-6}
+    # within one layer both keys are the user's own: they must agree
+    with pytest.raises(ConfigError, match="disagree"):
+        Study(merge_layers([DEFAULT, {"likelihood": {"sigma_n": 0.002, "sigma_n2": 1.0}}]))
+
+
+@pytest.mark.parametrize("warm, expect_note", [(None, False), ("prior_centre", True)])
+def test_a_python_study_on_the_defaults_just_works(warm, expect_note):
+    """The fsi model's warm start does not apply to another model type: by default it
+    is off for it, and asked for explicitly it is ignored with a note."""
+    fm = {"type": "python", "python": {"function": "bayescalib.analytic_model:interface"}}
+    if warm is not None:
+        fm["warm_start"] = warm
+    study = Study(merge_layers([DEFAULT, {"forward_model": fm}]))
+    assert study.config["forward_model"]["warm_start"] == "none"
+    assert bool(study.notes) is expect_note
+    if expect_note:
+        assert "ignored for the python model" in study.notes[0]
+    fsi = Study(DEFAULT)
+    assert fsi.config["forward_model"]["warm_start"] == "prior_centre" and not fsi.notes
 
 
 def test_synthetic_observations_need_a_ground_truth():

@@ -15,7 +15,7 @@ import shutil
 from pathlib import Path
 
 import pytest
-from _workflow_helpers import run_and_kill
+from _workflow_helpers import REPO, run_and_kill
 from _workflow_helpers import setup_study as _setup
 from _workflow_helpers import smk as _smk
 
@@ -162,3 +162,22 @@ def test_invalid_config_stops_before_any_job_naming_the_key(base_study, tmp_path
     assert "smc.n_particels" in proc.stderr + proc.stdout
     assert "did you mean 'n_particles'" in proc.stderr + proc.stdout
     assert not (tmp / "results").exists()
+
+
+def test_a_users_study_layered_on_the_default_study_just_works(tmp_path):
+    """The README's way to run a study: the default config/config.yaml (an fsi study
+    with sigma_n2 and a warm start) and the user's file on top with --configfile. A
+    python model with the noise given as sigma_n must plan its jobs without a conflict
+    (later layer wins; the fsi warm start does not apply to it)."""
+    import yaml
+
+    (tmp_path / "config").mkdir()
+    shutil.copy(REPO / "config" / "config.yaml", tmp_path / "config" / "config.yaml")
+    mine = {"study": "mine", "forward_model": {
+        "type": "python", "python": {"function": "bayescalib.analytic_model:interface"}},
+        "likelihood": {"sigma_n": 0.002},
+        "design": {"active": {"n_initial": 8, "batch_size": 4, "max_solves": 16}}}
+    (tmp_path / "mine.yaml").write_text(yaml.safe_dump(mine))
+    proc = _smk(tmp_path, "-n", "--configfile", str(tmp_path / "mine.yaml"))
+    assert "base_state" not in proc.stdout  # no warm-start solve for a python model
+    assert "results/mine/runs/0.h5" in proc.stdout

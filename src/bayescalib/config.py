@@ -21,7 +21,7 @@ import difflib
 import json
 import math
 import re
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Mapping, Sequence
 from functools import cache
 from importlib import resources
 from pathlib import Path
@@ -34,6 +34,7 @@ __all__ = [
     "apply_overrides",
     "deep_merge",
     "load_yaml",
+    "merge_layers",
     "parse_override",
     "schema",
     "validate",
@@ -269,6 +270,31 @@ def deep_merge(base: Mapping[str, Any], update: Mapping[str, Any]) -> dict[str, 
             out[k] = deep_merge(out[k], v)
         else:
             out[k] = copy.deepcopy(v)
+    return out
+
+
+#: keys of one section that say the same thing in two ways: a layer that sets one of
+#: them replaces whatever earlier layers set for any of them
+EXCLUSIVE_KEYS: dict[str, tuple[str, ...]] = {"likelihood": ("sigma_n", "sigma_n2")}
+
+
+def merge_layers(layers: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
+    """Merge config layers in order, later layers winning (:func:`deep_merge`).
+
+    Keys that say the same thing in two ways (:data:`EXCLUSIVE_KEYS`, e.g. the noise as
+    ``likelihood.sigma_n`` or ``likelihood.sigma_n2``) are one setting: a layer that
+    gives one of them drops what earlier layers gave for the others, so a study that
+    sets ``sigma_n`` on top of defaults that set ``sigma_n2`` just works.
+    """
+    out: dict[str, Any] = {}
+    for layer in layers:
+        layer = dict(layer or {})
+        for section, keys in EXCLUSIVE_KEYS.items():
+            given = layer.get(section)
+            if isinstance(given, Mapping) and any(k in given for k in keys) \
+                    and isinstance(out.get(section), Mapping):
+                out[section] = {k: v for k, v in out[section].items() if k not in keys}
+        out = deep_merge(out, layer)
     return out
 
 

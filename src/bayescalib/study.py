@@ -91,14 +91,17 @@ class Study:
 
     def __init__(self, config: Mapping[str, Any], *, where: str = "config"):
         cfg = validate(config, "study", where=where)
-        self._check_consistency(cfg, where)
+        #: plain-words notes on settings that were ignored (printed when the workflow starts)
+        self.notes: list[str] = self._check_consistency(cfg, where)
         self.config: dict[str, Any] = cfg
 
     # ------------------------------------------------------------------ checks
     @staticmethod
-    def _check_consistency(cfg: dict[str, Any], where: str) -> None:
+    def _check_consistency(cfg: dict[str, Any], where: str) -> list[str]:
+        """Check what the schema cannot; resolve ``auto`` settings; return notes."""
         from bayescalib.parameters import ParameterError, ParameterSpace
 
+        notes: list[str] = []
         try:
             ParameterSpace.from_config(cfg["parameters"])
         except ParameterError as exc:
@@ -121,10 +124,12 @@ class Study:
                     f"{where}: forward_model.command.template: file "
                     f"'{fm['command']['template']}' does not exist"
                 )
-        if fm["warm_start"] != "none" and kind != "fsi":
-            raise ConfigError(
-                f"{where}: forward_model.warm_start: '{fm['warm_start']}' needs forward_model.type fsi"
-            )
+        if fm["warm_start"] == "auto":
+            fm["warm_start"] = "prior_centre" if kind == "fsi" else "none"
+        elif fm["warm_start"] != "none" and kind != "fsi":
+            notes.append(f"{where}: forward_model.warm_start: '{fm['warm_start']}' is a setting of "
+                         f"the fsi model; ignored for the {kind} model")
+            fm["warm_start"] = "none"
         conv = cfg["convergence"]
         if conv["enabled"] and cfg["design"]["strategy"] != "fixed":
             raise ConfigError(
@@ -162,6 +167,7 @@ class Study:
         Study._check_loadings(cfg, where)
         Study._check_hidden(cfg, where)
         Study._check_diagnose(cfg, where)
+        return notes
 
     @staticmethod
     def _check_diagnose(cfg: dict[str, Any], where: str) -> None:
