@@ -144,3 +144,20 @@ def test_the_workflow_schemas_are_the_packaged_schemas():
     assert [p.name for p in shown] == sorted(p.name for p in packaged.glob("*.yaml"))
     for p in shown:
         assert p.read_text() == (packaged / p.name).read_text(), p.name
+
+
+def test_rule_params_do_not_depend_on_the_order_of_keys():
+    """Snakemake compares rule params as text: the same study written with its keys in
+    another order (or layered differently) must give the same params, or every solve
+    would rerun."""
+    def reverse(obj):
+        if isinstance(obj, dict):
+            return {k: reverse(obj[k]) for k in reversed(list(obj))}
+        if isinstance(obj, list):
+            return [reverse(v) for v in obj]
+        return obj
+
+    a, b = Study(DEFAULT), Study(reverse(DEFAULT))
+    assert repr(a.forward_section()) == repr(b.forward_section())
+    assert repr(a.config) == repr(b.config)
+    assert [p["name"] for p in b.config["parameters"]] == ["E", "nu"]  # lists keep order

@@ -37,6 +37,7 @@ __all__ = [
     "merge_layers",
     "parse_override",
     "schema",
+    "sorted_keys",
     "validate",
 ]
 
@@ -296,6 +297,19 @@ def merge_layers(layers: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
                 out[section] = {k: v for k, v in out[section].items() if k not in keys}
         out = deep_merge(out, layer)
     return out
+
+
+def sorted_keys(obj: Any) -> Any:
+    """``obj`` with every mapping's keys in sorted order (lists keep their order).
+
+    Rule params are compared by their text, so the order of keys would otherwise
+    decide whether Snakemake reruns a job: with sorted keys, reordering a YAML file or
+    layering it differently reruns nothing."""
+    if isinstance(obj, Mapping):
+        return {k: sorted_keys(obj[k]) for k in sorted(obj, key=str)}
+    if isinstance(obj, list):
+        return [sorted_keys(v) for v in obj]
+    return obj
 
 
 def canonical_json(obj: Any) -> str:

@@ -21,7 +21,7 @@ from functools import cached_property
 from pathlib import Path
 from typing import Any
 
-from bayescalib.config import ConfigError, validate
+from bayescalib.config import ConfigError, sorted_keys, validate
 
 __all__ = ["ConfigError", "Study", "StudyBusyError", "hold_run_lock"]
 
@@ -93,7 +93,7 @@ class Study:
         cfg = validate(config, "study", where=where)
         #: plain-words notes on settings that were ignored (printed when the workflow starts)
         self.notes: list[str] = self._check_consistency(cfg, where)
-        self.config: dict[str, Any] = cfg
+        self.config: dict[str, Any] = sorted_keys(cfg)
 
     # ------------------------------------------------------------------ checks
     @staticmethod
