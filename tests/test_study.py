@@ -161,3 +161,32 @@ def test_rule_params_do_not_depend_on_the_order_of_keys():
     assert repr(a.forward_section()) == repr(b.forward_section())
     assert repr(a.config) == repr(b.config)
     assert [p["name"] for p in b.config["parameters"]] == ["E", "nu"]  # lists keep order
+
+
+def _files_study(tmp_path, entries, **obs):
+    return deep_merge(DEFAULT, {"observations": {"source": "files", "files": entries, **obs}})
+
+
+def test_observation_files_are_checked_before_any_job(tmp_path):
+    """A missing, unsupported or implausible observation file is a config error that
+    names the key and the file, raised when the study is read (before any solve)."""
+    good = tmp_path / "scan.csv"
+    good.write_text("x,y\n0.0,0.0\n0.5,0.2\n1.0,0.0\n")
+    Study(_files_study(tmp_path, [{"path": str(good)}]))  # a readable file passes
+    cases = [
+        ([{"path": str(tmp_path / "missing.csv")}], "observations.files[0]", "does not exist"),
+        ([{"path": str(good)}, {"path": str(tmp_path / "scan.xyz")}], "observations.files[1].path",
+         "not a supported interface file"),
+        ([{"path": str(tmp_path / "mask.png")}], "observations.files[0].pixel_size", "required"),
+        ([], "observations.files", "is empty"),
+    ]
+    (tmp_path / "scan.xyz").write_text("1 2\n")
+    (tmp_path / "mask.png").write_bytes(b"\x89PNG")
+    for entries, key, problem in cases:
+        with pytest.raises(ConfigError) as exc:
+            Study(_files_study(tmp_path, entries), where="mine.yaml")
+        assert key in str(exc.value) and problem in str(exc.value), str(exc.value)
+    # a file in metres read as mm does not fit the flow cell's domain
+    with pytest.raises(ConfigError, match=r"observations.files\[0\]"):
+        Study(_files_study(tmp_path, [{"path": str(good), "units": "m"}],
+                          domain=[[-1.0, 2.0], [-0.5, 1.0]]))

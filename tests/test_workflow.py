@@ -181,3 +181,16 @@ def test_a_users_study_layered_on_the_default_study_just_works(tmp_path):
     proc = _smk(tmp_path, "-n", "--configfile", str(tmp_path / "mine.yaml"))
     assert "base_state" not in proc.stdout  # no warm-start solve for a python model
     assert "results/mine/runs/0.h5" in proc.stdout
+
+
+def test_the_error_that_stops_a_job_is_in_the_jobs_log(base_study, tmp_path):
+    """The model fails everywhere, the ground truth included: the observe job stops with
+    the reason, and the reason is in that job's own log file, not only on the console."""
+    fm = {**base_study["forward_model"]}
+    fm["python"] = {**fm["python"], "options": {"fail_below_E": 1.0e9}}
+    _setup(tmp_path, {**base_study, "forward_model": fm})
+    proc = _smk(tmp_path, check=False)
+    assert proc.returncode != 0
+    text = (tmp_path / "results" / "analytic" / "logs" / "observe.log").read_text()
+    assert "ERROR PipelineError: the forward solve at the ground truth failed" in text
+    assert "Traceback" in text

@@ -24,6 +24,7 @@ import json
 import logging
 import math
 import os
+import sys
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -102,6 +103,21 @@ def setup_logging(path: str | Path | None) -> None:
     for h in handlers:
         h.setFormatter(fmt)
         root.addHandler(h)
+    if path is not None:
+        # an error that ends the job goes into the rule's log too, not only to the console
+        previous = sys.excepthook
+
+        file_handler = handlers[-1]
+
+        def _log_and_raise(kind, exc, tb):
+            if not issubclass(kind, KeyboardInterrupt):
+                file_handler.handle(root.makeRecord(
+                    root.name, logging.ERROR, __file__, 0, "%s: %s", (kind.__name__, exc),
+                    (kind, exc, tb)))
+                file_handler.flush()
+            previous(kind, exc, tb)
+
+        sys.excepthook = _log_and_raise
 
 
 # ------------------------------------------------------------------ broken inputs

@@ -166,8 +166,60 @@ class Study:
             raise ConfigError(f"{where}: {exc}") from None
         Study._check_loadings(cfg, where)
         Study._check_hidden(cfg, where)
+        Study._check_observation_files(cfg, where)
         Study._check_diagnose(cfg, where)
         return notes
+
+    @staticmethod
+    def _check_observation_files(cfg: dict[str, Any], where: str) -> None:
+        """Observation files exist, can be read and (text and VTK files, which are
+        cheap to read) hold an interface that fits the domain: known before any job."""
+        from bayescalib.observations import (
+            CSV_SUFFIXES,
+            IMAGE_SUFFIXES,
+            VTK_SUFFIXES,
+            ObservationError,
+            read_interface,
+        )
+
+        obs = cfg["observations"]
+        if obs.get("source", "synthetic") != "files":
+            return
+        entries = [(f"observations.files[{k}]", e) for k, e in enumerate(obs.get("files") or [])]
+        if not entries:
+            raise ConfigError(f"{where}: observations.files is empty: list at least one "
+                              "interface file (one per loading)")
+        if obs.get("reference"):
+            entries.append(("observations.reference", obs["reference"]))
+        known = CSV_SUFFIXES | VTK_SUFFIXES | IMAGE_SUFFIXES
+        for key, e in entries:
+            path = Path(e["path"])
+            suffix = path.suffix.lower()
+            if suffix not in known:
+                raise ConfigError(f"{where}: {key}.path: '{path}' is not a supported interface "
+                                  f"file (suffixes: {', '.join(sorted(known))})")
+            if suffix in IMAGE_SUFFIXES and e.get("pixel_size") is None:
+                raise ConfigError(f"{where}: {key}.pixel_size is required for the image "
+                                  f"'{path}' (the size of one pixel, in {key}.units)")
+            if not path.is_file():
+                raise ConfigError(f"{where}: {key}.path: '{path}' does not exist" + (
+                    "" if not path.exists() else " as a file (it is a folder)")
+                    + (f" (relative paths are read from {Path.cwd()})"
+                       if not path.is_absolute() else ""))
+            try:
+                with path.open("rb") as fh:
+                    fh.read(1)
+            except OSError as exc:
+                raise ConfigError(f"{where}: {key}.path: '{path}' cannot be read "
+                                  f"({exc.strerror or exc})") from None
+            if suffix in IMAGE_SUFFIXES:
+                continue  # segmented by the observe job
+            opts = {k: e[k] for k in ("units", "pixel_size", "origin", "drop_border", "floor")
+                    if e.get(k) is not None}
+            try:
+                read_interface(path, domain=obs.get("domain"), **opts)
+            except ObservationError as exc:
+                raise ConfigError(f"{where}: {key}: {exc}") from None
 
     @staticmethod
     def _check_diagnose(cfg: dict[str, Any], where: str) -> None:

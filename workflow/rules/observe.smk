@@ -4,9 +4,12 @@
 
 
 def _observe_inputs(wildcards):
-    if study.config["observations"].get("source", "synthetic") == "synthetic":
+    obs = study.config["observations"]
+    if obs.get("source", "synthetic") == "synthetic":
         return {"run": f"{R}/observations/ground_truth_run.h5"}
-    return {}
+    # the files themselves: a changed observation file makes a new observation set
+    files = [e["path"] for e in obs["files"]]
+    return {"files": files + ([obs["reference"]["path"]] if obs.get("reference") else [])}
 
 
 FIELDS = study.config["plots"]["fields"] and study.config["forward_model"]["type"] == "fsi"
