@@ -1,0 +1,105 @@
+"""Every shell command of the README works as written.
+
+The commands are taken from the README's ``bash`` blocks (and its inline
+``bayescalib ...`` commands) and run verbatim, in order, in a scratch copy of the
+repository. Only the data behind them is a stand-in: the studies they name are the
+analytic model of ``tests/data/analytic_study.yaml`` under the names the README uses
+(an FSI study would take hours here; that every shipped study validates is tested in
+``test_study.py``, and the smoke study runs end to end in ``.ci/run``). The install
+steps (``python3 -m venv``, ``pip install``) are the environment this test runs in
+and are left out; the SLURM command needs its executor plugin and runs as a dry run
+where it is installed.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import os
+import re
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+from _workflow_helpers import DATA, REPO
+
+pytestmark = pytest.mark.workflow
+
+SETUP = ("python3 -m venv", ". .venv/bin/activate", "pip install")
+
+
+def readme_commands(text: str) -> list[str]:
+    """The shell commands of the README: lines of ``bash`` blocks (comments dropped,
+    ``&&`` chains kept whole) and inline ``bayescalib ...`` commands, in order."""
+    out = []
+    for block in re.findall(r"```bash\n(.*?)```", text, flags=re.DOTALL):
+        for line in block.splitlines():
+            line = re.sub(r"\s+#.*$", "", line).strip()
+            if line and not line.startswith("#"):
+                out.append(line)
+    out += [c for c in re.findall(r"`(bayescalib [^`]+)`", text) if c not in out]
+    return out
+
+
+def _steps(command: str) -> list[str]:
+    return [s.strip() for s in command.split("&&") if not s.strip().startswith(SETUP)]
+
+
+def test_readme_commands_are_found():
+    cmds = readme_commands((REPO / "README.md").read_text())
+    assert "snakemake --unlock && snakemake --cores 2 --rerun-incomplete" in cmds
+    assert any(c.endswith("&& pytest") for c in cmds)
+    assert any(c.startswith("bayescalib summary") for c in cmds)
+
+
+@pytest.fixture(scope="module")
+def scratch(tmp_path_factory):
+    """A copy of the repository's tracked files with stand-in studies."""
+    root = tmp_path_factory.mktemp("readme")
+    files = subprocess.run(["git", "ls-files"], cwd=REPO, capture_output=True, text=True,
+                           check=True).stdout.split()
+    for f in files:
+        if (REPO / f).is_file():
+            (root / f).parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy2(REPO / f, root / f)
+    study = yaml.safe_load((DATA / "analytic_study.yaml").read_text())
+    (root / "config" / "config.yaml").write_text(yaml.safe_dump(study))
+    for cfg in (root / "config").glob("*.yaml"):
+        if cfg.name != "config.yaml":  # a study of its own name on the stand-in model
+            cfg.write_text(yaml.safe_dump({"study": cfg.stem}))
+    from bayescalib.analytic_model import interface
+
+    for name, e in (("model.csv", 300.0), ("observed.csv", 400.0)):
+        pts = interface({"E": e, "nu": 0.3})["current"]
+        np.savetxt(root / name, np.asarray(pts), delimiter=",", header="x,y", comments="")
+    return root
+
+
+def test_every_readme_command_works_verbatim(scratch):
+    cmds = readme_commands((REPO / "README.md").read_text())
+    env = {**os.environ, "PATH": f"{Path(sys.executable).parent}{os.pathsep}{os.environ['PATH']}"}
+    ran, skipped = [], []
+    for command in cmds:
+        steps = _steps(command)
+        if steps == ["pytest"]:
+            continue  # the test suite itself: this test is part of it
+        line = " && ".join(steps).replace("results/<study>", "results/analytic")
+        if "workflow/profiles/slurm" in line:
+            if importlib.util.find_spec("snakemake_executor_plugin_slurm") is None:
+                skipped.append(f"{line} (snakemake-executor-plugin-slurm not installed)")
+                continue
+            line += " -n"
+        if not line:
+            continue
+        proc = subprocess.run(["bash", "-c", line], check=False, cwd=scratch, env=env, capture_output=True,
+                              text=True, timeout=900)
+        assert proc.returncode == 0, (
+            f"README command failed: {line}\n{proc.stdout[-3000:]}\n{proc.stderr[-3000:]}")
+        ran.append(line)
+    assert (scratch / "results" / "analytic" / "summary.json").is_file()
+    assert (scratch / "results" / "report.html").stat().st_size > 10_000
+    assert (scratch / "out").is_dir() and any((scratch / "out").iterdir())
+    assert len(ran) >= 7, (ran, skipped)
