@@ -54,3 +54,30 @@ def test_load_yaml_errors_name_the_file(tmp_path):
     lst.write_text("- 1\n- 2\n")
     with pytest.raises(ConfigError, match="list.yaml.*mapping"):
         load_yaml(lst)
+
+
+def test_the_configuration_reference_is_in_sync_with_the_schemas():
+    """docs/config.md is generated from the schemas; regenerate it with
+    ``bayescalib config-reference --out docs/config.md`` after changing a schema."""
+    from pathlib import Path
+
+    from bayescalib.config_reference import reference_markdown
+
+    text = reference_markdown()
+    doc = Path(__file__).resolve().parents[1] / "docs" / "config.md"
+    assert doc.read_text() == text, "docs/config.md is stale: run bayescalib config-reference --out docs/config.md"
+    # every key of the validated default study is documented
+    from bayescalib.config import load_yaml
+    from bayescalib.study import Study
+
+    cfg = Study(load_yaml(doc.parents[1] / "config" / "config.yaml")).config
+
+    def keys(obj, path=""):
+        for k, v in obj.items():
+            p = f"{path}.{k}" if path else k
+            yield p
+            if isinstance(v, dict) and k not in ("hidden", "options"):
+                yield from keys(v, p)
+
+    missing = [k for k in keys(cfg) if f"`{k}`" not in text]
+    assert not missing, missing

@@ -19,6 +19,8 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {}
 
 def _register(name: str, module: str, help_: str) -> None:
     SUBCOMMANDS[name] = (module, help_)
+_register("config-reference", "bayescalib.cli.config_reference",
+          "Write the configuration reference (every study key) from the schemas.")
 _register("distance", "bayescalib.cli.distance", "Discrepancy D between a model and an observed interface.")
 _register("solve", "bayescalib.cli.solve", "Run one forward FSI solve and print a one-line JSON summary.")
 _register("summary", "bayescalib.cli.summary", "Print a finished study's result (summary.json) as tables.")
