@@ -67,6 +67,18 @@ def test_complete_run_writes_summary_with_contract_keys(done_run):
     assert [p["name"] for p in summary["parameters"]] == ["E", "nu"]
     assert summary["parameters"][0]["unit"] == "Pa"
     assert summary["n_train"] == 8
+    # one block per thing: sd at top level, the interval type named, failures with
+    # their reasons, the Laplace covariance with the Hessian's sign convention, and
+    # per measure one compact line (the full analysis is in its posterior.json)
+    assert set(summary["posterior_sd"]) == {"E", "nu"}
+    assert summary["credible_interval_type"].startswith("equal-tailed")
+    assert len(summary["failed_runs"]) == summary["n_failed"]
+    for f in summary["failed_runs"]:
+        assert f["reason"] and f["parameters"]["E"] < 130.0  # the model fails below 130 Pa
+    assert "negative definite" in summary["laplace"]["hessian_convention"]
+    assert "posterior" not in summary["measures"]["rkhs"]
+    assert (done_run / summary["measures"]["rkhs"]["posterior_json"]).is_file()
+    assert "gp_convergence" not in summary  # no convergence study ran
     # every stage reports its job time, figures included (benchmark files of the rules)
     assert {"solve", "train_surrogate", "smc", "figures"} <= set(summary["timings_s"])
     for files in summary["figures"].values():

@@ -131,3 +131,17 @@ def test_cli_summary_prints_the_run_line_the_table_and_the_rounds(active_run, ca
     assert "90% equal-tailed" in out and "active design:" in out
     assert out.count("\n0 ") + out.count("\n0  ") >= 1  # round 0 row
     assert main(["summary", str(tmp / "nowhere")]) == 2
+
+
+def test_cli_summary_lists_failed_solves_with_their_reasons(active_run, tmp_path, capsys):
+    from bayescalib.cli import main
+
+    s = _summary(active_run[0])
+    s["failed_runs"] = [{"point": 5, "parameters": {"E": 120.5, "nu": 0.1},
+                         "reason": "Newton did not converge at load step 3"}]
+    (tmp_path / "summary.json").write_text(json.dumps(s))
+    assert main(["summary", str(tmp_path / "summary.json")]) == 0
+    out = capsys.readouterr().out
+    assert "failed solves (1):" in out
+    row = next(ln for ln in out.splitlines() if ln.startswith("5 "))
+    assert "120.5" in row and "Newton did not converge at load step 3" in row

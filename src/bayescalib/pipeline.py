@@ -595,41 +595,58 @@ def summary(study_name: str, parameters: Sequence[Mapping[str, Any]], measures: 
     from bayescalib.posterior import read_particles_h5
 
     names = [p["name"] for p in parameters]
+    targets = [p.get("target") or p["name"] for p in parameters]
     per_measure: dict[str, Any] = {}
+    posts: dict[str, Any] = {}
+    failed_runs: list[dict[str, Any]] = []
     for m, pp, tp, parts in zip(measures, posterior_paths, training_paths, particles_paths,
                                 strict=True):
-        post = read_json(pp)
+        post = posts[m] = read_json(pp)
         tab = read_training(tp)
         res = read_particles_h5(parts)
         tr = tab["is_train"].astype(bool)
+        # one line per measure; the full posterior analysis is in its posterior.json
         per_measure[m] = {
-            "posterior": post,
+            "posterior_json": str(pp),
+            "posterior_mean": post["mean"], "posterior_sd": post["std"], "map": post["map"],
             "log_evidence": float(res.log_evidence),
             "n_smc_steps": int(res.n_steps),
             "n_train": int(tr.sum()),
             "n_failed": int((tab["status"][tr] == 0).sum()),
-            "n_failed_total": int(tab["n_failed"]),
         }
+        if m == measures[0]:
+            failed_runs = [
+                {"point": int(i), "parameters": dict(zip(names, map(float, tab["X"][i]),
+                                                         strict=True)),
+                 "reason": tab["reason"][i] or "no reason recorded"}
+                for i in np.flatnonzero(tab["status"] == 0)]
     primary = per_measure[measures[0]]
-    post = primary["posterior"]
+    post = posts[measures[0]]
     truth = {p["name"]: p.get("ground_truth") for p in parameters}
+    lap = post.get("laplace") or {}
     out = {
         "study": study_name,
         "measure": measures[0],
         "parameters": [
-            {"name": p["name"], "unit": p.get("unit", "-"), "uncertain": bool(p.get("uncertain")),
-             "bounds": p.get("bounds")}
-            for p in parameters
+            {"name": n, "unit": p.get("unit", "-"), "target": t,
+             "uncertain": bool(p.get("uncertain")), "bounds": p.get("bounds")}
+            for n, t, p in zip(names, targets, parameters, strict=True)
         ],
         "units": {"length": "mm", **{p["name"]: p.get("unit", "-") for p in parameters}},
         "map": post["map"],
         "map_marginal": post.get("map_marginal"),
         "posterior_mean": post["mean"],
+        "posterior_sd": post["std"],
         "posterior_cov": post["cov"],
+        "credible_interval_type": "equal-tailed (weighted quantiles of the SMC particles)",
         "credible_intervals": post.get("intervals"),
+        "laplace": {"names": lap.get("names"), "mean": lap.get("mean"), "cov": lap.get("cov"),
+                    "positive_definite": lap.get("positive_definite"),
+                    "hessian_convention": lap.get("hessian_convention")} if lap else None,
         "log_evidence": primary["log_evidence"],
         "n_train": primary["n_train"],
         "n_failed": primary["n_failed"],
+        "failed_runs": failed_runs,
         "ground_truth": truth if all(v is not None for v in truth.values()) else None,
         "converged": (extra or {}).get("design", {}).get("converged"),
         "measures": per_measure,

@@ -156,6 +156,10 @@ def laplace_approximation(
         "mean": x_map[mask].tolist(),
         "fd_step": fd_step,
         "hessian": H.tolist() if np.all(np.isfinite(H)) else None,
+        "hessian_convention": "hessian: second derivatives of the log posterior density at "
+                              "the MAP (all inputs, central finite differences; negative "
+                              "definite at a maximum); cov = inverse of -hessian, calibrated "
+                              "block",
     }
     if not np.all(np.isfinite(H)):
         out.update(positive_definite=False, cov=None, eigenvalues=None,

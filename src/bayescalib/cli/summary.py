@@ -48,8 +48,8 @@ def run(args: argparse.Namespace) -> int:
         [f"{float(lv):.0%} equal-tailed" for lv in levels] + (["truth"] if truth else [])
     rows = [head]
     for k, n in enumerate(names):
-        row = [n, units[n], _fmt(s["map"][n]), _fmt(s["posterior_mean"][n]),
-               _fmt(math.sqrt(max(cov[k][k], 0.0)))]
+        sd = (s.get("posterior_sd") or {}).get(n, math.sqrt(max(cov[k][k], 0.0)))
+        row = [n, units[n], _fmt(s["map"][n]), _fmt(s["posterior_mean"][n]), _fmt(sd)]
         row += [f"[{_fmt(ci[n][lv][0])}, {_fmt(ci[n][lv][1])}]" for lv in levels]
         if truth:
             row.append(_fmt(truth.get(n)))
@@ -67,6 +67,14 @@ def run(args: argparse.Namespace) -> int:
         _table(rows)
     elif d:
         print(f"\n{d.get('reason', '')}")
+    failed = s.get("failed_runs") or []
+    if failed:
+        print(f"\nfailed solves ({len(failed)}):")
+        rows = [["point", *names, "reason"]]
+        for f in failed:
+            rows.append([str(f["point"]), *(_fmt(f["parameters"].get(n)) for n in names),
+                         " ".join(str(f["reason"]).split())[:100]])
+        _table(rows)
     return 0
 
 
