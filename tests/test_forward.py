@@ -94,6 +94,32 @@ def test_command_model_strict_template_names_the_missing_variable(tmp_path):
         model.render_input({"E": 1.0})
 
 
+@pytest.mark.parametrize("key, name", [
+    ("output_name", "../../victim.txt"), ("output_name", "/tmp/victim.txt"),
+    ("input_name", "../outside.txt"), ("input_name", ".."), ("output_name", "sub/out.csv"),
+    ("output_name", "solver.log")])
+def test_command_file_names_stay_inside_the_work_folder(tmp_path, key, name):
+    """The model unlinks its output and writes its input in the work folder: a name
+    that is a path could delete or overwrite a file anywhere, so it is refused."""
+    victim = tmp_path / "victim.txt"
+    victim.write_text("keep me")
+    tpl = tmp_path / "t.j2"
+    tpl.write_text("x\n")
+    names = {"input_name": "in.txt", "output_name": "out.csv", key: name}
+    with pytest.raises(ForwardModelError, match=f"forward_model.command.{key}"):
+        CommandModel(tpl, ["true"], workdir=tmp_path / "a" / "b", **names)
+    assert victim.read_text() == "keep me"
+
+
+def test_a_template_cannot_reach_python_internals(tmp_path):
+    tpl = tmp_path / "t.j2"
+    tpl.write_text("{{ E.__class__.__mro__[1].__subclasses__() }}\n")
+    model = CommandModel(tpl, ["true"], input_name="in", output_name="out.csv",
+                         workdir=tmp_path)
+    with pytest.raises(ForwardModelError, match="not allowed in a template"):
+        model.render_input({"E": 1.0})
+
+
 def test_command_arguments_take_numbers_only_never_a_shell(tmp_path):
     tpl = tmp_path / "t.j2"
     tpl.write_text("x\n")

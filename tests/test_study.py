@@ -52,6 +52,18 @@ def test_forward_section_keeps_only_the_chosen_model():
                                                           "command": ["x"]}}},
          "/nonexistent.j2' does not exist"),
         ({"likelihood": {"sigma_n2": -1.0}}, "likelihood.sigma_n2"),
+        # a name that is a path: results/.. is the checkout itself
+        ({"study": ".."}, "study"),
+        ({"study": ".hidden"}, "study"),
+        # the cost of the work, known before any job: SMC memory
+        ({"smc": {"n_particles": 1_000_000_000}},
+         "smc.n_particles = 1000000000 needs about"),
+        ({"forward_model": {"type": "command", "command": {
+            "template": __file__, "command": ["x"], "output_name": "../../victim.txt"}}},
+         "forward_model.command.output_name"),
+        ({"forward_model": {"type": "command", "command": {
+            "template": __file__, "command": ["x"], "input_name": "/etc/passwd"}}},
+         "forward_model.command.input_name"),
     ],
 )
 def test_bad_study_errors_name_the_key(change, message):

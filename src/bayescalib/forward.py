@@ -191,6 +191,7 @@ class PythonModel:
 
 
 _ARG_FIELD = re.compile(r"\{([A-Za-z_][A-Za-z0-9_.]*)\}")
+_PLAIN_NAME = re.compile(r"[A-Za-z0-9_-][A-Za-z0-9_.-]*")
 
 
 def _die_with_parent() -> None:  # pragma: no cover - runs in the child before exec
@@ -284,7 +285,17 @@ class CommandModel:
             raise ForwardModelError(f"forward_model.command.template: file '{tpath}' does not exist")
         if not command or not all(isinstance(a, str) for a in command):
             raise ForwardModelError("forward_model.command.command must be a non-empty list of strings")
-        env = jinja2.Environment(undefined=jinja2.StrictUndefined, keep_trailing_newline=True)
+        from jinja2.sandbox import SandboxedEnvironment
+
+        for key, name in (("input_name", input_name), ("output_name", output_name)):
+            if not _PLAIN_NAME.fullmatch(str(name)) or name == "solver.log":
+                raise ForwardModelError(
+                    f"forward_model.command.{key}: '{name}' must be a plain file name inside "
+                    "the run's work folder (letters, digits, _ . -; no folder, not solver.log)")
+        if input_name == output_name:
+            raise ForwardModelError("forward_model.command: input_name and output_name must differ")
+        # a template renders numbers into a file; it never needs Python's internals
+        env = SandboxedEnvironment(undefined=jinja2.StrictUndefined, keep_trailing_newline=True)
         try:
             self.template = env.from_string(tpath.read_text())
         except jinja2.TemplateSyntaxError as exc:
@@ -321,6 +332,10 @@ class CommandModel:
                 f"forward_model.command.template '{self.template_path}': {exc.message}; "
                 f"available: {', '.join(sorted(values))}"
             ) from None
+        except jinja2.exceptions.SecurityError as exc:
+            raise ForwardModelError(
+                f"forward_model.command.template '{self.template_path}': not allowed in a "
+                f"template: {exc}") from None
 
     def argv(self, params: Mapping[str, float], input_path: Path, output_path: Path) -> list[str]:
         values = self._values(params)

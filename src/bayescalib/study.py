@@ -136,6 +136,16 @@ class Study:
                 f"{where}: convergence.enabled needs design.strategy: fixed (the GP convergence "
                 "study refits on prefixes of a Sobol design and tests on held-out Sobol points)"
             )
+        smc_cfg = cfg["smc"]
+        n_train = cfg["design"]["active"]["max_solves"] \
+            if cfg["design"]["strategy"] == "active" else cfg["design"]["n_train"]
+        need = smc_cfg["n_particles"] * (6 * len(cfg["parameters"]) + n_train + 10) * 8 / 2**30
+        if need > smc_cfg["max_memory_gib"]:
+            raise ConfigError(
+                f"{where}: smc.n_particles = {smc_cfg['n_particles']} needs about {need:.3g} GiB "
+                f"with {len(cfg['parameters'])} parameters and up to {n_train} training points, "
+                f"above smc.max_memory_gib = {smc_cfg['max_memory_gib']:g}: use fewer particles "
+                "or raise the limit")
         act = cfg["design"]["active"]
         if cfg["design"]["strategy"] == "active" and act["n_initial"] > act["max_solves"]:
             raise ConfigError(
