@@ -35,6 +35,20 @@ except ConfigError as exc:
 for _note in study.notes:
     sys.stderr.write(f"bayescalib: note: {_note}\n")
 
+# A run of this study that is alive answers first, before Snakemake's own lock or
+# incomplete-files checks can suggest --unlock or --rerun-incomplete over a live run.
+if workflow.is_main_process:
+    from bayescalib.study import run_lock_holder, runs_jobs
+
+    _holder = run_lock_holder(study.root) if runs_jobs(sys.argv) else None
+    if _holder is not None:
+        sys.stderr.write(
+            f"bayescalib: study '{study.name}' is already being run in this directory "
+            f"({_holder}; lock {study.root}/.run.lock). Wait for that run to end; do not "
+            "--unlock or --rerun-incomplete while it runs. Another study can run at the "
+            "same time.\n")
+        sys.exit(1)
+
 R = study.root
 
 
@@ -82,8 +96,29 @@ include: "workflow/rules/summary.smk"
 include: "workflow/rules/diagnose.smk"
 
 
+def study_outputs(wildcards):
+    """Every file the results are built from. They are targets too: Snakemake does not
+    rebuild a missing intermediate while what was built from it is present, so a
+    deleted run record, training table, surrogate, ... would otherwise leave a hole
+    under an intact summary.json ("Nothing to be done"). As targets, a missing one is
+    rebuilt, and everything built from it follows (newer input)."""
+    pts = final_points()
+    files = [f"{R}/observations/observations.h5"]
+    files += [f"{R}/runs/{i}.h5" for i in pts]
+    for m in study.measures:
+        files += [f"{R}/discrepancy/{m}/{i}.json" for i in pts]
+        files += [f"{R}/{m}/{name}" for name in
+                  ("training.h5", "surrogate.h5", "particles.h5", "posterior.json", "posterior.nc")]
+    if study.active:
+        for r in range(final_round() + 1):
+            files += [f"{ACTIVE_DIR}/{r}/{name}" for name in
+                      ("training.h5", "surrogate.h5", "particles.h5", "acquire.json")]
+    return files
+
+
 rule all:
     input:
         f"{R}/summary.json",
         *([f"{R}/diagnosis/diagnosis.json"] if study.config["diagnose"]["enabled"] else []),
+        study_outputs,
     default_target: True

@@ -245,3 +245,30 @@ def test_each_set_aside_gets_its_own_name(tmp_path, observed):
                                  {"sigma_n2": 0.0005}, tmp_path / "d.json")
     assert sorted(p.name for p in run.parent.glob("*.corrupt")) == [
         "3.h5.1.corrupt", "3.h5.2.corrupt", "3.h5.corrupt"]
+
+
+@pytest.mark.parametrize("scale, shift", [(1000.0, 0.0), (1.0e-3, 0.0), (1.0, 50.0)])
+def test_observations_in_other_units_are_a_unit_slip_not_a_misfit(tmp_path, scale, shift):
+    """Observed curves 1000x larger or smaller than the model's, or far away from it
+    (metres or micrometres read as mm, a wrong origin), are refused with the likely
+    cause, instead of giving a meaningless D."""
+    from bayescalib.interface import Interface
+    from bayescalib.observation_store import StoredObservations, write_observations
+
+    truth = tmp_path / "truth.h5"
+    res = solve_point(ANALYTIC, {"E": 400.0, "nu": 0.3}, truth, isolate=False)
+    pts = np.asarray(res.interface_current) * scale + shift
+    obs = tmp_path / "observations.h5"
+    write_observations(obs, StoredObservations([Interface.polyline(pts)], ["scan"], [None], None,
+                                               {"source": "files"}))
+    with pytest.raises(PipelineError, match="unit slip") as exc:
+        pipeline.discrepancy(truth, obs, "rkhs", {"rkhs": {"sigma_w": 0.005}},
+                             {"sigma_n2": 5e-4}, tmp_path / "d.json")
+    _assert_clean(exc)
+    assert "observations.files[].units" in str(exc.value)
+    # the same curve in the right units is a normal discrepancy
+    write_observations(obs, StoredObservations([Interface.polyline(np.asarray(
+        res.interface_current))], ["scan"], [None], None, {"source": "files"}))
+    rec = pipeline.discrepancy(truth, obs, "rkhs", {"rkhs": {"sigma_w": 0.005}},
+                               {"sigma_n2": 5e-4}, tmp_path / "d.json")
+    assert rec["D"] == pytest.approx(0.0, abs=1e-9)

@@ -202,3 +202,41 @@ def test_observation_files_are_checked_before_any_job(tmp_path):
     with pytest.raises(ConfigError, match=r"observations.files\[0\]"):
         Study(_files_study(tmp_path, [{"path": str(good), "units": "m"}],
                           domain=[[-1.0, 2.0], [-0.5, 1.0]]))
+
+
+@pytest.mark.parametrize("argv, runs", [
+    (["snakemake", "--cores", "2"], True),
+    (["snakemake", "--unlock"], True),
+    (["snakemake", "--cores", "2", "--rerun-incomplete"], True),
+    (["snakemake", "-n"], False),
+    (["snakemake", "-np", "--cores", "2"], False),
+    (["snakemake", "--report", "results/report.html"], False),
+    (["snakemake", "--dry-run"], False),
+    (["snakemake", "--lint"], False),
+])
+def test_which_command_lines_may_run_jobs(argv, runs):
+    from bayescalib.study import runs_jobs
+
+    assert runs_jobs(argv) is runs
+
+
+def test_the_run_lock_holder_is_seen_without_taking_the_lock(tmp_path):
+    import subprocess
+    import sys
+    import time
+
+    from bayescalib.study import run_lock_holder
+
+    assert run_lock_holder(tmp_path) is None
+    code = ("import sys, time; from bayescalib.study import hold_run_lock; "
+            f"hold_run_lock({str(tmp_path)!r}, 'x'); print('held', flush=True); time.sleep(30)")
+    proc = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout.readline().strip() == "held"
+        holder = run_lock_holder(tmp_path)
+        assert holder == f"snakemake pid {proc.pid}"
+    finally:
+        proc.kill()
+        proc.wait()
+    time.sleep(0.1)
+    assert run_lock_holder(tmp_path) is None  # released by the kernel with the process

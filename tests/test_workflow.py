@@ -206,3 +206,23 @@ def test_the_error_that_stops_a_job_is_in_the_jobs_log(base_study, tmp_path):
     text = (tmp_path / "results" / "analytic" / "logs" / "observe.log").read_text()
     assert "ERROR PipelineError: the forward solve at the ground truth failed" in text
     assert "Traceback" in text
+
+
+def test_a_deleted_intermediate_is_rebuilt_with_everything_built_from_it(done_run, tmp_path):
+    """A hole in the results (a run record, a surrogate deleted) is never "Nothing to be
+    done": the next identical command rebuilds it and what depends on it, and the
+    result is the same as before."""
+    tmp = _copy_run(done_run, tmp_path / "copy")
+    root = tmp / "results" / "analytic"
+    before = json.loads((root / "summary.json").read_text())
+    (root / "runs" / "3.h5").unlink()
+    (root / "rkhs" / "surrogate.h5").unlink()
+    counts = job_counts(tmp)
+    assert counts.get("solve") == 1 and counts.get("train_surrogate") == 1, counts
+    assert counts.get("summary") == 1
+    _smk(tmp)
+    after = json.loads((root / "summary.json").read_text())
+    assert (root / "runs" / "3.h5").is_file() and (root / "rkhs" / "surrogate.h5").is_file()
+    for key in ("map", "posterior_mean", "posterior_cov", "log_evidence"):
+        assert after[key] == before[key], key
+    assert job_counts(tmp) == {}

@@ -181,6 +181,8 @@ def concurrent_runs(tmp_path_factory, base_study):
             os.kill(a.pid, signal.SIGSTOP)
             try:
                 again = smk(tmp, check=False, timeout=120)
+                unlock = smk(tmp, "--unlock", check=False, timeout=120)
+                dry = smk(tmp, "-n", check=False, timeout=120)
                 # any snakemake run that ends here (B, or the refused one) deletes
                 # .snakemake/locks as a whole, A's lock included: try again after that,
                 # with --rerun-incomplete, as Snakemake advises when it sees A's running
@@ -198,21 +200,23 @@ def concurrent_runs(tmp_path_factory, base_study):
         if a.poll() is None:
             kill(a)
     return {"dir": tmp, "rc": (rc_a, rc_b), "again": again, "after_unlock": after_unlock,
-            "a_running": still_running}
+            "unlock": unlock, "dry": dry, "a_running": still_running}
 
 
 def test_a_second_run_of_a_running_study_is_refused(concurrent_runs):
     assert concurrent_runs["a_running"], "study A finished before the second run was tried"
     again = concurrent_runs["again"]
     assert again.returncode != 0, "a second run of a running study was let in"
-    # Which guard answers first depends on timing: Snakemake's lock while A's lock
-    # files exist; once another run in this directory has ended and removed them,
-    # Snakemake's incomplete-files check (A's running jobs) or the study's run lock.
-    # Each refuses before any job starts, which is the contract.
+    # the study's own lock answers first, before Snakemake's lock or incomplete-files
+    # checks can advise --unlock or --rerun-incomplete over a live run
     said = again.stdout + again.stderr
-    assert any(m in said for m in (
-        "Directory cannot be locked", "Incomplete files",
-        "study 'analytic' is already being run in this directory")), said[-2000:]
+    assert "study 'analytic' is already being run in this directory" in said, said[-2000:]
+    assert "pid" in said and "Directory cannot be locked" not in said
+    # unlocking a live run is refused too; a dry run (it only looks) is not
+    unlock = concurrent_runs["unlock"]
+    assert unlock.returncode != 0
+    assert "already being run" in unlock.stdout + unlock.stderr
+    assert "already being run" not in concurrent_runs["dry"].stderr
     # and still refused once Snakemake's lock folder is gone: the study's own run lock
     again = concurrent_runs["after_unlock"]
     assert again.returncode != 0, "a second run of a running study was let in"

@@ -269,6 +269,8 @@ def discrepancy(run_path: str | Path, obs_path: str | Path, measure_name: str,
             f"'{obs_path}' has {len(obs.snapshots)} snapshots: give one snapshot per loading"
         )
     models = model_interfaces(run, len(obs.snapshots))
+    for label, snap, model in zip(obs.labels, obs.snapshots, models, strict=True):
+        _check_scales(np.asarray(model.points), np.asarray(snap.points), label, obs_path)
     sigma_n2 = _sigma_n2(likelihood)
     options = _measure_options(measure_name, measure, obs)
     total, snaps = 0.0, []
@@ -293,6 +295,31 @@ def discrepancy(run_path: str | Path, obs_path: str | Path, measure_name: str,
                   snapshots=snaps)
     write_json(out_path, record)
     return record
+
+
+#: observed and model interfaces further apart in size or position than this factor
+#: are a unit slip, not a misfit
+SCALE_FACTOR = 10.0
+
+
+def _check_scales(model: np.ndarray, observed: np.ndarray, label: str, obs_path) -> None:
+    """Refuse to compare interfaces whose sizes or positions differ by more than
+    :data:`SCALE_FACTOR`: a discrepancy between them would be a number without meaning
+    (typically observations in m or um read as mm)."""
+    ext_m = float(np.max(np.ptp(model, axis=0)))
+    ext_o = float(np.max(np.ptp(observed, axis=0)))
+    size = max(ext_m, ext_o)
+    if size <= 0:
+        return
+    ratio = max(ext_m, ext_o) / max(min(ext_m, ext_o), 1e-300)
+    shift = float(np.linalg.norm(model.mean(axis=0) - observed.mean(axis=0)))
+    if ratio > SCALE_FACTOR or shift > SCALE_FACTOR * size:
+        raise PipelineError(
+            f"observed interface '{label}' ({obs_path}) spans {ext_o:.4g} mm around "
+            f"{np.round(observed.mean(axis=0), 4).tolist()}, the model's {ext_m:.4g} mm around "
+            f"{np.round(model.mean(axis=0), 4).tolist()} (size ratio {ratio:.3g}): more than "
+            f"{SCALE_FACTOR:g}x apart, which is a unit slip rather than a misfit. Check "
+            "observations.files[].units (mm, m, um), pixel_size and origin.")
 
 
 def model_interfaces(run, n_snapshots: int) -> list:

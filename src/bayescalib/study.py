@@ -16,7 +16,7 @@ DAG first asks for a point.
 from __future__ import annotations
 
 import copy
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from functools import cached_property
 from pathlib import Path
 from typing import Any
@@ -32,6 +32,43 @@ class StudyBusyError(RuntimeError):
 
 #: run locks held by this process (kept open: a lock lasts as long as its file is open)
 _HELD_LOCKS: dict[str, Any] = {}
+
+
+def run_lock_holder(root: str | Path) -> str | None:
+    """Who holds the run lock of the study under ``root`` (its text, e.g. "snakemake
+    pid 123"), or None when no live process holds it. Takes nothing: a free lock is
+    released again at once."""
+    import fcntl
+
+    path = Path(root) / ".run.lock"
+    if str(path.resolve()) in _HELD_LOCKS or not path.is_file():
+        return None
+    with open(path) as fh:
+        try:
+            fcntl.flock(fh.fileno(), fcntl.LOCK_SH | fcntl.LOCK_NB)
+        except OSError:
+            return fh.read().strip() or "another process"
+        fcntl.flock(fh.fileno(), fcntl.LOCK_UN)
+    return None
+
+
+#: command-line options of a Snakemake call that only looks (never runs a job)
+_LOOK_ONLY = {"-n", "--dry-run", "--dryrun", "--report", "--lint", "--list", "-l",
+              "--list-rules", "--summary", "-S", "--detailed-summary", "-D", "--dag",
+              "--rulegraph", "--filegraph", "--list-changes", "--lc", "--list-input-changes",
+              "--li", "--list-params-changes", "--lp", "--list-code-changes", "--lt",
+              "--list-untracked", "--lu"}
+
+
+def runs_jobs(argv: Sequence[str]) -> bool:
+    """Whether a Snakemake command line (``sys.argv``) may run jobs or unlock (False
+    for a dry run, a report, a lint, a listing)."""
+    for a in argv[1:]:
+        if a.split("=", 1)[0] in _LOOK_ONLY:
+            return False
+        if a.startswith("-") and not a.startswith("--") and len(a) > 2 and "n" in a[1:]:
+            return False  # combined short flags such as -np
+    return True
 
 
 def hold_run_lock(root: str | Path, name: str) -> Path:
