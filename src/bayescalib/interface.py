@@ -357,12 +357,19 @@ def _triangle_lattice(k: int) -> tuple[np.ndarray, np.ndarray]:
     return bary, np.array(tris, dtype=np.int64)
 
 
+#: most candidate segment pairs the self-intersection test examines (each is a few
+#: dozen bytes and flops); past it the curve is refused rather than checked for minutes
+MAX_SEGMENT_PAIRS = 50_000_000
+
+
 def segment_intersections(interface: Interface, *, max_report: int = 1) -> list[tuple[int, int]]:
     """Pairs of non-adjacent 2D segments that intersect (self-intersections).
 
     Segments sharing a node are not tested against each other. The test is
     exact up to round-off (sign of orientation determinants); touching counts
-    as intersecting.
+    as intersecting. Candidates come from a sweep along the curve's longer axis
+    (segments sorted by their lower end; a segment meets only those that start
+    before it ends), so a curve costs about n log n, not n^2.
 
     Parameters
     ----------
@@ -374,7 +381,13 @@ def segment_intersections(interface: Interface, *, max_report: int = 1) -> list[
     Returns
     -------
     list of (int, int)
-        Cell index pairs ``(i, j)``, ``i < j``.
+        Cell index pairs ``(i, j)``, ``i < j``, in sweep order.
+
+    Raises
+    ------
+    InterfaceError
+        If the sweep leaves more than :data:`MAX_SEGMENT_PAIRS` candidate pairs (a
+        curve folded onto itself many times, or far too many points).
     """
     if interface.dim != 2:
         raise InterfaceError("segment_intersections is for 2D polylines")
@@ -382,39 +395,50 @@ def segment_intersections(interface: Interface, *, max_report: int = 1) -> list[
     a, b = p[:, 0], p[:, 1]
     lo, hi = np.minimum(a, b), np.maximum(a, b)
     m = p.shape[0]
+    if m < 2:
+        return []
+    ax = int(np.argmax(np.ptp(interface.points, axis=0)))  # sweep along the longer axis
+    order = np.argsort(lo[:, ax], kind="stable")
+    lo_s = lo[order, ax]
+    # sorted position k: candidates are the sorted positions k+1 .. end[k]-1
+    end = np.searchsorted(lo_s, hi[order, ax], side="right")
+    counts = np.maximum(end - np.arange(m) - 1, 0)
+    total = int(counts.sum())
+    if total > MAX_SEGMENT_PAIRS:
+        raise InterfaceError(
+            f"{interface.name}: the self-intersection test would examine {total:,} segment "
+            f"pairs (limit {MAX_SEGMENT_PAIRS:,}) for {m:,} segments: the curve has far more "
+            "points than an interface needs, or folds onto itself many times; resample it")
     found: list[tuple[int, int]] = []
-    chunk = max(1, 2_000_000 // max(m, 1))
-    for s in range(0, m, chunk):
-        i = np.arange(s, min(m, s + chunk))
-        # bounding-box overlap (j > i only)
-        ov = (
-            (lo[i, None, 0] <= hi[None, :, 0])
-            & (lo[None, :, 0] <= hi[i, None, 0])
-            & (lo[i, None, 1] <= hi[None, :, 1])
-            & (lo[None, :, 1] <= hi[i, None, 1])
+    cells = interface.cells
+
+    def orient(p_, q_, r_):
+        return (q_[:, 0] - p_[:, 0]) * (r_[:, 1] - p_[:, 1]) - (q_[:, 1] - p_[:, 1]) * (
+            r_[:, 0] - p_[:, 0]
         )
-        ov &= np.arange(m)[None, :] > i[:, None]
-        ci = interface.cells[i]
-        cj = interface.cells
-        share = (ci[:, None, :, None] == cj[None, :, None, :]).any(axis=(2, 3))
-        ov &= ~share
-        ii, jj = np.nonzero(ov)
-        if ii.size == 0:
-            continue
-        ii = i[ii]
 
-        def orient(p_, q_, r_):
-            return (q_[:, 0] - p_[:, 0]) * (r_[:, 1] - p_[:, 1]) - (q_[:, 1] - p_[:, 1]) * (
-                r_[:, 0] - p_[:, 0]
-            )
-
-        d1 = orient(a[ii], b[ii], a[jj])
-        d2 = orient(a[ii], b[ii], b[jj])
-        d3 = orient(a[jj], b[jj], a[ii])
-        d4 = orient(a[jj], b[jj], b[ii])
-        hit = (d1 * d2 <= 0.0) & (d3 * d4 <= 0.0)
-        for x, y in zip(ii[hit], jj[hit]):
-            found.append((int(x), int(y)))
-            if len(found) >= max_report:
-                return found
+    starts = np.cumsum(counts) - counts
+    block = 2_000_000
+    k0 = 0
+    while k0 < m:
+        # sorted positions k0..k1-1 whose candidates fit in one block of pairs
+        k1 = int(np.searchsorted(starts, starts[k0] + block, side="right"))
+        k1 = max(k1, k0 + 1)
+        c = counts[k0:k1]
+        if c.sum():
+            ks = np.repeat(np.arange(k0, k1), c)
+            ls = ks + 1 + (np.arange(c.sum()) - np.repeat(np.cumsum(c) - c, c))
+            ii, jj = order[ks], order[ls]
+            o = 1 - ax
+            keep = (lo[ii, o] <= hi[jj, o]) & (lo[jj, o] <= hi[ii, o])
+            keep &= ~(cells[ii][:, :, None] == cells[jj][:, None, :]).any(axis=(1, 2))
+            ii, jj = ii[keep], jj[keep]
+            hit = (orient(a[ii], b[ii], a[jj]) * orient(a[ii], b[ii], b[jj]) <= 0.0) & (
+                orient(a[jj], b[jj], a[ii]) * orient(a[jj], b[jj], b[ii]) <= 0.0)
+            for x, y in zip(ii[hit], jj[hit]):
+                found.append((int(min(x, y)), int(max(x, y))))
+                if len(found) >= max_report:
+                    return found
+        k0 = k1
+    return found
     return found
