@@ -226,3 +226,26 @@ def test_a_deleted_intermediate_is_rebuilt_with_everything_built_from_it(done_ru
     for key in ("map", "posterior_mean", "posterior_cov", "log_evidence"):
         assert after[key] == before[key], key
     assert job_counts(tmp) == {}
+
+
+@pytest.mark.parametrize("damaged", ["rkhs/training.h5", "rkhs/particles.h5",
+                                     "observations/observations.h5"])
+def test_a_damaged_stage_output_is_set_aside_and_rebuilt(done_run, tmp_path, damaged):
+    """One rule for every stage output: the job that finds it damaged moves it aside and
+    fails saying so; the same command run again rebuilds it and what depends on it, to
+    the same result."""
+    tmp = _copy_run(done_run, tmp_path / "copy")
+    root = tmp / "results" / "analytic"
+    before = json.loads((root / "summary.json").read_text())
+    path = root / damaged
+    path.write_bytes(path.read_bytes()[: path.stat().st_size // 2])
+    first = _smk(tmp, check=False)
+    assert first.returncode != 0
+    said = first.stdout + first.stderr
+    assert "cannot be read" in said and "Run the same snakemake command again" in said, \
+        said[-3000:]
+    assert list(path.parent.glob(path.name + "*.corrupt"))
+    _smk(tmp)
+    after = json.loads((root / "summary.json").read_text())
+    for key in ("map", "posterior_mean", "posterior_cov", "log_evidence"):
+        assert after[key] == before[key], key

@@ -165,6 +165,20 @@ def _read_json_checked(path: str | Path) -> Any:
         raise _set_aside(path, str(exc)) from None
 
 
+def _read_checked(path: str | Path, reader, what: str):
+    """``reader(path)`` for a stage output (training table, surrogate, particles,
+    posterior, observation set, round record): a file that cannot be read is set aside,
+    so the next identical command rebuilds it (every stage output is a target of the
+    workflow) and what depends on it, instead of failing on it again."""
+    try:
+        return reader(path)
+    except PipelineError as exc:
+        raise _set_aside(path, str(exc)) from None
+    except (OSError, KeyError, ValueError, TypeError, EOFError, IndexError) as exc:
+        raise _set_aside(path, f"the {what} '{path}' cannot be read "
+                               f"({type(exc).__name__}: {exc})") from None
+
+
 # -------------------------------------------------------------------------- observe
 def observe(observations: Mapping[str, Any], out_path: str | Path, *,
             ground_truth_run: str | Path | None = None) -> None:
@@ -252,7 +266,7 @@ def discrepancy(run_path: str | Path, obs_path: str | Path, measure_name: str,
     from bayescalib.observation_store import read_observations
 
     run = _read_run_checked(run_path)
-    obs = read_observations(obs_path)
+    obs = _read_checked(obs_path, read_observations, "observation set")
     record: dict[str, Any] = {
         "measure": measure_name,
         "status": run.status,
@@ -461,7 +475,7 @@ def train(training_path: str | Path, surrogate: Mapping[str, Any],
     """Fit the GP surrogate on the training points (failed runs left out)."""
     from bayescalib.surrogate import fit_from_config
 
-    tab = read_training(training_path)
+    tab = _read_checked(training_path, read_training, "training table")
     train_mask = tab["is_train"].astype(bool)
     X, L = tab["X"][train_mask], tab["loglik"][train_mask]
     finite = np.isfinite(L)
@@ -533,7 +547,7 @@ def convergence(training_path: str | Path, surrogate: Mapping[str, Any],
     """GP convergence over n_train against the held-out Sobol points."""
     from bayescalib.convergence import convergence_study
 
-    tab = read_training(training_path)
+    tab = _read_checked(training_path, read_training, "training table")
     tr = tab["is_train"].astype(bool)
     space = _space(parameters)
     res = convergence_study(
@@ -555,7 +569,7 @@ def smc(surrogate_path: str | Path, smc_cfg: Mapping[str, Any],
     from bayescalib.smc import smc_from_config
     from bayescalib.surrogate import GPSurrogate
 
-    gp = GPSurrogate.load(surrogate_path)
+    gp = _read_checked(surrogate_path, GPSurrogate.load, "GP surrogate")
     space = _space(parameters)
 
     result = smc_from_config(gp.predict, space, smc_cfg)
@@ -573,10 +587,11 @@ def acquire(round_index: int, training_path: str | Path, surrogate_path: str | P
     from bayescalib.posterior import read_particles_h5
     from bayescalib.surrogate import GPSurrogate
 
-    tab = read_training(training_path)
-    gp = GPSurrogate.load(surrogate_path)
-    res = read_particles_h5(particles_path)
-    previous = None if previous_path is None else read_json(previous_path)
+    tab = _read_checked(training_path, read_training, "training table")
+    gp = _read_checked(surrogate_path, GPSurrogate.load, "GP surrogate")
+    res = _read_checked(particles_path, read_particles_h5, "SMC particle file")
+    previous = None if previous_path is None else \
+        _read_checked(previous_path, read_json, "active round record")
     try:
         rec = acquire_round(int(round_index), tab["X"], tab["loglik"], gp, res.particles,
                             res.weights, res.log_evidence, _space(parameters), active, previous)
@@ -596,9 +611,9 @@ def marginalize(particles_path: str | Path, surrogate_path: str | Path,
     from bayescalib.posterior import read_particles_h5, summarize, write_netcdf
     from bayescalib.surrogate import GPSurrogate
 
-    gp = GPSurrogate.load(surrogate_path)
+    gp = _read_checked(surrogate_path, GPSurrogate.load, "GP surrogate")
     space = _space(parameters)
-    result = read_particles_h5(particles_path)
+    result = _read_checked(particles_path, read_particles_h5, "SMC particle file")
     summary = summarize(result, space, loglik=lambda X: gp.predict(X),
                         map_bins=posterior_cfg.get("map_bins"),
                         levels=tuple(posterior_cfg.get("levels", (0.5, 0.9, 0.99))))
@@ -628,9 +643,9 @@ def summary(study_name: str, parameters: Sequence[Mapping[str, Any]], measures: 
     failed_runs: list[dict[str, Any]] = []
     for m, pp, tp, parts in zip(measures, posterior_paths, training_paths, particles_paths,
                                 strict=True):
-        post = posts[m] = read_json(pp)
-        tab = read_training(tp)
-        res = read_particles_h5(parts)
+        post = posts[m] = _read_checked(pp, read_json, "posterior summary")
+        tab = _read_checked(tp, read_training, "training table")
+        res = _read_checked(parts, read_particles_h5, "SMC particle file")
         tr = tab["is_train"].astype(bool)
         # one line per measure; the full posterior analysis is in its posterior.json
         per_measure[m] = {
@@ -702,7 +717,7 @@ def design_summary(strategy: str, acquire_paths: Sequence[str | Path],
                           "checked against solves placed where the posterior lives, so "
                           "nothing says whether this posterior has converged",
                 "rounds": []}
-    rounds = [read_json(p) for p in acquire_paths]
+    rounds = [_read_checked(p, read_json, "active round record") for p in acquire_paths]
     last = rounds[-1]
     return {"strategy": "active", "n_solves": int(last["n_solves"]),
             "n_failed": int(last["n_failed"]), "n_rounds": len(rounds),
