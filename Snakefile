@@ -51,6 +51,12 @@ if workflow.is_main_process:
 
 R = study.root
 
+# the report's front page reads the study's key numbers from here (workflow.rst);
+# cheap: one small JSON file, read only when it exists
+from bayescalib.pipeline import front_page
+
+config["front_page"] = front_page(f"{R}/summary.json")
+
 
 onstart:
     # one run of a study at a time (Snakemake's lock alone is lost when another
