@@ -51,6 +51,12 @@ if workflow.is_main_process:
 
 R = study.root
 
+# the report's front page reads the study's key numbers from here (workflow.rst);
+# cheap: one small JSON file, read only when it exists
+from bayescalib.pipeline import front_page
+
+config["front_page"] = front_page(f"{R}/summary.json")
+
 
 onstart:
     # one run of a study at a time (Snakemake's lock alone is lost when another
@@ -83,8 +89,9 @@ onsuccess:
         _s = read_json(_summary)
         print(run_line(_s), flush=True)
         if (_s.get("design") or {}).get("converged") is False:
-            print("WARNING: " + _s["design"]["reason"], flush=True)
+            print(f"WARNING: {_s['design']['reason']}", flush=True)
 
+include: "workflow/rules/common.smk"
 include: "workflow/rules/observe.smk"
 include: "workflow/rules/active.smk"
 include: "workflow/rules/solve.smk"
@@ -94,26 +101,6 @@ include: "workflow/rules/inference.smk"
 include: "workflow/rules/figures.smk"
 include: "workflow/rules/summary.smk"
 include: "workflow/rules/diagnose.smk"
-
-
-def study_outputs(wildcards):
-    """Every file the results are built from. They are targets too: Snakemake does not
-    rebuild a missing intermediate while what was built from it is present, so a
-    deleted run record, training table, surrogate, ... would otherwise leave a hole
-    under an intact summary.json ("Nothing to be done"). As targets, a missing one is
-    rebuilt, and everything built from it follows (newer input)."""
-    pts = final_points()
-    files = [f"{R}/observations/observations.h5"]
-    files += [f"{R}/runs/{i}.h5" for i in pts]
-    for m in study.measures:
-        files += [f"{R}/discrepancy/{m}/{i}.json" for i in pts]
-        files += [f"{R}/{m}/{name}" for name in
-                  ("training.h5", "surrogate.h5", "particles.h5", "posterior.json", "posterior.nc")]
-    if study.active:
-        for r in range(final_round() + 1):
-            files += [f"{ACTIVE_DIR}/{r}/{name}" for name in
-                      ("training.h5", "surrogate.h5", "particles.h5", "acquire.json")]
-    return files
 
 
 rule all:

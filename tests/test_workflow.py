@@ -15,6 +15,7 @@ import shutil
 from pathlib import Path
 
 import pytest
+import yaml
 from _workflow_helpers import REPO, run_and_kill
 from _workflow_helpers import setup_study as _setup
 from _workflow_helpers import smk as _smk
@@ -181,8 +182,6 @@ def test_a_users_study_layered_on_the_default_study_just_works(tmp_path):
     with sigma_n2 and a warm start) and the user's file on top with --configfile. A
     python model with the noise given as sigma_n must plan its jobs without a conflict
     (later layer wins; the fsi warm start does not apply to it)."""
-    import yaml
-
     (tmp_path / "config").mkdir()
     shutil.copy(REPO / "config" / "config.yaml", tmp_path / "config" / "config.yaml")
     mine = {"study": "mine", "forward_model": {
@@ -249,3 +248,12 @@ def test_a_damaged_stage_output_is_set_aside_and_rebuilt(done_run, tmp_path, dam
     after = json.loads((root / "summary.json").read_text())
     for key in ("map", "posterior_mean", "posterior_cov", "log_evidence"):
         assert after[key] == before[key], key
+
+
+def test_the_workflow_is_lint_clean(tmp_path):
+    """``snakemake --lint``: rules and functions apart (workflow/rules/common.smk), no
+    hard-coded path params, a software environment for every rule."""
+    _setup(tmp_path, yaml.safe_load((REPO / "tests" / "data" / "analytic_study.yaml").read_text()))
+    proc = _smk(tmp_path, "--lint", check=False)
+    assert "Congratulations, your workflow is in a good condition!" in proc.stdout + proc.stderr, \
+        (proc.stdout + proc.stderr)[-3000:]

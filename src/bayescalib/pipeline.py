@@ -39,6 +39,7 @@ __all__ = [
     "convergence",
     "design_summary",
     "discrepancy",
+    "front_page",
     "gather",
     "gather_rows",
     "marginalize",
@@ -749,6 +750,37 @@ def run_line(summary_json: Mapping[str, Any]) -> str:
         state = "convergence not checked (fixed design)"
     return (f"bayescalib {summary_json['study']}: {', '.join(parts)}; {state}; "
             f"{n_solves} solves, {n_failed} failed")
+
+
+def front_page(summary_path: str | Path) -> dict[str, Any] | None:
+    """The key numbers of a finished study for the report's front page: the run line,
+    whether it converged and why, and per parameter MAP, mean, sd, the 90 % equal-tailed
+    interval and the ground truth (strings, in the user's units). None before the
+    study has a summary.json (or when it cannot be read)."""
+    path = Path(summary_path)
+    if not path.is_file():
+        return None
+    try:
+        s = read_json(path)
+    except PipelineError:
+        return None
+
+    def fmt(v) -> str:
+        return "-" if v is None else f"{float(v):.4g}"
+
+    truth = s.get("ground_truth") or {}
+    ci = s.get("credible_intervals") or {}
+    rows = []
+    for p in s["parameters"]:
+        n = p["name"]
+        lohi = (ci.get(n) or {}).get("0.9")
+        rows.append([n, p.get("unit", "-"), fmt(s["map"].get(n)), fmt(s["posterior_mean"].get(n)),
+                     fmt((s.get("posterior_sd") or {}).get(n)),
+                     "-" if not lohi else f"[{fmt(lohi[0])}, {fmt(lohi[1])}]",
+                     fmt(truth.get(n))])
+    design = s.get("design") or {}
+    return {"line": run_line(s), "reason": design.get("reason", ""), "rows": rows,
+            "converged": design.get("converged"), "measure": s.get("measure")}
 
 
 def collect_timings(root: str | Path) -> dict[str, Any]:

@@ -8,70 +8,9 @@
 # of the acquire file that chose it, so rerunning an acquire job with the same
 # outcome re-solves nothing.
 
-import json as _json
-
-ACTIVE_DIR = f"{R}/active"
-
-
-def _acquire_path(r):
-    return f"{ACTIVE_DIR}/{int(r)}/acquire.json"
-
-
-def _read_acquire(r):
-    """The record of active round r (runs the checkpoint first when needed)."""
-    path = checkpoints.acquire.get(r=int(r)).output[0]
-    with open(path) as fh:
-        return _json.load(fh)
-
-
-def final_round():
-    """Index of the last active round: the first whose record says stop."""
-    r = 0
-    while not _read_acquire(r)["stop"]:
-        r += 1
-    return r
-
-
-def final_points():
-    """Indices of the design points of the final design."""
-    if not study.active:
-        return list(range(study.n_points))
-    return list(range(study.round_size(final_round())))
-
-
-def active_records():
-    """Paths of all active rounds' records (empty for a fixed design)."""
-    if not study.active:
-        return []
-    return [_acquire_path(r) for r in range(final_round() + 1)]
-
-
-def point_source(i):
-    """The acquire record that chose design point i (None for a Sobol point)."""
-    if int(i) < study.n_sobol:
-        return None
-    r, _ = study.point_round(int(i))
-    return checkpoints.acquire.get(r=r - 1).output[0]
-
-
-def point_values(i):
-    """Values of design point i keyed by target."""
-    src = point_source(i)
-    if src is None:
-        return study.point(int(i))
-    r, j = study.point_round(int(i))
-    with open(src) as fh:
-        return study.point_values(_json.load(fh)["next"]["points"][j])
-
-
-def _round_inputs(wildcards):
-    n = study.round_size(int(wildcards.r))
-    m = study.primary_measure
-    return {"runs": [f"{R}/runs/{i}.h5" for i in range(n)],
-            "disc": [f"{R}/discrepancy/{m}/{i}.json" for i in range(n)]}
-
-
 rule gather_round:
+    conda:
+        "../envs/bayescalib.yaml"
     input:
         unpack(_round_inputs),
     output:
@@ -89,6 +28,8 @@ rule gather_round:
 
 
 rule train_round:
+    conda:
+        "../envs/bayescalib.yaml"
     input:
         f"{ACTIVE_DIR}/{{r}}/training.h5",
     output:
@@ -106,6 +47,8 @@ rule train_round:
 
 
 rule smc_round:
+    conda:
+        "../envs/bayescalib.yaml"
     input:
         f"{ACTIVE_DIR}/{{r}}/surrogate.h5",
     output:
@@ -123,6 +66,8 @@ rule smc_round:
 
 
 checkpoint acquire:
+    conda:
+        "../envs/bayescalib.yaml"
     input:
         training=f"{ACTIVE_DIR}/{{r}}/training.h5",
         surrogate=f"{ACTIVE_DIR}/{{r}}/surrogate.h5",

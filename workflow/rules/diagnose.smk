@@ -7,21 +7,9 @@
 # calibrations are the same active-design chain as the study's (bayescalib.chain).
 
 
-def _diagnose_inputs(wildcards):
-    m = study.primary_measure
-    out = {
-        "particles": f"{R}/{m}/particles.h5",
-        "training": f"{R}/{m}/training.h5",
-        "posterior": f"{R}/{m}/posterior.json",
-        "obs": f"{R}/observations/observations.h5",
-    }
-    if study.config["forward_model"]["warm_start"] == "prior_centre":
-        out["base"] = f"{R}/runs/base_state.state.npz"
-    out["rounds"] = active_records()
-    return out
-
-
 rule diagnose:
+    conda:
+        "../envs/bayescalib.yaml"
     input:
         unpack(_diagnose_inputs),
     output:
@@ -48,8 +36,8 @@ rule diagnose:
         design=study.config["design"],
         n_solves=lambda wildcards: len(final_points()),
         plots=study.config["plots"],
-        outdir=f"{R}/diagnosis",
-        figdir=f"{R}/figures/diagnosis",
+        outdir=lambda wc, output: os.path.dirname(output.json),
+        figdir=lambda wc, output: os.path.dirname(output.figures[0]),
     threads: lambda wildcards: max(1, workflow.cores or 1)
     benchmark:
         f"{R}/benchmarks/diagnose.tsv"

@@ -4,6 +4,8 @@
 
 
 rule discrepancy:
+    conda:
+        "../envs/bayescalib.yaml"
     input:
         run=f"{R}/runs/{{i}}.h5",
         obs=f"{R}/observations/observations.h5",
@@ -24,20 +26,9 @@ rule discrepancy:
         "../../scripts/discrepancy.py"
 
 
-def _set_aside(wildcards):
-    """Run records and discrepancy files found corrupt and set aside (renamed to
-    *.corrupt by the job that read them). Snakemake does not recompute a missing
-    intermediate file while the results built from it are present, so this list is
-    a parameter of gather: when it grows, gather reruns, which re-solves exactly the
-    points set aside, and everything downstream follows."""
-    from pathlib import Path
-
-    found = [f"runs/{p.name}" for p in Path(R, "runs").glob("*.corrupt")]
-    found += [p.name for p in Path(R, "discrepancy", wildcards.measure).glob("*.corrupt")]
-    return sorted(found)
-
-
 rule gather:
+    conda:
+        "../envs/bayescalib.yaml"
     input:
         runs=lambda wc: [f"{R}/runs/{i}.h5" for i in final_points()],
         disc=lambda wc: [f"{R}/discrepancy/{wc.measure}/{i}.json" for i in final_points()],

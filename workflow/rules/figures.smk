@@ -1,43 +1,9 @@
 # Figures, one rule per family. Each depends on its data files and the plots
 # section only, so changing a plot setting reruns only figures.
 
-FMT = study.config["plots"]["formats"]
-K = study.config["plots"]["n_interface_samples"]
-DIM = len(study.config["parameters"])
-
-
-def _fig(name, measure=None):
-    base = f"{R}/figures/{measure}/{name}" if measure else f"{R}/figures/{name}"
-    return [f"{base}.{ext}" for ext in FMT]
-
-
-def figure_map():
-    """Figure family -> list of files (for summary.json and rule all)."""
-    out = {}
-    for m in study.measures:
-        if DIM >= 2:
-            out[f"{m}/response"] = _fig("response", m)
-            out[f"{m}/joint"] = _fig("joint", m)
-            out[f"{m}/particles"] = _fig("particles", m)
-        out[f"{m}/marginals"] = _fig("marginals", m)
-        out[f"{m}/pairs"] = _fig("pairs", m)
-        out[f"{m}/parallel"] = _fig("parallel", m)
-        if study.config["convergence"]["enabled"]:
-            out[f"{m}/convergence"] = _fig("convergence", m)
-    if study.active and DIM >= 2:
-        out["rounds"] = _fig("rounds")
-    if K > 0:
-        out["interfaces"] = _fig("interfaces")
-    if FIELDS:
-        out["fields"] = _fig("fields")
-    return out
-
-
-def figure_targets():
-    return [f for files in figure_map().values() for f in files]
-
-
 rule fig_response:
+    conda:
+        "../envs/bayescalib.yaml"
     input:
         training=f"{R}/{{measure}}/training.h5",
         surrogate=f"{R}/{{measure}}/surrogate.h5",
@@ -51,7 +17,7 @@ rule fig_response:
     params:
         parameters=study.config["parameters"],
         plots=study.config["plots"],
-        stem=lambda wc: f"{R}/figures/{wc.measure}/response",
+        stem=lambda wc, output: os.path.splitext(output[0])[0],
     log:
         f"{R}/logs/{{measure}}/fig_response.log",
     benchmark:
@@ -61,6 +27,8 @@ rule fig_response:
 
 
 rule fig_convergence:
+    conda:
+        "../envs/bayescalib.yaml"
     input:
         f"{R}/{{measure}}/convergence.json",
     output:
@@ -72,7 +40,7 @@ rule fig_convergence:
         ),
     params:
         plots=study.config["plots"],
-        stem=lambda wc: f"{R}/figures/{wc.measure}/convergence",
+        stem=lambda wc, output: os.path.splitext(output[0])[0],
     log:
         f"{R}/logs/{{measure}}/fig_convergence.log",
     benchmark:
@@ -81,14 +49,11 @@ rule fig_convergence:
         "../../scripts/fig_convergence.py"
 
 
-_POSTERIOR_FAMILIES = (["joint", "particles"] if DIM >= 2 else []) + [
-    "marginals",
-    "pairs",
-    "parallel",
-]
 
 
 rule fig_posterior:
+    conda:
+        "../envs/bayescalib.yaml"
     input:
         particles=f"{R}/{{measure}}/particles.h5",
         posterior=f"{R}/{{measure}}/posterior.json",
@@ -118,6 +83,8 @@ rule fig_posterior:
 
 
 rule predictive_solve:
+    conda:
+        "../envs/bayescalib.yaml"
     input:
         particles=f"{R}/{study.primary_measure}/particles.h5",
     output:
@@ -137,6 +104,8 @@ rule predictive_solve:
 
 
 rule fig_interfaces:
+    conda:
+        "../envs/bayescalib.yaml"
     input:
         obs=f"{R}/observations/observations.h5",
         samples=expand(f"{R}/predictive/{{k}}.h5", k=range(K)),
@@ -153,7 +122,7 @@ rule fig_interfaces:
         ),
     params:
         plots=study.config["plots"],
-        stem=f"{R}/figures/interfaces",
+        stem=lambda wc, output: os.path.splitext(output[0])[0],
     log:
         f"{R}/logs/fig_interfaces.log",
     benchmark:
@@ -163,6 +132,8 @@ rule fig_interfaces:
 
 
 rule fig_fields:
+    conda:
+        "../envs/bayescalib.yaml"
     input:
         vtu=f"{R}/observations/ground_truth.vtu",
         run=f"{R}/observations/ground_truth_run.h5",
@@ -174,7 +145,7 @@ rule fig_fields:
         ),
     params:
         plots=study.config["plots"],
-        stem=f"{R}/figures/fields",
+        stem=lambda wc, output: os.path.splitext(output[0])[0],
     log:
         f"{R}/logs/fig_fields.log",
     benchmark:
@@ -184,6 +155,8 @@ rule fig_fields:
 
 
 rule fig_rounds:
+    conda:
+        "../envs/bayescalib.yaml"
     input:
         records=lambda wc: active_records(),
         particles=lambda wc: [f"{ACTIVE_DIR}/{r}/particles.h5" for r in range(final_round() + 1)],
@@ -198,7 +171,7 @@ rule fig_rounds:
         parameters=study.config["parameters"],
         active=study.config["design"]["active"],
         plots=study.config["plots"],
-        stem=f"{R}/figures/rounds",
+        stem=lambda wc, output: os.path.splitext(output[0])[0],
     log:
         f"{R}/logs/fig_rounds.log",
     benchmark:

@@ -4,6 +4,8 @@
 
 
 rule smc:
+    conda:
+        "../envs/bayescalib.yaml"
     input:
         f"{R}/{{measure}}/surrogate.h5",
     output:
@@ -21,6 +23,8 @@ rule smc:
 
 
 rule marginalize:
+    conda:
+        "../envs/bayescalib.yaml"
     input:
         particles=f"{R}/{{measure}}/particles.h5",
         surrogate=f"{R}/{{measure}}/surrogate.h5",

@@ -3,19 +3,9 @@
 # (synthetic case) and the observations section only.
 
 
-def _observe_inputs(wildcards):
-    obs = study.config["observations"]
-    if obs.get("source", "synthetic") == "synthetic":
-        return {"run": f"{R}/observations/ground_truth_run.h5"}
-    # the files themselves: a changed observation file makes a new observation set
-    files = [e["path"] for e in obs["files"]]
-    return {"files": files + ([obs["reference"]["path"]] if obs.get("reference") else [])}
-
-
-FIELDS = study.config["plots"]["fields"] and study.config["forward_model"]["type"] == "fsi"
-
-
 rule ground_truth:
+    conda:
+        "../envs/bayescalib.yaml"
     output:
         run=f"{R}/observations/ground_truth_run.h5",
         **({"vtu": f"{R}/observations/ground_truth.vtu"} if FIELDS else {}),
@@ -35,6 +25,8 @@ rule ground_truth:
 
 
 rule observe:
+    conda:
+        "../envs/bayescalib.yaml"
     input:
         unpack(_observe_inputs),
     output:

@@ -6,17 +6,9 @@
 # (active.smk).
 
 
-def _solve_inputs(wildcards):
-    out = {}
-    if study.config["forward_model"]["warm_start"] == "prior_centre":
-        out["base"] = f"{R}/runs/base_state.state.npz"
-    src = point_source(wildcards.i)  # active design: the round record that chose it
-    if src is not None:
-        out["chosen_by"] = ancient(src)
-    return out
-
-
 rule base_state:
+    conda:
+        "../envs/bayescalib.yaml"
     output:
         run=f"{R}/runs/base_state.h5",
         state=f"{R}/runs/base_state.state.npz",
@@ -36,6 +28,8 @@ rule base_state:
 
 
 rule solve:
+    conda:
+        "../envs/bayescalib.yaml"
     input:
         unpack(_solve_inputs),
     output:

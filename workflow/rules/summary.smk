@@ -3,6 +3,8 @@
 
 
 rule summary:
+    conda:
+        "../envs/bayescalib.yaml"
     input:
         posterior=expand(f"{R}/{{measure}}/posterior.json", measure=study.measures),
         training=expand(f"{R}/{{measure}}/training.h5", measure=study.measures),
@@ -19,7 +21,7 @@ rule summary:
         parameters=study.config["parameters"],
         measures=study.measures,
         figure_map=figure_map(),
-        root=R,
+        root=lambda wc, output: os.path.dirname(output[0]),
         strategy=study.config["design"]["strategy"],
         n_solves=lambda wc: len(final_points()),
     log:

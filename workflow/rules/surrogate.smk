@@ -3,6 +3,8 @@
 
 
 rule train_surrogate:
+    conda:
+        "../envs/bayescalib.yaml"
     input:
         f"{R}/{{measure}}/training.h5",
     output:
@@ -20,6 +22,8 @@ rule train_surrogate:
 
 
 rule convergence:
+    conda:
+        "../envs/bayescalib.yaml"
     input:
         f"{R}/{{measure}}/training.h5",
     output:

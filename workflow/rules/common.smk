@@ -1,0 +1,193 @@
+# Functions and constants of the rules (Snakemake's lint: rules and functions apart).
+# Everything here is cheap at parse time: no design point, round record or file is
+# read until the DAG asks for it (checkpoints are consulted lazily).
+
+import json as _json
+
+
+# ---- Observations
+
+def _observe_inputs(wildcards):
+    obs = study.config["observations"]
+    if obs.get("source", "synthetic") == "synthetic":
+        return {"run": f"{R}/observations/ground_truth_run.h5"}
+    # the files themselves: a changed observation file makes a new observation set
+    files = [e["path"] for e in obs["files"]]
+    return {"files": files + ([obs["reference"]["path"]] if obs.get("reference") else [])}
+
+
+FIELDS = study.config["plots"]["fields"] and study.config["forward_model"]["type"] == "fsi"
+
+
+# ---- Active design: rounds, their records and points
+
+ACTIVE_DIR = f"{R}/active"
+
+
+def _acquire_path(r):
+    return f"{ACTIVE_DIR}/{int(r)}/acquire.json"
+
+
+def _read_acquire(r):
+    """The record of active round r (runs the checkpoint first when needed)."""
+    path = checkpoints.acquire.get(r=int(r)).output[0]
+    with open(path) as fh:
+        return _json.load(fh)
+
+
+def final_round():
+    """Index of the last active round: the first whose record says stop."""
+    r = 0
+    while not _read_acquire(r)["stop"]:
+        r += 1
+    return r
+
+
+def final_points():
+    """Indices of the design points of the final design."""
+    if not study.active:
+        return list(range(study.n_points))
+    return list(range(study.round_size(final_round())))
+
+
+def active_records():
+    """Paths of all active rounds' records (empty for a fixed design)."""
+    if not study.active:
+        return []
+    return [_acquire_path(r) for r in range(final_round() + 1)]
+
+
+def point_source(i):
+    """The acquire record that chose design point i (None for a Sobol point)."""
+    if int(i) < study.n_sobol:
+        return None
+    r, _ = study.point_round(int(i))
+    return checkpoints.acquire.get(r=r - 1).output[0]
+
+
+def point_values(i):
+    """Values of design point i keyed by target."""
+    src = point_source(i)
+    if src is None:
+        return study.point(int(i))
+    r, j = study.point_round(int(i))
+    with open(src) as fh:
+        return study.point_values(_json.load(fh)["next"]["points"][j])
+
+
+def _round_inputs(wildcards):
+    n = study.round_size(int(wildcards.r))
+    m = study.primary_measure
+    return {"runs": [f"{R}/runs/{i}.h5" for i in range(n)],
+            "disc": [f"{R}/discrepancy/{m}/{i}.json" for i in range(n)]}
+
+
+# ---- Solves
+
+def _solve_inputs(wildcards):
+    out = {}
+    if study.config["forward_model"]["warm_start"] == "prior_centre":
+        out["base"] = f"{R}/runs/base_state.state.npz"
+    src = point_source(wildcards.i)  # active design: the round record that chose it
+    if src is not None:
+        out["chosen_by"] = ancient(src)
+    return out
+
+
+# ---- Discrepancies
+
+def _set_aside(wildcards):
+    """Run records and discrepancy files found corrupt and set aside (renamed to
+    *.corrupt by the job that read them). Snakemake does not recompute a missing
+    intermediate file while the results built from it are present, so this list is
+    a parameter of gather: when it grows, gather reruns, which re-solves exactly the
+    points set aside, and everything downstream follows."""
+    from pathlib import Path
+
+    found = [f"runs/{p.name}" for p in Path(R, "runs").glob("*.corrupt")]
+    found += [p.name for p in Path(R, "discrepancy", wildcards.measure).glob("*.corrupt")]
+    return sorted(found)
+
+
+# ---- Figures
+
+FMT = study.config["plots"]["formats"]
+K = study.config["plots"]["n_interface_samples"]
+DIM = len(study.config["parameters"])
+
+
+def _fig(name, measure=None):
+    base = f"{R}/figures/{measure}/{name}" if measure else f"{R}/figures/{name}"
+    return [f"{base}.{ext}" for ext in FMT]
+
+
+def figure_map():
+    """Figure family -> list of files (for summary.json and rule all)."""
+    out = {}
+    for m in study.measures:
+        if DIM >= 2:
+            out[f"{m}/response"] = _fig("response", m)
+            out[f"{m}/joint"] = _fig("joint", m)
+            out[f"{m}/particles"] = _fig("particles", m)
+        out[f"{m}/marginals"] = _fig("marginals", m)
+        out[f"{m}/pairs"] = _fig("pairs", m)
+        out[f"{m}/parallel"] = _fig("parallel", m)
+        if study.config["convergence"]["enabled"]:
+            out[f"{m}/convergence"] = _fig("convergence", m)
+    if study.active and DIM >= 2:
+        out["rounds"] = _fig("rounds")
+    if K > 0:
+        out["interfaces"] = _fig("interfaces")
+    if FIELDS:
+        out["fields"] = _fig("fields")
+    return out
+
+
+def figure_targets():
+    return [f for files in figure_map().values() for f in files]
+
+
+_POSTERIOR_FAMILIES = (["joint", "particles"] if DIM >= 2 else []) + [
+    "marginals",
+    "pairs",
+    "parallel",
+]
+
+
+# ---- Diagnosis
+
+def _diagnose_inputs(wildcards):
+    m = study.primary_measure
+    out = {
+        "particles": f"{R}/{m}/particles.h5",
+        "training": f"{R}/{m}/training.h5",
+        "posterior": f"{R}/{m}/posterior.json",
+        "obs": f"{R}/observations/observations.h5",
+    }
+    if study.config["forward_model"]["warm_start"] == "prior_centre":
+        out["base"] = f"{R}/runs/base_state.state.npz"
+    out["rounds"] = active_records()
+    return out
+
+
+# ---- Every result file
+
+def study_outputs(wildcards):
+    """Every file the results are built from. They are targets too: Snakemake does not
+    rebuild a missing intermediate while what was built from it is present, so a
+    deleted run record, training table, surrogate, ... would otherwise leave a hole
+    under an intact summary.json ("Nothing to be done"). As targets, a missing one is
+    rebuilt, and everything built from it follows (newer input)."""
+    pts = final_points()
+    files = [f"{R}/observations/observations.h5"]
+    files += [f"{R}/runs/{i}.h5" for i in pts]
+    for m in study.measures:
+        files += [f"{R}/discrepancy/{m}/{i}.json" for i in pts]
+        files += [f"{R}/{m}/{name}" for name in
+                  ("training.h5", "surrogate.h5", "particles.h5", "posterior.json", "posterior.nc")]
+    if study.active:
+        for r in range(final_round() + 1):
+            files += [f"{ACTIVE_DIR}/{r}/{name}" for name in
+                      ("training.h5", "surrogate.h5", "particles.h5", "acquire.json")]
+    return files
+
