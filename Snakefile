@@ -38,9 +38,17 @@ for _note in study.notes:
 # A run of this study that is alive answers first, before Snakemake's own lock or
 # incomplete-files checks can suggest --unlock or --rerun-incomplete over a live run.
 if workflow.is_main_process:
-    from bayescalib.study import run_lock_holder, runs_jobs
+    from bayescalib.study import job_lock_holders, run_lock_holder, runs_jobs
 
     _holder = run_lock_holder(study.root) if runs_jobs(sys.argv) else None
+    _orphans = job_lock_holders(study.root) if runs_jobs(sys.argv) and _holder is None else None
+    if _orphans is not None:
+        sys.stderr.write(
+            f"bayescalib: jobs of an earlier run of study '{study.name}' are still running "
+            f"(pid {', '.join(map(str, _orphans)) or 'unknown'}): that run was killed and "
+            "left them behind. Wait for them to end (or kill them), then resume; a run "
+            "beside them would redo their work.\n")
+        sys.exit(1)
     if _holder is not None:
         sys.stderr.write(
             f"bayescalib: study '{study.name}' is already being run in this directory "

@@ -213,7 +213,7 @@ def test_netcdf_export_layout(tmp_path, small_run):
         assert post["E"].units == "Pa"
         E = post["E"][:].data[0]
         st = ds["sample_stats"]
-        assert {"lp", "log_likelihood", "log_weight", "particle_index"} <= set(st.variables)
+        assert {"lp", "surrogate_loglik", "log_weight", "particle_index"} <= set(st.variables)
         assert np.array_equal(st["particle_index"][:].data[0], idx)
     assert np.array_equal(E, r.particles[idx, 0])
     # systematic resampling is unbiased: mean of draws within 5 SE of the weighted mean
@@ -222,11 +222,24 @@ def test_netcdf_export_layout(tmp_path, small_run):
     assert abs(E.mean() - m) < 5 * sd / np.sqrt(4000)
 
 
-def test_netcdf_readable_by_arviz(tmp_path, small_run):
-    az = pytest.importorskip("arviz")
+def test_netcdf_is_arviz_inference_data_without_warnings(tmp_path, small_run):
+    """ArviZ reads the export and summarizes it without a shape warning; its mean
+    agrees with the weighted particle mean."""
+    import warnings
+
+    from bayescalib.posterior import _arviz
+
+    az = _arviz()
     space, r = small_run
     p = tmp_path / "posterior.nc"
-    write_netcdf(p, r, space, np.random.default_rng(0), n_draws=500)
-    idata = az.from_netcdf(p)
-    assert idata.posterior["E"].shape == (1, 500)
+    write_netcdf(p, r, space, np.random.default_rng(0), n_draws=2000)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        idata = az.from_netcdf(p)
+        summ = az.summary(idata, var_names=["E", "nu"], kind="stats")
+    assert idata.posterior["E"].shape == (1, 2000)
+    assert idata.posterior["E"].attrs["units"] == "Pa"
     assert "lp" in idata.sample_stats
+    m = r.weights @ r.particles[:, 0]
+    sd = np.sqrt(r.weights @ (r.particles[:, 0] - m) ** 2)
+    assert abs(summ.loc["E", "mean"] - m) < 5 * sd / np.sqrt(2000)

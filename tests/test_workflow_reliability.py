@@ -247,3 +247,28 @@ def test_cores_1_and_cores_2_give_bitwise_equal_summaries(concurrent_runs, done_
     assert json.dumps(a["summary"], sort_keys=True) == json.dumps(ref["summary"], sort_keys=True)
     for k, v in ref["table"].items():
         assert a["table"][k].tobytes() == v.tobytes(), k
+
+
+def test_a_resume_waits_for_the_orphaned_jobs_of_a_killed_run(done_run, tmp_path):
+    """Snakemake killed hard leaves its running jobs behind. A resume started beside
+    them would redo their work unguarded; it is refused, naming them, until they end."""
+    import subprocess
+    import sys
+
+    tmp = tmp_path / "copy"
+    shutil.copytree(done_run, tmp, symlinks=True)
+    log = tmp / STUDY / "logs" / "solve" / "3.log"
+    orphan = subprocess.Popen(
+        [sys.executable, "-c", ("from bayescalib.pipeline import setup_logging; "
+         f"setup_logging({str(log)!r}); print('running', flush=True); "
+         "import time; time.sleep(120)")], stdout=subprocess.PIPE, text=True)
+    try:
+        assert orphan.stdout.readline().strip() == "running"
+        refused = smk(tmp, check=False, timeout=120)
+        said = refused.stdout + refused.stderr
+        assert refused.returncode != 0
+        assert f"still running (pid {orphan.pid})" in said, said[-2000:]
+    finally:
+        orphan.kill()
+        orphan.wait()
+    assert smk(tmp, timeout=300).returncode == 0

@@ -105,6 +105,13 @@ def setup_logging(path: str | Path | None) -> None:
         h.setFormatter(fmt)
         root.addHandler(h)
     if path is not None:
+        # a job of a study (its log under <root>/logs/) marks itself running, so that a
+        # new run of the study waits for the orphans of a killed one
+        parts = Path(path).resolve().parts
+        if "logs" in parts:
+            from bayescalib.study import hold_job_lock
+
+            hold_job_lock(Path(*parts[: len(parts) - 1 - parts[::-1].index("logs")]))
         # an error that ends the job goes into the rule's log too, not only to the console
         previous = sys.excepthook
 

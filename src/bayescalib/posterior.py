@@ -29,15 +29,14 @@ All summaries are weighted sums over the final particles (eq. smcintegration).
 
 Storage: particles, weights, log-likelihood, log prior and the SMC history go
 to HDF5; equally weighted draws (systematic resampling of the final particles)
-go to a NetCDF file in ArviZ's InferenceData layout: group ``posterior`` with
+go to a NetCDF file written by ArviZ (InferenceData): group ``posterior`` with
 one variable per parameter, dims (chain, draw), and group ``sample_stats`` with
-``lp`` (log posterior), ``log_likelihood``, ``log_weight`` (normalized log
+``lp`` (log posterior), ``surrogate_loglik``, ``log_weight`` (normalized log
 weight of the particle the draw was copied from) and ``particle_index``.
 """
 
 from __future__ import annotations
 
-import datetime as _dt
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
@@ -332,56 +331,49 @@ def write_netcdf(
     rng: np.random.Generator,
     n_draws: int,
 ) -> np.ndarray:
-    """Export ``n_draws`` equally weighted draws in ArviZ's InferenceData NetCDF layout.
+    """Export ``n_draws`` equally weighted draws as an ArviZ ``InferenceData`` NetCDF.
 
-    Draws are a systematic resample of the final particles (randomly permuted).
-    Groups: ``posterior`` (one (chain=1, draw) variable per parameter, with a
-    ``units`` attribute) and ``sample_stats`` (``lp``, ``log_likelihood``,
-    ``log_weight``, ``particle_index``). Written atomically.
+    Draws are a systematic resample of the final particles (randomly permuted), one
+    chain. Groups (written by ArviZ): ``posterior`` (one (chain=1, draw) variable per
+    parameter, with ``units`` and ``uncertain`` attributes) and ``sample_stats``
+    (``lp``, ``surrogate_loglik``: the GP surrogate's log-likelihood, ``log_weight``,
+    ``particle_index``). Written
+    atomically; ``arviz.from_netcdf`` reads it back.
 
     Returns
     -------
     (n_draws,) indices of the particles that were drawn.
     """
-    import netCDF4
-
+    az = _arviz()
     W = np.asarray(result.weights, float)
     W = W / W.sum()
     idx = systematic_resample(W, rng, n_draws)
     idx = idx[rng.permutation(n_draws)]
-    created = _dt.datetime.now(_dt.UTC).isoformat()
     with np.errstate(divide="ignore"):
         logw = np.log(W[idx])
+    post = {name: np.asarray(result.particles)[idx, j][None, :]
+            for j, name in enumerate(space.names)}
+    stats = {"lp": np.asarray(result.log_posterior)[idx][None, :],
+             "surrogate_loglik": np.asarray(result.loglik)[idx][None, :],
+             "log_weight": logw[None, :], "particle_index": idx.astype(np.int64)[None, :]}
+    idata = az.from_dict(posterior=post, sample_stats=stats,
+                         attrs={"inference_library": "bayescalib",
+                                "sampler": "SMC with adaptive tempering on a GP surrogate"})
+    for j, (name, unit) in enumerate(zip(space.names, space.units, strict=True)):
+        idata.posterior[name].attrs.update(units=unit,
+                                           uncertain=int(not space.calibrated_mask[j]))
     with atomic_path(path, suffix=".nc") as tmp:
-        ds = netCDF4.Dataset(tmp, "w", format="NETCDF4")
-        try:
-            ds.setncattr("created_at", created)
-            ds.setncattr("inference_library", "bayescalib")
-            for gname in ("posterior", "sample_stats"):
-                g = ds.createGroup(gname)
-                g.setncattr("created_at", created)
-                g.setncattr("inference_library", "bayescalib")
-                g.createDimension("chain", 1)
-                g.createDimension("draw", n_draws)
-                vc = g.createVariable("chain", "i8", ("chain",))
-                vc[:] = np.arange(1)
-                vd = g.createVariable("draw", "i8", ("draw",))
-                vd[:] = np.arange(n_draws)
-            post = ds["posterior"]
-            for j, (name, unit) in enumerate(zip(space.names, space.units)):
-                v = post.createVariable(name, "f8", ("chain", "draw"))
-                v[:] = result.particles[idx, j][None, :]
-                v.setncattr("units", unit)
-                v.setncattr("uncertain", int(not space.calibrated_mask[j]))
-            st = ds["sample_stats"]
-            for name, data, typ in (
-                ("lp", result.log_posterior[idx], "f8"),
-                ("log_likelihood", result.loglik[idx], "f8"),
-                ("log_weight", logw, "f8"),
-                ("particle_index", idx.astype(np.int64), "i8"),
-            ):
-                v = st.createVariable(name, typ, ("chain", "draw"))
-                v[:] = np.asarray(data)[None, :]
-        finally:
-            ds.close()
+        idata.to_netcdf(str(tmp))
     return idx
+
+
+def _arviz():
+    """ArviZ, imported without its notice about a future refactor (this module pins a
+    version whose API it uses)."""
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", FutureWarning)
+        import arviz
+
+    return arviz

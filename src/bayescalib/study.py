@@ -52,6 +52,56 @@ def run_lock_holder(root: str | Path) -> str | None:
     return None
 
 
+JOBS_LOCK = ".jobs.lock"
+
+
+def hold_job_lock(root: str | Path) -> None:
+    """Mark this process as a running job of the study under ``root`` for the rest of
+    its life: a shared kernel lock on ``<root>/.jobs.lock`` (released by the kernel
+    however the job ends). A Snakemake run that was killed leaves its jobs running as
+    orphans; a new run sees their locks and waits for them instead of running beside
+    them (:func:`job_lock_holders`)."""
+    import fcntl
+
+    path = Path(root) / JOBS_LOCK
+    key = "jobs:" + str(path.resolve())
+    if key in _HELD_LOCKS:
+        return
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fh = open(path, "a")  # noqa: SIM115 - held open for the life of the process
+    fcntl.flock(fh.fileno(), fcntl.LOCK_SH)
+    _HELD_LOCKS[key] = fh
+
+
+def job_lock_holders(root: str | Path) -> list[int] | None:
+    """PIDs of processes holding the job lock of the study under ``root`` (an empty
+    list when they cannot be named), or None when no job of the study is running."""
+    import fcntl
+    import os
+
+    path = Path(root) / JOBS_LOCK
+    if not path.is_file():
+        return None
+    with open(path) as fh:
+        try:
+            fcntl.flock(fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            pass
+        else:
+            fcntl.flock(fh.fileno(), fcntl.LOCK_UN)
+            return None
+        ino = os.fstat(fh.fileno()).st_ino
+    pids: list[int] = []
+    try:  # Linux: /proc/locks names the holders ("... <pid> <maj>:<min>:<inode> ...")
+        for line in Path("/proc/locks").read_text().splitlines():
+            parts = line.split()
+            if len(parts) > 5 and parts[1] == "FLOCK" and parts[5].endswith(f":{ino}"):
+                pids.append(int(parts[4]))
+    except (OSError, ValueError):
+        pass
+    return sorted(set(pids) - {os.getpid()})
+
+
 #: command-line options of a Snakemake call that only looks (never runs a job)
 _LOOK_ONLY = {"-n", "--dry-run", "--dryrun", "--report", "--lint", "--list", "-l",
               "--list-rules", "--summary", "-S", "--detailed-summary", "-D", "--dag",
