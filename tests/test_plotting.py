@@ -510,3 +510,28 @@ def test_degenerate_cloud_skips_kde_with_warning(tmp_path):
     texts = {t.get_text() for ax in fig.axes if ax.get_legend()
              for t in ax.get_legend().get_texts()}
     assert not any(t.startswith("KDE HPD") for t in texts)
+
+
+def test_bounded_kde_keeps_its_mass_at_the_prior_bound():
+    """Particles of a density that is flat up to a bound (a posterior truncated by its
+    prior box): the plain KDE drops to about half at the bound; the reflected one stays
+    flat there and integrates to 1 inside the box."""
+    from bayescalib.plotting.kde import weighted_kde
+
+    rng = np.random.default_rng(0)
+    x = rng.uniform(100.0, 800.0, 20000)
+    g = np.linspace(100.0, 800.0, 1401)
+    plain = weighted_kde(x)(g[None, :])
+    bounded = weighted_kde(x, support=[[100.0, 800.0]])(g[None, :])
+    flat = 1.0 / 700.0
+    assert plain[0] < 0.6 * flat  # the boundary bias the correction removes
+    assert bounded[0] == pytest.approx(flat, rel=0.1)
+    assert bounded[len(g) // 2] == pytest.approx(flat, rel=0.1)
+    assert np.trapezoid(bounded, g) == pytest.approx(1.0, abs=0.01)
+    assert weighted_kde(x, support=[[100.0, 800.0]])(np.array([[99.0, 801.0]])).tolist() == [0, 0]
+    # 2D: one bounded axis, one free
+    xy = np.column_stack([x, rng.normal(size=x.size)])
+    k2 = weighted_kde(xy, support=[[100.0, 800.0], [-np.inf, np.inf]])
+    at_edge = k2(np.array([[100.0], [0.0]]))[0]
+    inside = k2(np.array([[450.0], [0.0]]))[0]
+    assert at_edge == pytest.approx(inside, rel=0.15)

@@ -56,7 +56,8 @@ def check_prior_pdf(pdf: Callable | None, name: str) -> Callable | None:
 
 def draw_marginal(ax: Axes, x: np.ndarray, w: np.ndarray, lims: Sequence[float], *,
                   horizontal: bool = False, bins: int = 30, prior_pdf: Callable | None = None,
-                  bw_method: str | float = "scott", kde: bool = True) -> dict[str, object]:
+                  bw_method: str | float = "scott", kde: bool = True,
+                  support: Sequence[float] | None = None) -> dict[str, object]:
     """Weighted histogram, weighted KDE and prior of one parameter.
 
     Parameters
@@ -79,6 +80,9 @@ def draw_marginal(ax: Axes, x: np.ndarray, w: np.ndarray, lims: Sequence[float],
         KDE bandwidth rule.
     kde : bool
         Draw the KDE line.
+    support : (float, float), optional
+        Bounds of the parameter (its prior box): the KDE is corrected by reflection
+        there instead of dropping towards them.
 
     Returns
     -------
@@ -97,7 +101,8 @@ def draw_marginal(ax: Axes, x: np.ndarray, w: np.ndarray, lims: Sequence[float],
     grid = np.linspace(lims[0], lims[1], 400)
     if kde:
         try:
-            dens = weighted_kde(x, w, bw_method)(grid[None, :])
+            dens = weighted_kde(x, w, bw_method,
+                                support=None if support is None else [support])(grid[None, :])
             args = (dens, grid) if horizontal else (grid, dens)
             (out["kde"],) = ax.plot(*args, color=COLORS["kde"], lw=1.2)
         except ValueError as exc:
@@ -150,7 +155,7 @@ def draw_hpd_contours(ax: Axes, xy: np.ndarray, w: np.ndarray, xlim: Sequence[fl
                       ylim: Sequence[float], levels: Sequence[float], *,
                       n_grid: int = 100, color: str = COLORS["kde"],
                       bw_method: str | float = "scott", label_lines: bool = True,
-                      seed: int = 0):
+                      seed: int = 0, support: Sequence[Sequence[float]] | None = None):
     """Weighted-KDE highest-density contour lines holding the given masses.
 
     The thresholds are weighted quantiles of the KDE evaluated at the
@@ -181,6 +186,9 @@ def draw_hpd_contours(ax: Axes, xy: np.ndarray, w: np.ndarray, xlim: Sequence[fl
         Write the mass on each line.
     seed : int
         Seed of the particle subset.
+    support : ((float, float), (float, float)), optional
+        Bounds of the two parameters (their prior box): the KDE is corrected by
+        reflection at the box's faces.
 
     Returns
     -------
@@ -195,7 +203,7 @@ def draw_hpd_contours(ax: Axes, xy: np.ndarray, w: np.ndarray, xlim: Sequence[fl
         if w[idx].sum() > 0:
             xy, w = xy[idx], w[idx] / w[idx].sum()
     try:
-        kde = weighted_kde(xy, w, bw_method)
+        kde = weighted_kde(xy, w, bw_method, support=support)
     except ValueError as exc:
         warnings.warn(f"KDE contours skipped: {exc}", stacklevel=3)
         return None

@@ -152,7 +152,8 @@ def plot_joint_posterior(
         cb.set_label("posterior mass per hexagon [-]")
         handles: list = [Patch(facecolor=hb.cmap(0.65), label="posterior (hexbin)")]
 
-        cs = draw_hpd_contours(ax, x, w, b[0], b[1], levels)
+        sup = None if bounds is None else b  # reflect only at bounds that were given
+        cs = draw_hpd_contours(ax, x, w, b[0], b[1], levels, support=sup)
         if cs is not None:
             hpd = ", ".join(level_text(p) for p in levels)
             handles.append(Line2D([], [], color=COLORS["kde"], lw=0.9,
@@ -183,9 +184,10 @@ def plot_joint_posterior(
                            mec="k", mew=0.6, label="ground truth", zorder=6)
             handles.append(h)
 
-        top = draw_marginal(ax_top, x[:, 0], w, b[0], bins=bins, prior_pdf=priors[0])
+        top = draw_marginal(ax_top, x[:, 0], w, b[0], bins=bins, prior_pdf=priors[0],
+                            support=None if sup is None else b[0])
         right = draw_marginal(ax_right, x[:, 1], w, b[1], horizontal=True, bins=bins,
-                              prior_pdf=priors[1])
+                              prior_pdf=priors[1], support=None if sup is None else b[1])
         for a, vals, vertical in ((ax_top, (mean_, map_, truth_), True),
                                   (ax_right, (mean_, map_, truth_), False)):
             k = 0 if vertical else 1

@@ -5,6 +5,16 @@ Silverman bandwidth computed with the effective sample size
 ``n_eff = 1 / sum(w**2)``), wrapped to give clear errors for degenerate
 particle clouds.
 
+Bounded support
+---------------
+A posterior truncated by its prior box (E >= 100 Pa, nu <= 0.5) has mass up to
+the bound; a plain Gaussian KDE leaks half a kernel of it past the bound and
+drops towards it. With ``support`` given, the estimate is corrected by
+reflection: f(x) = sum over the mirror images of x in the bounded faces (and
+their corners) of the plain KDE, and 0 outside the box, which keeps the
+estimate's mass in the box and removes the drop at the bound (first-order
+boundary bias).
+
 Highest-density (HPD) regions
 -----------------------------
 The p-mass HPD region of a density f is ``{x : f(x) >= t_p}`` with t_p chosen
@@ -27,6 +37,7 @@ from scipy import stats
 from ._checks import as_levels, as_samples, as_weights
 
 __all__ = [
+    "BoundedKDE",
     "effective_sample_size",
     "hpd_thresholds",
     "hpd_thresholds_grid",
@@ -42,8 +53,44 @@ def effective_sample_size(weights: np.ndarray) -> float:
     return float(1.0 / np.sum(w * w))
 
 
+class BoundedKDE:
+    """A KDE corrected by reflection at the finite faces of a box (module docstring).
+
+    Parameters
+    ----------
+    kde : scipy.stats.gaussian_kde
+        The plain d-dimensional estimate.
+    support : array_like, shape (d, 2)
+        Lower and upper bound per axis; +-inf (or NaN) for an unbounded side.
+    """
+
+    def __init__(self, kde: stats.gaussian_kde, support) -> None:
+        self.kde = kde
+        b = np.array(support, dtype=float).reshape(kde.d, 2)
+        self.lo = np.where(np.isfinite(b[:, 0]), b[:, 0], -np.inf)
+        self.hi = np.where(np.isfinite(b[:, 1]), b[:, 1], np.inf)
+        self.d = kde.d
+
+    def __call__(self, points: np.ndarray) -> np.ndarray:
+        """Density at ``points`` of shape (d, M); 0 outside the box."""
+        x = np.atleast_2d(np.asarray(points, dtype=float))
+        images = [x]
+        for k in range(self.d):
+            new = []
+            for y in images:
+                for bound in (self.lo[k], self.hi[k]):
+                    if np.isfinite(bound):
+                        z = y.copy()
+                        z[k] = 2.0 * bound - z[k]
+                        new.append(z)
+            images += new
+        dens = sum(self.kde(y) for y in images)
+        inside = np.all((x >= self.lo[:, None]) & (x <= self.hi[:, None]), axis=0)
+        return np.where(inside, dens, 0.0)
+
+
 def weighted_kde(samples: np.ndarray, weights: np.ndarray | None = None,
-                 bw_method: str | float = "scott") -> stats.gaussian_kde:
+                 bw_method: str | float = "scott", *, support=None):
     """Weighted Gaussian KDE of particles.
 
     Parameters
@@ -55,10 +102,13 @@ def weighted_kde(samples: np.ndarray, weights: np.ndarray | None = None,
     bw_method : {"scott", "silverman"} or float
         Bandwidth rule (uses the effective sample size) or a fixed factor
         multiplying the weighted sample covariance.
+    support : array_like, shape (d, 2), optional
+        The box the density lives in (e.g. the prior bounds): the estimate is
+        corrected by reflection at its finite faces (:class:`BoundedKDE`).
 
     Returns
     -------
-    scipy.stats.gaussian_kde
+    scipy.stats.gaussian_kde or BoundedKDE
         Callable ``kde(points)`` with points of shape (d, M), returning (M,)
         densities in 1/(product of units).
 
@@ -91,7 +141,7 @@ def weighted_kde(samples: np.ndarray, weights: np.ndarray | None = None,
     except np.linalg.LinAlgError as exc:
         raise ValueError("weighted_kde: degenerate particle cloud, singular covariance "
                          f"({exc})") from None
-    return kde
+    return kde if support is None else BoundedKDE(kde, support)
 
 
 def kde_on_grid(kde: stats.gaussian_kde, xlim: Sequence[float], ylim: Sequence[float],

@@ -122,7 +122,8 @@ def plot_marginals_1d(
         axes = fig.subplots(nrows, ncols, squeeze=False).ravel()
         for k in range(d):
             ax = axes[k]
-            draw_marginal(ax, x[:, k], w, b[k], bins=bins, prior_pdf=priors[k])
+            draw_marginal(ax, x[:, k], w, b[k], bins=bins, prior_pdf=priors[k],
+                          support=None if bounds is None else b[k])
             for v, col, ls, _ in marks:
                 ax.axvline(v[k], color=col, ls=ls, lw=1.2)
             ax.set_xlabel(axis_label(names[k], units[k]))
@@ -231,7 +232,8 @@ def plot_pair_marginals(
                     ax.set_visible(False)
                     continue
                 if i == j:
-                    draw_marginal(ax, x[:, i], w, b[i], bins=bins, prior_pdf=priors[i])
+                    draw_marginal(ax, x[:, i], w, b[i], bins=bins, prior_pdf=priors[i],
+                                  support=None if bounds is None else b[i])
                     for v, col, ls, _ in marks:
                         ax.axvline(v[i], color=col, ls=ls, lw=1.1)
                     ax.set_yticks([])
@@ -241,7 +243,8 @@ def plot_pair_marginals(
                     xy = x[:, [j, i]]
                     hb = draw_hexbin(ax, xy, w, b[j], b[i], gridsize=gridsize)
                     cs = draw_hpd_contours(ax, xy, w, b[j], b[i], levels, n_grid=kde_grid,
-                                           label_lines=d <= 3)
+                                           label_lines=d <= 3,
+                                           support=None if bounds is None else [b[j], b[i]])
                     drew_kde = drew_kde or cs is not None
                     for v, col, _, lab in marks:
                         mk, ms = point_style[lab]
