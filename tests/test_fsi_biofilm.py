@@ -54,6 +54,10 @@ def test_ground_truth_solve(truth):
     assert truth.stats["max_interface_velocity"] < 1e-5
     assert truth.stats["min_det_F"] > 0.5
     assert truth.parameters == {"material.E": 400.0, "material.nu": 0.3, "inflow.rate": 100.0}
+    # the record says how the continuation went: Newton iterations per load step
+    steps = [s.split(":") for s in truth.stats["newton_per_step"].split()]
+    assert float(steps[-1][0]) == 1.0 and len(steps) == truth.load_steps
+    assert sum(int(n) for _, n in steps) == truth.newton_iterations
 
 
 def test_interface_ordered_upstream_to_downstream(truth):
@@ -114,6 +118,7 @@ def test_very_soft_fails_gracefully(coarse):
     assert r.status == "failed"
     assert 0.0 <= r.load_fraction < 1.0
     assert r.reason
+    assert "failed" in r.stats["newton_per_step"] and r.stats["failed_steps"]
     # the last converged state is reported
     assert np.all(np.isfinite(r.interface_current))
 

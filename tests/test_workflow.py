@@ -80,6 +80,9 @@ def test_complete_run_writes_summary_with_contract_keys(done_run):
     assert "posterior" not in summary["measures"]["rkhs"]
     assert (done_run / summary["measures"]["rkhs"]["posterior_json"]).is_file()
     assert "gp_convergence" not in summary  # no convergence study ran
+    # each solve's log says how it went
+    text = (done_run / "results" / "analytic" / "logs" / "solve" / "0.log").read_text()
+    assert "solve 0.h5: ok at E = " in text and "Newton iteration(s)" in text
     # every stage reports its job time, figures included (benchmark files of the rules)
     assert {"solve", "train_surrogate", "smc", "figures"} <= set(summary["timings_s"])
     for files in summary["figures"].values():

@@ -500,6 +500,11 @@ def solve_series(model: ForwardModel, params: Mapping[str, float],
             combined_params[key] = float(first.parameters[key]) / factors[primary]
     stats = dict(first.stats)
     stats.update(n_loadings=len(factors), loadings_wall_time=time.perf_counter() - t0)
+    for extra in ("newton_per_step", "failed_steps"):  # per loading, in the order given
+        parts = [f"[{lab}] {r.stats[extra]}" for lab, r in zip(labels, results)
+                 if r.stats.get(extra)]
+        if parts:
+            stats[extra] = " ".join(parts)
     if failed:
         reason = "; ".join(f"loading {lab}: {r.reason}" for lab, r in failed)
         res = failed_result(combined_params, reason, time.perf_counter() - t0, **stats)
@@ -652,8 +657,10 @@ def solve_point(fm: Mapping[str, Any], params: Mapping[str, float], out_path: st
     out_path = Path(out_path)
     workdir = Path(workdir) if workdir is not None else out_path.with_suffix(".work")
     if isolate:
-        return _Solve(fm, params, out_path, workdir, warm_start, extra_outputs,
-                      _hard_limit(fm, time_limit_s, grace_s)).finish()
+        res = _Solve(fm, params, out_path, workdir, warm_start, extra_outputs,
+                     _hard_limit(fm, time_limit_s, grace_s)).finish()
+        log_solve(res, out_path)
+        return res
     try:
         res = solve_series(make_forward_model(fm, workdir=workdir, warm_start=warm_start,
                                               extra_outputs=extra_outputs),
@@ -664,7 +671,24 @@ def solve_point(fm: Mapping[str, Any], params: Mapping[str, float], out_path: st
         res = failed_result(params, f"{type(exc).__name__}: {exc}",
                             log_tail=traceback.format_exc()[-2000:])
     write_run(out_path, res)
+    log_solve(res, out_path)
     return res
+
+
+def log_solve(res: SolveResult, out_path: str | Path) -> None:
+    """One log record per solve: status, values, time, load steps and Newton iterations
+    (per step when the model records them), the reason of a failure."""
+    values = ", ".join(f"{k} = {v:.6g}" for k, v in res.parameters.items())
+    text = (f"solve {Path(out_path).name}: {res.status} at {values} in {res.wall_time:.2f} s; "
+            f"{res.load_steps} load step(s), {res.newton_iterations} Newton iteration(s), "
+            f"load fraction reached {res.load_fraction:.3g}")
+    if res.stats.get("newton_per_step"):
+        text += f"; Newton per load step (load:iterations) {res.stats['newton_per_step']}"
+    if res.stats.get("failed_steps"):
+        text += f"; failed steps: {res.stats['failed_steps']}"
+    if not res.ok:
+        text += f"; reason: {res.reason}"
+    (log.info if res.ok else log.warning)(text)
 
 
 def _same_inputs(run: SolveResult, params: Mapping[str, Any]) -> bool:

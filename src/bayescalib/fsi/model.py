@@ -118,6 +118,20 @@ def _structural_key(cfg: Mapping[str, Any]) -> str:
     return hashlib.sha256(json.dumps(data, sort_keys=True).encode()).hexdigest()[:16]
 
 
+def newton_per_step(history) -> str:
+    """Newton iterations per load step, as text: "load:iterations" in the order solved
+    (a failed step, later halved, as "load:failed"), e.g. "0.25:4 0.5:3 1:3"."""
+    steps: list[list] = []
+    for load, it, _size, _fresh in history:
+        key = f"{load:.4g}"
+        if steps and steps[-1][0] == key:
+            steps[-1][1] = "failed" if it < 0 else max(it, steps[-1][1]) \
+                if steps[-1][1] != "failed" else it
+        else:
+            steps.append([key, "failed" if it < 0 else it])
+    return " ".join(f"{k}:{v}" for k, v in steps)
+
+
 class FSIModel:
     """Steady FSI forward model of the biofilm flow cell.
 
@@ -500,6 +514,10 @@ class FSIModel:
         cur = ref + disp
         stats = dict(stats)
         stats["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+        if self.solver is not None and getattr(self.solver, "history", None) is not None:
+            stats["newton_per_step"] = newton_per_step(self.solver.history)
+            if self.solver.failures:
+                stats["failed_steps"] = "; ".join(self.solver.failures)[-1000:]
         return SolveResult(
             status=status,
             reason=reason,
