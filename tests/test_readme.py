@@ -106,3 +106,24 @@ def test_every_readme_command_works_verbatim(scratch):
     assert "90 % equal-tailed interval" in report
     assert (scratch / "out").is_dir() and any((scratch / "out").iterdir())
     assert len(ran) >= 7, (ran, skipped)
+
+
+def test_the_readme_study_example_validates(tmp_path, monkeypatch):
+    """The "Calibrate your own data" example is a valid study on top of the defaults
+    (with a stand-in scan at the path it names)."""
+    from bayescalib.config import load_yaml, merge_layers
+    from bayescalib.study import Study
+
+    blocks = re.findall(r"```yaml\n(.*?)```", (REPO / "README.md").read_text(), flags=re.DOTALL)
+    assert blocks
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "data").mkdir()
+    x = np.linspace(0.7, 1.3, 41)
+    y = 0.4 * np.sqrt(np.clip(1 - ((x - 1.0) / 0.3) ** 2, 0, None))
+    np.savetxt(tmp_path / "data" / "scan_100.csv", np.column_stack([x, y]), delimiter=",",
+               header="x,y", comments="")
+    for block in blocks:
+        study = Study(merge_layers([load_yaml(REPO / "config" / "config.yaml"),
+                                    yaml.safe_load(block)]), where="README")
+        assert study.config["observations"]["source"] == "files"
+        assert study.config["likelihood"].get("sigma_n2") is None
