@@ -309,3 +309,24 @@ def test_cpp_euclidean_properties_random_polylines(p, q):
     assert np.all(np.abs(res.distances) <= nearest_vertex + 1e-12)
     e = euclidean(a, b, n_points=min(3, b.n_cells))
     assert np.all(np.isfinite(e.distances)) and math.isfinite(e.D)
+
+
+def test_rkhs_refuses_pairwise_work_beyond_its_limit_before_doing_it():
+    """A curve with 2,000,000 points would take many minutes of kernel sums: refused at
+    once, naming the element counts and the limit; the same curve at a sensible
+    density is measured."""
+    import time
+
+    from bayescalib.interface import Interface
+    from bayescalib.measures import MeasureOptionError, compute
+
+    t = np.linspace(0.0, np.pi, 2_000_000)
+    dense = Interface.polyline(np.column_stack([1.0 + 0.3 * np.cos(t), 0.4 * np.sin(t)]))
+    model = Interface.polyline(np.column_stack([1.0 + 0.3 * np.cos(t[::40_000]),
+                                                0.4 * np.sin(t[::40_000])]))
+    t0 = time.perf_counter()
+    with pytest.raises(MeasureOptionError, match=r"kernel pairs .* measure.rkhs.max_pairs"):
+        compute("rkhs", model, dense, sigma_w=0.005)
+    assert time.perf_counter() - t0 < 30  # refused before the work, not after it
+    sparse = Interface.polyline(np.asarray(dense.points)[::2000])
+    assert np.isfinite(compute("rkhs", model, sparse, sigma_w=0.005).D)

@@ -293,6 +293,7 @@ def rkhs(
     dtype: str = "float64",
     truncate: float | None = None,
     threads: int | None = None,
+    max_pairs: float | None = None,
 ) -> MeasureResult:
     """RKHS surface-current norm (eq:inner_prod_rkhs, eq:surfcurrontriang).
 
@@ -316,6 +317,9 @@ def rkhs(
     threads : int, optional
         torch CPU threads during the computation (None: 1; 0: keep the global
         torch setting).
+    max_pairs : float, optional
+        Most kernel pairs to evaluate (None: :data:`bayescalib.rkhs.DEFAULT_MAX_PAIRS`);
+        above it the measure is refused before any work.
 
     Returns
     -------
@@ -339,6 +343,7 @@ def rkhs(
             chunk=_rk.DEFAULT_CHUNK if chunk is None else int(chunk),
             truncate=_rk.DEFAULT_TRUNCATE if truncate is None else truncate,
             threads=_rk.DEFAULT_THREADS if threads is None else (int(threads) or None),
+            max_pairs=_rk.DEFAULT_MAX_PAIRS if max_pairs is None else float(max_pairs),
         )
     except ValueError as exc:
         raise MeasureOptionError(str(exc)) from None
@@ -357,7 +362,8 @@ MEASURES: dict[str, tuple[Any, frozenset[str]]] = {
     "cpp": (closest_point, frozenset()),
     "rkhs": (
         rkhs,
-        frozenset({"sigma_w", "spacing", "device", "chunk", "backend", "dtype", "truncate", "threads"}),
+        frozenset({"sigma_w", "spacing", "device", "chunk", "backend", "dtype", "truncate", "threads",
+                   "max_pairs"}),
     ),
 }
 

@@ -342,6 +342,23 @@ def rkhs_squared(
     return s11, s12, s22
 
 
+#: most kernel pairs one distance may evaluate (about a minute on one core)
+DEFAULT_MAX_PAIRS = 1.0e10
+
+
+def kernel_pairs(c1: np.ndarray, c2: np.ndarray, sigma_w: float,
+                 truncate: float | None) -> float:
+    """Estimate of the kernel pairs the three sums of D^2 evaluate: all pairs of the
+    (n1 + n2) elements, times the fraction within the cut-off ``truncate * sigma_w``
+    along the curves' extent (1 without a cut-off)."""
+    n = len(c1) + len(c2)
+    both = np.vstack([np.asarray(c1, float), np.asarray(c2, float)])
+    extent = float(np.max(np.ptp(both, axis=0))) if len(both) else 0.0
+    frac = 1.0 if truncate is None or extent <= 0 else \
+        min(1.0, 2.0 * float(truncate) * float(sigma_w) / extent)
+    return float(n) * float(n) * frac
+
+
 def rkhs_distance(
     model: Interface,
     obs: Interface,
@@ -354,8 +371,12 @@ def rkhs_distance(
     chunk: int = DEFAULT_CHUNK,
     truncate: float | None = DEFAULT_TRUNCATE,
     threads: int | None = DEFAULT_THREADS,
+    max_pairs: float = DEFAULT_MAX_PAIRS,
 ) -> float:
     """RKHS norm D between two interfaces (after resampling; see module docstring).
+
+    Refuses (ValueError) work above ``max_pairs`` kernel pairs (:func:`kernel_pairs`),
+    before computing anything.
 
     Returns
     -------
@@ -366,6 +387,13 @@ def rkhs_distance(
         raise ValueError(f"cannot compare a {model.dim}D interface with a {obs.dim}D one")
     c1, a1 = current(model, sigma_w, spacing)
     c2, a2 = current(obs, sigma_w, spacing)
+    pairs = kernel_pairs(c1, c2, sigma_w, truncate)
+    if pairs > max_pairs:
+        raise ValueError(
+            f"RKHS: about {pairs:.3g} kernel pairs for {len(c1)} + {len(c2)} elements (limit "
+            f"measure.rkhs.max_pairs = {max_pairs:.3g}): the curves hold far more points than "
+            f"sigma_W = {sigma_w:g} mm needs (spacing {default_spacing(sigma_w):g} mm is "
+            "enough); resample the observed interface, or raise the limit")
     s11, s12, s22 = rkhs_squared(
         c1, a1, c2, a2, sigma_w, backend=backend, device=device, dtype=dtype, chunk=chunk,
         truncate=truncate, threads=threads,
