@@ -7,7 +7,7 @@ import math
 
 import numpy as np
 import pytest
-from _interface_shapes import circle
+from _interface_shapes import circle, icosphere
 
 from bayescalib.cli import main
 from bayescalib.measures import compute
@@ -36,12 +36,21 @@ def test_distance_rkhs_plain_and_units(files, capsys):
     assert main(["distance", "--sigma-w", "0.01", str(d / "model.csv"), str(d / "obs.vtp")]) == 0
     val = float(capsys.readouterr().out)
     assert val == pytest.approx(compute("rkhs", model, obs, sigma_w=0.01).D, rel=1e-10)
-    # both files read as um: coordinates / 1000, so the CPP distance scales by 1/1000
-    assert main(["distance", "--measure", "cpp", "--units", "um", str(d / "model.csv"), str(d / "obs.vtp")]) == 0
-    assert float(capsys.readouterr().out) == pytest.approx(compute("cpp", model, obs).D / 1000, rel=1e-9)
-    # read as metres, the 0.4 m circle is far too large for sigma_W = 0.005 mm: clear error
-    assert main(["distance", "--units", "m", str(d / "model.csv"), str(d / "obs.vtp")]) == 2
-    assert "check the units" in capsys.readouterr().err
+    # the same curves written in um and read with --units um give the same D (in mm)
+    from bayescalib.interface import Interface
+
+    write_interface_csv(d / "model_um.csv", Interface.polyline(1000.0 * np.asarray(model.points)))
+    write_interface_vtk(d / "obs_um.vtp", Interface.polyline(1000.0 * np.asarray(obs.points)))
+    assert main(["distance", "--measure", "cpp", "--units", "um", str(d / "model_um.csv"),
+                 str(d / "obs_um.vtp")]) == 0
+    assert float(capsys.readouterr().out) == pytest.approx(compute("cpp", model, obs).D, rel=1e-9)
+    # read as metres, a 0.8 m wide "interface" is no flow-cell interface: a unit slip,
+    # refused at once for every measure (before any work)
+    for measure in ("rkhs", "cpp"):
+        assert main(["distance", "--measure", measure, "--units", "m", str(d / "model.csv"),
+                     str(d / "obs.vtp")]) == 2
+        err = capsys.readouterr().err
+        assert "not a flow-cell interface" in err and "check --units" in err
 
 
 def test_distance_euclidean_points_file(files, capsys):
@@ -63,3 +72,23 @@ def test_distance_bad_input_exits_2(files, capsys):
     assert "bad.csv" in err and "single point" in err and len(err.strip().splitlines()) == 1
     assert main(["distance", str(d / "missing.csv"), str(d / "obs.vtp")]) == 2
     assert "missing.csv" in capsys.readouterr().err
+
+
+def test_distance_reads_the_run_record_a_solve_writes(tmp_path, capsys):
+    """``bayescalib solve`` and the workflow write run records (.h5): their deformed
+    interface is compared as is (mm); the field file of a solve is refused with advice."""
+    from bayescalib.forward import solve_point
+    from bayescalib.interface import Interface
+
+    fm = {"type": "python", "python": {"function": "bayescalib.analytic_model:interface"}}
+    res = solve_point(fm, {"E": 400.0, "nu": 0.3}, tmp_path / "run.h5", isolate=False)
+    obs = Interface.polyline(np.asarray(res.interface_current) + [0.0, 0.002])
+    write_interface_csv(tmp_path / "obs.csv", obs)
+    assert main(["distance", "--measure", "cpp", str(tmp_path / "run.h5"),
+                 str(tmp_path / "obs.csv")]) == 0
+    got = float(capsys.readouterr().out)
+    ref = compute("cpp", Interface.polyline(res.interface_current, res.segments), obs).D
+    assert got == pytest.approx(ref, rel=1e-12) and got > 0
+    write_interface_vtk(tmp_path / "surface.vtp", icosphere(0.4, 1))
+    assert main(["distance", str(tmp_path / "run.h5"), str(tmp_path / "surface.vtp")]) == 2
+    assert "not the field file .vtu" in capsys.readouterr().err

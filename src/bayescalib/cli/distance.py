@@ -6,8 +6,12 @@ Example::
         --pixel-size 0.004 --origin 0 0 --json
 
 MODEL and OBS are interface files in any format :func:`bayescalib.observations.read_interface`
-reads (CSV, VTK, mask image). ``--units``, ``--pixel-size``, ``--origin`` and ``--floor`` apply to
-both files (they only matter for the formats that use them). Prints D; with
+reads (CSV, VTK polyline, mask image), or run records (``.h5``, as written by
+``bayescalib solve`` and the workflow's solves: their deformed interface, in mm).
+``--units``, ``--pixel-size``, ``--origin`` and ``--floor`` apply to both files (they only
+matter for the formats that use them). Interfaces that cannot be flow-cell interfaces in
+mm after the unit conversion (larger than 100 mm, smaller than 1 um) are refused as a
+unit slip, before any work. Prints D; with
 ``--json`` one JSON object with the measure, D, n (the number of measurements of
 eq:loglik) and the distance vector. Bad input exits with status 2 and a one-line error.
 """
@@ -44,16 +48,53 @@ def add_parser(p: argparse.ArgumentParser) -> None:
     p.add_argument("--json", action="store_true", help="print D, n and the distance vector as JSON")
 
 
+#: plausible extent of a flow-cell interface in mm (a unit slip gives 1000x more or less)
+MIN_EXTENT_MM, MAX_EXTENT_MM = 1.0e-3, 100.0
+
+
+def _read(path: str, opts: dict, read_interface):
+    """An interface file, or the deformed interface of a run record (``.h5``)."""
+    from pathlib import Path
+
+    if Path(path).suffix.lower() in (".h5", ".hdf5"):
+        from bayescalib.interface import Interface
+        from bayescalib.runrecord import RunFileError, read_run
+
+        try:
+            run = read_run(path)
+        except RunFileError as exc:
+            raise ValueError(str(exc)) from None
+        if not run.ok:
+            raise ValueError(f"run record '{path}' is a failed solve ({run.reason}): it has no "
+                             "deformed interface to compare")
+        return Interface.polyline(run.interface_current, run.segments, name=Path(path).name)
+    return read_interface(path, **opts)
+
+
 def run(args: argparse.Namespace) -> int:
     """Read both interfaces, evaluate the measure, print the result; returns 0."""
     import json
+
+    import numpy as np
 
     from bayescalib.measures import compute
     from bayescalib.observations import read_interface, read_points
 
     opts = {"units": args.units, "pixel_size": args.pixel_size, "origin": args.origin, "floor": args.floor}
-    model = read_interface(args.model, **opts)
-    obs = read_interface(args.obs, **opts)
+    model = _read(args.model, opts, read_interface)
+    obs = _read(args.obs, opts, read_interface)
+    for role, iface, path in (("MODEL", model, args.model), ("OBS", obs, args.obs)):
+        ext = float(np.max(np.ptp(np.asarray(iface.points), axis=0)))
+        if not MIN_EXTENT_MM <= ext <= MAX_EXTENT_MM:
+            raise ValueError(
+                f"{role} '{path}' spans {ext:.4g} mm with --units {args.units}: not a flow-cell "
+                f"interface ({MIN_EXTENT_MM:g} to {MAX_EXTENT_MM:g} mm); check --units (and "
+                "--pixel-size for images)")
+    if model.dim != obs.dim:
+        raise ValueError(
+            f"MODEL '{args.model}' is a {model.dim}D interface and OBS '{args.obs}' a "
+            f"{obs.dim}D one: give two curves (a run record .h5 or an interface CSV, not the "
+            "field file .vtu of a solve)")
     options: dict = {}
     if args.measure == "rkhs":
         options.update(sigma_w=args.sigma_w, spacing=args.spacing)
