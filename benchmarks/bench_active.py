@@ -100,6 +100,9 @@ import numpy as np
 DEFAULT_BUDGET = {2: 64, 4: 100, 7: 200}
 ALL_PROBLEMS = ["ridge2d", "lobe2d", "sloppy4d", "hetero7d"]
 ALL_METHODS = ["sobol_gp", "active", "pyvbmc", "gpry"]
+
+#: surrogate.kernel of the active method (--kernel; "auto" fits every kernel each round)
+ACTIVE_KERNEL = "auto"
 GRID_N = 400
 HIST_N = 30
 
@@ -464,7 +467,7 @@ def run_active(prob: Problem, budget: int, seed: int) -> dict[str, Any]:
     res = calibrate(
         f, space, bound=prob.B,
         active={"n_initial": n0, "batch_size": 8, "max_solves": budget},
-        surrogate={"ard": prob.d > 2},
+        surrogate={"ard": prob.d > 2, "kernel": ACTIVE_KERNEL},
         smc={"n_particles": 4000},
         seed=seed,
     )
@@ -832,7 +835,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--repeats", type=int, default=1)
     ap.add_argument("--out", default="results/bench_active")
     ap.add_argument("--refresh-reference", action="store_true", help="recompute the cached hetero7d reference")
+    ap.add_argument("--kernel", default="auto", choices=["auto", "matern32", "matern52", "rbf"],
+                    help="surrogate.kernel of the active method (default auto: all, each round)")
     args = ap.parse_args(argv)
+    global ACTIVE_KERNEL
+    ACTIVE_KERNEL = args.kernel
     problems = [p.strip() for p in args.problems.split(",") if p.strip()]
     methods = [m.strip() for m in args.methods.split(",") if m.strip()]
     for p in problems:
@@ -846,7 +853,7 @@ def main(argv: list[str] | None = None) -> int:
 
     results: dict[str, Any] = {
         "config": {
-            "problems": problems, "methods": methods, "budget_override": args.budget,
+            "problems": problems, "methods": methods, "budget_override": args.budget, "active_kernel": args.kernel,
             "repeats": args.repeats, "grid": GRID_N, "python": platform.python_version(),
             "machine": platform.platform(), "cpus": os.cpu_count(),
             "omp_num_threads": os.environ.get("OMP_NUM_THREADS"),
