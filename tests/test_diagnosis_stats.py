@@ -203,7 +203,7 @@ def test_plain_words_of_an_absorbed_mismatch_name_the_refit_and_the_remedy():
                    "parameters": {"E": 394.1, "nu": 0.2835}},
          "extended": [], "chosen_model": "base"}
     text = " ".join(plain_words(d))
-    assert "E = 394.1, nu = 0.2835" in text and "design.n_train" in text
+    assert "E = 394.1, nu = 0.2835" in text and "design.active.max_solves" in text
     assert "no candidate explains" not in text.lower()
 
 
