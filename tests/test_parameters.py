@@ -133,7 +133,8 @@ def test_duplicate_names_rejected():
 def test_schema_defaults_and_unknown_keys():
     cfg = validate({"parameters": PAPER_INFORMED}, "inference")
     assert cfg["smc"] == {"n_particles": 5000, "n_rej": 20, "zeta": 0.995,
-                          "ess_min_ratio": 0.5, "max_steps": 10000, "seed": 0}
+                          "ess_min_ratio": 0.5, "max_steps": 10000, "seed": 0,
+                          "max_memory_gib": 4.0}
     assert cfg["surrogate"]["mean_offset_factor"] == 1.0
     assert cfg["surrogate"]["nugget_factor"] == 1e-5
     assert cfg["posterior"]["levels"] == [0.5, 0.9, 0.99]
