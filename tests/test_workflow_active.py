@@ -139,9 +139,11 @@ def test_cli_summary_lists_failed_solves_with_their_reasons(active_run, tmp_path
     s = _summary(active_run[0])
     s["failed_runs"] = [{"point": 5, "parameters": {"E": 120.5, "nu": 0.1},
                          "reason": "Newton did not converge at load step 3"}]
+    del s["map"]["nu"]  # an uncertain condition has no MAP (marginalized out)
     (tmp_path / "summary.json").write_text(json.dumps(s))
     assert main(["summary", str(tmp_path / "summary.json")]) == 0
     out = capsys.readouterr().out
     assert "failed solves (1):" in out
+    assert next(ln for ln in out.splitlines() if ln.startswith("nu ")).split()[2] == "-"
     row = next(ln for ln in out.splitlines() if ln.startswith("5 "))
     assert "120.5" in row and "Newton did not converge at load step 3" in row

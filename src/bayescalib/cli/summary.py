@@ -49,7 +49,7 @@ def run(args: argparse.Namespace) -> int:
     rows = [head]
     for k, n in enumerate(names):
         sd = (s.get("posterior_sd") or {}).get(n, math.sqrt(max(cov[k][k], 0.0)))
-        row = [n, units[n], _fmt(s["map"][n]), _fmt(s["posterior_mean"][n]), _fmt(sd)]
+        row = [n, units[n], _fmt(s["map"].get(n)), _fmt(s["posterior_mean"].get(n)), _fmt(sd)]
         row += [f"[{_fmt(ci[n][lv][0])}, {_fmt(ci[n][lv][1])}]" for lv in levels]
         if truth:
             row.append(_fmt(truth.get(n)))
