@@ -535,3 +535,22 @@ def test_bounded_kde_keeps_its_mass_at_the_prior_bound():
     at_edge = k2(np.array([[100.0], [0.0]]))[0]
     inside = k2(np.array([[450.0], [0.0]]))[0]
     assert at_edge == pytest.approx(inside, rel=0.15)
+
+
+def test_the_rounds_figure_shows_the_best_identified_pair():
+    """In the heterogeneous study E1 and nu1 (the first two parameters) are not
+    identified; the rounds figure must show the pair the data pin down best, relative
+    to the box, not the first two."""
+    from bayescalib.figures import _shown_pair
+    from bayescalib.parameters import ParameterSpace
+
+    params = [{"name": n, "prior": {"type": "uniform", "lo": lo, "hi": hi}, "bounds": [lo, hi]}
+              for n, lo, hi in (("E1", 100.0, 1200.0), ("nu1", -0.8, 0.45),
+                                ("E2", 100.0, 1200.0), ("nu2", -0.8, 0.45))]
+    params.append({"name": "V", "uncertain": True, "prior": {"type": "uniform", "lo": 0.0,
+                   "hi": 110.0}, "bounds": [0.0, 110.0]})
+    space = ParameterSpace.from_config(params)
+    assert _shown_pair(space) == [0, 1]
+    # posterior sd: E1 and nu1 at their prior sd, E2 and nu2 narrow, V narrowest (uncertain)
+    sd = [305.0, 0.36, 49.0, 0.22, 1.0]
+    assert _shown_pair(space, sd) == [2, 3]

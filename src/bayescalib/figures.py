@@ -278,12 +278,22 @@ def field_figure(vtu_path: str | Path, run_path: str | Path, plots: Mapping[str,
     )
 
 
-def _shown_pair(space) -> list[int]:
-    """Indices of the two inputs shown in 2-D figures: the first two calibrated ones
-    (then uncertain conditions)."""
+def _shown_pair(space, posterior_sd: Sequence[float] | None = None) -> list[int]:
+    """Indices of the two inputs shown in 2-D figures (in the parameters' order).
+
+    Without ``posterior_sd``: the first two calibrated inputs (then uncertain
+    conditions). With it: the two calibrated inputs the data identify best, i.e. with
+    the smallest posterior sd relative to their box width (in 6 or more dimensions the
+    first two are often ones the data say nothing about)."""
     d = space.dim
     cal = [i for i in range(d) if space.calibrated_mask[i]]
-    return (cal + [i for i in range(d) if i not in cal])[:2]
+    order = cal + [i for i in range(d) if i not in cal]
+    if posterior_sd is None or len(cal) < 2:
+        return order[:2]
+    width = space.bounds[:, 1] - space.bounds[:, 0]
+    rel = np.asarray(posterior_sd, float) / width
+    best = sorted(cal, key=lambda i: (rel[i], i))[:2]
+    return sorted(best)
 
 
 def rounds_figure(acquire_paths: Sequence[str | Path], particles_paths: Sequence[str | Path],
@@ -298,8 +308,8 @@ def rounds_figure(acquire_paths: Sequence[str | Path], particles_paths: Sequence
     space = _space(parameters)
     if space.dim < 2:
         raise ValueError("the rounds figure needs at least two parameters")
-    ix = _shown_pair(space)
     recs = [read_json(p) for p in acquire_paths]
+    ix = _shown_pair(space, recs[-1]["posterior"]["sd"])
     draws = [equal_weight_draws(p, 600, 0)[:, ix] for p in particles_paths]
     tab = read_training(training_path)
     X = tab["X"][:, ix]
