@@ -332,3 +332,22 @@ def test_report_renders_every_figure_in_headless_chromium(report, done_run, tmp_
         assert tuple(entry["natural"]) == _png_size(data), f"{where}: not decoded: {entry}"
         assert min(entry["displayed"]) > 0, f"{where}: not displayed: {entry['displayed']}"
         assert entry["colours"] >= 8 and entry["ink"] > 0.02, f"{where}: blank image: {entry}"
+
+
+def test_each_figure_is_in_the_report_once_png_and_the_pdf_on_disk(tmp_path, base_study):
+    """With formats [png, pdf] the report embeds the PNG of each figure and not the PDF
+    (each figure once); the PDF is written next to it for print."""
+    import yaml
+
+    study = json.loads(json.dumps(base_study))
+    study["plots"]["formats"] = ["png", "pdf"]
+    (tmp_path / "config").mkdir()
+    (tmp_path / "config" / "config.yaml").write_text(yaml.safe_dump(study))
+    smk(tmp_path)
+    smk(tmp_path, "--report", "report.html")
+    text = (tmp_path / "report.html").read_text()
+    figs = tmp_path / "results" / "analytic" / "figures" / "rkhs"
+    for fam in ("joint", "marginals"):
+        assert (figs / f"{fam}.pdf").stat().st_size > 1000
+        assert base64.b64encode((figs / f"{fam}.png").read_bytes()).decode() in text
+        assert base64.b64encode((figs / f"{fam}.pdf").read_bytes()).decode()[:4000] not in text

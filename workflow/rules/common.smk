@@ -116,6 +116,18 @@ K = study.config["plots"]["n_interface_samples"]
 DIM = len(study.config["parameters"])
 
 
+def shown(files):
+    """The files of a figure that the HTML report embeds: the PNG (each figure once),
+    or every format when there is none; the others are kept on disk only."""
+    png = [f for f in files if f.endswith(".png")]
+    return png or list(files)
+
+
+def kept(files):
+    """The files of a figure written to disk but not embedded in the report."""
+    return [f for f in files if f not in shown(files)]
+
+
 def _fig(name, measure=None):
     base = f"{R}/figures/{measure}/{name}" if measure else f"{R}/figures/{name}"
     return [f"{base}.{ext}" for ext in FMT]

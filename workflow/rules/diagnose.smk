@@ -17,11 +17,13 @@ rule diagnose:
         html=report(f"{R}/diagnosis/diagnosis.html", caption="../report/diagnosis_text.rst",
                     category="Diagnosis"),
         figures=report(
-            [f"{R}/figures/diagnosis/{fam}.{ext}" for fam in
-             ("residuals", "interface_residual", "candidates") for ext in FMT],
+            shown([f"{R}/figures/diagnosis/{fam}.{ext}" for fam in
+                   ("residuals", "interface_residual", "candidates") for ext in FMT]),
             caption="../report/diagnosis.rst",
             category="Diagnosis",
         ),
+        figures_kept=kept([f"{R}/figures/diagnosis/{fam}.{ext}" for fam in
+                           ("residuals", "interface_residual", "candidates") for ext in FMT]),
     params:
         forward_model=study.forward_section(),
         parameters=study.config["parameters"],

@@ -9,11 +9,12 @@ rule fig_response:
         surrogate=f"{R}/{{measure}}/surrogate.h5",
     output:
         report(
-            [f"{R}/figures/{{measure}}/response.{ext}" for ext in FMT],
+            shown([f"{R}/figures/{{measure}}/response.{ext}" for ext in FMT]),
             caption="../report/response.rst",
             category="Likelihood response surfaces",
             subcategory="{measure}",
         ),
+        kept([f"{R}/figures/{{measure}}/response.{ext}" for ext in FMT]),
     params:
         parameters=study.config["parameters"],
         plots=study.config["plots"],
@@ -33,11 +34,12 @@ rule fig_convergence:
         f"{R}/{{measure}}/convergence.json",
     output:
         report(
-            [f"{R}/figures/{{measure}}/convergence.{ext}" for ext in FMT],
+            shown([f"{R}/figures/{{measure}}/convergence.{ext}" for ext in FMT]),
             caption="../report/convergence.rst",
             category="GP convergence",
             subcategory="{measure}",
         ),
+        kept([f"{R}/figures/{{measure}}/convergence.{ext}" for ext in FMT]),
     params:
         plots=study.config["plots"],
         stem=lambda wc, output: os.path.splitext(output[0])[0],
@@ -61,11 +63,15 @@ rule fig_posterior:
         # one named output per figure family, each with its own report caption
         **{
             fam: report(
-                [f"{R}/figures/{{measure}}/{fam}.{ext}" for ext in FMT],
+                shown([f"{R}/figures/{{measure}}/{fam}.{ext}" for ext in FMT]),
                 caption=f"../report/{fam}.rst",
                 category="Posterior",
                 subcategory="{measure}",
             )
+            for fam in _POSTERIOR_FAMILIES
+        },
+        **{
+            f"{fam}_kept": kept([f"{R}/figures/{{measure}}/{fam}.{ext}" for ext in FMT])
             for fam in _POSTERIOR_FAMILIES
         },
     params:
@@ -116,10 +122,11 @@ rule fig_interfaces:
         ),
     output:
         report(
-            [f"{R}/figures/interfaces.{ext}" for ext in FMT],
+            shown([f"{R}/figures/interfaces.{ext}" for ext in FMT]),
             caption="../report/interfaces.rst",
             category="Interfaces",
         ),
+        kept([f"{R}/figures/interfaces.{ext}" for ext in FMT]),
     params:
         plots=study.config["plots"],
         stem=lambda wc, output: os.path.splitext(output[0])[0],
@@ -139,10 +146,11 @@ rule fig_fields:
         run=f"{R}/observations/ground_truth_run.h5",
     output:
         report(
-            [f"{R}/figures/fields.{ext}" for ext in FMT],
+            shown([f"{R}/figures/fields.{ext}" for ext in FMT]),
             caption="../report/fields.rst",
             category="Ground truth fields",
         ),
+        kept([f"{R}/figures/fields.{ext}" for ext in FMT]),
     params:
         plots=study.config["plots"],
         stem=lambda wc, output: os.path.splitext(output[0])[0],
@@ -163,10 +171,11 @@ rule fig_rounds:
         training=f"{R}/{study.primary_measure}/training.h5",
     output:
         report(
-            [f"{R}/figures/rounds.{ext}" for ext in FMT],
+            shown([f"{R}/figures/rounds.{ext}" for ext in FMT]),
             caption="../report/rounds.rst",
             category="Active design",
         ),
+        kept([f"{R}/figures/rounds.{ext}" for ext in FMT]),
     params:
         parameters=study.config["parameters"],
         active=study.config["design"]["active"],
