@@ -346,6 +346,8 @@ def test_each_figure_is_in_the_report_once_png_and_the_pdf_on_disk(tmp_path, bas
     smk(tmp_path)
     smk(tmp_path, "--report", "report.html")
     text = (tmp_path / "report.html").read_text()
+    # captions carry the study's own numbers
+    assert "Shown in numbers: E = " in text and "This study: bayescalib analytic: E = " in text
     figs = tmp_path / "results" / "analytic" / "figures" / "rkhs"
     for fam in ("joint", "marginals"):
         assert (figs / f"{fam}.pdf").stat().st_size > 1000
