@@ -225,6 +225,16 @@ def test_joint_posterior(outdir, weighted_gaussian):
     assert hexbins[0].get_array().sum() == pytest.approx(w[inside].sum())
 
 
+def test_a_map_on_the_truth_stays_visible(outdir, weighted_gaussian):
+    """A MAP that hits the ground truth is drawn on top of the truth's star."""
+    x, w = weighted_gaussian
+    _, fig = plot_joint_posterior(x, w, NAMES, UNITS, [outdir / "joint_map.png"],
+                                  map=(400.0, 0.3), truth=(400.0, 0.3), bounds=BOUNDS,
+                                  return_figure=True)
+    lines = {ln.get_label(): ln for ax in fig.axes for ln in ax.get_lines()}
+    assert lines["MAP"].get_zorder() > lines["ground truth"].get_zorder()
+
+
 def test_response_surface(outdir):
     gx, gy = np.linspace(100, 800, 40), np.linspace(-0.8, 0.5, 30)
     E, N = np.meshgrid(gx, gy)
@@ -325,17 +335,19 @@ def test_parallel_axes(outdir):
     _check_files(written, paths)
     ax = fig.axes[0]
     ticks = [t.get_text() for t in ax.get_xticklabels()]
-    assert ticks == ["E₁ [Pa]", "ν₁ [-]", "E₂ [Pa]", "V_in [mm^2/s]",
-                     "log posterior density [-]"]
+    # a log-density has no unit of its own: no "[-]" after it
+    assert ticks == ["E₁ [Pa]", "ν₁ [-]", "E₂ [Pa]", "V_in [mm^2/s]", "log posterior density"]
     lc = next(c for c in ax.collections if isinstance(c, LineCollection))
     arr = lc.get_array()
     assert arr.size == 500
     assert np.all(np.diff(arr) >= 0) and arr[-1] == logd.max()  # best line on top
-    assert "log posterior density [-]" in _labels(fig)
+    assert "log posterior density" in _labels(fig) and "log posterior density [-]" not in _labels(fig)
+    # the colour range is that of the lines drawn (no overshoot past the data shown)
+    assert (lc.norm.vmin, lc.norm.vmax) == (arr.min(), arr.max())
     _, fig = plot_parallel_axes(x, logd, names, units, [outdir / "parallel2.png"],
                                 values_are_log=True, value_name="log posterior density",
                                 show_value_axis=False, return_figure=True)
-    assert "log posterior density [-]" in _labels(fig)
+    assert "log posterior density" in _labels(fig)
     assert len(fig.axes[0].get_xticklabels()) == 4
 
 

@@ -175,14 +175,18 @@ def plot_joint_posterior(
             markers.append((mean_, "+", COLORS["mean"], 11, "posterior mean"))
         if map_ is not None:
             markers.append((map_, "x", COLORS["map"], 8, "MAP"))
+        # the truth under the estimates: a MAP on the truth stays visible on top of it
+        truth_handle = None
+        if truth_ is not None:
+            (truth_handle,) = ax.plot(*truth_, ls="none", marker="*", ms=13,
+                                      mfc=COLORS["truth"], mec="k", mew=0.6,
+                                      label="ground truth", zorder=4)
         for pt, mk, col, ms, lab in markers:
             (h,) = ax.plot(*pt, ls="none", marker=mk, color=col, ms=ms, mew=2.2, label=lab,
-                           zorder=5)
+                           zorder=6)
             handles.append(h)
-        if truth_ is not None:
-            (h,) = ax.plot(*truth_, ls="none", marker="*", ms=11, mfc=COLORS["truth"],
-                           mec="k", mew=0.6, label="ground truth", zorder=6)
-            handles.append(h)
+        if truth_handle is not None:
+            handles.append(truth_handle)
 
         top = draw_marginal(ax_top, x[:, 0], w, b[0], bins=bins, prior_pdf=priors[0],
                             support=None if sup is None else b[0])

@@ -133,17 +133,19 @@ def plot_parallel_axes(
 
     prefix = "log " if values_are_log and not value_name.lower().startswith("log") else ""
     label_v = prefix + value_name
+    # a log-density has no unit of its own (it is a log of 1/(product of units))
+    value_label = label_v if values_are_log else f"{label_v} [{value_unit}]"
     idx = select_lines(v, max_lines, seed)
     cols = [(x[:, k] - b[k, 0]) / (b[k, 1] - b[k, 0]) for k in range(d)]
     axis_ranges = [tuple(b[k]) for k in range(d)]
     labels = [axis_label(names[k], units[k]) for k in range(d)]
     if show_value_axis:
-        vlo, vhi = float(v.min()), float(v.max())
+        vlo, vhi = float(v[idx].min()), float(v[idx].max())
         if vhi <= vlo:
             vhi = vlo + 1.0
         cols.append((v - vlo) / (vhi - vlo))
         axis_ranges.append((vlo, vhi))
-        labels.append(f"{label_v} [{value_unit}]")
+        labels.append(value_label)
     y = np.column_stack(cols)[idx]
     m = y.shape[1]
     xs = np.arange(m, dtype=float)
@@ -152,14 +154,15 @@ def plot_parallel_axes(
     with paper_style():
         fig = Figure(figsize=(max(5.0, 1.15 * m + 1.6), 3.6), layout="constrained")
         ax = fig.add_subplot()
-        norm = Normalize(vmin=float(v.min()), vmax=float(v.max()))
+        # the colour range of the lines drawn, not of every particle
+        norm = Normalize(vmin=float(v[idx].min()), vmax=float(v[idx].max()))
         lc = LineCollection(segs, array=v[idx], cmap=cmap, norm=norm,
                             linewidths=0.6 if len(idx) > 300 else 0.9,
                             alpha=0.55 if len(idx) > 300 else 0.8)
         ax.add_collection(lc)
         cb = fig.colorbar(lc, ax=ax, pad=0.01, aspect=30)
         cb.solids.set_alpha(1.0)
-        cb.set_label(f"{label_v} [{value_unit}]")
+        cb.set_label(value_label)
         for k, (lo, hi) in enumerate(axis_ranges):
             ax.axvline(k, color="k", lw=0.9, zorder=3)
             ticks = [t for t in MaxNLocator(5).tick_values(lo, hi)
