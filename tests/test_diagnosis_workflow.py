@@ -25,6 +25,7 @@ def _diagnosis(tmp, cfg):
     return json.loads((root / "diagnosis" / "diagnosis.json").read_text()), root
 
 
+@pytest.mark.extended
 def test_hidden_slip_is_located_named_modelled_and_improves_the_fit(tmp_path, concealed):
     d, root = _diagnosis(tmp_path, concealed)
     assert d["check"]["adequate"] is False
@@ -52,6 +53,7 @@ def test_hidden_slip_is_located_named_modelled_and_improves_the_fit(tmp_path, co
     assert "base_slip" in html and "Verdict" in html
 
 
+@pytest.mark.extended
 def test_no_hidden_effect_no_claim(tmp_path, concealed):
     cfg = {**concealed, "study": "analytic_null",
            "observations": {**concealed["observations"], "hidden": {}}}
@@ -60,6 +62,7 @@ def test_no_hidden_effect_no_claim(tmp_path, concealed):
     assert d["extended"] == [] and d["chosen_model"] == "base"
 
 
+@pytest.mark.extended
 def test_an_unconverged_calibration_is_judged_with_a_caution(tmp_path, concealed):
     """No hidden effect, a sharp likelihood (sigma_N = 3 um, the noise is 1 um) and an
     active design stopped by its budget after two rounds: the study's calibration is not

@@ -78,6 +78,7 @@ def scratch(tmp_path_factory):
     return root
 
 
+@pytest.mark.extended
 def test_every_readme_command_works_verbatim(scratch):
     cmds = readme_commands((REPO / "README.md").read_text())
     env = {**os.environ, "PATH": f"{Path(sys.executable).parent}{os.pathsep}{os.environ['PATH']}"}
