@@ -19,8 +19,6 @@ from bayescalib.plotting import (
     chi2_radius2,
     ellipse_axes,
     ellipse_points,
-    hpd_thresholds,
-    hpd_thresholds_grid,
     plot_fields,
     plot_gp_convergence,
     plot_interface_residual,
@@ -31,10 +29,10 @@ from bayescalib.plotting import (
     plot_parallel_axes,
     plot_particles,
     plot_response_surface,
-    weighted_kde,
 )
 from bayescalib.plotting.interfaces import largest_deformation_box
 from bayescalib.plotting.parallel import select_lines
+from bayescalib.weights import weighted_kde
 
 NAMES, UNITS = ["E", "nu"], ["Pa", "-"]
 BOUNDS = ((100.0, 800.0), (-0.8, 0.5))
@@ -97,70 +95,6 @@ def test_axis_labels_typeset_names_and_units():
 
 
 # --------------------------------------------------------------------------- HPD thresholds
-def test_hpd_thresholds_match_analytic_gaussian():
-    """For a 2-D Gaussian the mass of {f >= t} is 1 - t/f_max, so t_p = f_max (1 - p).
-
-    The estimate is an empirical quantile of f(X): its standard deviation is
-    f_max * sqrt(p (1 - p) / N) (delta method with dM/dt = -1/f_max). We
-    allow 5 standard deviations.
-    """
-    rng = np.random.default_rng(1)
-    n = 20000
-    x = rng.multivariate_normal(MEAN, COV, size=n)
-    ic = np.linalg.inv(COV)
-    fmax = 1.0 / (2 * np.pi * np.sqrt(np.linalg.det(COV)))
-    d = x - MEAN
-    f = fmax * np.exp(-0.5 * np.einsum("ni,ij,nj->n", d, ic, d))
-    levels = np.array([0.5, 0.9, 0.99])
-    t = hpd_thresholds(f, None, levels)
-    tol = 5 * np.sqrt(levels * (1 - levels) / n)
-    np.testing.assert_array_less(np.abs(t / fmax - (1 - levels)), tol)
-    assert np.all(np.diff(t) < 0)  # larger mass, lower threshold
-
-
-def test_hpd_thresholds_weighted_importance_sample(weighted_gaussian):
-    """Same analytic check with importance weights; MC error uses the Kish ESS."""
-    x, w = weighted_gaussian
-    ic = np.linalg.inv(COV)
-    fmax = 1.0 / (2 * np.pi * np.sqrt(np.linalg.det(COV)))
-    d = x - MEAN
-    f = fmax * np.exp(-0.5 * np.einsum("ni,ij,nj->n", d, ic, d))
-    ess = 1.0 / np.sum(w**2)
-    levels = np.array([0.5, 0.9])
-    t = hpd_thresholds(f, w, levels)
-    tol = 5 * np.sqrt(levels * (1 - levels) / ess)
-    np.testing.assert_array_less(np.abs(t / fmax - (1 - levels)), tol)
-
-
-def test_hpd_thresholds_hold_exactly_the_requested_weighted_mass():
-    rng = np.random.default_rng(2)
-    f = rng.uniform(size=500)
-    w = rng.uniform(size=500)
-    w /= w.sum()
-    for p, t in zip((0.3, 0.7, 0.95), hpd_thresholds(f, w, (0.3, 0.7, 0.95))):
-        assert w[f >= t].sum() >= p - 1e-12
-        assert w[f > t].sum() < p
-
-
-def test_hpd_thresholds_grid_match_analytic_gaussian():
-    g = np.linspace(-8, 8, 801)
-    X, Y = np.meshgrid(g, g)
-    f = np.exp(-0.5 * (X**2 + Y**2)) / (2 * np.pi)
-    levels = [0.5, 0.9]
-    t = hpd_thresholds_grid(f, levels)
-    np.testing.assert_allclose(t * 2 * np.pi, 1 - np.array(levels), atol=2e-3)
-
-
-def test_weighted_kde_recovers_density_of_importance_sample(weighted_gaussian):
-    x, w = weighted_gaussian
-    kde = weighted_kde(x, w)
-    fmax = 1.0 / (2 * np.pi * np.sqrt(np.linalg.det(COV)))
-    # KDE smoothing lowers the peak: with Scott's factor h the KDE of a Gaussian is
-    # the Gaussian with covariance (1 + h^2) C, whose peak is fmax / (1 + h^2).
-    h2 = kde.factor**2
-    assert kde(MEAN[:, None])[0] == pytest.approx(fmax / (1 + h2), rel=0.15)
-
-
 # --------------------------------------------------------------------------- ellipses
 def test_ellipse_axes_of_diagonal_covariance():
     semi, angle = ellipse_axes(np.diag([4.0, 1.0]), 0.9)
@@ -522,31 +456,6 @@ def test_degenerate_cloud_skips_kde_with_warning(tmp_path):
     texts = {t.get_text() for ax in fig.axes if ax.get_legend()
              for t in ax.get_legend().get_texts()}
     assert not any(t.startswith("KDE HPD") for t in texts)
-
-
-def test_bounded_kde_keeps_its_mass_at_the_prior_bound():
-    """Particles of a density that is flat up to a bound (a posterior truncated by its
-    prior box): the plain KDE drops to about half at the bound; the reflected one stays
-    flat there and integrates to 1 inside the box."""
-    from bayescalib.plotting.kde import weighted_kde
-
-    rng = np.random.default_rng(0)
-    x = rng.uniform(100.0, 800.0, 20000)
-    g = np.linspace(100.0, 800.0, 1401)
-    plain = weighted_kde(x)(g[None, :])
-    bounded = weighted_kde(x, support=[[100.0, 800.0]])(g[None, :])
-    flat = 1.0 / 700.0
-    assert plain[0] < 0.6 * flat  # the boundary bias the correction removes
-    assert bounded[0] == pytest.approx(flat, rel=0.1)
-    assert bounded[len(g) // 2] == pytest.approx(flat, rel=0.1)
-    assert np.trapezoid(bounded, g) == pytest.approx(1.0, abs=0.01)
-    assert weighted_kde(x, support=[[100.0, 800.0]])(np.array([[99.0, 801.0]])).tolist() == [0, 0]
-    # 2D: one bounded axis, one free
-    xy = np.column_stack([x, rng.normal(size=x.size)])
-    k2 = weighted_kde(xy, support=[[100.0, 800.0], [-np.inf, np.inf]])
-    at_edge = k2(np.array([[100.0], [0.0]]))[0]
-    inside = k2(np.array([[450.0], [0.0]]))[0]
-    assert at_edge == pytest.approx(inside, rel=0.15)
 
 
 def test_the_rounds_figure_shows_the_best_identified_pair():

@@ -6,7 +6,6 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from bayescalib.kde import hpd_levels, kde_1d, kde_2d, weighted_quantile
 from bayescalib.parameters import Normal, Parameter, ParameterSpace, Uniform
 from bayescalib.posterior import (
     laplace_approximation,
@@ -16,6 +15,10 @@ from bayescalib.posterior import (
     write_particles_h5,
 )
 from bayescalib.smc import SMCResult, run_smc
+from bayescalib.weights import (
+    weighted_kde,
+    weighted_quantile,
+)
 
 
 def gaussian_loglik(mu, S):
@@ -59,7 +62,8 @@ def test_marginalizing_theta_matches_analytic_marginal(uncertain_run):
     lo, hi = s["intervals"]["x"]["0.9"]
     assert lo == pytest.approx(q.ppf(0.05), abs=0.22) and hi == pytest.approx(q.ppf(0.95), abs=0.22)
     # the 1D KDE of the x column is the analytic marginal density
-    g, dens = kde_1d(r.particles[:, 0], r.weights, bounds=(-2.0, 3.0))
+    g = np.linspace(-2.0, 3.0, 256)
+    dens = weighted_kde(r.particles[:, 0], r.weights)(g[None, :])
     assert np.max(np.abs(dens - q.pdf(g))) < 0.05
     assert set(s["map"]) == {"x"} and set(s["map_full"]) == {"x", "theta"}
     assert set(s["map_marginal"]) == {"x"}
@@ -139,39 +143,6 @@ def test_weighted_intervals_and_moments():
 
 
 # --- KDE and HPD levels -------------------------------------------------------------
-
-
-def test_kde_1d_standard_normal():
-    # N = 5000 draws: Scott bandwidth h ~ 0.18 -> bias at 0 ~ 0.0065, noise sd ~ 0.007.
-    x = np.random.default_rng(0).normal(size=5000)
-    g, d = kde_1d(x, bounds=(-6, 6), n_grid=601)
-    assert np.max(np.abs(d - stats.norm.pdf(g))) < 0.035
-    assert np.trapezoid(d, g) == pytest.approx(1.0, abs=1e-3)
-
-
-def test_kde_2d_orientation_and_hpd_levels():
-    rng = np.random.default_rng(1)
-    x = rng.normal(2.0, 0.3, 4000)
-    y = rng.normal(-1.0, 1.0, 4000)
-    gx, gy, D = kde_2d(x, y, n_grid=80, bounds=((0, 4), (-4, 2)))
-    assert D.shape == (80, 80)
-    i, j = np.unravel_index(np.argmax(D), D.shape)
-    assert abs(gx[j] - 2.0) < 0.15 and abs(gy[i] + 1.0) < 0.4  # density[i, j] at (gx[j], gy[i])
-    # grid mode: for N(0, I_2) the mass-l contour is f = (1 - l) / (2 pi); 601^2 grid on
-    # [-6, 6]^2 -> discretization error well below 1 %.
-    g = np.linspace(-6, 6, 601)
-    XX, YY = np.meshgrid(g, g)
-    f = np.exp(-0.5 * (XX**2 + YY**2)) / (2 * np.pi)
-    lv = np.array([0.5, 0.9, 0.99])
-    assert np.allclose(hpd_levels(f, lv), (1 - lv) / (2 * np.pi), rtol=0.01)
-    # weighted-sample mode: 2 pi f(X) ~ U(0, 1), so the (1-l)-quantile has SE
-    # sqrt(l (1 - l) / N) <= 0.005 for N = 10000; tolerance 0.025.
-    Z = rng.normal(size=(10000, 2))
-    fz = np.exp(-0.5 * (Z**2).sum(1)) / (2 * np.pi)
-    t = hpd_levels(fz, lv, weights=np.ones(10000))
-    assert np.allclose(2 * np.pi * t, 1 - lv, atol=0.025)
-    with pytest.raises(ValueError):
-        hpd_levels(f, [1.5])
 
 
 # --- storage ------------------------------------------------------------------------

@@ -44,24 +44,20 @@ from typing import Any
 import numpy as np
 
 from ._atomic_write import atomic_path
-from .kde import hpd_levels, kde_1d, kde_2d, weighted_quantile
 from .parameters import ParameterSpace
 from .resampling import systematic_resample
 from .smc import SMCResult, weighted_cov
+from .weights import ess, weighted_quantile
 
 __all__ = [
     "credible_intervals",
     "equal_weight_draws",
-    "hpd_levels",
-    "kde_1d",
-    "kde_2d",
     "laplace_approximation",
     "map_estimate",
     "map_marginal",
     "read_particles_h5",
     "summarize",
     "weighted_mean_cov",
-    "weighted_quantile",
     "write_netcdf",
     "write_particles_h5",
 ]
@@ -253,7 +249,7 @@ def summarize(
         },
         "laplace": None,
         "log_evidence": float(result.log_evidence),
-        "ess": float(1.0 / np.sum(W**2)),
+        "ess": ess(W),
         "n_particles": int(X.shape[0]),
         "n_steps": int(result.n_steps),
         "ground_truth": None

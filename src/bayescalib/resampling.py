@@ -11,31 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["ess", "normalize_log_weights", "systematic_resample"]
-
-
-def normalize_log_weights(logw: np.ndarray) -> np.ndarray:
-    """Normalized weights W (N,) from log weights (N,), robust to -inf entries.
-
-    Raises
-    ------
-    ValueError
-        If every weight is zero (all log weights -inf) or any is NaN/+inf.
-    """
-    logw = np.asarray(logw, dtype=float)
-    if np.any(np.isnan(logw)) or np.any(logw == np.inf):
-        raise ValueError("log weights contain NaN or +inf")
-    m = np.max(logw)
-    if not np.isfinite(m):
-        raise ValueError("all particle weights are zero (log-likelihood -inf everywhere)")
-    w = np.exp(logw - m)
-    return w / w.sum()
-
-
-def ess(logw: np.ndarray) -> float:
-    """Effective sample size 1 / sum(W_i^2) (paper eq. ess) from log weights."""
-    W = normalize_log_weights(logw)
-    return float(1.0 / np.sum(W * W))
+__all__ = ["systematic_resample"]
 
 
 def systematic_resample(W: np.ndarray, rng: np.random.Generator, n: int | None = None) -> np.ndarray:

@@ -51,7 +51,8 @@ import numpy as np
 from scipy.optimize import brentq
 from scipy.special import logsumexp
 
-from .resampling import normalize_log_weights, systematic_resample
+from .resampling import systematic_resample
+from .weights import ess, log_ess, normalize_log_weights
 
 __all__ = ["MINSON_A", "MINSON_B", "SMCResult", "next_gamma", "run_smc", "smc_from_config",
            "weighted_cov"]
@@ -107,7 +108,7 @@ class SMCResult:
 
     @property
     def ess(self) -> float:
-        return float(1.0 / np.sum(self.weights**2))
+        return ess(self.weights)
 
 
 # ---------------------------------------------------------------------------
@@ -121,13 +122,6 @@ def _tempered(ll: np.ndarray, gamma: float) -> np.ndarray:
     if gamma == 0.0:
         return np.zeros_like(ll)
     return np.where(fin, gamma * np.where(fin, ll, 0.0), -np.inf)
-
-
-def _log_ess(logw: np.ndarray) -> float:
-    """log ESS = 2 logsumexp(logw) - logsumexp(2 logw); -inf when all weights are zero."""
-    if not np.any(np.isfinite(logw)):
-        return -np.inf
-    return float(2.0 * logsumexp(logw) - logsumexp(2.0 * logw))
 
 
 def next_gamma(ll: np.ndarray, logw: np.ndarray, gamma: float, zeta: float) -> float:
@@ -150,10 +144,10 @@ def next_gamma(ll: np.ndarray, logw: np.ndarray, gamma: float, zeta: float) -> f
         raise ValueError("no particle has a finite log-likelihood and non-zero weight")
     llf = ll[fin]
     lwf = logw[fin]
-    log_target = np.log(zeta) + _log_ess(lwf)
+    log_target = np.log(zeta) + log_ess(lwf)
 
     def f(g: float) -> float:
-        return _log_ess(lwf + (g - gamma) * llf) - log_target
+        return log_ess(lwf + (g - gamma) * llf) - log_target
 
     if f(1.0) >= 0.0:
         return 1.0
@@ -363,7 +357,7 @@ def run_smc(
         logw = logw + incr
         logw = logw - logsumexp(logw)
         gamma = g_new
-        ess_now = float(np.exp(_log_ess(logw)))
+        ess_now = float(np.exp(log_ess(logw)))
         resampled = ess_now < ess_min_ratio * N
         if resampled:
             idx = systematic_resample(np.exp(logw), rng)

@@ -17,8 +17,9 @@ Modules (one figure family each)
 * :mod:`.interfaces`  -- interface curves and scalar residuals along the interface
 * :mod:`.fields`      -- velocity, pressure and displacement fields on the mesh
 
-Helpers: :mod:`.style` (rc context, palette, labels), :mod:`.kde` (weighted
-KDE, HPD thresholds), :mod:`.gaussian` (probability ellipses).
+Helpers: :mod:`.style` (rc context, palette, labels), :mod:`.gaussian`
+(probability ellipses); weighted KDE and HPD thresholds come from
+:mod:`bayescalib.weights`, the module the posterior summaries use.
 """
 
 from .convergence import plot_gp_convergence
@@ -26,7 +27,6 @@ from .fields import plot_fields
 from .gaussian import chi2_radius2, ellipse_axes, ellipse_points
 from .interfaces import plot_interface_residual, plot_interfaces
 from .joint import plot_joint_posterior
-from .kde import hpd_thresholds, hpd_thresholds_grid, weighted_kde
 from .marginals import plot_marginals_1d, plot_pair_marginals
 from .parallel import plot_parallel_axes
 from .particles import plot_particles
@@ -38,8 +38,6 @@ __all__ = [
     "chi2_radius2",
     "ellipse_axes",
     "ellipse_points",
-    "hpd_thresholds",
-    "hpd_thresholds_grid",
     "paper_style",
     "plot_fields",
     "plot_gp_convergence",
@@ -51,5 +49,4 @@ __all__ = [
     "plot_parallel_axes",
     "plot_particles",
     "plot_response_surface",
-    "weighted_kde",
 ]

@@ -18,6 +18,7 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from bayescalib._atomic_write import atomic_path
+from bayescalib.weights import normalize_weights
 
 __all__ = [
     "PathsLike",
@@ -134,17 +135,7 @@ def as_weights(weights: Any, n: int, name: str = "weights") -> np.ndarray:
     numpy.ndarray, shape (N,)
         Weights summing to one.
     """
-    if weights is None:
-        return np.full(n, 1.0 / n)
-    w = as_array(weights, name, ndim=1)
-    if w.shape[0] != n:
-        raise ValueError(f"{name}: length {w.shape[0]} does not match the {n} particles")
-    if np.any(w < 0):
-        raise ValueError(f"{name}: negative weights are not allowed (min {w.min():.3g})")
-    s = w.sum()
-    if not s > 0:
-        raise ValueError(f"{name}: weights sum to zero")
-    return w / s
+    return normalize_weights(weights, n, name)
 
 
 def as_names_units(names: Sequence[str], units: Sequence[str],

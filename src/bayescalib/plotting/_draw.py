@@ -14,8 +14,9 @@ import numpy as np
 from matplotlib.axes import Axes
 from matplotlib.collections import PolyCollection
 
+from bayescalib.weights import hpd_thresholds, kde_on_grid, weighted_kde
+
 from ._checks import as_array
-from .kde import hpd_thresholds, kde_on_grid, weighted_kde
 from .style import COLORS, DENSITY_CMAP
 
 __all__ = [

@@ -8,6 +8,8 @@ from collections.abc import Sequence
 import numpy as np
 from matplotlib.figure import Figure
 
+from bayescalib.weights import ess
+
 from ._checks import (
     PathsLike,
     as_array,
@@ -98,7 +100,7 @@ def plot_particles(
         ax.set_ylim(*b[1])
         ax.set_xlabel(axis_label(names[0], units[0]))
         ax.set_ylabel(axis_label(names[1], units[1]))
-        n_eff = 1.0 / np.sum(w * w)
+        n_eff = ess(w)
         ax.legend(loc="best", title=f"ESS = {n_eff:.0f}", title_fontsize=7.5)
         if title:
             ax.set_title(title)

@@ -1,56 +1,173 @@
-"""Weighted Gaussian kernel density estimates and highest-density thresholds.
+"""Weighted particles: normalization, effective sample size, quantiles, KDE and HPD.
 
-The KDE is :class:`scipy.stats.gaussian_kde` with particle weights (Scott or
-Silverman bandwidth computed with the effective sample size
-``n_eff = 1 / sum(w**2)``), wrapped to give clear errors for degenerate
-particle clouds.
+The one module for every computation on a weighted particle cloud (the SMC's
+final particles, paper eq. smcdirac; importance samples in the benchmarks),
+used alike by the SMC, the posterior summaries and the figures, so that a
+summary and the figure that draws it agree.
 
-Bounded support
----------------
-A posterior truncated by its prior box (E >= 100 Pa, nu <= 0.5) has mass up to
-the bound; a plain Gaussian KDE leaks half a kernel of it past the bound and
-drops towards it. With ``support`` given, the estimate is corrected by
-reflection: f(x) = sum over the mirror images of x in the bounded faces (and
-their corners) of the plain KDE, and 0 outside the box, which keeps the
-estimate's mass in the box and removes the drop at the bound (first-order
-boundary bias).
+Weights
+-------
+Log weights are normalized with the max-shift (robust to -inf entries):
+:func:`normalize_log_weights`. Plain non-negative weights are checked and
+normalized by :func:`normalize_weights`. The effective sample size is Kish's
+``ESS = 1 / sum W_i^2`` (paper eq. ess): :func:`ess` for normalized weights,
+:func:`log_ess` for log weights (``2 logsumexp(logw) - logsumexp(2 logw)``,
+used by the adaptive tempering, paper Algorithm alg:smc).
+
+Quantiles
+---------
+:func:`weighted_quantile` interpolates the weighted ECDF linearly between the
+mid-points of the sorted samples' weights (for equal weights: Hazen's rule).
+Equal-tailed credible intervals are its ((1 - l)/2, (1 + l)/2) quantiles.
+
+Kernel density estimate
+-----------------------
+:func:`weighted_kde` is :class:`scipy.stats.gaussian_kde` with particle
+weights (Scott or Silverman bandwidth computed with the ESS), with clear errors
+for degenerate clouds. A posterior truncated by its prior box (E >= 100 Pa,
+nu <= 0.5) has mass up to the bound; a plain Gaussian KDE leaks half a kernel
+of it past the bound and drops towards it. With ``support`` given, the
+estimate is corrected by reflection (:class:`BoundedKDE`): f(x) = sum over
+the mirror images of x in the bounded faces (and their corners) of the plain
+KDE, and 0 outside the box, which keeps the mass in the box and removes the
+first-order boundary bias.
 
 Highest-density (HPD) regions
 -----------------------------
-The p-mass HPD region of a density f is ``{x : f(x) >= t_p}`` with t_p chosen
-such that the region holds probability p. Given particles x_i ~ f with weights
-w_i, the mass of ``{f >= t}`` is estimated by ``sum_i w_i [f(x_i) >= t]``, so
-t_p is the weighted (1 - p)-quantile of the values f(x_i):
+The p-mass HPD region of a density f is ``{x : f(x) >= t_p}`` with t_p such
+that the region holds probability p. Given particles x_i ~ f with weights
+w_i, the mass of ``{f >= t}`` is ``sum_i w_i [f(x_i) >= t]``, so t_p is found
+by accumulating the weights in decreasing order of f(x_i):
 :func:`hpd_thresholds`. On a regular grid, :func:`hpd_thresholds_grid` sorts
 the cell values and accumulates mass instead. For a 2-D Gaussian the exact
-answer is ``t_p = f_max * (1 - p)`` (the mass inside ``{f >= t}`` is
-``1 - t / f_max``), which the tests use.
+answer is ``t_p = f_max * (1 - p)``, which the tests use.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
-from scipy import stats
-
-from ._checks import as_levels, as_samples, as_weights
 
 __all__ = [
     "BoundedKDE",
-    "effective_sample_size",
+    "ess",
     "hpd_thresholds",
     "hpd_thresholds_grid",
     "kde_on_grid",
+    "log_ess",
+    "normalize_log_weights",
+    "normalize_weights",
     "weighted_kde",
+    "weighted_quantile",
 ]
 
 
-def effective_sample_size(weights: np.ndarray) -> float:
-    """Kish effective sample size ``1 / sum(w**2)`` of normalized weights (N,)."""
+# --- weights ------------------------------------------------------------------------
+
+
+def normalize_log_weights(logw: np.ndarray) -> np.ndarray:
+    """Normalized weights W (N,) from log weights (N,), robust to -inf entries.
+
+    Raises
+    ------
+    ValueError
+        If every weight is zero (all log weights -inf) or any is NaN/+inf.
+    """
+    logw = np.asarray(logw, dtype=float)
+    if np.any(np.isnan(logw)) or np.any(logw == np.inf):
+        raise ValueError("log weights contain NaN or +inf")
+    m = np.max(logw)
+    if not np.isfinite(m):
+        raise ValueError("all particle weights are zero (log-likelihood -inf everywhere)")
+    w = np.exp(logw - m)
+    return w / w.sum()
+
+
+def normalize_weights(weights: Any, n: int, name: str = "weights") -> np.ndarray:
+    """Check non-negative weights of N particles and normalize them to sum to one.
+
+    Parameters
+    ----------
+    weights : array_like, shape (N,) or None
+        Non-negative weights (any scale); ``None`` means equal weights.
+    n : int
+        Number of particles N.
+    name : str
+        Argument name used in error messages.
+
+    Returns
+    -------
+    numpy.ndarray, shape (N,)
+    """
+    if weights is None:
+        return np.full(n, 1.0 / n)
+    try:
+        w = np.asarray(weights, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{name}: cannot convert to a float array ({exc})") from None
+    if w.ndim != 1:
+        raise ValueError(f"{name}: expected a 1-D array, got shape {w.shape}")
+    if w.shape[0] != n:
+        raise ValueError(f"{name}: length {w.shape[0]} does not match the {n} particles")
+    if not np.all(np.isfinite(w)):
+        raise ValueError(f"{name}: contains NaN or infinite values")
+    if np.any(w < 0):
+        raise ValueError(f"{name}: negative weights are not allowed (min {w.min():.3g})")
+    s = w.sum()
+    if not s > 0:
+        raise ValueError(f"{name}: weights sum to zero")
+    return w / s
+
+
+def ess(weights: np.ndarray) -> float:
+    """Kish effective sample size ``1 / sum W_i^2`` (paper eq. ess) of weights (N,).
+
+    The weights are normalized first, so any non-negative scale is accepted.
+    """
     w = np.asarray(weights, dtype=float)
     w = w / w.sum()
     return float(1.0 / np.sum(w * w))
+
+
+def log_ess(logw: np.ndarray) -> float:
+    """log ESS from log weights (N,): ``2 logsumexp(logw) - logsumexp(2 logw)``.
+
+    -inf when every weight is zero. Exact in floating point where
+    ``ess(normalize_log_weights(logw))`` would underflow.
+    """
+    logw = np.asarray(logw, dtype=float)
+    if not np.any(np.isfinite(logw)):
+        return -np.inf
+    return float(2.0 * _logsumexp(logw) - _logsumexp(2.0 * logw))
+
+
+def _logsumexp(a: np.ndarray) -> float:
+    m = np.max(a)
+    return float(m + np.log(np.sum(np.exp(a - m))))
+
+
+# --- quantiles ----------------------------------------------------------------------
+
+
+def weighted_quantile(x: np.ndarray, w: np.ndarray | None, q: np.ndarray | float) -> np.ndarray:
+    """Quantiles ``q`` in [0, 1] of samples ``x`` (N,) with weights ``w`` (N,).
+
+    The weighted ECDF is interpolated linearly between the mid-points of the
+    sorted samples' weights (for equal weights this is the "Hazen" quantile).
+    """
+    x = np.asarray(x, float)
+    w = np.ones_like(x) if w is None else np.asarray(w, float)
+    order = np.argsort(x, kind="stable")
+    xs, ws = x[order], w[order]
+    keep = ws > 0
+    xs, ws = xs[keep], ws[keep]
+    cw = (np.cumsum(ws) - 0.5 * ws) / ws.sum()
+    return np.interp(np.asarray(q, float), cw, xs)
+
+
+# --- kernel density estimate --------------------------------------------------------
 
 
 class BoundedKDE:
@@ -64,7 +181,7 @@ class BoundedKDE:
         Lower and upper bound per axis; +-inf (or NaN) for an unbounded side.
     """
 
-    def __init__(self, kde: stats.gaussian_kde, support) -> None:
+    def __init__(self, kde, support) -> None:
         self.kde = kde
         b = np.array(support, dtype=float).reshape(kde.d, 2)
         self.lo = np.where(np.isfinite(b[:, 0]), b[:, 0], -np.inf)
@@ -118,14 +235,21 @@ def weighted_kde(samples: np.ndarray, weights: np.ndarray | None = None,
         For invalid inputs or a degenerate cloud (singular covariance, e.g.
         all particles equal or lying on a line).
     """
+    from scipy import stats
+
     x = np.asarray(samples, dtype=float)
     if x.ndim == 1:
         x = x[:, None]
-    x = as_samples(x)
-    w = as_weights(weights, x.shape[0])
+    if x.ndim != 2:
+        raise ValueError(f"samples: expected an (N, d) array, got shape {x.shape}")
+    if x.shape[0] < 2:
+        raise ValueError(f"samples: need at least 2 particles, got {x.shape[0]}")
+    if not np.all(np.isfinite(x)):
+        raise ValueError("samples: contains NaN or infinite values")
+    w = normalize_weights(weights, x.shape[0])
     if isinstance(bw_method, str) and bw_method not in ("scott", "silverman"):
         raise ValueError(f"bw_method: expected 'scott', 'silverman' or a float, got {bw_method!r}")
-    if effective_sample_size(w) < 1.5:
+    if ess(w) < 1.5:
         raise ValueError("weighted_kde: effective sample size < 1.5, a KDE is meaningless")
     mu = w @ x
     cov = np.atleast_2d(((x - mu) * w[:, None]).T @ (x - mu))
@@ -144,14 +268,14 @@ def weighted_kde(samples: np.ndarray, weights: np.ndarray | None = None,
     return kde if support is None else BoundedKDE(kde, support)
 
 
-def kde_on_grid(kde: stats.gaussian_kde, xlim: Sequence[float], ylim: Sequence[float],
+def kde_on_grid(kde, xlim: Sequence[float], ylim: Sequence[float],
                 n: int = 100) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Evaluate a 2-D KDE on a regular grid.
 
     Parameters
     ----------
-    kde : scipy.stats.gaussian_kde
-        2-D density estimate.
+    kde : callable
+        2-D density estimate, ``kde(points)`` with points (2, M).
     xlim, ylim : (float, float)
         Grid ranges in user units.
     n : int
@@ -162,13 +286,26 @@ def kde_on_grid(kde: stats.gaussian_kde, xlim: Sequence[float], ylim: Sequence[f
     gx : numpy.ndarray, shape (n,)
     gy : numpy.ndarray, shape (n,)
     dens : numpy.ndarray, shape (n, n)
-        ``dens[j, i]`` is the density at ``(gx[i], gy[j])``.
+        ``dens[j, i]`` is the density at ``(gx[i], gy[j])`` (matplotlib's contour
+        convention).
     """
     gx = np.linspace(xlim[0], xlim[1], n)
     gy = np.linspace(ylim[0], ylim[1], n)
     xx, yy = np.meshgrid(gx, gy)
     dens = kde(np.vstack([xx.ravel(), yy.ravel()])).reshape(xx.shape)
     return gx, gy, dens
+
+
+# --- highest-density regions --------------------------------------------------------
+
+
+def _levels(levels: Sequence[float]) -> np.ndarray:
+    p = np.atleast_1d(np.asarray(levels, dtype=float))
+    if p.ndim != 1 or p.size == 0:
+        raise ValueError(f"levels: need at least one probability level, got {levels!r}")
+    if not np.all((p > 0) & (p < 1)):
+        raise ValueError(f"levels: probability levels must lie in (0, 1), got {p.tolist()}")
+    return p
 
 
 def hpd_thresholds(density_at_samples: np.ndarray, weights: np.ndarray | None,
@@ -195,9 +332,8 @@ def hpd_thresholds(density_at_samples: np.ndarray, weights: np.ndarray | None,
         raise ValueError(f"density_at_samples: expected a 1-D array, got shape {f.shape}")
     if not np.all(np.isfinite(f)) or np.any(f < 0):
         raise ValueError("density_at_samples: must be finite and non-negative")
-    w = as_weights(weights, f.shape[0])
-    p = np.asarray(levels, dtype=float)
-    as_levels(p)
+    w = normalize_weights(weights, f.shape[0])
+    p = _levels(levels)
     order = np.argsort(f)[::-1]
     cum = np.cumsum(w[order])
     idx = np.searchsorted(cum, p * cum[-1] - 1e-12, side="left")
@@ -224,8 +360,7 @@ def hpd_thresholds_grid(density: np.ndarray, levels: Sequence[float]) -> np.ndar
     d = np.asarray(density, dtype=float).ravel()
     if not np.all(np.isfinite(d)) or np.any(d < 0) or d.sum() <= 0:
         raise ValueError("density: must be finite, non-negative and not all zero")
-    p = np.asarray(levels, dtype=float)
-    as_levels(p)
+    p = _levels(levels)
     srt = np.sort(d)[::-1]
     cum = np.cumsum(srt) / srt.sum()
     idx = np.clip(np.searchsorted(cum, p, side="left"), 0, srt.size - 1)
