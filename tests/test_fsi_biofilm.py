@@ -229,10 +229,45 @@ def test_solve_to_file_and_vtu(tmp_path):
     reader.SetFileName(str(tmp_path / "run.vtu"))
     reader.Update()
     grid = reader.GetOutput()
-    assert grid.GetNumberOfCells() == r.stats["n_elements"]
+    # the mesh refined once at the edge midpoints (the nodes of the P2 fields)
+    assert grid.GetNumberOfCells() == 4 * r.stats["n_elements"]
     for name in ("velocity", "pressure", "displacement"):
         assert grid.GetPointData().GetArray(name) is not None
     assert (tmp_path / "run.state.npz").is_file()
+
+
+def test_field_file_holds_the_p2_fields_at_all_their_nodes(coarse, tmp_path):
+    """The VTU samples velocity and displacement at every P2 node (vertices and edge
+    midpoints), merged across elements, so that its piecewise-linear picture
+    interpolates the quadratic fields; the pressure on the interface is the fluid's."""
+    import vtk
+    from vtk.util.numpy_support import vtk_to_numpy
+
+    r = coarse.solve({"material.E": 600.0})
+    assert r.ok
+    coarse.write_vtu(tmp_path / "f.vtu")
+    mesh = coarse.solver.mesh
+    reader = vtk.vtkXMLUnstructuredGridReader()
+    reader.SetFileName(str(tmp_path / "f.vtu"))
+    reader.Update()
+    grid = reader.GetOutput()
+    assert grid.GetNumberOfPoints() == mesh.nv + mesh.nedge
+    pts = vtk_to_numpy(grid.GetPoints().GetData())[:, :2]
+    disp = vtk_to_numpy(grid.GetPointData().GetArray("displacement"))[:, :2]
+    vel = vtk_to_numpy(grid.GetPointData().GetArray("velocity"))[:, :2]
+    pres = vtk_to_numpy(grid.GetPointData().GetArray("pressure"))
+    # the interface nodes (moved with the solid) carry the fluid's pressure, which is
+    # not zero there (the flow presses on the biofilm)
+    on_itf = np.min(np.linalg.norm(pts[:, None, :] - r.interface_current[None, :, :], axis=2),
+                    axis=1) < 1e-9
+    assert on_itf.sum() >= r.interface_current.shape[0]
+    assert np.all(np.abs(pres[on_itf]) > 0)
+    # no-slip on the moving interface of a steady solve: zero velocity there
+    assert np.abs(vel[on_itf]).max() < 1e-8 * np.abs(vel).max()
+    # the largest displacement is on the interface; a P2 midpoint may exceed the
+    # vertices' maximum (which the solve reports) by a little, never fall below it
+    dmax = np.hypot(disp[:, 0], disp[:, 1]).max()
+    assert r.max_displacement * (1 - 1e-9) <= dmax <= 1.02 * r.max_displacement
 
 
 def test_non_finite_parameters_are_config_errors_naming_the_key(coarse):

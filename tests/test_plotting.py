@@ -30,7 +30,7 @@ from bayescalib.plotting import (
     plot_particles,
     plot_response_surface,
 )
-from bayescalib.plotting.interfaces import largest_deformation_box
+from bayescalib.plotting.interfaces import deflection_profile
 from bayescalib.plotting.parallel import select_lines
 from bayescalib.weights import weighted_kde
 
@@ -134,6 +134,36 @@ def test_ellipse_rejects_invalid_covariance():
         ellipse_points([0, 0], [[1.0, 0.5], [0.0, 1.0]], 0.9)
     with pytest.raises(ValueError, match=r"\(0, 1\)"):
         chi2_radius2(1.0)
+
+
+def test_mass_outside_box_against_closed_forms():
+    from scipy.stats import norm
+
+    from bayescalib.plotting.gaussian import mass_outside_box
+
+    # independent axes: inside = product of the 1-D masses
+    m, c = np.array([1.0, -2.0]), np.diag([0.5**2, 2.0**2])
+    box = ((0.2, 1.9), (-5.0, 0.0))
+    inside = ((norm.cdf(1.9, 1.0, 0.5) - norm.cdf(0.2, 1.0, 0.5))
+              * (norm.cdf(0.0, -2.0, 2.0) - norm.cdf(-5.0, -2.0, 2.0)))
+    assert mass_outside_box(m, c, box) == pytest.approx(1.0 - inside, abs=1e-6)
+    # a correlated Gaussian cut by a line through its mean: half its mass, any correlation
+    assert mass_outside_box([0.0, 0.0], [[1.0, 0.9], [0.9, 1.0]],
+                            ((-np.inf, np.inf), (0.0, np.inf))) == pytest.approx(0.5, abs=1e-6)
+    assert mass_outside_box([0.0, 0.0], np.eye(2), ((5.0, 6.0), (0.0, 1.0))) > 0.999
+
+
+def test_joint_legend_says_when_an_approximation_is_clipped_by_the_box(outdir, weighted_gaussian):
+    x, w = weighted_gaussian
+    # a Gaussian centred on the bound nu = 0.5: half of it lies outside the box
+    _, fig = plot_joint_posterior(x, w, NAMES, UNITS, [outdir / "joint_clip.png"],
+                                  gaussian=((400.0, 0.5), COV), laplace=(MEAN, 0.5 * COV),
+                                  bounds=BOUNDS, return_figure=True)
+    texts = [t.get_text() for ax in fig.axes if ax.get_legend()
+             for t in ax.get_legend().get_texts()]
+    gauss = next(t for t in texts if t.startswith("Gaussian approx."))
+    assert "50 % of its mass outside the box: clipped" in gauss
+    assert "Laplace approx. (90 %)" in texts  # well inside: no note
 
 
 # --------------------------------------------------------------------------- figures
@@ -307,27 +337,35 @@ def test_interfaces(outdir):
     written, fig = plot_interfaces(ref, obs, samples, paths, map_interface=_bump(0.09),
                                    return_figure=True)
     _check_files(written, paths)
-    assert len(fig.axes) == 2  # overview + zoom
-    for ax in fig.axes:
-        assert ax.get_xlabel() == "x [mm]" and ax.get_ylabel() == "y [mm]"
-        assert ax.get_aspect() == 1.0
+    assert len(fig.axes) == 2  # overview + deflection profile
+    assert fig.axes[0].get_xlabel() == "x [mm]" and fig.axes[0].get_ylabel() == "y [mm]"
+    assert fig.axes[0].get_aspect() == 1.0
+    # deflections below 0.1 mm: the profile is in micrometres; 20 samples, 20 lines
+    assert fig.axes[1].get_ylabel() == "deflection [µm]"
+    assert len(fig.axes[1].collections[0].get_segments()) == 20
     texts = {t.get_text() for t in fig.legends[0].get_texts()}
     assert {"undeformed", "observed", "MAP", "posterior samples (20)"} <= texts
     # list of snapshots and metres -> mm conversion
     written, fig = plot_interfaces(ref * 1e-3, [obs * 1e-3, _bump(0.12) * 1e-3], None,
-                                   [outdir / "interfaces_snap.png"], zoom=False,
+                                   [outdir / "interfaces_snap.png"], profile=False,
                                    length_unit_factor=1e3, return_figure=True)
     assert len(fig.axes) == 1
     assert fig.axes[0].get_xlim()[1] == pytest.approx(2.1, abs=0.05)  # mm, not m
 
 
-def test_largest_deformation_box_contains_the_largest_deformation():
-    ref, obs = _bump(0.0), _bump(0.1)
-    x0, x1, y0, y1 = largest_deformation_box(ref, obs)
-    d = np.min(np.linalg.norm(obs[:, None] - ref[None], axis=2), axis=1)
-    px, py = obs[np.argmax(d)]
-    assert x0 < px < x1 and y0 < py < y1
-    assert x1 - x0 < 2.0  # a zoom, not the whole interface
+def test_deflection_profile_of_a_normal_offset_is_that_offset_along_the_arc():
+    """A curve moved by a constant distance along the normals of a circle arc (a
+    concentric arc) deflects by exactly that distance everywhere, with the sign of the
+    side (left of the direction of travel = positive); its foot points run along the
+    arc length of the reference."""
+    phi = np.linspace(np.pi, 0.0, 200)  # left to right over the top: normals point out
+    ref = np.column_stack([np.cos(phi), np.sin(phi)])
+    for r, sign in ((1.02, 1.0), (0.97, -1.0)):
+        s, d = deflection_profile(ref, r * ref)
+        assert np.allclose(d, sign * abs(r - 1.0), atol=1e-4)  # chord vs arc: 1e-4
+        assert s[0] == pytest.approx(0.0, abs=1e-3)  # foot on the first chord
+        assert s[-1] == pytest.approx(np.pi, rel=1e-3)
+        assert np.all(np.diff(s) >= 0)
 
 
 def test_interface_residual(outdir):

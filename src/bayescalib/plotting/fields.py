@@ -171,8 +171,15 @@ def plot_fields(
 
 
 def _streamlines(ax, tri: Triangulation, vel: np.ndarray, lo: Sequence[float],
-                 hi: Sequence[float], n: int = 120) -> None:
-    """Streamlines of the piecewise-linear velocity, interpolated to a grid."""
+                 hi: Sequence[float], n: int = 200, n_seeds: int = 12) -> None:
+    """Whole streamlines of the piecewise-linear velocity, interpolated to a grid.
+
+    Lines start at ``n_seeds`` heights spread over the inflow (the first grid column
+    with fluid, in equal steps of the flow rate through it, so that the spacing of the
+    lines shows the speed) and, where the flow turns back (a recirculation behind the
+    biofilm), on a vertical line through the backflow region; each line is followed in
+    both directions to its end (no broken segments).
+    """
     gx = np.linspace(lo[0], hi[0], n)
     gy = np.linspace(lo[1], hi[1], max(8, int(n * (hi[1] - lo[1]) / max(hi[0] - lo[0], 1e-12))))
     X, Y = np.meshgrid(gx, gy)
@@ -180,8 +187,25 @@ def _streamlines(ax, tri: Triangulation, vel: np.ndarray, lo: Sequence[float],
     v = LinearTriInterpolator(tri, vel[:, 1])(X, Y)
     if np.ma.count(u) < 4 or not np.ma.max(np.hypot(u, v)) > 0:
         return
+    fluid = ~np.ma.getmaskarray(u)
+    cols = np.flatnonzero(fluid.any(axis=0))
+    col = cols[min(1, cols.size - 1)]
+    flux = np.where(fluid[:, col], np.abs(u.filled(0.0)[:, col]), 0.0)
+    seeds = []
+    if flux.sum() > 0:
+        cum = np.cumsum(flux) / flux.sum()
+        levels = (np.arange(n_seeds) + 0.5) / n_seeds
+        seeds += [(gx[col], float(np.interp(q, cum, gy))) for q in levels]
+    back = fluid & (u.filled(0.0) < 0)
+    if back.sum() >= 4:
+        xb = float(np.median(X[back]))
+        yb = Y[back]
+        seeds += [(xb, float(y)) for y in np.linspace(yb.min(), yb.max(), 6)[1:-1]]
+    if not seeds:
+        return
     try:
-        ax.streamplot(gx, gy, u, v, color="0.1", linewidth=0.5, density=(1.6, 0.7),
-                      arrowsize=0.6, zorder=3, broken_streamlines=True)
+        ax.streamplot(gx, gy, u, v, color="0.1", linewidth=0.5, start_points=np.array(seeds),
+                      arrowsize=0.6, zorder=3, broken_streamlines=False,
+                      integration_direction="both")
     except ValueError as exc:  # irregular grids or fully masked rows
         warnings.warn(f"streamlines skipped: {exc}", stacklevel=3)

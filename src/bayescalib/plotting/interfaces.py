@@ -2,8 +2,13 @@
 
 * :func:`plot_interfaces` -- undeformed interface (grey dashed), observed
   interface(s) (black), interfaces of posterior samples (thin, transparent),
-  optional MAP interface, equal aspect in mm, with a zoom panel on the region
-  of largest deformation (paper Fig. "contoursamples").
+  optional MAP interface, equal aspect in mm (paper Fig. "contoursamples"),
+  over a second panel with the deflection profile: the signed distance of every
+  curve from the undeformed interface (closest point projection, eq. cppdist)
+  against the arc length of its foot point. At the scale of the flow cell a
+  deformation of a few tens of micrometres and the spread of the posterior
+  samples are invisible; the profile magnifies exactly that, so the samples'
+  band, the observation's noise and a systematic misfit can be read off.
 * :func:`plot_interface_residual` -- interface coloured by a signed scalar
   (e.g. standardized residuals) with a diverging colormap centred at zero,
   for model-form diagnosis.
@@ -24,7 +29,7 @@ from matplotlib.lines import Line2D
 from ._checks import PathsLike, as_array, as_paths, as_points, finish
 from .style import COLORS, DIVERGING_CMAP, paper_style
 
-__all__ = ["largest_deformation_box", "plot_interface_residual", "plot_interfaces"]
+__all__ = ["deflection_profile", "plot_interface_residual", "plot_interfaces"]
 
 
 def _as_curve_list(curves, name: str) -> list[np.ndarray]:
@@ -41,57 +46,36 @@ def _as_curve_list(curves, name: str) -> list[np.ndarray]:
     return out
 
 
-def _min_dist(points: np.ndarray, curve: np.ndarray) -> np.ndarray:
-    """Distance of each point (n, 2) to the polyline ``curve`` (m, 2)."""
-    a, b = curve[:-1], curve[1:]
-    ab = b - a
-    len2 = np.maximum(np.sum(ab * ab, axis=1), 1e-300)
-    ap = points[:, None, :] - a[None, :, :]
-    t = np.clip(np.sum(ap * ab[None], axis=2) / len2[None], 0.0, 1.0)
-    proj = a[None] + t[..., None] * ab[None]
-    return np.sqrt(np.min(np.sum((points[:, None, :] - proj) ** 2, axis=2), axis=1))
-
-
-def largest_deformation_box(reference: np.ndarray, deformed: np.ndarray,
-                            others: Sequence[np.ndarray] = (), rel_width: float = 0.2,
-                            ) -> tuple[float, float, float, float]:
-    """Rectangle around the point of ``deformed`` farthest from ``reference``.
+def deflection_profile(reference: np.ndarray, curve: np.ndarray
+                       ) -> tuple[np.ndarray, np.ndarray]:
+    """Signed distance of ``curve`` from ``reference`` along the reference's arc length.
 
     Parameters
     ----------
     reference : numpy.ndarray, shape (n, 2)
-        Undeformed interface.
-    deformed : numpy.ndarray, shape (m, 2)
-        Deformed interface.
-    others : sequence of (k, 2) arrays
-        Further curves that should fit vertically into the box.
-    rel_width : float
-        Half-width of the box as a fraction of the x extent of both curves;
-        at least three times the maximal deformation.
+        Undeformed interface, an ordered polyline.
+    curve : numpy.ndarray, shape (m, 2)
+        Deformed (or observed) interface points, same length unit.
 
     Returns
     -------
-    (x0, x1, y0, y1) : tuple of float
-        Box limits in the curves' units: the x window is centred at the point
-        of largest deformation, the y window spans all curve points inside the
-        x window (padded by 15 %).
+    s : numpy.ndarray, shape (m,)
+        Arc length of each point's closest point on ``reference``, sorted ascending.
+    d : numpy.ndarray, shape (m,)
+        Signed distance of each point from ``reference``, positive on the side its
+        normal points to (left of the direction of travel: into the fluid for an
+        interface ordered upstream to downstream), in the order of ``s``.
     """
-    dist = _min_dist(deformed, reference)
-    k = int(np.argmax(dist))
-    c = deformed[k]
-    near = reference[np.argmin(np.sum((reference - c) ** 2, axis=1))]
-    cx = 0.5 * (c[0] + near[0])
-    both = np.vstack([reference, deformed])
-    extent = max(float(np.ptp(both[:, 0])), 1e-12)
-    hx = max(rel_width * extent, 3.0 * float(dist[k]), 1e-9)
-    x0, x1 = cx - hx, cx + hx
-    pts = np.vstack([reference, deformed, *others])
-    inside = pts[(pts[:, 0] >= x0) & (pts[:, 0] <= x1)]
-    if inside.shape[0] == 0:
-        inside = np.vstack([c, near])
-    y0, y1 = float(inside[:, 1].min()), float(inside[:, 1].max())
-    pad = 0.15 * max(y1 - y0, 0.05 * hx)
-    return x0, x1, y0 - pad, y1 + pad
+    from bayescalib.interface import Interface
+    from bayescalib.projection import closest_points
+
+    ref = Interface.polyline(reference)
+    signed, foot, cell = closest_points(np.asarray(curve, float), ref)
+    arc = ref.arc_length()
+    start = ref.points[ref.cells[cell, 0]]
+    s = arc[ref.cells[cell, 0]] + np.linalg.norm(foot - start, axis=1)
+    order = np.argsort(s, kind="stable")
+    return s[order], signed[order]
 
 
 def plot_interfaces(
@@ -102,7 +86,7 @@ def plot_interfaces(
     *,
     map_interface: np.ndarray | None = None,
     truth_interface: np.ndarray | None = None,
-    zoom: bool = True,
+    profile: bool = True,
     length_unit_factor: float = 1.0,
     sample_label: str = "posterior samples",
     max_samples: int = 200,
@@ -127,9 +111,10 @@ def plot_interfaces(
         Interface at the MAP estimate (green).
     truth_interface : array_like, shape (k, 2), optional
         Noise-free interface at the ground truth (purple, dotted).
-    zoom : bool
-        Add a second panel magnifying the region of largest deformation of the
-        observed (else MAP, else first sample) interface.
+    profile : bool
+        Add the deflection-profile panel (signed distance from the undeformed
+        interface against arc length, in micrometres when below 0.1 mm, see the
+        module docstring).
     length_unit_factor : float
         Factor converting the input coordinates to mm (1 if already in mm,
         1e3 if in m).
@@ -164,8 +149,7 @@ def plot_interfaces(
         raise ValueError(f"max_samples: must be >= 1, got {max_samples}")
     if len(smp) > max_samples:
         smp = [smp[i] for i in np.linspace(0, len(smp) - 1, max_samples).round().astype(int)]
-    target = obs[-1] if obs else (mp if mp is not None else (smp[0] if smp else None))
-    do_zoom = zoom and target is not None
+    do_profile = profile and bool(obs or smp or mp is not None or tru is not None)
 
     def draw(ax) -> list:
         handles = []
@@ -199,6 +183,34 @@ def plot_interfaces(
         ax.set_ylabel("y [mm]")
         return handles
 
+    def draw_profile(ax) -> None:
+        prof = {"samples": [deflection_profile(ref, c) for c in smp],
+                "observed": [deflection_profile(ref, c) for c in obs],
+                "truth": [] if tru is None else [deflection_profile(ref, tru)],
+                "map": [] if mp is None else [deflection_profile(ref, mp)]}
+        dmax = max((np.abs(d).max() for v in prof.values() for _, d in v), default=0.0)
+        unit, k = ("µm", 1e3) if dmax < 0.1 else ("mm", 1.0)
+        if prof["samples"]:
+            ax.add_collection(LineCollection(
+                [np.column_stack([s_, k * d]) for s_, d in prof["samples"]],
+                colors=COLORS["samples"], linewidths=0.6,
+                alpha=max(0.1, min(0.6, 10.0 / len(smp))), zorder=2))
+        for j, (s_, d) in enumerate(prof["observed"]):
+            last = j == len(prof["observed"]) - 1
+            ax.plot(s_, k * d, ls="none", marker="o", ms=1.6, color=COLORS["observed"],
+                    alpha=1.0 if last else 0.3, zorder=4)
+        for (s_, d) in prof["truth"]:
+            ax.plot(s_, k * d, color=COLORS["truth"], ls=":", lw=1.4, zorder=5)
+        for (s_, d) in prof["map"]:
+            ax.plot(s_, k * d, color=COLORS["map"], lw=1.3, zorder=5)
+        ax.axhline(0.0, color=COLORS["reference"], ls="--", lw=1.0, zorder=1)
+        ax.set_xlim(0.0, float(np.sum(np.linalg.norm(np.diff(ref, axis=0), axis=1))))
+        ax.autoscale(axis="y")
+        ax.set_xlabel("arc length along the undeformed interface [mm]")
+        ax.set_ylabel(f"deflection [{unit}]")
+        ax.set_title("deflection normal to the undeformed interface "
+                     "(+ to the left of its direction)", fontsize=8, loc="left")
+
     allpts = np.vstack([ref] + obs + smp + ([mp] if mp is not None else [])
                        + ([tru] if tru is not None else []))
     lo, hi = allpts.min(axis=0), allpts.max(axis=0)
@@ -207,27 +219,17 @@ def plot_interfaces(
         span = (hi - lo) + 2 * pad
         width = 6.0
         h_main = float(np.clip(width * span[1] / max(span[0], 1e-12), 0.8, 5.0))
-        if do_zoom:
-            x0, x1, y0, y1 = largest_deformation_box(
-                ref, target, [c for c in obs + smp + [mp, tru] if c is not None])
-            h_zoom = float(np.clip(width * (y1 - y0) / (x1 - x0), 0.8, 4.0))
+        h_prof = 2.2 if do_profile else 0.0
+        fig = Figure(figsize=(width, h_main + h_prof + 1.0), layout="constrained")
+        if do_profile:
+            ax, axp = fig.subplots(2, 1, height_ratios=(h_main, h_prof))
         else:
-            h_zoom = 0.0
-        fig = Figure(figsize=(width, h_main + h_zoom + 1.2), layout="compressed")
-        if do_zoom:
-            ax, axz = fig.subplots(2, 1, height_ratios=(h_main, h_zoom))
-        else:
-            ax, axz = fig.add_subplot(), None
+            ax, axp = fig.add_subplot(), None
         handles = draw(ax)
         ax.set_xlim(lo[0] - pad, hi[0] + pad)
         ax.set_ylim(lo[1] - pad, hi[1] + pad)
-        if axz is not None:
-            draw(axz)
-            axz.set_xlim(x0, x1)
-            axz.set_ylim(y0, y1)
-            axz.set_title("zoom: region of largest deformation", fontsize=8)
-            ax.indicate_inset((x0, y0, x1 - x0, y1 - y0), inset_ax=None,
-                              edgecolor="0.3", linewidth=0.8)
+        if axp is not None:
+            draw_profile(axp)
         fig.legend(handles=handles, loc="outside lower center",
                    ncols=min(len(handles), 3), frameon=False)
         if title:

@@ -28,7 +28,7 @@ from ._checks import (
     finish,
 )
 from ._draw import check_prior_pdf, draw_hexbin, draw_hpd_contours, draw_marginal, level_text
-from .gaussian import ellipse_points
+from .gaussian import ellipse_points, mass_outside_box
 from .style import COLORS, axis_label, density_unit_label, paper_style
 
 __all__ = ["plot_joint_posterior"]
@@ -167,8 +167,11 @@ def plot_joint_posterior(
             for k, p in enumerate(ell_levels):
                 pts = ellipse_points(approx[0], approx[1], float(p))
                 ax.plot(pts[:, 0], pts[:, 1], color=COLORS[key], lw=1.4, ls=styles[k % 4])
-            handles.append(Line2D([], [], color=COLORS[key], lw=1.4,
-                                  label=f"{lab} ({', '.join(level_text(p) for p in ell_levels)})"))
+            label = f"{lab} ({', '.join(level_text(p) for p in ell_levels)})"
+            out = mass_outside_box(approx[0], approx[1], b)
+            if out >= 0.005:
+                label += f"\n  {100 * out:.0f} % of its mass outside the box: clipped"
+            handles.append(Line2D([], [], color=COLORS[key], lw=1.4, label=label))
 
         markers = []
         if mean_ is not None:

@@ -171,8 +171,8 @@ def plot_parallel_axes(
                 yy = (t - lo) / (hi - lo)
                 ax.plot([k - 0.04, k], [yy, yy], color="k", lw=0.8, zorder=3)
                 ax.text(k - 0.06, yy, f"{t:.4g}", ha="right", va="center", fontsize=6.5,
-                        zorder=4, bbox={"facecolor": "white", "edgecolor": "none",
-                                        "alpha": 0.7, "pad": 0.3})
+                        zorder=4, bbox={"facecolor": "white", "edgecolor": "0.6",
+                                        "linewidth": 0.3, "alpha": 1.0, "pad": 0.8})
         ax.set_xlim(-0.45, m - 1 + 0.15)
         ax.set_ylim(-0.04, 1.04)
         ax.set_xticks(xs, labels, rotation=25 if m > 5 else 0,
