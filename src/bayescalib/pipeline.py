@@ -93,11 +93,18 @@ def read_json(path: str | Path) -> Any:
 
 
 def setup_logging(path: str | Path | None) -> None:
-    """Send the library's log records to ``path`` (a rule's log file) and stderr."""
+    """Send the library's log records to ``path`` (a rule's log file) and stderr.
+
+    With a log file (a job of the workflow), the console gets warnings and errors only:
+    a study runs thousands of jobs, and their information is in their logs.
+    """
     root = logging.getLogger("bayescalib")
     root.setLevel(logging.INFO)
     fmt = logging.Formatter("%(asctime)s %(levelname)s %(message)s")
-    handlers: list[logging.Handler] = [logging.StreamHandler()]
+    console = logging.StreamHandler()
+    if path is not None:
+        console.setLevel(logging.WARNING)
+    handlers: list[logging.Handler] = [console]
     if path is not None:
         Path(path).parent.mkdir(parents=True, exist_ok=True)
         handlers.append(logging.FileHandler(path, mode="w"))
