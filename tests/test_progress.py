@@ -30,12 +30,12 @@ def test_time_left_is_the_pace_so_far_times_the_steps_left():
     assert progress_line(40, 40, 75.0) == "40 of 40 steps (100 %) done in 1 min 15 s"
 
 
-def _handler(verbose=False):
+def _handler(verbose=False, dryrun=False):
     from snakemake_logger_plugin_bayescalib import LogHandler
 
     settings = SimpleNamespace(printshellcmds=False, nocolor=True, quiet=set(), debug_dag=False,
                                verbose=verbose, show_failed_logs=True, stdout=False,
-                               dryrun=False)
+                               dryrun=dryrun)
     h = LogHandler(settings, None)
     h._inner.stream = io.StringIO()
     return h
@@ -69,6 +69,10 @@ def test_console_leaves_out_per_job_blocks_and_shows_progress_with_time_left():
     hv = _handler(verbose=True)
     hv.handle(_record("Select jobs to execute..."))
     assert "Select jobs to execute..." in hv._inner.stream.getvalue()
+    # a dry run is read for its jobs: the blocks stay
+    hd = _handler(dryrun=True)
+    hd.handle(job)
+    assert "runs/3.h5" in hd._inner.stream.getvalue()
 
 
 def test_the_default_profile_uses_the_plugin_and_two_cores():

@@ -5,8 +5,8 @@ profile sets it): Snakemake's own console output, quieter and with the time left
   thousands in a large study) are not printed; each job's log file under
   ``results/<study>/logs/`` holds what the job did. Errors, failed jobs with their log
   (``show-failed-logs``), warnings and the run summary are printed as before.
-  The scheduler's "Select jobs to execute..." is left out too. ``--verbose`` brings
-  all of it back. The jobs themselves print warnings and errors only (their
+  The scheduler's "Select jobs to execute..." is left out too. ``--verbose``, and a dry run
+  (``-n``, read for its jobs), bring all of it back. The jobs themselves print warnings and errors only (their
   information goes to their log file, :func:`bayescalib.pipeline.setup_logging`).
 * The progress line carries an estimate of the time left
   (:func:`bayescalib.progress.progress_line`).
@@ -54,7 +54,7 @@ class LogHandler(LogHandlerBase):
         self._inner = ColorizingTextHandler(
             nocolor=cs.nocolor, stream=sys.stdout if cs.stdout else sys.stderr,
             formatter=_Formatter(cs.quiet, cs.show_failed_logs))
-        verbose = bool(cs.verbose)
+        verbose = bool(cs.verbose) or bool(cs.dryrun)  # a dry run is read for its jobs
 
         def _quiet_jobs(record: logging.LogRecord) -> bool:
             event = getattr(record, "event", None)
