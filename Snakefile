@@ -76,6 +76,16 @@ onstart:
         hold_run_lock(R, study.name)
     except StudyBusyError as exc:
         raise WorkflowError(f"bayescalib: {exc}") from None
+    # the warm process that runs the per-point jobs (solve, discrepancy) of a local
+    # run; without it (cluster, or it did not start) the jobs run in-process
+    # (BAYESCALIB_JOBSERVER=off: every job in its own fresh interpreter)
+    if workflow.local_exec and not workflow.dryrun and os.environ.get(
+            "BAYESCALIB_JOBSERVER") != "off":
+        from bayescalib.jobserver import SOCKET_ENV, start_server
+
+        _sock = start_server(R)
+        if _sock is not None:
+            os.environ[SOCKET_ENV] = _sock
 
 wildcard_constraints:
     i=r"\d+",

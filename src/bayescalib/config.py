@@ -93,6 +93,13 @@ def _registry():
     return Registry().with_resources(resources_)
 
 
+def load_schemas() -> None:
+    """Read and compile the packaged schemas now (they are cached per process): a
+    process that forks many validating children, the job server, calls it once."""
+    _registry()
+    _validator_class()
+
+
 def schema(name: str) -> dict[str, Any]:
     """The schema ``name`` (e.g. ``"fsi"`` for ``fsi.schema.yaml``)."""
     return copy.deepcopy(_load_schema_file(f"{name}.schema.yaml"))

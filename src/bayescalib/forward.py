@@ -41,11 +41,13 @@ import sys
 import time
 import traceback
 from collections.abc import Mapping, Sequence
+from functools import partial
 from pathlib import Path
 from typing import Any, Protocol
 
 import numpy as np
 
+from bayescalib._process import die_with_parent
 from bayescalib.runrecord import LoadingResult, SolveResult, write_run
 
 log = logging.getLogger(__name__)
@@ -194,17 +196,6 @@ _ARG_FIELD = re.compile(r"\{([A-Za-z_][A-Za-z0-9_.]*)\}")
 _PLAIN_NAME = re.compile(r"[A-Za-z0-9_-][A-Za-z0-9_.-]*")
 
 
-def _die_with_parent() -> None:  # pragma: no cover - runs in the child before exec
-    """Linux: SIGKILL this process when the solve process that started it dies."""
-    import contextlib
-
-    with contextlib.suppress(Exception):  # best effort (not Linux)
-        import ctypes
-        import signal
-
-        ctypes.CDLL(None, use_errno=True).prctl(1, int(signal.SIGKILL))  # PR_SET_PDEATHSIG
-
-
 def _run_command(argv: list[str], cwd: Path, log: Path, time_limit_s: float) -> tuple[int, str]:
     """Run ``argv`` (no shell) in its own session with stdout/stderr to ``log``.
 
@@ -220,7 +211,7 @@ def _run_command(argv: list[str], cwd: Path, log: Path, time_limit_s: float) -> 
         try:
             proc = subprocess.Popen(argv, cwd=cwd, stdout=fh, stderr=subprocess.STDOUT,
                                     stdin=subprocess.DEVNULL, start_new_session=True,
-                                    preexec_fn=_die_with_parent)  # noqa: PLW1509 - no threads start in the child
+                                    preexec_fn=partial(die_with_parent, os.getpid()))  # noqa: PLW1509 - no threads start in the child
         except (OSError, ValueError, subprocess.SubprocessError) as exc:
             return -1, f"command could not be started: {exc}"
         timed_out = False
@@ -558,7 +549,8 @@ def make_forward_model(fm: Mapping[str, Any], *, workdir: str | Path = ".",
 
 
 def _child(fm: Mapping[str, Any], params: Mapping[str, float], workdir: str,
-           warm_start: str | None, extra: Mapping[str, str], conn) -> None:
+           warm_start: str | None, extra: Mapping[str, str], conn, parent: int) -> None:
+    die_with_parent(parent)  # a killed job takes its solve with it
     try:
         model = make_forward_model(fm, workdir=workdir, warm_start=warm_start,
                                    extra_outputs=extra)
@@ -581,7 +573,8 @@ class _Solve:
         self.conn, child = ctx.Pipe(duplex=False)
         self.proc = ctx.Process(target=_child, args=(dict(fm), dict(params), str(workdir),
                                                      None if warm_start is None else str(warm_start),
-                                                     dict(extra_outputs or {}), child))
+                                                     dict(extra_outputs or {}), child,
+                                                     os.getpid()))
         self.t0 = time.perf_counter()
         self.proc.start()
         child.close()

@@ -15,7 +15,7 @@ __all__ = ["format_duration", "progress_line"]
 
 def format_duration(seconds: float) -> str:
     """A duration in words a person reads at a glance: '45 s', '3 min 20 s', '1 h 05 min'."""
-    s = max(0, int(round(seconds)))
+    s = max(0, round(seconds))
     if s < 60:
         return f"{s} s"
     if s < 3600:

@@ -5,9 +5,10 @@ profile sets it): Snakemake's own console output, quieter and with the time left
   thousands in a large study) are not printed; each job's log file under
   ``results/<study>/logs/`` holds what the job did. Errors, failed jobs with their log
   (``show-failed-logs``), warnings and the run summary are printed as before.
-  The scheduler's "Select jobs to execute..." is left out too. ``--verbose``, and a dry run
-  (``-n``, read for its jobs), bring all of it back. The jobs themselves print warnings and errors only (their
-  information goes to their log file, :func:`bayescalib.pipeline.setup_logging`).
+  The scheduler's "Select jobs to execute..." is left out too. ``--verbose``, and a
+  dry run (``-n``, read for its jobs), bring all of it back. The jobs themselves print
+  warnings and errors only (their information goes to their log file,
+  :func:`bayescalib.pipeline.setup_logging`).
 * The progress line carries an estimate of the time left
   (:func:`bayescalib.progress.progress_line`).
 """
@@ -46,7 +47,7 @@ class LogHandler(LogHandlerBase):
         init = time.monotonic()
 
         class _Formatter(DefaultFormatter):
-            def format_progress(self, msg):  # noqa: D102 (Snakemake's hook)
+            def format_progress(self, msg):  # Snakemake's hook
                 now = time.monotonic()
                 start = t0[0] if t0[0] is not None else init
                 return progress_line(int(msg["done"]), int(msg["total"]), now - start)

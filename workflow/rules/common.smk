@@ -3,6 +3,8 @@
 # read until the DAG asks for it (checkpoints are consulted lazily).
 
 import json as _json
+import sys
+from pathlib import Path
 
 
 # ---- Observations
@@ -92,6 +94,31 @@ def _solve_inputs(wildcards):
     if src is not None:
         out["chosen_by"] = ancient(src)
     return out
+
+
+# ---- Per-point jobs through the run's job server (bayescalib.jobserver)
+# The rules solve and discrepancy run `scripts/job.py`, a standard-library client that
+# hands the job (its params as Python literals, formatted by Snakemake) to the warm
+# server started in onstart, or runs it in-process when there is none. The command is
+# built here, so that the rules' code (Snakemake's rerun trigger) does not hold paths
+# of this machine.
+
+import shlex as _shlex
+
+_CONDA = any(getattr(m, "name", str(m)).lower() == "conda"
+             for m in getattr(workflow.deployment_settings, "deployment_method", ()))
+_PYTHON = "python" if _CONDA else sys.executable
+JOB = f"{_shlex.quote(_PYTHON)} -I -S {_shlex.quote(str(Path(workflow.basedir) / 'scripts' / 'job.py'))}"
+SOLVE_JOB = (
+    JOB + " solve log {log:q} out {output:q} forward_model {params.forward_model:q}"
+    " point {params.point:q}"
+    + (" base {input.base:q}" if study.config["forward_model"]["warm_start"] == "prior_centre" else "")
+)
+DISCREPANCY_JOB = (
+    JOB + " discrepancy log {log:q} out {output:q} run {input.run:q} obs {input.obs:q}"
+    " measure_name {wildcards.measure:q} measure {params.measure:q}"
+    " likelihood {params.likelihood:q}"
+)
 
 
 # ---- Discrepancies

@@ -22,8 +22,8 @@ rule discrepancy:
     resources:
         runtime=5,
         mem_mb=1000,
-    script:
-        "../../scripts/discrepancy.py"
+    shell:
+        DISCREPANCY_JOB
 
 
 rule gather:

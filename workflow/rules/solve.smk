@@ -47,5 +47,5 @@ rule solve:
         mem_mb=2000,
     group:
         "solves"
-    script:
-        "../../scripts/solve.py"
+    shell:
+        SOLVE_JOB

@@ -1,0 +1,178 @@
+"""Where a study's time goes: whole-run wall time against the physics, per stage.
+
+Runs each study end to end with ``snakemake --cores 2`` in a scratch copy of the
+repository, once per execution mode, side by side in one run of this script:
+
+* ``server``: the default, per-point jobs (solve, discrepancy) handed to the run's
+  warm job server (``bayescalib.jobserver``);
+* ``fresh``: every job in a fresh interpreter (``BAYESCALIB_JOBSERVER=off``): the
+  same code, paying the imports per job;
+* ``before``: with ``--before REV``, the repository at git revision REV (e.g. the
+  commit before the job server), run the same way.
+
+Studies: ``default`` (config/config.yaml: FSI, active design) and ``python64`` (the
+analytic stand-in model as a ``python`` forward model, a fixed design of 64 points,
+no fields figure): its physics costs about a millisecond a point, so its run time is
+nearly all overhead.
+
+Figures per study and mode: wall time of the whole run; the physics summed over the
+run (solves: each run record's own ``wall_time``; discrepancies: every point's
+discrepancy recomputed in this process after a warm-up, i.e. the in-process cost);
+per stage (solve, discrepancy, and the per-round stages): the median job wall time
+from Snakemake's ``benchmark:`` files, the median in-process work, their ratio and
+the overhead per job (median job wall minus median in-process work).
+
+Usage::
+
+    python benchmarks/bench_pipeline.py [--studies default,python64]
+        [--modes server,fresh] [--before REV] [--keep DIR]
+
+Prints a table per study and a final one-line JSON summary. No assertions. Run it on
+a quiet machine: the figures are wall times.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import yaml
+
+REPO = Path(__file__).resolve().parents[1]
+
+PYTHON64 = {
+    "study": "python64",
+    "forward_model": {"type": "python",
+                      "python": {"function": "bayescalib.analytic_model:interface"}},
+    "likelihood": {"sigma_n": 0.002},
+    "design": {"strategy": "fixed", "n_train": 64, "seed": 1},
+    "plots": {"fields": False, "formats": ["png"]},
+}
+
+
+def _copy_repo(rev: str | None, dest: Path) -> Path:
+    """The working tree (rev None) or a git revision, without results."""
+    if rev is None:
+        ignore = shutil.ignore_patterns(".git", ".venv", "results", ".snakemake", "__pycache__",
+                                        "*.egg-info")
+        shutil.copytree(REPO, dest, ignore=ignore, symlinks=True)
+    else:
+        dest.mkdir(parents=True)
+        archive = subprocess.run(["git", "-C", str(REPO), "archive", rev], check=True,
+                                 capture_output=True).stdout
+        subprocess.run(["tar", "-x", "-C", str(dest)], input=archive, check=True)
+    return dest
+
+
+def _run_study(tree: Path, study: str, env_extra: dict[str, str]) -> dict:
+    args = []
+    if study == "python64":
+        (tree / "config" / "python64.yaml").write_text(yaml.safe_dump(PYTHON64))
+        args = ["--configfile", "config/python64.yaml"]
+    env = {**os.environ, "PYTHONPATH": str(tree / "src"), **env_extra}
+    t0 = time.perf_counter()
+    proc = subprocess.run([sys.executable, "-m", "snakemake", "--cores", "2", *args],
+                          check=False, cwd=tree, env=env, capture_output=True, text=True)
+    wall = time.perf_counter() - t0
+    if proc.returncode != 0:
+        raise RuntimeError(f"{study} failed in {tree}:\n{proc.stderr[-3000:]}")
+    root = tree / "results" / study
+    return {"wall_s": wall, "root": root}
+
+
+def _job_walls(root: Path) -> dict[str, list[float]]:
+    """Median-able job wall times per stage from Snakemake's benchmark files."""
+    out: dict[str, list[float]] = {}
+    for tsv in (root / "benchmarks").rglob("*.tsv"):
+        stage = tsv.relative_to(root / "benchmarks").parts[0].removesuffix(".tsv")
+        lines = tsv.read_text().splitlines()
+        if len(lines) >= 2:
+            out.setdefault(stage, []).append(float(lines[1].split("\t")[0]))
+    return out
+
+
+def _physics(root: Path, study_cfg: dict) -> dict[str, list[float]]:
+    """In-process cost per point: solve (its record's wall time), discrepancy (recomputed
+    here, warm)."""
+    from bayescalib.pipeline import discrepancy
+    from bayescalib.runrecord import read_run
+
+    runs = sorted(p for p in (root / "runs").glob("[0-9]*.h5"))
+    solve = [read_run(p).wall_time for p in runs]
+    disc = []
+    obs = root / "observations" / "observations.h5"
+    with tempfile.TemporaryDirectory() as tmp:
+        for k, p in enumerate([runs[0], *runs]):  # the first call warms up
+            t0 = time.perf_counter()
+            discrepancy(p, obs, study_cfg["measures"][0],
+                        study_cfg["measure"], study_cfg["likelihood"], Path(tmp) / f"{k}.json")
+            if k:
+                disc.append(time.perf_counter() - t0)
+    return {"solve": solve, "discrepancy": disc}
+
+
+def _study_config(tree: Path, study: str) -> dict:
+    from bayescalib.config import load_yaml, merge_layers
+    from bayescalib.study import Study
+
+    layers = [load_yaml(tree / "config" / "config.yaml")]
+    if study == "python64":
+        layers.append(PYTHON64)
+    return Study(merge_layers(layers)).config
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--studies", default="default,python64")
+    ap.add_argument("--modes", default="server,fresh")
+    ap.add_argument("--before", default=None, help="git revision to run as mode 'before'")
+    ap.add_argument("--keep", default=None, help="keep the scratch trees in this folder")
+    a = ap.parse_args()
+    modes = [m for m in a.modes.split(",") if m] + (["before"] if a.before else [])
+    base = Path(a.keep or tempfile.mkdtemp(prefix="bench_pipeline_"))
+    base.mkdir(parents=True, exist_ok=True)
+    summary: dict = {}
+    for study in a.studies.split(","):
+        summary[study] = {}
+        for mode in modes:
+            tree = _copy_repo(a.before if mode == "before" else None, base / f"{study}_{mode}")
+            env = {"BAYESCALIB_JOBSERVER": "off"} if mode == "fresh" else {}
+            res = _run_study(tree, study, env)
+            cfg = _study_config(tree, study)
+            walls = _job_walls(res["root"])
+            phys = _physics(res["root"], cfg)
+            row = {"wall_s": round(res["wall_s"], 1),
+                   "physics_s": round(sum(phys["solve"]) + sum(phys["discrepancy"]), 1),
+                   "stages": {}}
+            for stage, w in sorted(walls.items()):
+                entry = {"jobs": len(w), "job_median_s": round(statistics.median(w), 3)}
+                if phys.get(stage):
+                    work = statistics.median(phys[stage])
+                    entry.update(work_median_s=round(work, 3),
+                                 ratio=round(statistics.median(w) / work, 2),
+                                 overhead_s=round(statistics.median(w) - work, 3))
+                row["stages"][stage] = entry
+            summary[study][mode] = row
+            print(f"\n{study} / {mode}: whole run {row['wall_s']:.1f} s, physics "
+                  f"{row['physics_s']:.1f} s (solves + discrepancies, in-process)")
+            print(f"  {'stage':<16} {'jobs':>5} {'job median':>11} {'in-process':>11} "
+                  f"{'ratio':>6} {'overhead':>9}")
+            for stage, e in row["stages"].items():
+                extra = (f"{e['work_median_s']:>10.3f}s {e['ratio']:>6.2f} "
+                         f"{e['overhead_s']:>8.3f}s") if "ratio" in e else ""
+                print(f"  {stage:<16} {e['jobs']:>5} {e['job_median_s']:>10.3f}s {extra}")
+            if not a.keep:
+                shutil.rmtree(tree, ignore_errors=True)
+    print("\n" + json.dumps(summary))
+
+
+if __name__ == "__main__":
+    main()

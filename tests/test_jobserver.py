@@ -1,0 +1,211 @@
+"""The warm job server of a local run (bayescalib.jobserver, scripts/job.py).
+
+Specification: a per-point job handed to the server gives exactly the files the same
+job gives in a fresh interpreter; a failing job exits non-zero with its error in its
+log; a crashing model is a failed run record; a job whose client goes away is killed;
+when the run's Snakemake process dies, the server and its jobs end with it."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+from _workflow_helpers import REPO
+
+from bayescalib.runrecord import read_run
+from bayescalib.study import Study
+
+CLIENT = [sys.executable, "-I", "-S", str(REPO / "scripts" / "job.py")]
+STUDY = "results/analytic"
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    try:  # a zombie is gone for our purpose
+        with open(f"/proc/{pid}/stat") as fh:
+            return fh.read().split(")")[-1].split()[0] != "Z"
+    except FileNotFoundError:
+        return False
+
+
+def _wait_gone(pid: int, timeout: float = 10.0) -> bool:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if not _alive(pid):
+            return True
+        time.sleep(0.05)
+    return False
+
+
+@pytest.fixture
+def server(tmp_path):
+    """A job server on a socket in tmp_path (python models importable from tmp_path)."""
+    sock = str(tmp_path / "s.sock")
+    env = {**os.environ, "PYTHONPATH": str(tmp_path), "OPENBLAS_NUM_THREADS": "1"}
+    proc = subprocess.Popen([sys.executable, "-m", "bayescalib.jobserver", "--serve", sock],
+                            cwd=tmp_path, env=env, stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True)
+    deadline = time.monotonic() + 60
+    while not os.path.exists(sock):
+        assert proc.poll() is None, proc.stdout.read()
+        assert time.monotonic() < deadline, "job server did not come up"
+        time.sleep(0.05)
+    yield sock
+    proc.terminate()
+    proc.wait(timeout=10)
+
+
+def _job(sock: str | None, cwd: Path, stage: str, **args: str) -> subprocess.CompletedProcess:
+    env = {k: v for k, v in os.environ.items() if k != "BAYESCALIB_JOBSERVER"}
+    env["PYTHONPATH"] = str(cwd)
+    if sock is not None:
+        env["BAYESCALIB_JOBSERVER"] = sock
+    argv = [x for kv in args.items() for x in kv]
+    return subprocess.run([*CLIENT, stage, *argv], check=False, cwd=cwd, env=env,
+                          capture_output=True, text=True, timeout=120)
+
+
+def _solve_args(study: Study, i: int, out: str) -> dict[str, str]:
+    return {"log": f"logs/{i}.log", "out": out, "forward_model": repr(study.forward_section()),
+            "point": repr(study.point(i))}
+
+
+def test_jobs_through_the_server_equal_jobs_in_a_fresh_interpreter(done_run, base_study,
+                                                                   tmp_path, server):
+    tmp = tmp_path / "run"
+    shutil.copytree(done_run, tmp, symlinks=True)
+    study = Study(base_study)
+    root = tmp / STUDY
+    for i in (0, 3):
+        for label, sock in (("server", server), ("fresh", None)):
+            out = f"{STUDY}/check/{label}{i}.h5"
+            proc = _job(sock, tmp, "solve", **_solve_args(study, i, out))
+            assert proc.returncode == 0, proc.stderr
+            mine, ref = read_run(tmp / out), read_run(root / "runs" / f"{i}.h5")
+            assert mine.status == ref.status
+            assert (mine.interface_current == ref.interface_current).all()
+            disc = f"{STUDY}/check/{label}{i}.json"
+            proc = _job(sock, tmp, "discrepancy", log=f"logs/d{label}{i}.log", out=disc,
+                        run=f"{STUDY}/runs/{i}.h5", obs=f"{STUDY}/observations/observations.h5",
+                        measure_name="rkhs", measure=repr(study.config["measure"]),
+                        likelihood=repr(study.config["likelihood"]))
+            assert proc.returncode == 0, proc.stderr
+            assert json.loads((tmp / disc).read_text()) == \
+                json.loads((root / "discrepancy" / "rkhs" / f"{i}.json").read_text())
+
+
+def test_a_failing_job_exits_nonzero_with_its_error_in_its_log(tmp_path, server, base_study):
+    study = Study(base_study)
+    proc = _job(server, tmp_path, "discrepancy", log="logs/d.log", out="d.json",
+                run="missing.h5", obs="missing_obs.h5", measure_name="rkhs",
+                measure=repr(study.config["measure"]),
+                likelihood=repr(study.config["likelihood"]))
+    assert proc.returncode == 1
+    assert "missing.h5" in proc.stderr  # the job's stderr is the client's
+    assert "missing.h5" in (tmp_path / "logs" / "d.log").read_text()
+    assert not (tmp_path / "d.json").exists()
+    unknown = _job(server, tmp_path, "no_such_stage")
+    assert unknown.returncode == 1 and "unknown job stage 'no_such_stage'" in unknown.stderr
+
+
+CRASHING = """
+import ctypes, os, time
+def segfault(params, **kw):
+    ctypes.string_at(0)
+def leave(params, **kw):
+    os._exit(3)
+def hang(params, **kw):
+    with open("pid.txt", "w") as fh:
+        fh.write(str(os.getpid()))
+    time.sleep(120)
+"""
+
+
+@pytest.mark.parametrize("function", ["segfault", "leave"])
+def test_a_crashing_model_is_a_failed_record_and_the_job_succeeds(tmp_path, server, base_study,
+                                                                  function):
+    (tmp_path / "crashing.py").write_text(CRASHING)
+    cfg = json.loads(json.dumps(base_study))
+    cfg["forward_model"]["python"] = {"function": f"crashing:{function}"}
+    study = Study(cfg)
+    proc = _job(server, tmp_path, "solve", **_solve_args(study, 0, "run.h5"))
+    assert proc.returncode == 0, proc.stderr
+    run = read_run(tmp_path / "run.h5")
+    assert run.status == "failed" and "solver process died" in run.reason
+
+
+def test_a_job_whose_client_goes_away_is_killed_with_its_solve(tmp_path, server, base_study):
+    (tmp_path / "crashing.py").write_text(CRASHING)
+    cfg = json.loads(json.dumps(base_study))
+    cfg["forward_model"]["python"] = {"function": "crashing:hang"}
+    cfg["forward_model"]["time_limit_s"] = 300
+    study = Study(cfg)
+    env = {**os.environ, "BAYESCALIB_JOBSERVER": server, "PYTHONPATH": str(tmp_path)}
+    args = _solve_args(study, 0, "run.h5")
+    client = subprocess.Popen([*CLIENT, "solve", *[x for kv in args.items() for x in kv]],
+                              cwd=tmp_path, env=env)
+    pidfile = tmp_path / "pid.txt"
+    deadline = time.monotonic() + 60
+    while not (pidfile.exists() and pidfile.read_text()):
+        assert time.monotonic() < deadline and client.poll() is None
+        time.sleep(0.05)
+    solver = int(pidfile.read_text())
+    assert _alive(solver)
+    client.kill()  # Snakemake cancels the job
+    client.wait()
+    assert _wait_gone(solver), "the solve of a cancelled job lives on"
+    assert not (tmp_path / "run.h5").exists()
+
+
+def test_the_server_and_its_jobs_end_when_the_run_is_killed(tmp_path, base_study):
+    """The run's Snakemake process is killed alone (kill -9 PID): its server notices,
+    kills the jobs it runs (and their solves) and exits; nothing is left holding the
+    study's job lock."""
+    (tmp_path / "crashing.py").write_text(CRASHING)
+    cfg = json.loads(json.dumps(base_study))
+    cfg["forward_model"]["python"] = {"function": "crashing:hang"}
+    cfg["forward_model"]["time_limit_s"] = 300
+    study = Study(cfg)
+    code = ("import sys, time\nfrom bayescalib.jobserver import start_server\n"
+            "print(start_server(sys.argv[1]), flush=True)\ntime.sleep(600)\n")
+    run = subprocess.Popen(
+        [sys.executable, "-c", code, str(tmp_path / "root")],
+        cwd=tmp_path, env={**os.environ, "PYTHONPATH": str(tmp_path)}, stdout=subprocess.PIPE,
+        text=True)
+    sock = run.stdout.readline().strip()
+    assert sock and os.path.exists(sock), sock
+    args = _solve_args(study, 0, "run.h5")
+    client = subprocess.Popen([*CLIENT, "solve", *[x for kv in args.items() for x in kv]],
+                              cwd=tmp_path, env={**os.environ, "BAYESCALIB_JOBSERVER": sock,
+                                                 "PYTHONPATH": str(tmp_path)})
+    pidfile = tmp_path / "pid.txt"
+    deadline = time.monotonic() + 60
+    while not (pidfile.exists() and pidfile.read_text()):
+        assert time.monotonic() < deadline and client.poll() is None
+        time.sleep(0.05)
+    solver = int(pidfile.read_text())
+    run.send_signal(signal.SIGKILL)
+    run.wait()
+    assert _wait_gone(solver), "a solve outlives its killed run"
+    assert client.wait(timeout=10) != 0  # the client hears that its server went away
+    deadline = time.monotonic() + 10
+    while os.path.exists(sock) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert not os.path.exists(sock)
+
+
+@pytest.mark.workflow
+def test_a_local_run_hands_its_per_point_jobs_to_the_server(done_run):
+    log = (done_run / STUDY / "logs" / "jobserver.log").read_text()
+    n = int(log.split("jobserver: ")[-1].split(" jobs run")[0])
+    assert n >= 16, log  # 8 solves and 8 discrepancies
