@@ -79,13 +79,10 @@ onstart:
     # the warm process that runs the per-point jobs (solve, discrepancy) of a local
     # run; without it (cluster, or it did not start) the jobs run in-process
     # (BAYESCALIB_JOBSERVER=off: every job in its own fresh interpreter)
-    if workflow.local_exec and not workflow.dryrun and os.environ.get(
-            "BAYESCALIB_JOBSERVER") != "off":
-        from bayescalib.jobserver import SOCKET_ENV, start_server
+    if workflow.local_exec and not workflow.dryrun:
+        from bayescalib.jobserver import start_server
 
-        _sock = start_server(R)
-        if _sock is not None:
-            os.environ[SOCKET_ENV] = _sock
+        start_server(R)
 
 wildcard_constraints:
     i=r"\d+",
@@ -97,6 +94,9 @@ report: "workflow/report/workflow.rst"
 
 
 onsuccess:
+    from bayescalib.jobserver import stop_server
+
+    stop_server()  # its log is complete when the run returns
     # one plain line: the posterior, whether it converged, the solves used
     from pathlib import Path as _Path
 
@@ -108,6 +108,12 @@ onsuccess:
         print(run_line(_s), flush=True)
         if (_s.get("design") or {}).get("converged") is False:
             print(f"WARNING: {_s['design']['reason']}", flush=True)
+
+onerror:
+    from bayescalib.jobserver import stop_server
+
+    stop_server()
+
 
 include: "workflow/rules/common.smk"
 include: "workflow/rules/observe.smk"

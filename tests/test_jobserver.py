@@ -209,3 +209,30 @@ def test_a_local_run_hands_its_per_point_jobs_to_the_server(done_run):
     log = (done_run / STUDY / "logs" / "jobserver.log").read_text()
     n = int(log.split("jobserver: ")[-1].split(" jobs run")[0])
     assert n >= 16, log  # 8 solves and 8 discrepancies
+
+
+@pytest.mark.workflow
+def test_a_moved_checkout_reruns_nothing(done_run, tmp_path):
+    """The per-point rules' shell commands name no path of this machine (interpreter,
+    client script): the same results with the workflow in another folder, run by
+    another interpreter path, are up to date (Snakemake reruns a shell rule whose
+    command text changed)."""
+    import subprocess as sp
+
+    moved = tmp_path / "elsewhere" / "checkout"
+    moved.mkdir(parents=True)
+    shutil.copy(REPO / "Snakefile", moved / "Snakefile")
+    for d in ("workflow", "scripts"):
+        shutil.copytree(REPO / d, moved / d, symlinks=True)
+    tmp = tmp_path / "run"
+    shutil.copytree(done_run, tmp, symlinks=True)
+    python = sys.executable
+    if sys.prefix != sys.base_prefix:  # a venv: reach the same one by another path
+        link = tmp_path / "venv-elsewhere"
+        link.symlink_to(sys.prefix, target_is_directory=True)
+        python = str(link / Path(sys.executable).relative_to(sys.prefix))
+    proc = sp.run([python, "-m", "snakemake", "-s", str(moved / "Snakefile"), "--directory",
+                   str(tmp), "--cores", "2", "-n"], check=False, capture_output=True, text=True,
+                  env={**os.environ, "PYTHONPATH": str(tmp)}, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert "Nothing to be done" in proc.stdout + proc.stderr, (proc.stdout + proc.stderr)[-3000:]

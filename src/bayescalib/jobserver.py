@@ -54,11 +54,18 @@ from typing import Any
 
 from bayescalib._process import die_with_parent
 
-__all__ = ["STAGES", "run_stage", "serve", "socket_path", "start_server"]
+__all__ = ["STAGES", "export_job_command", "run_stage", "serve", "socket_path", "start_server",
+           "stop_server"]
 
 #: environment variable through which the jobs of a run find its server
 SOCKET_ENV = "BAYESCALIB_JOBSERVER"
 _MAX_MESSAGE = 1 << 20
+#: the server this process started (start_server), stopped by stop_server
+_SERVER: subprocess.Popen | None = None
+
+
+class _Stop(Exception):
+    """Raised by the server's SIGTERM handler: ends its loop at once."""
 
 
 # ----------------------------------------------------------------------------- stages
@@ -122,13 +129,27 @@ def socket_path(root: str | Path) -> str:
     return os.path.join(tempfile.gettempdir(), f"bayescalib-{key}.sock")
 
 
+def export_job_command(basedir: str | Path, *, conda: bool = False) -> None:
+    """Set the environment variables the per-point rules' shell commands use: the
+    interpreter (``BAYESCALIB_PYTHON``: this one, or ``python`` of the rule's conda
+    environment) and the client script (``BAYESCALIB_JOB_CLIENT``) under the
+    workflow's ``basedir``. Called when the Snakefile is parsed, so also in the
+    Snakemake process a cluster job starts."""
+    os.environ["BAYESCALIB_PYTHON"] = "python" if conda else sys.executable
+    os.environ["BAYESCALIB_JOB_CLIENT"] = str(Path(basedir) / "scripts" / "job.py")
+
+
 def start_server(root: str | Path, *, wait_s: float = 20.0) -> str | None:
-    """Start the server of this run (called by the workflow's ``onstart``).
+    """Start the server of this run (called by the workflow's ``onstart``) and point
+    the jobs to it (``BAYESCALIB_JOBSERVER``, inherited by the jobs).
 
     Returns the socket path once the server accepts jobs, or None if it did not come
-    up within ``wait_s`` (jobs then run in-process; nothing is lost). The server
+    up within ``wait_s`` (jobs then run in-process; nothing is lost), or if
+    ``BAYESCALIB_JOBSERVER=off`` asks for every job in a fresh interpreter. The server
     exits when this process does.
     """
+    if os.environ.get(SOCKET_ENV) == "off":
+        return None
     path = socket_path(root)
     log = Path(root) / "logs" / "jobserver.log"
     log.parent.mkdir(parents=True, exist_ok=True)
@@ -139,14 +160,33 @@ def start_server(root: str | Path, *, wait_s: float = 20.0) -> str | None:
             [sys.executable, "-m", "bayescalib.jobserver", "--serve", path,
              "--parent", str(os.getpid())],
             stdin=subprocess.DEVNULL, stdout=fh, stderr=subprocess.STDOUT, env=env)
+    global _SERVER
+    _SERVER = proc
     deadline = time.monotonic() + wait_s
     while time.monotonic() < deadline:
         if proc.poll() is not None:
             return None
         if os.path.exists(path):
+            os.environ[SOCKET_ENV] = path
             return path
         time.sleep(0.02)
     return None
+
+
+def stop_server(timeout: float = 10.0) -> None:
+    """Stop the server :func:`start_server` started in this process (the workflow's
+    ``onsuccess``/``onerror``), so that its log is complete when the run returns. It
+    would stop by itself within a second of this process's end anyway."""
+    global _SERVER
+    proc, _SERVER = _SERVER, None
+    if proc is None or proc.poll() is not None:
+        return
+    proc.terminate()
+    try:
+        proc.wait(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait()
 
 
 class _Job:
@@ -245,8 +285,11 @@ def serve(path: str, parent: int | None = None, preload: tuple[str, ...] = _PREL
     sel.register(listener, selectors.EVENT_READ, "listen")
     jobs: dict[int, _Job] = {}  # by pidfd
     by_conn: dict[int, _Job] = {}
-    stop = []
-    signal.signal(signal.SIGTERM, lambda *_: stop.append(True))
+
+    def _on_term(*_):
+        raise _Stop
+
+    signal.signal(signal.SIGTERM, _on_term)
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C: Snakemake cancels the jobs
     n_done = 0
 
@@ -257,7 +300,7 @@ def serve(path: str, parent: int | None = None, preload: tuple[str, ...] = _PREL
             pass
 
     try:
-        while not stop:
+        while True:
             if parent is not None and os.getppid() != parent and not _alive(parent):
                 break
             for key, _ in sel.select(timeout=1.0):
@@ -314,6 +357,8 @@ def serve(path: str, parent: int | None = None, preload: tuple[str, ...] = _PREL
                         sel.unregister(job.conn)
                         job.conn.close()
                     n_done += 1
+    except _Stop:
+        pass
     finally:
         for job in jobs.values():
             kill(job)

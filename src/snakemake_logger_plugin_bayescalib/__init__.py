@@ -28,7 +28,7 @@ __all__ = ["LogHandler"]
 
 #: events left out of the console unless --verbose: the per-job start and finish blocks
 _PER_JOB = {LogEvent.JOB_INFO, LogEvent.JOB_STARTED, LogEvent.JOB_FINISHED,
-            LogEvent.SHELLCMD, LogEvent.GROUP_INFO, LogEvent.RESOURCES_INFO}
+            LogEvent.SHELLCMD, LogEvent.GROUP_INFO}
 
 #: scheduler lines without information for the user
 _SCHEDULER_CHATTER = {"Select jobs to execute...", "Execute 1 jobs...",

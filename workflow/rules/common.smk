@@ -3,8 +3,6 @@
 # read until the DAG asks for it (checkpoints are consulted lazily).
 
 import json as _json
-import sys
-from pathlib import Path
 
 
 # ---- Observations
@@ -97,25 +95,28 @@ def _solve_inputs(wildcards):
 
 
 # ---- Per-point jobs through the run's job server (bayescalib.jobserver)
-# The rules solve and discrepancy run `scripts/job.py`, a standard-library client that
+# The solve and discrepancy jobs run `scripts/job.py`, a standard-library client that
 # hands the job (its params as Python literals, formatted by Snakemake) to the warm
-# server started in onstart, or runs it in-process when there is none. The command is
-# built here, so that the rules' code (Snakemake's rerun trigger) does not hold paths
-# of this machine.
+# server started in onstart, or runs it in-process when there is none. Snakemake
+# reruns the jobs of a shell command whose text changed, so the text names the
+# interpreter and the client through environment variables that the workflow sets
+# here (not the user): it holds no path of this machine, and a moved checkout or
+# another venv reruns nothing.
 
-import shlex as _shlex
+from bayescalib.jobserver import export_job_command
 
-_CONDA = any(getattr(m, "name", str(m)).lower() == "conda"
-             for m in getattr(workflow.deployment_settings, "deployment_method", ()))
-_PYTHON = "python" if _CONDA else sys.executable
-JOB = f"{_shlex.quote(_PYTHON)} -I -S {_shlex.quote(str(Path(workflow.basedir) / 'scripts' / 'job.py'))}"
+export_job_command(workflow.basedir, conda=any(
+    getattr(m, "name", str(m)).lower() == "conda"
+    for m in getattr(workflow.deployment_settings, "deployment_method", ())))
+_WARM = study.config["forward_model"]["warm_start"] == "prior_centre"
 SOLVE_JOB = (
-    JOB + " solve log {log:q} out {output:q} forward_model {params.forward_model:q}"
-    " point {params.point:q}"
-    + (" base {input.base:q}" if study.config["forward_model"]["warm_start"] == "prior_centre" else "")
+    '"$BAYESCALIB_PYTHON" -I -S "$BAYESCALIB_JOB_CLIENT" solve log {log:q} out {output:q}'
+    " forward_model {params.forward_model:q} point {params.point:q}"
+    f"{' base {input.base:q}' if _WARM else ''}"
 )
 DISCREPANCY_JOB = (
-    JOB + " discrepancy log {log:q} out {output:q} run {input.run:q} obs {input.obs:q}"
+    '"$BAYESCALIB_PYTHON" -I -S "$BAYESCALIB_JOB_CLIENT" discrepancy log {log:q}'
+    " out {output:q} run {input.run:q} obs {input.obs:q}"
     " measure_name {wildcards.measure:q} measure {params.measure:q}"
     " likelihood {params.likelihood:q}"
 )
