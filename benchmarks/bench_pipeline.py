@@ -52,6 +52,11 @@ PYTHON64 = {
     "study": "python64",
     "forward_model": {"type": "python",
                       "python": {"function": "bayescalib.analytic_model:interface"}},
+    "parameters": [
+        {"name": "E", "unit": "Pa", "target": "E", "bounds": [100.0, 800.0],
+         "prior": {"type": "uniform", "lo": 100.0, "hi": 800.0}, "ground_truth": 400.0},
+        {"name": "nu", "unit": "-", "target": "nu", "bounds": [-0.8, 0.45],
+         "prior": {"type": "uniform", "lo": -0.8, "hi": 0.45}, "ground_truth": 0.3}],
     "likelihood": {"sigma_n": 0.002},
     "design": {"strategy": "fixed", "n_train": 64, "seed": 1},
     "plots": {"fields": False, "formats": ["png"]},
