@@ -89,8 +89,8 @@ def _run_study(tree: Path, study: str, env_extra: dict[str, str]) -> dict:
     wall = time.perf_counter() - t0
     if proc.returncode != 0:
         raise RuntimeError(f"{study} failed in {tree}:\n{proc.stderr[-3000:]}")
-    root = tree / "results" / study
-    return {"wall_s": wall, "root": root}
+    name = _study_config(tree, study)["study"]
+    return {"wall_s": wall, "root": tree / "results" / name}
 
 
 def _job_walls(root: Path) -> dict[str, list[float]]:
