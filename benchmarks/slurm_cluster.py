@@ -12,6 +12,8 @@ Usage::
     python benchmarks/slurm_cluster.py status
     python benchmarks/slurm_cluster.py stop  [--state ...]
 
+The configuration is also written to ``/etc/slurm/slurm.conf`` unless a configuration
+this script did not write is there (``srun`` inside a batch job reads that path).
 ``start`` prints the environment to use (``SLURM_CONF=...``); the SLURM commands
 (sbatch, squeue, scancel) and Snakemake's SLURM executor then talk to this cluster.
 The test ``tests/test_slurm.py`` runs the smoke study through
@@ -31,6 +33,7 @@ from pathlib import Path
 
 DEFAULT_STATE = Path("/tmp/bayescalib-slurm")
 DAEMONS = ("slurmctld", "slurmd", "munged")
+MARKER = "# written by benchmarks/slurm_cluster.py"
 
 
 def missing() -> str | None:
@@ -47,7 +50,7 @@ def _conf(state: Path) -> str:
     host = socket.gethostname().split(".")[0]
     cpus = os.cpu_count() or 1
     mem_mb = int(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") / 2**20 * 0.9)
-    return f"""# written by benchmarks/slurm_cluster.py
+    return f"""{MARKER}
 ClusterName=bayescalib
 SlurmctldHost={host}
 SlurmUser=root
@@ -95,6 +98,12 @@ def start(state: Path = DEFAULT_STATE, timeout: float = 60.0) -> dict[str, str]:
         (state / d).mkdir(parents=True, exist_ok=True)
     conf = state / "slurm.conf"
     conf.write_text(_conf(state))
+    # the default path too: srun inside a batch job reads it (SLURM_CONF is not passed
+    # to job steps everywhere); never over a configuration this script did not write
+    system = Path("/etc/slurm/slurm.conf")
+    if not system.exists() or system.read_text().startswith(MARKER):
+        system.parent.mkdir(parents=True, exist_ok=True)
+        system.write_text(conf.read_text())
     env = {"SLURM_CONF": str(conf)}
     # munge: a key and the daemon (as the munge user the package created)
     key = Path("/etc/munge/munge.key")

@@ -71,12 +71,11 @@ def test_the_smoke_study_on_slurm_equals_the_local_run(cluster, tmp_path):
                           check=False)
     said = proc.stdout + proc.stderr
     assert proc.returncode == 0, said[-4000:]
-    # the jobs went through SLURM, the solves grouped
-    assert "slurm" in said.lower()
-    logs = list((slurm / ".snakemake" / "slurm_logs").rglob("*.log"))
-    assert logs, "no SLURM job logs"
-    assert any("group_solves" in str(p) or "solves" in str(p) for p in logs), \
-        sorted(str(p) for p in logs)[:20]
+    # the jobs went through SLURM, the solves grouped (the SLURM job logs of jobs that
+    # succeeded are deleted by the executor; Snakemake's own log keeps the record)
+    log = "\n".join(p.read_text() for p in (slurm / ".snakemake" / "log").glob("*.log"))
+    assert log.count("has been submitted with SLURM jobid") >= 10, log[-3000:]
+    assert "Group job solves" in log and "group_solves" in log
     a = json.loads((local / "results" / "smoke" / "summary.json").read_text())
     b = json.loads((slurm / "results" / "smoke" / "summary.json").read_text())
     assert _without_timings(a) == _without_timings(b)
