@@ -1,4 +1,5 @@
-"""A warm process that runs the per-point jobs (solve, discrepancy) of a local run.
+"""A warm process that runs the jobs of a local run (per point: solve, discrepancy;
+per round and per measure: train_surrogate, smc, acquire, marginalize).
 
 Why
 ---
@@ -6,9 +7,11 @@ Each design point is its own Snakemake job, cached on its own (the user's design
 ``script:`` job starts a fresh interpreter, unpickles Snakemake's job object and
 imports numpy, scipy, h5py and NGSolve before any physics: about a second a job,
 several times the cost of a solve on the default mesh, and nearly all of a
-discrepancy job. Here the imports are paid once per run: the workflow's ``onstart``
-starts this server, which imports the stage code and then waits on a Unix socket.
-A job is a tiny client (``scripts/job.py``, standard library only, started with
+discrepancy job; GPy, torch and ArviZ add about two seconds to every surrogate, SMC
+and acquisition job of every active-design round. Here the imports are paid once per
+run: the workflow's ``onstart`` starts this server, which imports the per-point stage
+code, opens a Unix socket, imports the per-round stage code and then serves. A job is
+a tiny client (``scripts/job.py``, standard library only, started with
 ``python -I -S``) that hands the server its arguments, its working directory, its
 environment and its stdout/stderr (file descriptors passed over the socket); the
 server forks a child that runs the stage in that setting and reports the child's
@@ -96,18 +99,61 @@ def _discrepancy(args: Mapping[str, str]) -> None:
                 _literal(args["likelihood"]), args["out"])
 
 
-#: stage name (rule name) -> function of the job's arguments (strings, as formatted by
-#: the rule's shell command)
+def _train_surrogate(args: Mapping[str, str]) -> None:
+    from bayescalib.pipeline import setup_logging, train
+
+    setup_logging(args["log"])
+    train(args["training"], _literal(args["surrogate"]), _literal(args["parameters"]),
+          args["out"])
+
+
+def _smc(args: Mapping[str, str]) -> None:
+    from bayescalib.pipeline import setup_logging, smc
+
+    setup_logging(args["log"])
+    smc(args["surrogate"], _literal(args["smc"]), _literal(args["parameters"]), args["out"])
+
+
+def _acquire(args: Mapping[str, str]) -> None:
+    from bayescalib.pipeline import acquire, setup_logging
+
+    setup_logging(args["log"])
+    acquire(int(args["round"]), args["training"], args["surrogate"], args["particles"],
+            args.get("previous") or None, _literal(args["active"]),
+            _literal(args["parameters"]), args["out"])
+
+
+def _marginalize(args: Mapping[str, str]) -> None:
+    from bayescalib.pipeline import marginalize, setup_logging
+
+    setup_logging(args["log"])
+    marginalize(args["particles"], args["surrogate"], _literal(args["posterior"]),
+                _literal(args["parameters"]), int(args["seed"]), args["out"], args["netcdf"])
+
+
+#: stage name -> function of the job's arguments (strings, as formatted by the rule's
+#: shell command). Per point: solve, discrepancy; per round (active design) and per
+#: measure: train_surrogate, smc, acquire, marginalize.
 STAGES: dict[str, Callable[[Mapping[str, str]], None]] = {
     "solve": _solve,
     "discrepancy": _discrepancy,
+    "train_surrogate": _train_surrogate,
+    "smc": _smc,
+    "acquire": _acquire,
+    "marginalize": _marginalize,
 }
 
-#: what the server imports before it accepts jobs (the heavy part of every job)
+#: what the server imports before it accepts jobs (the heavy part of every per-point job)
 _PRELOAD = ("numpy", "scipy.sparse", "scipy.spatial", "h5py", "bayescalib.forward",
             "bayescalib.pipeline", "bayescalib.study", "bayescalib.measures",
             "bayescalib.likelihood", "bayescalib.observation_store", "bayescalib.fsi.model",
             "bayescalib.fsi.solver", "ngsolve", "netgen.occ")
+
+
+#: imported once it accepts jobs (the per-round stages: GPy, torch, ArviZ); a job that
+#: arrives meanwhile waits in the socket's queue
+_PRELOAD_LATER = ("GPy", "torch", "arviz", "bayescalib.surrogate", "bayescalib.smc",
+                  "bayescalib.active", "bayescalib.posterior")
 
 
 def run_stage(stage: str, args: Mapping[str, str]) -> None:
@@ -245,20 +291,26 @@ def _run_child(request: Mapping[str, Any], fds: list[int], close: list[int]) -> 
             os._exit(code)
 
 
-def serve(path: str, parent: int | None = None, preload: tuple[str, ...] = _PRELOAD) -> None:
-    """Run the server: import ``preload``, listen on ``path``, fork a child per job.
-
-    Ends when ``parent`` (the Snakemake process) is gone or on SIGTERM, killing the
-    jobs it still runs and removing the socket.
-    """
+def _import_all(modules: tuple[str, ...]) -> None:
     import importlib
 
-    t0 = time.monotonic()
-    for mod in preload:
+    for mod in modules:
         try:
             importlib.import_module(mod)
         except ImportError as exc:  # e.g. NGSolve absent for a python-model study
             print(f"jobserver: not preloaded: {mod} ({exc})", flush=True)
+
+
+def serve(path: str, parent: int | None = None, preload: tuple[str, ...] = _PRELOAD,
+          preload_later: tuple[str, ...] = _PRELOAD_LATER) -> None:
+    """Run the server: import ``preload``, listen on ``path``, import ``preload_later``,
+    fork a child per job.
+
+    Ends when ``parent`` (the Snakemake process) is gone or on SIGTERM, killing the
+    jobs it still runs and removing the socket.
+    """
+    t0 = time.monotonic()
+    _import_all(preload)
     try:  # the config schemas, validated by every solve (fsi model) and job
         from bayescalib.config import load_schemas
 
@@ -281,6 +333,9 @@ def serve(path: str, parent: int | None = None, preload: tuple[str, ...] = _PREL
     listener.listen(64)
     os.rename(tmp, path)  # the socket appears only when it accepts jobs
     inode = os.stat(path).st_ino
+    t0 = time.monotonic()
+    _import_all(preload_later)
+    print(f"jobserver: per-round stages preloaded in {time.monotonic() - t0:.2f} s", flush=True)
     sel = selectors.DefaultSelector()
     sel.register(listener, selectors.EVENT_READ, "listen")
     jobs: dict[int, _Job] = {}  # by pidfd
@@ -388,7 +443,8 @@ def main(argv: list[str] | None = None) -> int:
         parent = int(argv[3]) if len(argv) >= 4 and argv[2] == "--parent" else None
         serve(argv[1], parent)
         return 0
-    if argv[:1] == ["--run"] and len(argv) >= 2 and len(argv) % 2 == 0:
+    if argv[:1] == ["--run"] and len(argv) >= 2:
+        # a last key without value (an empty list formatted by Snakemake) is left out
         stage, rest = argv[1], argv[2:]
         run_stage(stage, dict(zip(rest[::2], rest[1::2])))
         return 0

@@ -42,8 +42,8 @@ rule train_round:
     log:
         f"{R}/logs/active/{{r}}/train_surrogate.log",
     threads: 1
-    script:
-        "../../scripts/train_surrogate.py"
+    shell:
+        TRAIN_JOB
 
 
 rule smc_round:
@@ -61,8 +61,8 @@ rule smc_round:
     log:
         f"{R}/logs/active/{{r}}/smc.log",
     threads: 1
-    script:
-        "../../scripts/smc.py"
+    shell:
+        SMC_JOB
 
 
 checkpoint acquire:
@@ -84,5 +84,5 @@ checkpoint acquire:
     log:
         f"{R}/logs/active/{{r}}/acquire.log",
     threads: 1
-    script:
-        "../../scripts/acquire.py"
+    shell:
+        ACQUIRE_JOB

@@ -94,14 +94,15 @@ def _solve_inputs(wildcards):
     return out
 
 
-# ---- Per-point jobs through the run's job server (bayescalib.jobserver)
-# The solve and discrepancy jobs run `scripts/job.py`, a standard-library client that
-# hands the job (its params as Python literals, formatted by Snakemake) to the warm
-# server started in onstart, or runs it in-process when there is none. Snakemake
-# reruns the jobs of a shell command whose text changed, so the text names the
-# interpreter and the client through environment variables that the workflow sets
-# here (not the user): it holds no path of this machine, and a moved checkout or
-# another venv reruns nothing.
+# ---- Jobs through the run's job server (bayescalib.jobserver)
+# The per-point jobs (solve, discrepancy) and the per-round and per-measure ones
+# (train_surrogate, smc, acquire, marginalize) run `scripts/job.py`, a standard-library
+# client that hands the job (its params as Python literals: `{params.x!r:q}`, the repr
+# quoted) to the warm server started in onstart, or runs it in-process when there is
+# none. Snakemake reruns the jobs of a shell command whose text changed, so the text
+# names the interpreter and the client through environment variables that the
+# workflow sets here (not the user): it holds no path of this machine, and a moved
+# checkout or another venv reruns nothing.
 
 from bayescalib.jobserver import export_job_command
 
@@ -111,14 +112,38 @@ export_job_command(workflow.basedir, conda=any(
 _WARM = study.config["forward_model"]["warm_start"] == "prior_centre"
 SOLVE_JOB = (
     '"$BAYESCALIB_PYTHON" -I -S "$BAYESCALIB_JOB_CLIENT" solve log {log:q} out {output:q}'
-    " forward_model {params.forward_model:q} point {params.point:q}"
+    " forward_model {params.forward_model!r:q} point {params.point!r:q}"
     f"{' base {input.base:q}' if _WARM else ''}"
+)
+TRAIN_JOB = (
+    '"$BAYESCALIB_PYTHON" -I -S "$BAYESCALIB_JOB_CLIENT"'
+    " train_surrogate log {log:q} out {output:q} training {input:q}"
+    " surrogate {params.surrogate!r:q} parameters {params.parameters!r:q}"
+)
+SMC_JOB = (
+    '"$BAYESCALIB_PYTHON" -I -S "$BAYESCALIB_JOB_CLIENT"'
+    " smc log {log:q} out {output:q} surrogate {input:q} smc {params.smc!r:q}"
+    " parameters {params.parameters!r:q}"
+)
+# previous (no file in round 0) comes last: an empty value drops only itself
+ACQUIRE_JOB = (
+    '"$BAYESCALIB_PYTHON" -I -S "$BAYESCALIB_JOB_CLIENT"'
+    " acquire log {log:q} out {output:q} round {params.round}"
+    " training {input.training:q} surrogate {input.surrogate:q}"
+    " particles {input.particles:q} active {params.active!r:q}"
+    " parameters {params.parameters!r:q} previous {input.previous:q}"
+)
+MARGINALIZE_JOB = (
+    '"$BAYESCALIB_PYTHON" -I -S "$BAYESCALIB_JOB_CLIENT"'
+    " marginalize log {log:q} out {output.posterior:q} netcdf {output.netcdf:q}"
+    " particles {input.particles:q} surrogate {input.surrogate:q}"
+    " posterior {params.posterior!r:q} parameters {params.parameters!r:q} seed {params.seed}"
 )
 DISCREPANCY_JOB = (
     '"$BAYESCALIB_PYTHON" -I -S "$BAYESCALIB_JOB_CLIENT" discrepancy log {log:q}'
     " out {output:q} run {input.run:q} obs {input.obs:q}"
-    " measure_name {wildcards.measure:q} measure {params.measure:q}"
-    " likelihood {params.likelihood:q}"
+    " measure_name {wildcards.measure:q} measure {params.measure!r:q}"
+    " likelihood {params.likelihood!r:q}"
 )
 
 

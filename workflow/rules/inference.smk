@@ -18,8 +18,8 @@ rule smc:
     log:
         f"{R}/logs/{{measure}}/smc.log",
     threads: 1
-    script:
-        "../../scripts/smc.py"
+    shell:
+        SMC_JOB
 
 
 rule marginalize:
@@ -40,5 +40,5 @@ rule marginalize:
     log:
         f"{R}/logs/{{measure}}/marginalize.log",
     threads: 1
-    script:
-        "../../scripts/marginalize.py"
+    shell:
+        MARGINALIZE_JOB

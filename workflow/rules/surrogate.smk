@@ -17,8 +17,8 @@ rule train_surrogate:
     log:
         f"{R}/logs/{{measure}}/train_surrogate.log",
     threads: 1
-    script:
-        "../../scripts/train_surrogate.py"
+    shell:
+        TRAIN_JOB
 
 
 rule convergence:
