@@ -53,7 +53,11 @@ def cluster(tmp_path_factory):
     if why:
         pytest.skip(f"no SLURM cluster here: {why}")
     state = tmp_path_factory.mktemp("slurm")
-    env = slurm_cluster.start(state)
+    try:
+        env = slurm_cluster.start(state)
+    except (RuntimeError, OSError, subprocess.CalledProcessError) as exc:
+        slurm_cluster.stop(state)
+        pytest.skip(f"the SLURM daemons did not start here: {exc}")
     yield env
     slurm_cluster.stop(state)
 
