@@ -197,6 +197,12 @@ def start_server(root: str | Path, *, wait_s: float = 20.0) -> str | None:
     if os.environ.get(SOCKET_ENV) == "off":
         return None
     path = socket_path(root)
+    # a socket left by a killed run of this study (this run holds the study's run
+    # lock, so no live server owns it): gone, so that only the new one counts as ready
+    try:
+        os.unlink(path)
+    except FileNotFoundError:
+        pass
     log = Path(root) / "logs" / "jobserver.log"
     log.parent.mkdir(parents=True, exist_ok=True)
     env = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1",
