@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import pytest
 import yaml
+from _gaussian import importance_sample
 from _workflow_helpers import DATA, setup_study, smk
 
 
@@ -20,3 +21,9 @@ def done_run(tmp_path_factory, base_study):
     tmp = setup_study(tmp_path_factory.mktemp("wf"), base_study)
     smk(tmp)
     return tmp
+
+
+@pytest.fixture
+def weighted_gaussian():
+    """Importance sample of N(MEAN, COV) of tests/_gaussian.py: (x, normalized w)."""
+    return importance_sample()

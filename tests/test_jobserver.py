@@ -75,6 +75,16 @@ def _job(sock: str | None, cwd: Path, stage: str, **args: str) -> subprocess.Com
                           capture_output=True, text=True, timeout=120)
 
 
+def _solver_pid(tmp_path: Path, client: subprocess.Popen) -> int:
+    """The pid the hanging model writes once its solve has started."""
+    pidfile = tmp_path / "pid.txt"
+    deadline = time.monotonic() + 60
+    while not (pidfile.exists() and pidfile.read_text()):
+        assert time.monotonic() < deadline and client.poll() is None
+        time.sleep(0.05)
+    return int(pidfile.read_text())
+
+
 def _solve_args(study: Study, i: int, out: str) -> dict[str, str]:
     return {"log": f"logs/{i}.log", "out": out, "forward_model": repr(study.forward_section()),
             "point": repr(study.point(i))}
@@ -154,12 +164,7 @@ def test_a_job_whose_client_goes_away_is_killed_with_its_solve(tmp_path, server,
     args = _solve_args(study, 0, "run.h5")
     client = subprocess.Popen([*CLIENT, "solve", *[x for kv in args.items() for x in kv]],
                               cwd=tmp_path, env=env)
-    pidfile = tmp_path / "pid.txt"
-    deadline = time.monotonic() + 60
-    while not (pidfile.exists() and pidfile.read_text()):
-        assert time.monotonic() < deadline and client.poll() is None
-        time.sleep(0.05)
-    solver = int(pidfile.read_text())
+    solver = _solver_pid(tmp_path, client)
     assert _alive(solver)
     client.kill()  # Snakemake cancels the job
     client.wait()
@@ -188,12 +193,7 @@ def test_the_server_and_its_jobs_end_when_the_run_is_killed(tmp_path, base_study
     client = subprocess.Popen([*CLIENT, "solve", *[x for kv in args.items() for x in kv]],
                               cwd=tmp_path, env={**os.environ, "BAYESCALIB_JOBSERVER": sock,
                                                  "PYTHONPATH": str(tmp_path)})
-    pidfile = tmp_path / "pid.txt"
-    deadline = time.monotonic() + 60
-    while not (pidfile.exists() and pidfile.read_text()):
-        assert time.monotonic() < deadline and client.poll() is None
-        time.sleep(0.05)
-    solver = int(pidfile.read_text())
+    solver = _solver_pid(tmp_path, client)
     run.send_signal(signal.SIGKILL)
     run.wait()
     assert _wait_gone(solver), "a solve outlives its killed run"

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from _gaussian import COV, MEAN
 from scipy import stats
 
 from bayescalib.weights import (
@@ -18,24 +19,6 @@ from bayescalib.weights import (
     weighted_kde,
     weighted_quantile,
 )
-
-MEAN = np.array([400.0, 0.1])
-COV = np.array([[80.0**2, 0.8 * 80.0 * 0.15], [0.8 * 80.0 * 0.15, 0.15**2]])
-
-
-@pytest.fixture
-def weighted_gaussian():
-    """Importance sample of N(MEAN, COV): draws from a 1.5x wider Gaussian, weighted."""
-    rng = np.random.default_rng(0)
-    n = 1500
-    prop_cov = 2.25 * COV
-    x = rng.multivariate_normal(MEAN, prop_cov, size=n)
-    ic, ip = np.linalg.inv(COV), np.linalg.inv(prop_cov)
-    d = x - MEAN
-    logw = -0.5 * np.einsum("ni,ij,nj->n", d, ic, d) + 0.5 * np.einsum("ni,ij,nj->n", d, ip, d)
-    w = np.exp(logw - logw.max())
-    return x, w / w.sum()
-
 
 # --- weights and effective sample size ----------------------------------------------
 
