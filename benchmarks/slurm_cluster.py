@@ -133,7 +133,16 @@ def start(state: Path = DEFAULT_STATE, timeout: float = 60.0) -> dict[str, str]:
 
 
 def stop(state: Path = DEFAULT_STATE) -> None:
-    """Stop slurmctld and slurmd of this state folder (munged is left running)."""
+    """Stop slurmctld and slurmd of this state folder (munged is left running) and remove
+    the ``/etc/slurm/slurm.conf`` that :func:`start` wrote.
+
+    A configuration left behind without its controller costs every later ``snakemake``
+    call about 9 s: the SLURM executor plugin runs ``scontrol show config`` when it is
+    loaded, and ``scontrol`` waits for the controller named there before it gives up.
+    """
+    system = Path("/etc/slurm/slurm.conf")
+    if system.is_file() and system.read_text().startswith(MARKER):
+        system.unlink()
     for name in ("slurmctld", "slurmd"):
         pid = state / f"{name}.pid"
         if pid.exists():
