@@ -77,7 +77,8 @@ def _schema_dir():
 @cache
 def _load_schema_file(name: str) -> dict[str, Any]:
     text = (_schema_dir() / name).read_text()
-    return yaml.safe_load(text)
+    # libyaml's loader where PyYAML has it: the schemas are read on every Snakefile parse
+    return yaml.load(text, Loader=getattr(yaml, "CSafeLoader", yaml.SafeLoader))
 
 
 @cache

@@ -18,11 +18,12 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from bayescalib.interface import Interface, InterfaceError
-from bayescalib.measures import MeasureError, MeasureOptionError, compute
-from bayescalib.observations import ObservationSet
+if TYPE_CHECKING:  # the measures (scipy.spatial) load with log_likelihood, not with the
+    # noise settings that the study reads when the Snakefile is parsed
+    from bayescalib.interface import Interface
+    from bayescalib.observations import ObservationSet
 
 __all__ = ["DEFAULT_SIGMA_N2", "gaussian_loglik", "log_likelihood", "sigma_n2_from_config"]
 
@@ -99,6 +100,9 @@ def log_likelihood(
         )
     if not (isinstance(sigma_n2, (int, float)) and math.isfinite(sigma_n2) and sigma_n2 > 0):
         raise ValueError(f"sigma_n2 must be a positive finite number, got {sigma_n2!r}")
+    from bayescalib.interface import InterfaceError
+    from bayescalib.measures import MeasureError, MeasureOptionError, compute
+
     total = 0.0
     failed = False
     for model, ob in zip(models, obs):

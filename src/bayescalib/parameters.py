@@ -42,7 +42,6 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from scipy import stats
 
 __all__ = [
     "LogNormal",
@@ -69,15 +68,27 @@ class ParameterError(ValueError):
 class Prior:
     """A univariate prior density in user units.
 
-    Subclasses define ``_dist`` (a frozen scipy distribution), ``mode``,
-    ``support`` and ``d2logpdf`` (second derivative of the log density, used by
-    the Laplace approximation).
+    Subclasses define ``_freeze`` (the frozen scipy distribution, built on first
+    use: reading a study needs no scipy.stats), ``mode``, ``support`` and
+    ``d2logpdf`` (second derivative of the log density, used by the Laplace
+    approximation).
     """
 
     kind: str = ""
 
     def __init__(self) -> None:
-        self._dist = None
+        self._frozen = None
+
+    @property
+    def _dist(self):
+        if self._frozen is None:
+            from scipy import stats
+
+            self._frozen = self._freeze(stats)
+        return self._frozen
+
+    def _freeze(self, stats):  # pragma: no cover - overridden
+        raise NotImplementedError
 
     # densities ---------------------------------------------------------
     def logpdf(self, x: np.ndarray | float) -> np.ndarray:
@@ -136,7 +147,24 @@ class Uniform(Prior):
         self.lo, self.hi = float(lo), float(hi)
         if not (np.isfinite(self.lo) and np.isfinite(self.hi)) or self.lo >= self.hi:
             raise ValueError(f"uniform prior needs finite lo < hi, got lo={lo}, hi={hi}")
-        self._dist = stats.uniform(loc=self.lo, scale=self.hi - self.lo)
+
+    def _freeze(self, stats):
+        return stats.uniform(loc=self.lo, scale=self.hi - self.lo)
+
+    # closed forms: the study's check of its parameters needs no scipy.stats
+    def logpdf(self, x):
+        x = np.asarray(x, dtype=float)
+        inside = (x >= self.lo) & (x <= self.hi)
+        return np.where(inside, -np.log(self.hi - self.lo), -np.inf)
+
+    def cdf(self, x):
+        x = np.asarray(x, dtype=float)
+        return np.clip((x - self.lo) / (self.hi - self.lo), 0.0, 1.0)
+
+    def ppf(self, u):
+        u = np.asarray(u, dtype=float)
+        q = self.lo + u * (self.hi - self.lo)
+        return np.where((u >= 0) & (u <= 1), q, np.nan)
 
     @property
     def mode(self) -> float:
@@ -160,7 +188,9 @@ class Normal(Prior):
         self.mu, self.sigma = float(mu), float(sigma)
         if not np.isfinite(self.mu) or not (self.sigma > 0 and np.isfinite(self.sigma)):
             raise ValueError(f"normal prior needs finite mu and sigma > 0, got mu={mu}, sigma={sigma}")
-        self._dist = stats.norm(loc=self.mu, scale=self.sigma)
+
+    def _freeze(self, stats):
+        return stats.norm(loc=self.mu, scale=self.sigma)
 
     @property
     def mode(self) -> float:
@@ -185,7 +215,9 @@ class LogNormal(Prior):
             raise ValueError(
                 f"lognormal prior needs finite mu and sigma > 0, got mu={mu}, sigma={sigma}"
             )
-        self._dist = stats.lognorm(s=self.sigma, scale=np.exp(self.mu))
+
+    def _freeze(self, stats):
+        return stats.lognorm(s=self.sigma, scale=np.exp(self.mu))
 
     @property
     def mode(self) -> float:
@@ -215,7 +247,9 @@ class ScaledBeta(Prior):
             raise ValueError(f"beta prior needs a > 0 and b > 0, got a={a}, b={b}")
         if not (np.isfinite(self.lo) and np.isfinite(self.hi)) or self.lo >= self.hi:
             raise ValueError(f"beta prior needs finite lo < hi, got lo={lo}, hi={hi}")
-        self._dist = stats.beta(self.a, self.b, loc=self.lo, scale=self.hi - self.lo)
+
+    def _freeze(self, stats):
+        return stats.beta(self.a, self.b, loc=self.lo, scale=self.hi - self.lo)
 
     @property
     def mode(self) -> float:
