@@ -334,6 +334,9 @@ def test_report_renders_every_figure_in_headless_chromium(report, done_run, tmp_
         assert entry["colours"] >= 8 and entry["ink"] > 0.02, f"{where}: blank image: {entry}"
 
 
+# extended suite (pytest -m extended, run by .ci/run): a longer variant of a check the
+# default suite makes; kept out of the default suite for its time
+@pytest.mark.extended
 def test_each_figure_is_in_the_report_once_png_and_the_pdf_on_disk(tmp_path, base_study):
     """With formats [png, pdf] the report embeds the PNG of each figure and not the PDF
     (each figure once); the PDF is written next to it for print."""

@@ -230,8 +230,10 @@ def test_a_deleted_intermediate_is_rebuilt_with_everything_built_from_it(done_ru
     assert job_counts(tmp) == {}
 
 
-@pytest.mark.parametrize("damaged", ["rkhs/training.h5", "rkhs/particles.h5",
-                                     "observations/observations.h5"])
+@pytest.mark.parametrize("damaged", [
+    pytest.param("rkhs/training.h5", marks=pytest.mark.extended),
+    "rkhs/particles.h5",
+    pytest.param("observations/observations.h5", marks=pytest.mark.extended)])
 def test_a_damaged_stage_output_is_set_aside_and_rebuilt(done_run, tmp_path, damaged):
     """One rule for every stage output: the job that finds it damaged moves it aside and
     fails saying so; the same command run again rebuilds it and what depends on it, to

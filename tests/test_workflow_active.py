@@ -101,6 +101,9 @@ def test_a_larger_budget_solves_only_new_points(active_run, base_study, tmp_path
     assert len(after) == _summary(tmp)["design"]["n_solves"] > len(before)
 
 
+# extended suite (pytest -m extended, run by .ci/run): a longer variant of a check the
+# default suite makes; kept out of the default suite for its time
+@pytest.mark.extended
 def test_killed_mid_round_resumes_without_redoing_solves(active_run, base_study, tmp_path):
     study = _study(base_study)
     study["forward_model"]["python"]["function"] = "slow_model:interface"

@@ -99,6 +99,9 @@ def job_stats(text: str) -> dict[str, int]:
 
 
 # ------------------------------------------------------------------ kill and resume
+# extended suite (pytest -m extended, run by .ci/run): a longer variant of a check the
+# default suite makes; kept out of the default suite for its time
+@pytest.mark.extended
 def test_killed_during_gp_training_and_smc_resumes_to_the_same_summary(done_run, base_study,
                                                                        tmp_path):
     tmp = setup_study(tmp_path / "run", base_study)
@@ -135,6 +138,9 @@ def test_killed_during_gp_training_and_smc_resumes_to_the_same_summary(done_run,
 
 
 # ------------------------------------------------------------------ corrupt run record
+# extended suite (pytest -m extended, run by .ci/run): a longer variant of a check the
+# default suite makes; kept out of the default suite for its time
+@pytest.mark.extended
 def test_damaged_run_record_is_set_aside_and_resolved_on_the_next_run(done_run, tmp_path):
     tmp = tmp_path / "run"
     shutil.copytree(done_run, tmp, symlinks=True)
@@ -203,6 +209,9 @@ def concurrent_runs(tmp_path_factory, base_study):
             "unlock": unlock, "dry": dry, "a_running": still_running}
 
 
+# extended suite (pytest -m extended, run by .ci/run): a longer variant of a check the
+# default suite makes; kept out of the default suite for its time
+@pytest.mark.extended
 def test_a_second_run_of_a_running_study_is_refused(concurrent_runs):
     assert concurrent_runs["a_running"], "study A finished before the second run was tried"
     again = concurrent_runs["again"]
@@ -224,6 +233,9 @@ def test_a_second_run_of_a_running_study_is_refused(concurrent_runs):
         again.stdout + again.stderr
 
 
+# extended suite (pytest -m extended, run by .ci/run): a longer variant of a check the
+# default suite makes; kept out of the default suite for its time
+@pytest.mark.extended
 def test_two_studies_in_one_directory_do_not_interfere(concurrent_runs, done_run):
     tmp = concurrent_runs["dir"]
     assert concurrent_runs["rc"] == (0, 0), (
@@ -239,6 +251,9 @@ def test_two_studies_in_one_directory_do_not_interfere(concurrent_runs, done_run
     assert_same_results(tmp, done_run)
 
 
+# extended suite (pytest -m extended, run by .ci/run): a longer variant of a check the
+# default suite makes; kept out of the default suite for its time
+@pytest.mark.extended
 def test_cores_1_and_cores_2_give_bitwise_equal_summaries(concurrent_runs, done_run):
     """done_run ran with --cores 2, study A of concurrent_runs with --cores 1."""
     assert concurrent_runs["rc"][0] == 0
