@@ -27,3 +27,16 @@ def done_run(tmp_path_factory, base_study):
 def weighted_gaussian():
     """Importance sample of N(MEAN, COV) of tests/_gaussian.py: (x, normalized w)."""
     return importance_sample()
+
+
+def pytest_terminal_summary(terminalreporter):
+    """How many cases each fuzzer generated (the fuzz modules count them in CASES): a
+    report at the end of the run, not a test."""
+    import sys
+
+    for name in ("test_config_fuzz", "test_observation_fuzz"):
+        cases = getattr(sys.modules.get(name), "CASES", None)
+        if cases:
+            terminalreporter.write_line(
+                f"{name}: {sum(cases.values())} generated cases: "
+                + ", ".join(f"{k} {v}" for k, v in sorted(cases.items())))

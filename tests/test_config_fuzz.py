@@ -348,8 +348,3 @@ def test_several_changes_at_once(data):
 def test_a_config_that_is_no_mapping_of_names(config):
     with pytest.raises(ConfigError):
         Study(config)
-
-
-def test_report_case_counts():
-    """Runs last in this file: prints how many cases each fuzzer generated."""
-    print("\nconfig fuzz cases:", CASES, "total", sum(CASES.values()))

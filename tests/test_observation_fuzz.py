@@ -262,9 +262,6 @@ def test_structurally_odd_vtk(tmp_path, pts, kind, ids, suffix):
     _check(p)
 
 
-def test_report_case_counts():
-    """Runs last in this file: prints how many cases each fuzzer generated."""
-    print("\nobservation fuzz cases:", CASES, "total", sum(CASES.values()))
 
 
 HUGE = {
