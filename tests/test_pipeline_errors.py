@@ -57,7 +57,7 @@ def _table(tmp_path, X, loglik, status=None):
 
 
 def _train(path, tmp_path, **surrogate):
-    pipeline.train(path, {**SURROGATE, **surrogate}, PARAMETERS, tmp_path / "surrogate.h5")
+    pipeline.train_surrogate(path, {**SURROGATE, **surrogate}, PARAMETERS, tmp_path / "surrogate.h5")
 
 
 def _assert_clean(exc_info):

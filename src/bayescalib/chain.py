@@ -2,7 +2,7 @@
 a job.
 
 The workflow calibrates a study rule by rule: ``solve`` every point of a round,
-``discrepancy``, ``gather``, ``train``, ``smc``, the ``acquire`` checkpoint (trust
+``discrepancy``, ``gather``, ``train_surrogate``, ``smc``, the ``acquire`` checkpoint (trust
 check, stop rule and next batch, :func:`bayescalib.active.acquire_round`), and, after
 the last round, ``marginalize``. The diagnosis must calibrate models that are known
 only while it runs (the base model plus one candidate effect), so it cannot be given
@@ -112,7 +112,7 @@ def calibrate_rounds(
         gather_rows,
         marginalize,
         smc,
-        train,
+        train_surrogate,
         write_training,
     )
     from bayescalib.posterior import read_particles_h5
@@ -151,7 +151,7 @@ def calibrate_rounds(
         training = rd / "training.h5"
         write_training(training, rows["X"], rows["loglik"], rows["D"], rows["status"],
                        rows["reason"], names, len(rows["loglik"]), bound=rows["bound"])
-        train(training, surrogate, parameters, rd / "surrogate.h5")
+        train_surrogate(training, surrogate, parameters, rd / "surrogate.h5")
         smc(rd / "surrogate.h5", smc_cfg, parameters, rd / "particles.h5")
         rec = acquire(r, training, rd / "surrogate.h5", rd / "particles.h5", previous, active,
                       parameters, rd / "acquire.json")

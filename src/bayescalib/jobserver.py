@@ -100,10 +100,10 @@ def _discrepancy(args: Mapping[str, str]) -> None:
 
 
 def _train_surrogate(args: Mapping[str, str]) -> None:
-    from bayescalib.pipeline import setup_logging, train
+    from bayescalib.pipeline import setup_logging, train_surrogate
 
     setup_logging(args["log"])
-    train(args["training"], _literal(args["surrogate"]), _literal(args["parameters"]),
+    train_surrogate(args["training"], _literal(args["surrogate"]), _literal(args["parameters"]),
           args["out"])
 
 

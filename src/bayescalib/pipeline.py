@@ -8,14 +8,14 @@ half-written file that a later run would trust.
 
 Stages (paper Sec. 3, Fig. "workflow"):
 
-``observe``        observation set (synthetic from a ground-truth solve, or files)
-``discrepancy``    D and log-likelihood of one design point for one measure
-``gather``         training table of all design points
-``train``          GP surrogate of the log-likelihood
-``convergence``    GP error over n_train on held-out Sobol points
-``smc``            SMC particles on the surrogate
-``acquire``        active design: checks, stop rule and next batch of a round
-``marginalize``    posterior summaries and ArviZ export
+``observe``         observation set (synthetic from a ground-truth solve, or files)
+``discrepancy``     D and log-likelihood of one design point for one measure
+``gather``          training table of all design points
+``train_surrogate`` GP surrogate of the log-likelihood
+``convergence``     GP error over n_train on held-out Sobol points
+``smc``             SMC particles on the surrogate
+``acquire``         active design: checks, stop rule and next batch of a round
+``marginalize``     posterior summaries and ArviZ export
 """
 
 from __future__ import annotations
@@ -48,7 +48,7 @@ __all__ = [
     "read_training",
     "run_line",
     "smc",
-    "train",
+    "train_surrogate",
     "write_json",
 ]
 
@@ -485,7 +485,7 @@ def _space(parameters: Sequence[Mapping[str, Any]]):
     return ParameterSpace.from_config(parameters)
 
 
-def train(training_path: str | Path, surrogate: Mapping[str, Any],
+def train_surrogate(training_path: str | Path, surrogate: Mapping[str, Any],
           parameters: Sequence[Mapping[str, Any]], out_path: str | Path) -> None:
     """Fit the GP surrogate on the training points (failed runs left out)."""
     from bayescalib.surrogate import fit_from_config
