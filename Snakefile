@@ -61,7 +61,7 @@ R = study.root
 
 # the report's front page reads the study's key numbers from here (workflow.rst);
 # cheap: one small JSON file, read only when it exists
-from bayescalib.pipeline import front_page
+from bayescalib.stages import front_page
 
 config["front_page"] = front_page(f"{R}/summary.json")
 
@@ -80,7 +80,7 @@ onstart:
     # run; without it (cluster, or it did not start) the jobs run in-process
     # (BAYESCALIB_JOBSERVER=off: every job in its own fresh interpreter)
     if workflow.local_exec and not workflow.dryrun:
-        from bayescalib.jobserver import start_server
+        from bayescalib.execution.jobserver import start_server
 
         start_server(R)
 
@@ -94,7 +94,7 @@ report: "workflow/report/workflow.rst"
 
 
 onsuccess:
-    from bayescalib.jobserver import stop_server
+    from bayescalib.execution.jobserver import stop_server
 
     stop_server()  # its log is complete when the run returns
     # one plain line: the posterior, whether it converged, the solves used
@@ -102,7 +102,7 @@ onsuccess:
 
     _summary = _Path(R, "summary.json")
     if _summary.is_file():
-        from bayescalib.pipeline import read_json, run_line
+        from bayescalib.stages import read_json, run_line
 
         _s = read_json(_summary)
         print(run_line(_s), flush=True)
@@ -110,7 +110,7 @@ onsuccess:
             print(f"WARNING: {_s['design']['reason']}", flush=True)
 
 onerror:
-    from bayescalib.jobserver import stop_server
+    from bayescalib.execution.jobserver import stop_server
 
     stop_server()
 

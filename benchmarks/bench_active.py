@@ -30,9 +30,9 @@ recompute).
 Methods
 -------
 * ``sobol_gp``: today's pipeline: a scrambled Sobol design of the whole budget,
-  the GP surrogate of the log-likelihood (``bayescalib.surrogate.fit_gp``) and
-  SMC on its mean (``bayescalib.smc.run_smc``, 4000 particles).
-* ``active``: ``bayescalib.active.calibrate`` (active design in batches of 8,
+  the GP surrogate of the log-likelihood (``bayescalib.inference.surrogate.fit_gp``) and
+  SMC on its mean (``bayescalib.inference.smc.run_smc``, 4000 particles).
+* ``active``: ``bayescalib.inference.active.calibrate`` (active design in batches of 8,
   ``max_solves`` = budget, a quarter of the budget as initial design). Reported
   as "not available" when the module does not import.
 * ``pyvbmc``: PyVBMC (``max_fun_evals`` = budget; hard bounds = box, plausible
@@ -409,7 +409,7 @@ class Counter:
 
 
 def make_space(prob: Problem):
-    from bayescalib.parameters import ParameterSpace
+    from bayescalib.inference.parameters import ParameterSpace
 
     return ParameterSpace.from_config(
         [
@@ -431,9 +431,9 @@ def _log_uniform(prob: Problem) -> float:
 
 
 def run_sobol_gp(prob: Problem, budget: int, seed: int) -> dict[str, Any]:
-    from bayescalib.design import sobol_design
-    from bayescalib.smc import run_smc
-    from bayescalib.surrogate import fit_gp
+    from bayescalib.inference.design import sobol_design
+    from bayescalib.inference.smc import run_smc
+    from bayescalib.inference.surrogate import fit_gp
 
     f = Counter(prob.loglik)
     space = make_space(prob)
@@ -456,11 +456,11 @@ def run_sobol_gp(prob: Problem, budget: int, seed: int) -> dict[str, Any]:
 
 
 def run_active(prob: Problem, budget: int, seed: int) -> dict[str, Any]:
-    # Adapter for bayescalib.active.calibrate; kept small so that names can follow the API.
+    # Adapter for bayescalib.inference.active.calibrate; kept small so that names can follow the API.
     try:
-        from bayescalib.active import calibrate
+        from bayescalib.inference.active import calibrate
     except ImportError as e:
-        raise NotAvailable(f"not available (bayescalib.active: {e})") from None
+        raise NotAvailable(f"not available (bayescalib.inference.active: {e})") from None
     f = Counter(prob.loglik)
     space = make_space(prob)
     n0 = max(2 * prob.d + 2, budget // 4)

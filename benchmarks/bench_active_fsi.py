@@ -51,7 +51,7 @@ def _config(max_solves: int, strict: bool) -> dict:
 def main(argv: list[str] | None = None) -> int:
     from _reference import grid_moments, grid_points, hellinger_to_reference, load_reference
 
-    from bayescalib.surrogate import GPSurrogate
+    from bayescalib.inference.surrogate import GPSurrogate
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--ref", default=str(REPO / "benchmarks/data/fsi_reference_smoke.npz"))

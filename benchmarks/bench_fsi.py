@@ -57,7 +57,7 @@ def _near_truth(n: int, seed: int = 1) -> list[dict[str, float]]:
 
 
 def bench_preset(preset: str, repeats: int, workdir: Path) -> dict:
-    from bayescalib.fsi import FSIModel
+    from bayescalib.models.fsi import FSIModel
 
     model = FSIModel({"mesh": {"preset": preset}})
     t0 = time.perf_counter()
@@ -108,7 +108,7 @@ def bench_preset(preset: str, repeats: int, workdir: Path) -> dict:
 def bench_sobol(preset: str, n: int, workdir: Path, time_limit: float) -> dict:
     from scipy.stats import qmc
 
-    from bayescalib.fsi import FSIModel
+    from bayescalib.models.fsi import FSIModel
 
     sampler = qmc.Sobol(d=2, scramble=True, seed=20240611)
     u = sampler.random(n)

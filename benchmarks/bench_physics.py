@@ -1,6 +1,6 @@
 """Benchmark of the candidate physics and of series of loadings (one thread).
 
-For each candidate of :mod:`bayescalib.fsi.physics`, on the chosen mesh preset:
+For each candidate of :mod:`bayescalib.models.fsi.physics`, on the chosen mesh preset:
 
 * cold solve (from rest) with the candidate switched on at ``phi = 0``, against the
   base model: the median over ``--repeats`` parameter points near the ground truth
@@ -81,8 +81,8 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=5)
     args = ap.parse_args()
 
-    from bayescalib.fsi.model import FSIModel
-    from bayescalib.fsi.physics import CANDIDATES
+    from bayescalib.models.fsi.model import FSIModel
+    from bayescalib.models.fsi.physics import CANDIDATES
 
     mesh = {"mesh": {"preset": args.preset}}
     points = _near_truth(args.repeats)

@@ -4,7 +4,7 @@ Runs each study end to end with ``snakemake --cores 2`` in a scratch copy of the
 repository, once per execution mode, side by side in one run of this script:
 
 * ``server``: the default, per-point jobs (solve, discrepancy) handed to the run's
-  warm job server (``bayescalib.jobserver``);
+  warm job server (``bayescalib.execution.jobserver``);
 * ``fresh``: every job in a fresh interpreter (``BAYESCALIB_JOBSERVER=off``): the
   same code, paying the imports per job;
 * ``before``: with ``--before REV``, the repository at git revision REV (e.g. the
@@ -51,7 +51,7 @@ REPO = Path(__file__).resolve().parents[1]
 PYTHON64 = {
     "study": "python64",
     "forward_model": {"type": "python",
-                      "python": {"function": "bayescalib.analytic_model:interface"}},
+                      "python": {"function": "bayescalib.models.analytic:interface"}},
     "parameters": [
         {"name": "E", "unit": "Pa", "target": "E", "bounds": [100.0, 800.0],
          "prior": {"type": "uniform", "lo": 100.0, "hi": 800.0}, "ground_truth": 400.0},
@@ -107,8 +107,8 @@ def _job_walls(root: Path) -> dict[str, list[float]]:
 def _physics(root: Path, study_cfg: dict) -> dict[str, list[float]]:
     """In-process cost per point: solve (its record's wall time), discrepancy (recomputed
     here, warm)."""
-    from bayescalib.pipeline import discrepancy
-    from bayescalib.runrecord import read_run
+    from bayescalib.io.runrecord import read_run
+    from bayescalib.stages import discrepancy
 
     runs = sorted(p for p in (root / "runs").glob("[0-9]*.h5"))
     solve = [read_run(p).wall_time for p in runs]

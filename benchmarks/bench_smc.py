@@ -45,10 +45,10 @@ import time
 
 import numpy as np
 
-from bayescalib.design import sobol_design
-from bayescalib.parameters import Parameter, ParameterSpace, Uniform
-from bayescalib.smc import run_smc
-from bayescalib.surrogate import GPSurrogate, fit_gp
+from bayescalib.inference.design import sobol_design
+from bayescalib.inference.parameters import Parameter, ParameterSpace, Uniform
+from bayescalib.inference.smc import run_smc
+from bayescalib.inference.surrogate import GPSurrogate, fit_gp
 
 
 class _Stop(Exception):

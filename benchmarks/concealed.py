@@ -64,9 +64,9 @@ def _effect_region(root: Path, fm: dict, truth: dict) -> list[np.ndarray] | None
     """Per snapshot, observed nodes where the hidden effect moves the interface by more
     than half its maximum (noise-free truth against the base model at the truth)."""
     from bayescalib.diagnosis.residuals import offsets
-    from bayescalib.forward import solve_points
-    from bayescalib.interface import Interface
-    from bayescalib.runrecord import read_run
+    from bayescalib.geometry.interface import Interface
+    from bayescalib.io.runrecord import read_run
+    from bayescalib.models.forward import solve_points
 
     gt = read_run(root / "observations" / "ground_truth_run.h5")
     if not gt.ok:
@@ -144,7 +144,7 @@ def main() -> None:
     out = Path(args.out)
     rows = []
     from bayescalib.config import deep_merge
-    from bayescalib.observation_store import read_observations
+    from bayescalib.io.observation_store import read_observations
     from bayescalib.study import Study
 
     for sf in _study_files([s for s in args.studies.split(",") if s] or None):

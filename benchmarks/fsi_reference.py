@@ -10,14 +10,14 @@ with ``config/smoke.yaml`` deep-merged over it, exactly as Snakemake layers a
    forward-model, observations, measure and likelihood sections from it, so the
    reference uses the pipeline's own model settings;
 2. makes the synthetic observation as the pipeline does: the ``ground_truth`` rule's
-   solve (:func:`bayescalib.forward.solve_point` at ``study.ground_truth_point()``)
-   and the ``observe`` rule's :func:`bayescalib.pipeline.observe` into an
+   solve (:func:`bayescalib.models.forward.solve_point` at ``study.ground_truth_point()``)
+   and the ``observe`` rule's :func:`bayescalib.stages.observe` into an
    ``observations.h5`` in a scratch folder;
 3. with ``forward_model.warm_start: prior_centre``, solves the ``base_state`` rule's
-   warm-start state (:func:`bayescalib.forward.solve_base_state` at the prior centre);
+   warm-start state (:func:`bayescalib.models.forward.solve_base_state` at the prior centre);
 4. solves the forward model on a cell-centred ``n x n`` grid over the parameter box,
    in-process in one model object (mesh and compiled forms built once), each point
-   through :func:`bayescalib.forward.solve_series` (what the ``solve`` rule's child
+   through :func:`bayescalib.models.forward.solve_series` (what the ``solve`` rule's child
    process runs). Each point starts from the prior-centre base state as the pipeline's
    solves do (``--warm centre``, default) or from the previous point solved
    (``--warm previous``); the solver falls back to the continuation from rest when
@@ -27,7 +27,7 @@ with ``config/smoke.yaml`` deep-merged over it, exactly as Snakemake layers a
    all its corners is not solved but marked failed and ``inferred``
    (``--max-stride 1`` solves every cell);
 5. writes each point's run record and computes its log-likelihood with
-   :func:`bayescalib.pipeline.discrepancy`, the ``discrepancy`` rule's own function
+   :func:`bayescalib.stages.discrepancy`, the ``discrepancy`` rule's own function
    (a failed solve gives -inf);
 6. if the posterior is narrow on that grid (a marginal sd spans fewer than
    ``--min-cells`` grid cells, or a conditional sd, the width across a ridge along a
@@ -136,7 +136,7 @@ def _hash(obj: Any) -> str:
 
 def _observation_hash(obs_path: Path) -> str:
     """sha256 of the observed interfaces' coordinates (not of the HDF5 file's bytes)."""
-    from bayescalib.observation_store import read_observations
+    from bayescalib.io.observation_store import read_observations
 
     obs = read_observations(obs_path)
     h = hashlib.sha256()
@@ -161,8 +161,8 @@ def _git_commit() -> str | None:
 def make_observation(study, scratch: Path) -> dict[str, Any]:
     """The ``ground_truth``, ``observe`` and (prior-centre warm start) ``base_state``
     rules, with their own library calls, into ``scratch``. Returns the paths."""
-    from bayescalib.forward import solve_base_state, solve_point
-    from bayescalib.pipeline import observe
+    from bayescalib.models.forward import solve_base_state, solve_point
+    from bayescalib.stages import observe
 
     fm = study.forward_section()
     obs_dir = scratch / "observations"
@@ -265,7 +265,7 @@ def solve_grid(study, paths: Mapping[str, Any], E: np.ndarray, nu: np.ndarray, s
 
     Each point: :func:`solve_series` with the study's forward model (one model object
     for the whole grid), the run record written to ``scratch/<name>/run.h5`` and
-    :func:`bayescalib.pipeline.discrepancy` on it.
+    :func:`bayescalib.stages.discrepancy` on it.
 
     Failed solves are the slow ones (the load continuation stalls after many Newton
     steps), so the grid is solved coarse to fine: first the cells on a lattice of stride
@@ -274,9 +274,9 @@ def solve_grid(study, paths: Mapping[str, Any], E: np.ndarray, nu: np.ndarray, s
     (``max_stride=1``: every cell is solved). Resumes from a checkpoint in ``scratch``
     when one matches ``key`` and the grid.
     """
-    from bayescalib.forward import make_forward_model, solve_series
-    from bayescalib.pipeline import discrepancy
-    from bayescalib.runrecord import write_run
+    from bayescalib.io.runrecord import write_run
+    from bayescalib.models.forward import make_forward_model, solve_series
+    from bayescalib.stages import discrepancy
 
     if warm not in ("centre", "previous"):
         raise ValueError(f"warm must be 'centre' or 'previous', got {warm!r}")
@@ -365,7 +365,7 @@ def solve_grid(study, paths: Mapping[str, Any], E: np.ndarray, nu: np.ndarray, s
 
 _RULE_SOLVES = """
 import json, sys
-from bayescalib.forward import solve_point
+from bayescalib.models.forward import solve_point
 for job in json.load(open(sys.argv[1])):
     solve_point(job["fm"], job["point"], job["run"], warm_start=job["state"])
 """
@@ -382,7 +382,7 @@ def check_against_rule(study, paths: Mapping[str, Any], grid: Mapping[str, Any],
     """
     import subprocess
 
-    from bayescalib.pipeline import discrepancy
+    from bayescalib.stages import discrepancy
 
     fm = study.forward_section()
     work = scratch / "check"

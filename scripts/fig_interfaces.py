@@ -1,6 +1,6 @@
 """Rule `fig_interfaces`: undeformed, observed and posterior-sample interfaces."""
-from bayescalib.figures import interface_figure
-from bayescalib.pipeline import setup_logging
+from bayescalib.stages import setup_logging
+from bayescalib.stages.figures import interface_figure
 
 setup_logging(snakemake.log[0])  # noqa: F821
 interface_figure(

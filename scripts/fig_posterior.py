@@ -1,6 +1,6 @@
 """Rule `fig_posterior`: joint, particles, marginals, pairs, parallel axes."""
-from bayescalib.figures import posterior_figures
-from bayescalib.pipeline import setup_logging
+from bayescalib.stages import setup_logging
+from bayescalib.stages.figures import posterior_figures
 
 setup_logging(snakemake.log[0])  # noqa: F821
 posterior_figures(

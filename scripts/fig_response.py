@@ -1,6 +1,6 @@
 """Rule `fig_response`: GP log-likelihood response surfaces."""
-from bayescalib.figures import response_figures
-from bayescalib.pipeline import setup_logging
+from bayescalib.stages import setup_logging
+from bayescalib.stages.figures import response_figures
 
 setup_logging(snakemake.log[0])  # noqa: F821
 response_figures(

@@ -1,6 +1,6 @@
 """Rule `fig_rounds`: the active design's rounds."""
-from bayescalib.figures import rounds_figure
-from bayescalib.pipeline import setup_logging
+from bayescalib.stages import setup_logging
+from bayescalib.stages.figures import rounds_figure
 
 sm = snakemake  # noqa: F821
 setup_logging(sm.log[0])

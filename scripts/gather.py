@@ -1,5 +1,5 @@
 """Rules `gather` and `gather_round`: a training table (one measure)."""
-from bayescalib.pipeline import gather, setup_logging
+from bayescalib.stages import gather, setup_logging
 
 sm = snakemake  # noqa: F821
 setup_logging(sm.log[0])

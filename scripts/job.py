@@ -1,10 +1,10 @@
 """Client of a per-point job (rules `solve` and `discrepancy`): hands the job to the
-run's warm job server and exits with the job's status (bayescalib.jobserver).
+run's warm job server and exits with the job's status (bayescalib.execution.jobserver).
 
 Started as ``python -I -S scripts/job.py STAGE KEY VALUE ...`` by the rule's shell
 command: the standard library only, no site-packages, so it starts in milliseconds.
 Without a server (none started, or on another machine) it runs the job in-process:
-``python -m bayescalib.jobserver --run STAGE KEY VALUE ...``.
+``python -m bayescalib.execution.jobserver --run STAGE KEY VALUE ...``.
 """
 
 import array
@@ -26,7 +26,7 @@ def main() -> int:
             conn = None
     if conn is None:
         python = sys.executable
-        os.execv(python, [python, "-m", "bayescalib.jobserver", "--run", stage, *rest])
+        os.execv(python, [python, "-m", "bayescalib.execution.jobserver", "--run", stage, *rest])
     request = {"stage": stage, "args": dict(zip(rest[::2], rest[1::2])), "cwd": os.getcwd(),
                "env": dict(os.environ)}
     sys.stdout.flush()

@@ -1,5 +1,5 @@
 """Rule `observe`: the observation set (synthetic or from files)."""
-from bayescalib.pipeline import observe, setup_logging
+from bayescalib.stages import observe, setup_logging
 
 setup_logging(snakemake.log[0])  # noqa: F821
 observe(

@@ -1,7 +1,7 @@
 """Rule `predictive_solve`: forward solve at posterior draw k (interface plots)."""
-from bayescalib.figures import posterior_draws
-from bayescalib.forward import solve_point
-from bayescalib.pipeline import setup_logging
+from bayescalib.models.forward import solve_point
+from bayescalib.stages import setup_logging
+from bayescalib.stages.figures import posterior_draws
 
 setup_logging(snakemake.log[0])  # noqa: F821
 point = posterior_draws(

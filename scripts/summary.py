@@ -1,5 +1,5 @@
 """Rule `summary`: summary.json of the study."""
-from bayescalib.pipeline import collect_timings, design_summary, setup_logging, summary
+from bayescalib.stages import collect_timings, design_summary, setup_logging, summary
 
 sm = snakemake  # noqa: F821
 setup_logging(sm.log[0])

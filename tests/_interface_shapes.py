@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 
-from bayescalib.interface import Interface
+from bayescalib.geometry.interface import Interface
 
 
 def arc(R: float, n: int, a0: float = 0.0, a1: float = math.pi, centre=(0.0, 0.0)) -> Interface:

@@ -34,7 +34,7 @@ def smk(tmp: Path, *args: str, check: bool = True, timeout: int = 600):
 
 
 SLOW_MODEL = (
-    "import time\nfrom bayescalib.analytic_model import interface as _f\n"
+    "import time\nfrom bayescalib.models.analytic import interface as _f\n"
     "def interface(params, **kw):\n    time.sleep({sleep})\n    return _f(params, **kw)\n"
 )
 

@@ -1,4 +1,4 @@
-"""Active design (bayescalib.active) and the bounded surrogate, as specifications.
+"""Active design (bayescalib.inference.active) and the bounded surrogate, as specifications.
 
 Tolerances are stated where they are used; the analytic problems have closed-form
 posteriors (Gaussian misfits inside the box, so truncation is negligible: the box
@@ -10,7 +10,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from bayescalib.active import (
+from bayescalib.config import validate
+from bayescalib.inference.active import (
     acquire_round,
     calibrate,
     point_round,
@@ -19,11 +20,10 @@ from bayescalib.active import (
     select_batch,
     trust_check,
 )
-from bayescalib.config import validate
-from bayescalib.design import sobol_design
-from bayescalib.parameters import ParameterSpace
-from bayescalib.smc import smc_from_config
-from bayescalib.surrogate import GPSurrogate, fit_from_config, fit_gp
+from bayescalib.inference.design import sobol_design
+from bayescalib.inference.parameters import ParameterSpace
+from bayescalib.inference.smc import smc_from_config
+from bayescalib.inference.surrogate import GPSurrogate, fit_from_config, fit_gp
 
 
 def _space(bounds):

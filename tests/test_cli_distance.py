@@ -10,8 +10,8 @@ import pytest
 from _interface_shapes import circle, icosphere
 
 from bayescalib.cli import main
+from bayescalib.io.observations import write_interface_csv, write_interface_vtk
 from bayescalib.measures import compute
-from bayescalib.observations import write_interface_csv, write_interface_vtk
 
 
 @pytest.fixture
@@ -37,7 +37,7 @@ def test_distance_rkhs_plain_and_units(files, capsys):
     val = float(capsys.readouterr().out)
     assert val == pytest.approx(compute("rkhs", model, obs, sigma_w=0.01).D, rel=1e-10)
     # the same curves written in um and read with --units um give the same D (in mm)
-    from bayescalib.interface import Interface
+    from bayescalib.geometry.interface import Interface
 
     write_interface_csv(d / "model_um.csv", Interface.polyline(1000.0 * np.asarray(model.points)))
     write_interface_vtk(d / "obs_um.vtp", Interface.polyline(1000.0 * np.asarray(obs.points)))
@@ -77,10 +77,10 @@ def test_distance_bad_input_exits_2(files, capsys):
 def test_distance_reads_the_run_record_a_solve_writes(tmp_path, capsys):
     """``bayescalib solve`` and the workflow write run records (.h5): their deformed
     interface is compared as is (mm); the field file of a solve is refused with advice."""
-    from bayescalib.forward import solve_point
-    from bayescalib.interface import Interface
+    from bayescalib.geometry.interface import Interface
+    from bayescalib.models.forward import solve_point
 
-    fm = {"type": "python", "python": {"function": "bayescalib.analytic_model:interface"}}
+    fm = {"type": "python", "python": {"function": "bayescalib.models.analytic:interface"}}
     res = solve_point(fm, {"E": 400.0, "nu": 0.3}, tmp_path / "run.h5", isolate=False)
     obs = Interface.polyline(np.asarray(res.interface_current) + [0.0, 0.002])
     write_interface_csv(tmp_path / "obs.csv", obs)

@@ -1,11 +1,11 @@
-"""Scrambled Sobol design (bayescalib.design)."""
+"""Scrambled Sobol design (bayescalib.inference.design)."""
 
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from bayescalib.design import sobol_design, sobol_test_points
+from bayescalib.inference.design import sobol_design, sobol_test_points
 
 BOX = np.array([[100.0, 800.0], [-0.8, 0.5], [0.0, 110.0]])
 

@@ -14,7 +14,7 @@ import pytest
 
 from bayescalib.diagnosis.attribution import attribute, refit_test, score_test
 from bayescalib.diagnosis.residuals import estimate_noise, intervals, predictive_check
-from bayescalib.interface import Interface
+from bayescalib.geometry.interface import Interface
 
 T = np.linspace(0.0, np.pi, 81)
 REF = np.column_stack([1.0 - 0.3 * np.cos(T), 0.4 * np.sin(T)])

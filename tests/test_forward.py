@@ -9,7 +9,8 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from bayescalib.forward import (
+from bayescalib.io.runrecord import read_run
+from bayescalib.models.forward import (
     CommandModel,
     ForwardModelError,
     PythonModel,
@@ -17,9 +18,8 @@ from bayescalib.forward import (
     solve_point,
     solve_points,
 )
-from bayescalib.runrecord import read_run
 
-ANALYTIC = "bayescalib.analytic_model:interface"
+ANALYTIC = "bayescalib.models.analytic:interface"
 
 
 def test_python_model_returns_the_callables_interface():
@@ -43,7 +43,7 @@ def test_python_model_exception_is_a_failed_run_with_reason():
     [
         ("no_colon", "module:function"),
         ("no_such_module_xyz:f", "cannot import module 'no_such_module_xyz'"),
-        ("bayescalib.analytic_model:nope", "no callable 'nope'"),
+        ("bayescalib.models.analytic:nope", "no callable 'nope'"),
     ],
 )
 def test_python_model_bad_spec_names_the_problem(spec, match):
@@ -182,7 +182,7 @@ def test_solve_point_kills_a_hanging_model(tmp_path, monkeypatch):
     monkeypatch.syspath_prepend(str(tmp_path))
     monkeypatch.chdir(tmp_path)
     fm = {"type": "python", "python": {"function": "hang_fwd:f"}}
-    import bayescalib.forward as fw
+    import bayescalib.models.forward as fw
 
     res = fw.solve_point(fm, {"E": 1.0}, tmp_path / "hang.h5", time_limit_s=0.5, grace_s=0.5)
     assert res.status == "failed" and "time limit" in res.reason
@@ -308,7 +308,7 @@ def test_command_dies_with_a_killed_solve_process(tmp_path):
     driver = tmp_path / "driver.py"
     driver.write_text(textwrap.dedent(f"""
         import sys
-        from bayescalib.forward import CommandModel
+        from bayescalib.models.forward import CommandModel
         m = CommandModel({str(tpl)!r}, [sys.executable, {str(script)!r}], input_name="in",
                          output_name="out.csv", workdir={str(tmp_path / "w")!r},
                          time_limit_s=300)

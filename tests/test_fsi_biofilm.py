@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 
 from bayescalib.config import ConfigError
-from bayescalib.fsi import FSIModel
-from bayescalib.runrecord import read_run
+from bayescalib.io.runrecord import read_run
+from bayescalib.models.fsi import FSIModel
 
 
 @pytest.fixture(scope="module")
@@ -216,7 +216,7 @@ def test_polyline_shape_solve():
 
 
 def test_solve_to_file_and_vtu(tmp_path):
-    from bayescalib.fsi import solve_to_file
+    from bayescalib.models.fsi import solve_to_file
 
     r = solve_to_file({"mesh": {"preset": "coarse"}}, {"material.E": 600.0}, tmp_path, vtu=True)
     back = read_run(tmp_path / "run.h5")
@@ -280,7 +280,7 @@ def test_non_finite_parameters_are_config_errors_naming_the_key(coarse):
 
 
 def test_singular_jacobian_is_a_failure_not_an_exception(coarse):
-    from bayescalib.fsi.solver import SolverControls
+    from bayescalib.models.fsi.solver import SolverControls
 
     coarse.solve({"inflow.rate": 0.0})  # make sure the model is built
     s = coarse.solver

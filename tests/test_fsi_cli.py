@@ -7,7 +7,7 @@ import json
 import pytest
 
 from bayescalib.cli import main
-from bayescalib.runrecord import read_run
+from bayescalib.io.runrecord import read_run
 
 
 def _run(capsys, argv):

@@ -1,4 +1,4 @@
-"""Candidate physics of the FSI model (bayescalib.fsi.physics): nestedness and the
+"""Candidate physics of the FSI model (bayescalib.models.fsi.physics): nestedness and the
 defining behaviour of each candidate, on the coarse mesh (32 interface nodes).
 
 Tolerances. Nestedness is exact by construction (a factor exp(0) = 1, a zero term, or
@@ -17,8 +17,8 @@ import pytest
 pytest.importorskip("ngsolve")
 
 from bayescalib.config import ConfigError
-from bayescalib.fsi.model import FSIModel
-from bayescalib.fsi.physics import CANDIDATES
+from bayescalib.models.fsi.model import FSIModel
+from bayescalib.models.fsi.physics import CANDIDATES
 
 COARSE = {"mesh": {"preset": "coarse"}}
 TRUTH = {"material.E": 400.0, "material.nu": 0.3}

@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import pytest
 
-from bayescalib.fsi import turek_hron as th
+from bayescalib.models.fsi import turek_hron as th
 
 
 def _rel(a, b):

@@ -10,7 +10,7 @@ from _interface_shapes import arc, circle, icosphere
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from bayescalib.interface import Interface, InterfaceError, segment_intersections
+from bayescalib.geometry.interface import Interface, InterfaceError, segment_intersections
 
 
 def test_polyline_geometry_and_left_normal_convention():

@@ -1,4 +1,4 @@
-"""The warm job server of a local run (bayescalib.jobserver, scripts/job.py).
+"""The warm job server of a local run (bayescalib.execution.jobserver, scripts/job.py).
 
 Specification: a per-point job handed to the server gives exactly the files the same
 job gives in a fresh interpreter; a failing job exits non-zero with its error in its
@@ -19,7 +19,7 @@ from pathlib import Path
 import pytest
 from _workflow_helpers import REPO
 
-from bayescalib.runrecord import read_run
+from bayescalib.io.runrecord import read_run
 from bayescalib.study import Study
 
 CLIENT = [sys.executable, "-I", "-S", str(REPO / "scripts" / "job.py")]
@@ -52,7 +52,7 @@ def server(tmp_path):
     """A job server on a socket in tmp_path (python models importable from tmp_path)."""
     sock = str(tmp_path / "s.sock")
     env = {**os.environ, "PYTHONPATH": str(tmp_path), "OPENBLAS_NUM_THREADS": "1"}
-    proc = subprocess.Popen([sys.executable, "-m", "bayescalib.jobserver", "--serve", sock],
+    proc = subprocess.Popen([sys.executable, "-m", "bayescalib.execution.jobserver", "--serve", sock],
                             cwd=tmp_path, env=env, stdout=subprocess.PIPE,
                             stderr=subprocess.STDOUT, text=True)
     deadline = time.monotonic() + 60
@@ -181,7 +181,7 @@ def test_the_server_and_its_jobs_end_when_the_run_is_killed(tmp_path, base_study
     cfg["forward_model"]["python"] = {"function": "crashing:hang"}
     cfg["forward_model"]["time_limit_s"] = 300
     study = Study(cfg)
-    code = ("import sys, time\nfrom bayescalib.jobserver import start_server\n"
+    code = ("import sys, time\nfrom bayescalib.execution.jobserver import start_server\n"
             "print(start_server(sys.argv[1]), flush=True)\ntime.sleep(600)\n")
     run = subprocess.Popen(
         [sys.executable, "-c", code, str(tmp_path / "root")],

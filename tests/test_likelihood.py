@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 from _interface_shapes import arc, circle
 
-from bayescalib.interface import Interface
-from bayescalib.likelihood import gaussian_loglik, log_likelihood, sigma_n2_from_config
+from bayescalib.geometry.interface import Interface
+from bayescalib.inference.likelihood import gaussian_loglik, log_likelihood, sigma_n2_from_config
+from bayescalib.io.observations import ObservationSet
 from bayescalib.measures import MeasureOptionError, compute
-from bayescalib.observations import ObservationSet
 
 
 def test_gaussian_loglik_formula():

@@ -11,15 +11,15 @@ import pytest
 import yaml
 from _workflow_helpers import DATA
 
-from bayescalib.analytic_model import interface as analytic
 from bayescalib.config import ConfigError
-from bayescalib.forward import PythonModel, loading_labels, solve_point, solve_series
-from bayescalib.observation_store import read_observations
-from bayescalib.pipeline import PipelineError, discrepancy, observe
-from bayescalib.runrecord import read_run
+from bayescalib.io.observation_store import read_observations
+from bayescalib.io.runrecord import read_run
+from bayescalib.models.analytic import interface as analytic
+from bayescalib.models.forward import PythonModel, loading_labels, solve_point, solve_series
+from bayescalib.stages import PipelineError, discrepancy, observe
 from bayescalib.study import Study
 
-FM = {"type": "python", "python": {"function": "bayescalib.analytic_model:interface"},
+FM = {"type": "python", "python": {"function": "bayescalib.models.analytic:interface"},
       "loadings": {"parameter": "V", "nominal": 100.0, "factors": [0.0, 0.5, 1.0]}}
 TRUTH = {"E": 400.0, "nu": 0.3}
 MEASURE = {"rkhs": {"sigma_w": 0.005}}

@@ -12,7 +12,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.special import ive
 
-from bayescalib.interface import Interface
+from bayescalib.geometry.interface import Interface
 from bayescalib.measures import (
     MeasureError,
     MeasureOptionError,
@@ -22,7 +22,7 @@ from bayescalib.measures import (
     euclidean,
     rkhs,
 )
-from bayescalib.rkhs import current, naive_rkhs_squared, rkhs_squared
+from bayescalib.measures.rkhs import current, naive_rkhs_squared, rkhs_squared
 
 R, DR = 0.4, 0.01
 
@@ -317,7 +317,7 @@ def test_rkhs_refuses_pairwise_work_beyond_its_limit_before_doing_it():
     density is measured."""
     import time
 
-    from bayescalib.interface import Interface
+    from bayescalib.geometry.interface import Interface
     from bayescalib.measures import MeasureOptionError, compute
 
     t = np.linspace(0.0, np.pi, 2_000_000)

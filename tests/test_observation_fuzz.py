@@ -18,8 +18,8 @@ from _interface_shapes import arc, icosphere
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from bayescalib.interface import Interface
-from bayescalib.observations import (
+from bayescalib.geometry.interface import Interface
+from bayescalib.io.observations import (
     ObservationError,
     read_interface,
     read_points,
@@ -288,7 +288,7 @@ def test_vtk_header_declaring_absurd_sizes_is_refused_quickly(tmp_path, name):
 
     p = tmp_path / name
     p.write_bytes(HUGE[name].encode("latin-1"))
-    code = ("from bayescalib.observations import read_interface, ObservationError\n"
+    code = ("from bayescalib.io.observations import read_interface, ObservationError\n"
             f"try:\n    read_interface({str(p)!r})\nexcept ObservationError as e:\n"
             "    print('REFUSED', e)\n")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,

@@ -10,8 +10,8 @@ from _interface_shapes import arc, circle, icosphere
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from bayescalib.interface import Interface
-from bayescalib.observations import (
+from bayescalib.geometry.interface import Interface
+from bayescalib.io.observations import (
     ObservationError,
     ObservationSet,
     add_noise,

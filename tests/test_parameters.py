@@ -1,4 +1,4 @@
-"""Priors, parameters and the parameter space (bayescalib.parameters) and the inference schema."""
+"""Priors, parameters and the parameter space (bayescalib.inference.parameters) and the inference schema."""
 
 import json
 
@@ -7,7 +7,7 @@ import pytest
 from scipy import integrate, stats
 
 from bayescalib.config import ConfigError, validate
-from bayescalib.parameters import (
+from bayescalib.inference.parameters import (
     LogNormal,
     Normal,
     Parameter,

@@ -15,6 +15,7 @@ import pytest
 from _gaussian import COV, MEAN
 from matplotlib.collections import LineCollection, PolyCollection
 
+from bayescalib.inference.weights import weighted_kde
 from bayescalib.plotting import (
     axis_label,
     chi2_radius2,
@@ -33,7 +34,6 @@ from bayescalib.plotting import (
 )
 from bayescalib.plotting.interfaces import deflection_profile
 from bayescalib.plotting.parallel import select_lines
-from bayescalib.weights import weighted_kde
 
 NAMES, UNITS = ["E", "nu"], ["Pa", "-"]
 BOUNDS = ((100.0, 800.0), (-0.8, 0.5))
@@ -485,8 +485,8 @@ def test_the_rounds_figure_shows_the_best_identified_pair():
     """In the heterogeneous study E1 and nu1 (the first two parameters) are not
     identified; the rounds figure must show the pair the data pin down best, relative
     to the box, not the first two."""
-    from bayescalib.figures import _shown_pair
-    from bayescalib.parameters import ParameterSpace
+    from bayescalib.inference.parameters import ParameterSpace
+    from bayescalib.stages.figures import _shown_pair
 
     params = [{"name": n, "prior": {"type": "uniform", "lo": lo, "hi": hi}, "bounds": [lo, hi]}
               for n, lo, hi in (("E1", 100.0, 1200.0), ("nu1", -0.8, 0.45),

@@ -1,4 +1,4 @@
-"""Posterior summaries, KDE/HPD levels and storage (bayescalib.posterior, bayescalib.kde)."""
+"""Posterior summaries, KDE/HPD levels and storage (bayescalib.inference.posterior, bayescalib.kde)."""
 
 import json
 
@@ -6,16 +6,16 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from bayescalib.parameters import Normal, Parameter, ParameterSpace, Uniform
-from bayescalib.posterior import (
+from bayescalib.inference.parameters import Normal, Parameter, ParameterSpace, Uniform
+from bayescalib.inference.posterior import (
     laplace_approximation,
     read_particles_h5,
     summarize,
     write_netcdf,
     write_particles_h5,
 )
-from bayescalib.smc import SMCResult, run_smc
-from bayescalib.weights import (
+from bayescalib.inference.smc import SMCResult, run_smc
+from bayescalib.inference.weights import (
     weighted_kde,
     weighted_quantile,
 )
@@ -198,7 +198,7 @@ def test_netcdf_is_arviz_inference_data_without_warnings(tmp_path, small_run):
     agrees with the weighted particle mean."""
     import warnings
 
-    from bayescalib.posterior import _arviz
+    from bayescalib.inference.posterior import _arviz
 
     az = _arviz()
     space, r = small_run

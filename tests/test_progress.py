@@ -1,5 +1,5 @@
 """The console of a run: progress with the time left, per-job blocks left out
-(bayescalib.progress and the Snakemake logger plugin the default profile names)."""
+(bayescalib.execution.progress and the Snakemake logger plugin the default profile names)."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ import pytest
 import yaml
 from snakemake_interface_logger_plugins.common import LogEvent
 
-from bayescalib.progress import format_duration, progress_line
+from bayescalib.execution.progress import format_duration, progress_line
 
 REPO = __import__("pathlib").Path(__file__).resolve().parents[1]
 

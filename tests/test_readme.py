@@ -80,7 +80,7 @@ def scratch(tmp_path_factory):
     for cfg in (root / "config").glob("*.yaml"):
         if cfg.name != "config.yaml":  # a study of its own name on the stand-in model
             cfg.write_text(yaml.safe_dump({"study": cfg.stem}))
-    from bayescalib.analytic_model import interface
+    from bayescalib.models.analytic import interface
 
     for name, e in (("model.csv", 300.0), ("observed.csv", 400.0)):
         pts = interface({"E": e, "nu": 0.3})["current"]

@@ -10,7 +10,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from bayescalib.runrecord import FORMAT_VERSION, RunFileError, SolveResult, read_run, write_run
+from bayescalib.io.runrecord import FORMAT_VERSION, RunFileError, SolveResult, read_run, write_run
 
 
 def _result(n: int = 7, status: str = "ok", seed: int = 0) -> SolveResult:

@@ -1,4 +1,4 @@
-"""SMC with adaptive tempering (bayescalib.smc) on analytic posteriors.
+"""SMC with adaptive tempering (bayescalib.inference.smc) on analytic posteriors.
 
 Tolerances are several Monte Carlo standard deviations of the estimator,
 measured over independent seeds with the same settings (numbers in the
@@ -10,9 +10,9 @@ import pytest
 from scipy import stats
 from scipy.special import logsumexp
 
-from bayescalib.parameters import Normal, Parameter, ParameterSpace, Uniform
-from bayescalib.resampling import systematic_resample
-from bayescalib.smc import next_gamma, run_smc
+from bayescalib.inference.parameters import Normal, Parameter, ParameterSpace, Uniform
+from bayescalib.inference.resampling import systematic_resample
+from bayescalib.inference.smc import next_gamma, run_smc
 
 
 def wmean_var(r, j=0):

@@ -29,7 +29,7 @@ def test_design_points_keep_their_values_when_the_design_grows():
 def test_forward_section_keeps_only_the_chosen_model():
     study = Study(deep_merge(DEFAULT, {"forward_model": {
         "type": "python", "warm_start": "none",
-        "python": {"function": "bayescalib.analytic_model:interface"}}}))
+        "python": {"function": "bayescalib.models.analytic:interface"}}}))
     fm = study.forward_section()
     assert "fsi" not in fm and fm["python"]["function"].endswith(":interface")
 
@@ -90,7 +90,7 @@ def test_a_study_layered_on_the_defaults_sets_the_noise_either_way():
 def test_a_python_study_on_the_defaults_just_works(warm, expect_note):
     """The fsi model's warm start does not apply to another model type: by default it
     is off for it, and asked for explicitly it is ignored with a note."""
-    fm = {"type": "python", "python": {"function": "bayescalib.analytic_model:interface"}}
+    fm = {"type": "python", "python": {"function": "bayescalib.models.analytic:interface"}}
     if warm is not None:
         fm["warm_start"] = warm
     study = Study(merge_layers([DEFAULT, {"forward_model": fm}]))

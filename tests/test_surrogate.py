@@ -1,11 +1,11 @@
-"""GP surrogate of the log-likelihood (bayescalib.surrogate) and the convergence study."""
+"""GP surrogate of the log-likelihood (bayescalib.inference.surrogate) and the convergence study."""
 
 import numpy as np
 import pytest
 
-from bayescalib.convergence import convergence_study_function
-from bayescalib.design import sobol_design, sobol_test_points
-from bayescalib.surrogate import GPSurrogate, fit_gp
+from bayescalib.inference.convergence import convergence_study_function
+from bayescalib.inference.design import sobol_design, sobol_test_points
+from bayescalib.inference.surrogate import GPSurrogate, fit_gp
 
 BOX = np.array([[100.0, 800.0], [-0.8, 0.5]])
 
@@ -160,7 +160,7 @@ def test_convergence_study_error_decreases():
 def test_scg_optimizer_improves_evidence():
     # SCG (the paper's choice in 6D) must end at a higher evidence than its fixed start
     # (s^2 = mean((y - m)^2), l = 0.3), and not far below L-BFGS-B's optimum.
-    from bayescalib.surrogate import _build_gpy
+    from bayescalib.inference.surrogate import _build_gpy
 
     X = sobol_design(BOX, 32, 4)
     y = smooth_loglik(X)
@@ -183,7 +183,7 @@ def test_every_kernel_predicts_as_gpy_does(kernel, device):
     independent factorizations; the two fast predictors agree with each other closer).
     A nugget of 1e-3 of the range keeps K well conditioned, so that GPy adds no jitter
     of its own (it does near singularity, and then the two would differ by that)."""
-    from bayescalib.surrogate import fit_gp
+    from bayescalib.inference.surrogate import fit_gp
 
     rng = np.random.default_rng(3)
     X = rng.uniform(0, 1, (40, 2))

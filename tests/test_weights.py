@@ -1,4 +1,4 @@
-"""Tests of bayescalib.weights: the one module for weighted particles (normalization,
+"""Tests of bayescalib.inference.weights: the one module for weighted particles (normalization,
 effective sample size, quantiles, KDE, HPD thresholds), against analytic answers."""
 
 from __future__ import annotations
@@ -8,7 +8,7 @@ import pytest
 from _gaussian import COV, MEAN
 from scipy import stats
 
-from bayescalib.weights import (
+from bayescalib.inference.weights import (
     ess,
     hpd_thresholds,
     hpd_thresholds_grid,

@@ -188,7 +188,7 @@ def test_a_users_study_layered_on_the_default_study_just_works(tmp_path):
     (tmp_path / "config").mkdir()
     shutil.copy(REPO / "config" / "config.yaml", tmp_path / "config" / "config.yaml")
     mine = {"study": "mine", "forward_model": {
-        "type": "python", "python": {"function": "bayescalib.analytic_model:interface"}},
+        "type": "python", "python": {"function": "bayescalib.models.analytic:interface"}},
         "likelihood": {"sigma_n": 0.002},
         "design": {"active": {"n_initial": 8, "batch_size": 4, "max_solves": 16}}}
     (tmp_path / "mine.yaml").write_text(yaml.safe_dump(mine))

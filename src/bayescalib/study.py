@@ -186,7 +186,7 @@ class Study:
     @staticmethod
     def _check_consistency(cfg: dict[str, Any], where: str) -> list[str]:
         """Check what the schema cannot; resolve ``auto`` settings; return notes."""
-        from bayescalib.parameters import ParameterError, ParameterSpace
+        from bayescalib.inference.parameters import ParameterError, ParameterSpace
 
         notes: list[str] = []
         try:
@@ -256,7 +256,7 @@ class Study:
         if len(set(names)) != len(names):
             raise ConfigError(f"{where}: parameters: duplicate parameter names in {names}")
         try:
-            from bayescalib.likelihood import sigma_n2_from_config
+            from bayescalib.inference.likelihood import sigma_n2_from_config
 
             sigma_n2_from_config(cfg["likelihood"])
         except ValueError as exc:
@@ -271,7 +271,7 @@ class Study:
     def _check_observation_files(cfg: dict[str, Any], where: str) -> None:
         """Observation files exist, can be read and (text and VTK files, which are
         cheap to read) hold an interface that fits the domain: known before any job."""
-        from bayescalib.observations import (
+        from bayescalib.io.observations import (
             CSV_SUFFIXES,
             IMAGE_SUFFIXES,
             VTK_SUFFIXES,
@@ -372,7 +372,7 @@ class Study:
             raise ConfigError(f"{where}: observations.hidden needs observations.source synthetic")
         if cfg["forward_model"]["type"] != "fsi":
             return  # passed to the python/command model as extra parameters
-        from bayescalib.fsi.model import FSIModel
+        from bayescalib.models.fsi.model import FSIModel
 
         try:  # the checks of a solve with these overrides (validation, physics switches)
             FSIModel(cfg["forward_model"]["fsi"]).resolved_config(hidden)
@@ -418,14 +418,14 @@ class Study:
 
     def round_size(self, r: int) -> int:
         """Number of design points after active round ``r`` (0-based)."""
-        from bayescalib.active import round_sizes
+        from bayescalib.inference.active import round_sizes
 
         a = self.config["design"]["active"]
         return round_sizes(a["n_initial"], a["batch_size"], a["max_solves"], int(r) + 1)[-1]
 
     def point_round(self, i: int) -> tuple[int, int]:
         """(active round, position in its batch) of design point ``i``."""
-        from bayescalib.active import point_round
+        from bayescalib.inference.active import point_round
 
         a = self.config["design"]["active"]
         return point_round(int(i), a["n_initial"], a["batch_size"])
@@ -444,13 +444,13 @@ class Study:
     # ----------------------------------------------------------------- design
     @cached_property
     def space(self):
-        from bayescalib.parameters import ParameterSpace
+        from bayescalib.inference.parameters import ParameterSpace
 
         return ParameterSpace.from_config(self.config["parameters"])
 
     @cached_property
     def _design(self):
-        from bayescalib.design import sobol_design
+        from bayescalib.inference.design import sobol_design
 
         return sobol_design(self.space.bounds, self.n_sobol, self.config["design"]["seed"])
 

@@ -8,9 +8,9 @@ profile sets it): Snakemake's own console output, quieter and with the time left
   The scheduler's "Select jobs to execute..." is left out too. ``--verbose``, and a
   dry run (``-n``, read for its jobs), bring all of it back. The jobs themselves print
   warnings and errors only (their information goes to their log file,
-  :func:`bayescalib.pipeline.setup_logging`).
+  :func:`bayescalib.stages.setup_logging`).
 * The progress line carries an estimate of the time left
-  (:func:`bayescalib.progress.progress_line`).
+  (:func:`bayescalib.execution.progress.progress_line`).
 """
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ import time
 from snakemake_interface_logger_plugins.base import LogHandlerBase
 from snakemake_interface_logger_plugins.common import LogEvent
 
-from bayescalib.progress import progress_line
+from bayescalib.execution.progress import progress_line
 
 __all__ = ["LogHandler"]
 

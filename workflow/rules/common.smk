@@ -94,7 +94,7 @@ def _solve_inputs(wildcards):
     return out
 
 
-# ---- Jobs through the run's job server (bayescalib.jobserver)
+# ---- Jobs through the run's job server (bayescalib.execution.jobserver)
 # The per-point jobs (solve, discrepancy) and the per-round and per-measure ones
 # (train_surrogate, smc, acquire, marginalize) run `scripts/job.py`, a standard-library
 # client that hands the job (its params as Python literals: `{params.x!r:q}`, the repr
@@ -104,7 +104,7 @@ def _solve_inputs(wildcards):
 # workflow sets here (not the user): it holds no path of this machine, and a moved
 # checkout or another venv reruns nothing.
 
-from bayescalib.jobserver import export_job_command
+from bayescalib.execution.jobserver import export_job_command
 
 export_job_command(workflow.basedir, conda=any(
     getattr(m, "name", str(m)).lower() == "conda"

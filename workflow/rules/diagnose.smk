@@ -4,7 +4,7 @@
 # active rounds that summary.json reports). Its forward solves run inside the job
 # (they depend on the posterior) through the same solve path as `solve`, in
 # parallel on the job's threads, kept under diagnosis/ and reused; its extended
-# calibrations are the same active-design chain as the study's (bayescalib.chain).
+# calibrations are the same active-design chain as the study's (bayescalib.stages.chain).
 
 
 rule diagnose:

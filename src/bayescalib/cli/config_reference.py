@@ -16,8 +16,8 @@ def add_parser(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from bayescalib._atomic_write import atomic_path
     from bayescalib.config_reference import reference_markdown
+    from bayescalib.io._atomic_write import atomic_path
 
     text = reference_markdown()
     if args.out is None:

@@ -5,7 +5,7 @@ Example::
     bayescalib distance --measure rkhs --sigma-w 0.005 model.csv observed.png \\
         --pixel-size 0.004 --origin 0 0 --json
 
-MODEL and OBS are interface files in any format :func:`bayescalib.observations.read_interface`
+MODEL and OBS are interface files in any format :func:`bayescalib.io.observations.read_interface`
 reads (CSV, VTK polyline, mask image), or run records (``.h5``, as written by
 ``bayescalib solve`` and the workflow's solves: their deformed interface, in mm).
 ``--units``, ``--pixel-size``, ``--origin`` and ``--floor`` apply to both files (they only
@@ -57,8 +57,8 @@ def _read(path: str, opts: dict, read_interface):
     from pathlib import Path
 
     if Path(path).suffix.lower() in (".h5", ".hdf5"):
-        from bayescalib.interface import Interface
-        from bayescalib.runrecord import RunFileError, read_run
+        from bayescalib.geometry.interface import Interface
+        from bayescalib.io.runrecord import RunFileError, read_run
 
         try:
             run = read_run(path)
@@ -77,8 +77,8 @@ def run(args: argparse.Namespace) -> int:
 
     import numpy as np
 
+    from bayescalib.io.observations import read_interface, read_points
     from bayescalib.measures import compute
-    from bayescalib.observations import read_interface, read_points
 
     opts = {"units": args.units, "pixel_size": args.pixel_size, "origin": args.origin, "floor": args.floor}
     model = _read(args.model, opts, read_interface)

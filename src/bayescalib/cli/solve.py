@@ -7,7 +7,7 @@ Example::
 The config file may be an fsi section or a whole study config (its
 ``forward_model.fsi`` subsection is used). ``--set KEY=VALUE`` overrides use dotted keys
 of the fsi section. The run record is written to ``OUT/run.h5`` (HDF5, see
-:mod:`bayescalib.runrecord`), a converged state to ``OUT/run.state.npz`` (usable with
+:mod:`bayescalib.io.runrecord`), a converged state to ``OUT/run.state.npz`` (usable with
 ``--warm-start``) and, with ``--vtu``, the fields to ``OUT/run.vtu``. A failed solve is
 a normal outcome (status "failed" in the record and the summary, exit code 0);
 configuration errors exit with code 2.
@@ -35,7 +35,7 @@ def run(args: argparse.Namespace) -> int:
     """Run one solve and print the JSON summary; returns 0 once the run record is written
     (a failed solve is recorded data, not an error of the command)."""
     from bayescalib.config import apply_overrides, load_yaml, validate
-    from bayescalib.fsi.model import fsi_section, solve_to_file
+    from bayescalib.models.fsi.model import fsi_section, solve_to_file
 
     cfg = fsi_section(load_yaml(args.config)) if args.config else {}
     where = args.config or "config"

@@ -25,7 +25,7 @@ def _fmt(v) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    from bayescalib.pipeline import PipelineError, read_json, run_line
+    from bayescalib.stages import PipelineError, read_json, run_line
 
     path = Path(args.results)
     if path.is_dir():

@@ -5,7 +5,7 @@ model and show the improvement (issue: model-form diagnosis).
 Modules: :mod:`~bayescalib.diagnosis.residuals` (posterior predictive check, bands,
 located intervals), :mod:`~bayescalib.diagnosis.attribution` (signatures, score
 tests, sparse selection), :mod:`~bayescalib.diagnosis.extended` (calibration of the
-extended model by the study's active-design chain, :mod:`bayescalib.chain`, and Bayes
+extended model by the study's active-design chain, :mod:`bayescalib.stages.chain`, and Bayes
 factors), :mod:`~bayescalib.diagnosis.stage`
 (the pipeline stage writing ``diagnosis.json``).
 """

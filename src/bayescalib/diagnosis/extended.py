@@ -8,7 +8,7 @@ and round 0 adds ``n_new`` scrambled Sobol points over the extended box. From th
 extended model is calibrated exactly as the study was: active-design rounds with the
 study's ``design.active`` settings (surrogate, SMC, trust check, stop rule, next batch),
 by the same stage functions and the same solve path
-(:func:`bayescalib.chain.calibrate_rounds`), until the stop rule holds or the budget of
+(:func:`bayescalib.stages.chain.calibrate_rounds`), until the stop rule holds or the budget of
 new solves is spent. The result says whether it converged.
 
 The log Bayes factor of the extended against the base model is the difference of the
@@ -100,18 +100,18 @@ def extended_calibration(
     active
         The study's validated ``design.active`` section.
     chain
-        The remaining arguments of :func:`bayescalib.chain.calibrate_rounds`
+        The remaining arguments of :func:`bayescalib.stages.chain.calibrate_rounds`
         (observations, measure, likelihood, surrogate, SMC and posterior settings,
         workers, warm start).
 
     Returns
     -------
     dict
-        As :func:`~bayescalib.chain.calibrate_rounds`, plus ``candidate``.
+        As :func:`~bayescalib.stages.chain.calibrate_rounds`, plus ``candidate``.
     """
-    from bayescalib.chain import calibrate_rounds, training_rows
-    from bayescalib.design import sobol_design
-    from bayescalib.parameters import ParameterSpace
+    from bayescalib.inference.design import sobol_design
+    from bayescalib.inference.parameters import ParameterSpace
+    from bayescalib.stages.chain import calibrate_rounds, training_rows
 
     params_ext = extended_parameters(parameters, cand)
     space = ParameterSpace.from_config(params_ext)

@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 from scipy.stats import chi2
 
-from bayescalib._atomic_write import atomic_path
+from bayescalib.io._atomic_write import atomic_path
 
 __all__ = ["write_diagnosis"]
 
@@ -40,9 +40,9 @@ def write_diagnosis(diagnosis: Mapping[str, Any], checks: Mapping[str, Any], *,
     list of str
         The written figure paths.
     """
-    from bayescalib.pipeline import write_json
     from bayescalib.plotting import plot_interface_residual
     from bayescalib.plotting.diagnosis import plot_candidate_ranking, plot_residual_bands
+    from bayescalib.stages import write_json
 
     fig = Path(figdir)
     written: list[str] = []

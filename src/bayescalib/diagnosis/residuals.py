@@ -47,8 +47,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.special import ndtri
 
-from bayescalib.interface import Interface
-from bayescalib.projection import closest_points
+from bayescalib.geometry.interface import Interface
+from bayescalib.geometry.projection import closest_points
 
 __all__ = [
     "PredictiveCheck",

@@ -40,8 +40,8 @@ from typing import Any
 import numpy as np
 
 from bayescalib.diagnosis.extended import CandidateSpec, extended_calibration
-from bayescalib.pipeline import model_interfaces
-from bayescalib.posterior import equal_weight_draws
+from bayescalib.inference.posterior import equal_weight_draws
+from bayescalib.stages import model_interfaces
 
 __all__ = ["DEFAULT_FSI_PRIORS", "decide_verdict", "plain_words", "resolve_candidates", "run_diagnosis"]
 
@@ -64,7 +64,7 @@ class PredictiveCheckError(ValueError):
 
 def resolve_candidates(fm: Mapping[str, Any], diagnose: Mapping[str, Any]) -> list[CandidateSpec]:
     """The candidates to test: ``diagnose.candidates`` or, for the fsi model, the built-in
-    library (:data:`bayescalib.fsi.physics.CANDIDATES`) minus those already switched on."""
+    library (:data:`bayescalib.models.fsi.physics.CANDIDATES`) minus those already switched on."""
     given = diagnose.get("candidates")
     if given:
         return [CandidateSpec(name=c["name"], target=c["target"], step=float(c["step"]),
@@ -75,7 +75,7 @@ def resolve_candidates(fm: Mapping[str, Any], diagnose: Mapping[str, Any]) -> li
     if fm.get("type") != "fsi":
         raise ValueError("diagnose.candidates: list the candidate effects of a python or "
                          "command forward model (name, target, step, prior)")
-    from bayescalib.fsi.physics import CANDIDATES
+    from bayescalib.models.fsi.physics import CANDIDATES
 
     physics = (fm.get("fsi") or {}).get("physics") or {}
     out = []
@@ -93,7 +93,7 @@ def _check_from_particles(tag: str, particles: str | Path, targets: Sequence[str
                           switches: Mapping[str, Any], obs, fm, cfg, work: Path,
                           workers: int, warm_start, sigma):
     from bayescalib.diagnosis.residuals import predictive_check
-    from bayescalib.forward import solve_points
+    from bayescalib.models.forward import solve_points
 
     X = equal_weight_draws(particles, int(cfg["n_draws"]), int(cfg["seed"]))
     points = [{**dict(zip(targets, map(float, x), strict=True)), **switches} for x in X]
@@ -158,11 +158,10 @@ def run_diagnosis(
 
     ``active`` is the study's validated ``design.active`` section (the extended
     calibrations use it); ``design`` the design block of the study's calibration
-    (:func:`bayescalib.pipeline.design_summary`: strategy, solves, converged, reason).
+    (:func:`bayescalib.stages.design_summary`: strategy, solves, converged, reason).
 
     Solves and extended calibrations are kept under ``outdir`` and reused.
     """
-    from bayescalib.active import history_table
     from bayescalib.diagnosis.attribution import (
         attribute,
         jacobian_from_offsets,
@@ -170,10 +169,11 @@ def run_diagnosis(
         signature_from_offsets,
     )
     from bayescalib.diagnosis.residuals import offsets
-    from bayescalib.forward import solve_points
-    from bayescalib.observation_store import read_observations
-    from bayescalib.parameters import ParameterSpace
-    from bayescalib.posterior import read_particles_h5
+    from bayescalib.inference.active import history_table
+    from bayescalib.inference.parameters import ParameterSpace
+    from bayescalib.inference.posterior import read_particles_h5
+    from bayescalib.io.observation_store import read_observations
+    from bayescalib.models.forward import solve_points
 
     work = Path(outdir)
     cfg = dict(diagnose)

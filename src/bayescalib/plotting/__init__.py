@@ -19,7 +19,7 @@ Modules (one figure family each)
 
 Helpers: :mod:`.style` (rc context, palette, labels), :mod:`.gaussian`
 (probability ellipses); weighted KDE and HPD thresholds come from
-:mod:`bayescalib.weights`, the module the posterior summaries use.
+:mod:`bayescalib.inference.weights`, the module the posterior summaries use.
 """
 
 from .convergence import plot_gp_convergence

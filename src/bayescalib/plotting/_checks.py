@@ -17,8 +17,8 @@ from typing import Any
 import numpy as np
 from matplotlib.figure import Figure
 
-from bayescalib._atomic_write import atomic_path
-from bayescalib.weights import normalize_weights
+from bayescalib.inference.weights import normalize_weights
+from bayescalib.io._atomic_write import atomic_path
 
 __all__ = [
     "PathsLike",

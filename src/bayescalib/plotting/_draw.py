@@ -14,7 +14,7 @@ import numpy as np
 from matplotlib.axes import Axes
 from matplotlib.collections import PolyCollection
 
-from bayescalib.weights import hpd_thresholds, kde_on_grid, weighted_kde
+from bayescalib.inference.weights import hpd_thresholds, kde_on_grid, weighted_kde
 
 from ._checks import as_array
 from .style import COLORS, DENSITY_CMAP

@@ -66,8 +66,8 @@ def deflection_profile(reference: np.ndarray, curve: np.ndarray
         normal points to (left of the direction of travel: into the fluid for an
         interface ordered upstream to downstream), in the order of ``s``.
     """
-    from bayescalib.interface import Interface
-    from bayescalib.projection import closest_points
+    from bayescalib.geometry.interface import Interface
+    from bayescalib.geometry.projection import closest_points
 
     ref = Interface.polyline(reference)
     signed, foot, cell = closest_points(np.asarray(curve, float), ref)

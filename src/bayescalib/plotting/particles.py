@@ -8,7 +8,7 @@ from collections.abc import Sequence
 import numpy as np
 from matplotlib.figure import Figure
 
-from bayescalib.weights import ess
+from bayescalib.inference.weights import ess
 
 from ._checks import (
     PathsLike,

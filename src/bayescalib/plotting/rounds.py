@@ -1,5 +1,5 @@
 """Active design rounds: where each round's posterior lay, where its solves went,
-and the two checks of the stop rule per round (:mod:`bayescalib.active`)."""
+and the two checks of the stop rule per round (:mod:`bayescalib.inference.active`)."""
 
 from __future__ import annotations
 

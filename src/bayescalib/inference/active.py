@@ -1,0 +1,619 @@
+"""Active design: rounds of solves placed where the posterior lives, a trust check
+of the surrogate against real solves, and an honest stop rule.
+
+The paper fixes the design in advance (Sec. 3.2: a scrambled Sobol sample over
+the prior box) and names the remedy for sharp likelihoods in Sec. 3.3: refine
+where the posterior lives. This module makes that a sequential design with a
+stated convergence criterion. Round 0 is the Sobol design (``n_initial``
+points). Each round r then
+
+1. fits the GP surrogate of the log-likelihood on all solves so far (with the
+   log-misfit warping of :mod:`bayescalib.inference.surrogate`, so it never exceeds the
+   likelihood's upper bound) and runs SMC on it (Algorithm 1);
+2. checks the surrogate of round r-1 against the solves it asked for
+   (:func:`trust_check`): their log-likelihoods were *predicted before they were
+   solved*, so the errors are out of sample and lie where the posterior lives;
+3. measures how far the posterior moved since round r-1 (:func:`posterior_change`,
+   in posterior standard deviations, plus a Gaussian Hellinger distance);
+4. stops when both checks pass for ``patience`` consecutive rounds (converged)
+   or when the next batch would exceed ``max_solves`` (budget spent: not
+   converged, and said so); otherwise it picks the next batch of ``batch_size``
+   points (:func:`select_batch`), which run as ordinary parallel solve jobs.
+
+Acquisition (:func:`select_batch`). Candidates are drawn from the current
+posterior (resampled SMC particles, jittered by half a posterior sd per
+parameter, reflected into the box) and, as many, uniformly over the box. Most of
+a batch exploits: each candidate is scored by the uncertainty of the
+unnormalized posterior where it is large,
+
+    log a(x) = log var_L(x) + mean_L(x) + log p(x),
+
+the GP variance of the log-likelihood weighted by the surrogate posterior
+density: the "prospective uncertainty sampling" of VBMC (Acerbi 2018) with the
+surrogate posterior in place of the variational one, which also underlies BAPE
+(Kandasamy et al. 2017) and the batch rules of Jarvenpaa et al. (2019). A batch
+is chosen greedily: after each pick, the GP variance of the remaining
+candidates is conditioned on that point (the variance of a GP does not depend
+on the value that will be observed, so this is exact for the variance; the mean
+is kept, as in the "kriging believer"), so the batch spreads over the
+uncertain posterior region instead of piling up at its maximum. A share
+``explore_fraction`` of each batch explores: among the uniform candidates that
+the surrogate cannot rule out of the posterior region (probability at least
+``P_PLAUSIBLE`` that their log-likelihood lies within ``delta`` of the best
+solve), the one of largest GP variance, again with conditioning. Exploitation
+alone settles on the first mode it finds and can declare convergence on it; the
+exploring points probe the rest of the box where posterior mass is still
+possible, and a mode they hit shows as a large error in the next trust check.
+Failed solves are conditioned on in the same way: the acquisition does not
+return to a point whose solve failed, while the GP itself is fitted on the
+successful solves only (a failure carries no value of the log-likelihood to
+fit).
+
+All functions are pure (arrays in, arrays or plain dicts out) and seeded; the
+Snakemake rules of ``workflow/rules/active.smk`` call :func:`acquire_round` once
+per round, and :func:`calibrate` runs the same rounds in-process for a
+log-likelihood given as a Python function (benchmarks, tests).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+__all__ = [
+    "ActiveResult",
+    "acquire_round",
+    "calibrate",
+    "candidate_pool",
+    "posterior_change",
+    "posterior_moments",
+    "round_sizes",
+    "select_batch",
+    "trust_check",
+]
+
+log = logging.getLogger(__name__)
+
+#: probability level of the posterior region in which the surrogate is checked
+REGION_LEVEL = 0.99
+#: jitter of the posterior candidates, in posterior standard deviations
+BANDWIDTH = 0.5
+#: share of the candidate pool drawn uniformly over the box
+POOL_UNIFORM = 0.5
+#: smallest probability of lying in the posterior region for an exploring pick
+P_PLAUSIBLE = 1e-3
+#: exponent of the surrogate posterior in the score of exploring picks
+EXPLORE_TEMPER = 0.3
+
+
+# ------------------------------------------------------------------ round layout
+def round_sizes(n_initial: int, batch_size: int, max_solves: int, n_rounds: int) -> list[int]:
+    """Cumulative number of design points after rounds 0..n_rounds-1.
+
+    Round 0 has ``n_initial`` points, each later round ``batch_size`` more, the last
+    one truncated to ``max_solves``. Point ``i >= n_initial`` belongs to round
+    ``1 + (i - n_initial) // batch_size`` at position ``(i - n_initial) % batch_size``.
+    """
+    out, n = [], int(n_initial)
+    for r in range(int(n_rounds)):
+        if r > 0:
+            n = min(n + int(batch_size), int(max_solves))
+        out.append(n)
+    return out
+
+
+def point_round(i: int, n_initial: int, batch_size: int) -> tuple[int, int]:
+    """(round, position in the round's batch) of design point ``i`` (0-based)."""
+    if i < n_initial:
+        return 0, int(i)
+    k = int(i) - int(n_initial)
+    return 1 + k // int(batch_size), k % int(batch_size)
+
+
+# ------------------------------------------------------------------- posterior
+def posterior_moments(particles: np.ndarray, weights: np.ndarray) -> dict[str, np.ndarray]:
+    """Weighted mean (d,), covariance (d, d) and sd (d,) of SMC particles."""
+    X = np.atleast_2d(np.asarray(particles, float))
+    W = np.asarray(weights, float)
+    W = W / W.sum()
+    mean = W @ X
+    R = X - mean
+    cov = (R * W[:, None]).T @ R
+    return {"mean": mean, "cov": cov, "sd": np.sqrt(np.maximum(np.diag(cov), 0.0))}
+
+
+def _gaussian_distances(m0, C0, m1, C1) -> tuple[float, float]:
+    """Hellinger distance and KL(N0 || N1) between two Gaussians (nan if singular)."""
+    d = len(m0)
+    try:
+        C = 0.5 * (C0 + C1)
+        s0, ld0 = np.linalg.slogdet(C0)
+        s1, ld1 = np.linalg.slogdet(C1)
+        s, ld = np.linalg.slogdet(C)
+        if min(s0, s1, s) <= 0:
+            return math.nan, math.nan
+        dm = np.asarray(m1) - np.asarray(m0)
+        bc = math.exp(0.25 * ld0 + 0.25 * ld1 - 0.5 * ld - 0.125 * dm @ np.linalg.solve(C, dm))
+        h = math.sqrt(max(0.0, 1.0 - bc))
+        C1inv = np.linalg.inv(C1)
+        kl = 0.5 * (np.trace(C1inv @ C0) + dm @ C1inv @ dm - d + ld1 - ld0)
+        return h, float(kl)
+    except (np.linalg.LinAlgError, ValueError, OverflowError):
+        return math.nan, math.nan
+
+
+def posterior_change(previous: Mapping[str, Any], current: Mapping[str, Any]) -> dict[str, float]:
+    """How far the posterior moved between two rounds.
+
+    Parameters
+    ----------
+    previous, current
+        Moments as returned by :func:`posterior_moments` (``mean``, ``cov``, ``sd``).
+
+    Returns
+    -------
+    dict
+        ``shift_sd``: max over parameters of |mean change| / sd, with the smaller of
+        the two rounds' sds (a posterior that narrows spuriously does not hide its
+        move); ``sd_change``: max over parameters of |sd ratio - 1| (ratio >= 1 taken
+        both ways); ``hellinger`` and ``kl``: between the two rounds' moment-matched
+        Gaussians (KL(current || previous)).
+    """
+    m0, m1 = np.asarray(previous["mean"], float), np.asarray(current["mean"], float)
+    s0, s1 = np.asarray(previous["sd"], float), np.asarray(current["sd"], float)
+    tiny = 1e-300
+    shift = float(np.max(np.abs(m1 - m0) / np.maximum(np.minimum(s0, s1), tiny)))
+    ratio = np.maximum(s1, tiny) / np.maximum(s0, tiny)
+    sd_change = float(np.max(np.maximum(ratio, 1.0 / ratio)) - 1.0)
+    h, kl = _gaussian_distances(m1, np.asarray(current["cov"], float), m0,
+                                np.asarray(previous["cov"], float))
+    return {"shift_sd": shift, "sd_change": sd_change, "hellinger": h, "kl": kl}
+
+
+# ------------------------------------------------------------------ trust check
+def trust_check(pred_mean: np.ndarray, pred_sd: np.ndarray, loglik: np.ndarray,
+                loglik_best: float, dim: int, tol_nats: float) -> dict[str, Any]:
+    """Out-of-sample check of the surrogate at the newly solved points.
+
+    Parameters
+    ----------
+    pred_mean, pred_sd
+        The surrogate's log-likelihood mean and sd at the new points, (q,), predicted
+        *before* these points were solved.
+    loglik
+        Their real log-likelihoods, (q,) (-inf for failed solves).
+    loglik_best
+        Largest real log-likelihood of all solves so far.
+    dim
+        Number of parameters.
+    tol_nats
+        Tolerance on the prediction error in the posterior region (nats).
+
+    Returns
+    -------
+    dict
+        ``passed`` is true when at least one new point lies in the posterior region
+        and every such point was predicted within ``tol_nats``. The posterior region
+        is where the real *or* the predicted log-likelihood is within
+        ``delta = chi2_{dim}(0.99) / 2`` of ``loglik_best`` (it holds 99 % of a
+        Gaussian posterior's mass); a point the surrogate placed in the region but
+        whose real value is far below (a spurious mode) counts with its full error.
+        Also ``n_region``, ``max_abs_error`` and ``rms_error`` there (nats),
+        ``coverage_2sd`` (share of region points within 2 predicted sd) and
+        ``n_failed`` (failed solves among the new points; a failure where the
+        surrogate put posterior mass is counted in ``n_failed_in_region``).
+    """
+    from scipy.stats import chi2
+
+    mu = np.asarray(pred_mean, float)
+    sd = np.asarray(pred_sd, float)
+    L = np.asarray(loglik, float)
+    delta = 0.5 * float(chi2.ppf(REGION_LEVEL, dim))
+    ok = np.isfinite(L)
+    top = np.where(ok, np.maximum(L, mu), mu)
+    region = top >= loglik_best - delta
+    in_region = region & ok
+    err = np.where(ok, L - mu, np.nan)
+    e = np.abs(err[in_region])
+    out: dict[str, Any] = {
+        "delta_nats": delta,
+        "tol_nats": float(tol_nats),
+        "n_points": int(L.size),
+        "n_failed": int((~ok).sum()),
+        "n_region": int(in_region.sum()),
+        "n_failed_in_region": int((region & ~ok).sum()),
+        "errors": err,
+        "max_abs_error": float(e.max()) if e.size else None,
+        "rms_error": float(np.sqrt(np.mean(e**2))) if e.size else None,
+        "coverage_2sd": float(np.mean(e <= 2.0 * np.maximum(sd[in_region], 1e-12)))
+        if e.size else None,
+    }
+    out["passed"] = bool(e.size > 0 and e.max() <= tol_nats)
+    return out
+
+
+# ------------------------------------------------------------------ acquisition
+def _reflect(U: np.ndarray) -> np.ndarray:
+    """Reflect unit-box coordinates into [0, 1] (a jittered draw stays inside)."""
+    U = np.mod(U, 2.0)
+    return np.where(U > 1.0, 2.0 - U, U)
+
+
+def candidate_pool(particles: np.ndarray, weights: np.ndarray, bounds: np.ndarray, n: int,
+                   rng: np.random.Generator, *, uniform_fraction: float = POOL_UNIFORM,
+                   bandwidth: float = BANDWIDTH) -> np.ndarray:
+    """Candidate points for the next batch, (n, d) in user units.
+
+    ``(1 - uniform_fraction) n`` are resampled particles jittered by ``bandwidth``
+    posterior sd per parameter (at least 0.5 % of the box), reflected into the box;
+    the last ``round(uniform_fraction n)`` rows are uniform over the box.
+    """
+    from bayescalib.inference.resampling import systematic_resample
+
+    b = np.asarray(bounds, float)
+    lo, width = b[:, 0], b[:, 1] - b[:, 0]
+    X = np.atleast_2d(np.asarray(particles, float))
+    W = np.asarray(weights, float)
+    W = W / W.sum()
+    n_explore = round(n * float(uniform_fraction))
+    n_post = int(n) - n_explore
+    U = (X - lo) / width
+    mean = W @ U
+    sd = np.sqrt(np.maximum(W @ (U - mean) ** 2, 0.0))
+    jitter = bandwidth * np.maximum(sd, 0.005)
+    post = U[systematic_resample(W, rng, n_post)] + rng.standard_normal((n_post, U.shape[1])) * jitter
+    pool = np.vstack([_reflect(post), rng.random((n_explore, U.shape[1]))])
+    return lo + pool * width
+
+
+def select_batch(gp, pool: np.ndarray, logprior: np.ndarray, q: int, *,
+                 failed: np.ndarray | None = None, n_explore: int = 0,
+                 threshold: float | None = None, explore_mask: np.ndarray | None = None) -> dict[str, np.ndarray]:
+    """Greedy batch of ``q`` candidates by prospective uncertainty (module docstring).
+
+    Parameters
+    ----------
+    gp
+        :class:`~bayescalib.inference.surrogate.GPSurrogate` of the log-likelihood.
+    pool
+        Candidates (M, d) in user units.
+    logprior
+        Log prior density at the candidates (M,).
+    q
+        Batch size (<= M).
+    failed
+        Points (F, d) whose solves failed: conditioned on like picked points.
+    n_explore
+        How many of the ``q`` picks explore (the last ones of the batch).
+    threshold
+        Log-likelihood above which a point lies in the posterior region (exploring
+        picks need a probability of at least ``P_PLAUSIBLE`` to exceed it).
+    explore_mask
+        (M,) bool: candidates eligible for exploring picks (the uniform ones).
+
+    Returns
+    -------
+    dict
+        ``points`` (q, d); ``index`` (q,) into ``pool``; ``mean`` and ``sd`` (q,): the
+        surrogate's log-likelihood prediction at each picked point before any of the
+        batch is solved (for the next round's trust check); ``score`` (q,): log a at
+        the time of the pick.
+    """
+    P = np.atleast_2d(np.asarray(pool, float))
+    F = np.empty((0, P.shape[1])) if failed is None else np.atleast_2d(np.asarray(failed, float))
+    F = F.reshape(-1, P.shape[1])
+    M, nf = P.shape[0], F.shape[0]
+    q = int(q)
+    if not 1 <= q <= M:
+        raise ValueError(f"batch size must be in 1..{M}, got {q}")
+    S = np.vstack([F, P])  # conditioning set: failed points first, then candidates
+    g, var_g = gp.predict_latent(S, return_var=True)
+    var_g = np.asarray(var_g, float).copy()
+    V = gp.latent_cov_factor(S)  # (n, nf + M)
+    mean_L = gp.loglik_from_latent(g)[nf:]
+    scale2 = np.exp(2.0 * np.maximum(g, 0.0)) if gp.warped else np.ones_like(g)
+    base = mean_L + np.asarray(logprior, float)
+    cols: list[np.ndarray] = []
+
+    def condition(k: int) -> None:
+        c = gp.latent_kernel(S, S[k : k + 1])[:, 0] - V.T @ V[:, k]
+        for col in cols:
+            c -= col * col[k]
+        ck = max(c[k], 0.0) + gp.nugget
+        col = c / math.sqrt(ck)
+        cols.append(col)
+        np.subtract(var_g, col * col, out=var_g)
+        np.maximum(var_g, 0.0, out=var_g)
+
+    for k in range(nf):
+        condition(k)
+    pred_sd = np.sqrt(scale2[nf:] * var_g[nf:])  # before any pick of this batch
+    n_explore = int(n_explore) if threshold is not None else 0
+    plausible = np.zeros(M, bool)
+    if n_explore:
+        from scipy.special import log_ndtr
+
+        sd_g = np.sqrt(np.maximum(var_g[nf:], 1e-300))
+        if gp.warped:  # L >= threshold  <=>  g <= log1p(B - threshold)
+            z = (np.log1p(max(gp.bound - threshold, 0.0)) - g[nf:]) / sd_g
+        else:
+            z = (g[nf:] - threshold) / sd_g
+        plausible = log_ndtr(z) >= np.log(P_PLAUSIBLE)
+        if explore_mask is not None:
+            plausible &= np.asarray(explore_mask, bool)
+    picked: list[int] = []
+    scores: list[float] = []
+    for b in range(q):
+        explore = b >= q - n_explore and plausible.any()
+        with np.errstate(divide="ignore"):
+            if explore:  # prospective uncertainty under a flattened posterior
+                score = np.where(plausible, np.log(scale2[nf:] * var_g[nf:])
+                                 + EXPLORE_TEMPER * base, -np.inf)
+            else:
+                score = np.log(scale2[nf:] * var_g[nf:]) + base
+        score[picked] = -np.inf
+        k = int(np.argmax(score))
+        if not np.isfinite(score[k]):  # nothing uncertain left: take the best unpicked mean
+            rest = np.where(np.isin(np.arange(M), picked), -np.inf, base)
+            k = int(np.argmax(rest))
+        picked.append(k)
+        scores.append(float(score[k]))
+        condition(nf + k)
+    idx = np.asarray(picked)
+    return {"points": P[idx], "index": idx, "mean": mean_L[idx], "sd": pred_sd[idx],
+            "score": np.asarray(scores)}
+
+
+# ------------------------------------------------------------------ one round
+def _round_seed(seed: int, r: int) -> np.random.Generator:
+    return np.random.default_rng([int(seed), int(r), 0x5EED])
+
+
+def acquire_round(r: int, X: np.ndarray, L: np.ndarray, gp, particles: np.ndarray,
+                  weights: np.ndarray, log_evidence: float, space, active: Mapping[str, Any],
+                  previous: Mapping[str, Any] | None) -> dict[str, Any]:
+    """Everything decided at the end of round ``r``: checks, stop rule, next batch.
+
+    Parameters
+    ----------
+    r
+        Round index (0 = the Sobol design).
+    X, L
+        All solved design points of rounds 0..r, (n, d), and their log-likelihoods
+        (n,), -inf for failed solves; the last rows are round r's batch.
+    gp
+        The surrogate fitted on them.
+    particles, weights, log_evidence
+        SMC on that surrogate.
+    space
+        :class:`~bayescalib.inference.parameters.ParameterSpace`.
+    active
+        The validated ``design.active`` config section.
+    previous
+        The record this function returned for round r-1 (None for round 0).
+
+    Returns
+    -------
+    dict
+        Plain JSON-able record: ``round``, ``n_solves``, ``n_failed``, ``posterior``
+        (mean, sd, cov, log_evidence), ``trust`` (:func:`trust_check` of this round's
+        batch, None in round 0), ``change`` (:func:`posterior_change` from round r-1),
+        ``checks_passed``, ``passed_streak``, ``stop``, ``converged``, ``reason``, and
+        ``next`` (the batch for round r+1: ``points``, ``mean``, ``sd``) unless it stops.
+    """
+    X = np.atleast_2d(np.asarray(X, float))
+    L = np.asarray(L, float)
+    n, d = X.shape
+    stop_cfg = active["stop"]
+    moments = posterior_moments(particles, weights)
+    rec: dict[str, Any] = {
+        "round": int(r),
+        "n_solves": int(n),
+        "n_failed": int((~np.isfinite(L)).sum()),
+        "posterior": {"mean": moments["mean"].tolist(), "sd": moments["sd"].tolist(),
+                      "cov": moments["cov"].tolist(), "log_evidence": float(log_evidence)},
+        "names": list(space.names),
+        "trust": None,
+        "change": None,
+    }
+    finite = np.isfinite(L)
+    best = float(L[finite].max()) if finite.any() else -math.inf
+    if previous is not None:
+        nxt = previous["next"]
+        q_prev = len(nxt["points"])
+        new_X = X[n - q_prev:]
+        if not np.allclose(new_X, np.asarray(nxt["points"], float), rtol=1e-9, atol=1e-12):
+            raise ValueError(
+                f"round {r}: the last {q_prev} design points are not the batch that round "
+                f"{r - 1} chose; the run records do not belong to this active design")
+        trust = trust_check(np.asarray(nxt["mean"], float), np.asarray(nxt["sd"], float),
+                            L[n - q_prev:], best, d, stop_cfg["gp_tol"])
+        rec["trust"] = {k: (v.tolist() if isinstance(v, np.ndarray) else v)
+                        for k, v in trust.items()}
+        prev_post = {k: np.asarray(v, float) for k, v in previous["posterior"].items()
+                     if k in ("mean", "sd", "cov")}
+        rec["change"] = posterior_change(prev_post, moments)
+    settled = rec["change"] is not None and (
+        rec["change"]["shift_sd"] <= stop_cfg["shift_tol"]
+        and rec["change"]["sd_change"] <= stop_cfg["sd_tol"])
+    trusted = rec["trust"] is not None and rec["trust"]["passed"]
+    rec["settled"] = bool(settled)
+    rec["trusted"] = bool(trusted)
+    rec["checks_passed"] = bool(settled and trusted)
+    streak = (int(previous.get("passed_streak", 0)) if previous else 0) + 1 \
+        if rec["checks_passed"] else 0
+    rec["passed_streak"] = streak
+    rec["converged"] = streak >= int(stop_cfg["patience"])
+    budget_left = int(active["max_solves"]) - n
+    if rec["converged"]:
+        rec["stop"] = True
+        rec["reason"] = (
+            f"converged after round {r} with {n} solves: in the last {streak} round(s) the "
+            f"posterior moved by at most {stop_cfg['shift_tol']:g} sd (now "
+            f"{rec['change']['shift_sd']:.3g} sd, sd change {rec['change']['sd_change']:.3g}) and "
+            f"the surrogate predicted the new solves in the posterior region within "
+            f"{stop_cfg['gp_tol']:g} nats (max error {rec['trust']['max_abs_error']:.3g})")
+    elif budget_left <= 0:
+        rec["stop"] = True
+        rec["reason"] = (
+            f"NOT converged: the budget design.active.max_solves = {active['max_solves']} is "
+            f"spent after round {r}. " + _why_not(rec, stop_cfg)
+            + " The posterior reported is that of the last round; raise "
+            "design.active.max_solves to go on (finished solves are kept).")
+    else:
+        rec["stop"] = False
+        rec["reason"] = "continue: " + _why_not(rec, stop_cfg)
+    if not rec["stop"]:
+        rng = _round_seed(active["seed"], r)
+        pool = candidate_pool(particles, weights, space.bounds, int(active["pool_size"]), rng)
+        q = min(int(active["batch_size"]), budget_left)
+        n_explore = math.floor(q * float(active["explore_fraction"]) + 0.5)
+        uniform = np.arange(len(pool)) >= len(pool) - round(len(pool) * POOL_UNIFORM)
+        from scipy.stats import chi2
+
+        threshold = best - 0.5 * float(chi2.ppf(REGION_LEVEL, d))
+        batch = select_batch(gp, pool, space.logprior(pool), q, failed=X[~finite],
+                             n_explore=n_explore, threshold=threshold, explore_mask=uniform)
+        rec["next"] = {"points": batch["points"].tolist(), "mean": batch["mean"].tolist(),
+                       "sd": batch["sd"].tolist(), "score": batch["score"].tolist()}
+    return rec
+
+
+def _why_not(rec: Mapping[str, Any], stop_cfg: Mapping[str, Any]) -> str:
+    """Plain words: which check of the stop rule failed in this round."""
+    if rec["trust"] is None:
+        return "round 0 has no out-of-sample check yet."
+    parts = []
+    t, c = rec["trust"], rec["change"]
+    if not t["passed"]:
+        if t["n_region"] == 0:
+            parts.append("no new solve fell in the posterior region")
+        else:
+            parts.append(f"the surrogate missed new solves in the posterior region by up to "
+                         f"{t['max_abs_error']:.3g} nats (tolerance {stop_cfg['gp_tol']:g})")
+    if not rec["settled"]:
+        parts.append(f"the posterior moved by {c['shift_sd']:.3g} sd (tolerance "
+                     f"{stop_cfg['shift_tol']:g}) and its sd changed by {c['sd_change']:.3g} "
+                     f"(tolerance {stop_cfg['sd_tol']:g})")
+    if not parts:
+        parts.append(f"checks passed in {rec['passed_streak']} round(s) in a row, "
+                     f"{stop_cfg['patience']} needed")
+    return "; ".join(parts) + "."
+
+
+# ------------------------------------------------------------- in-process driver
+@dataclass
+class ActiveResult:
+    """Outcome of :func:`calibrate`.
+
+    Attributes
+    ----------
+    X, loglik : all evaluated points (n, d) and their log-likelihoods (n,).
+    surrogate : the last round's GP surrogate.
+    smc : the last round's :class:`~bayescalib.inference.smc.SMCResult`.
+    rounds : the per-round records of :func:`acquire_round`.
+    """
+
+    X: np.ndarray
+    loglik: np.ndarray
+    surrogate: Any
+    smc: Any
+    rounds: list[dict[str, Any]] = field(default_factory=list)
+
+    @property
+    def n_evaluations(self) -> int:
+        return int(self.X.shape[0])
+
+    @property
+    def n_rounds(self) -> int:
+        return len(self.rounds)
+
+    @property
+    def converged(self) -> bool:
+        return bool(self.rounds[-1]["converged"])
+
+    @property
+    def reason(self) -> str:
+        return str(self.rounds[-1]["reason"])
+
+
+def calibrate(loglik: Callable[[np.ndarray], np.ndarray], space, *, bound: float | None = None,
+              active: Mapping[str, Any] | None = None,
+              surrogate: Mapping[str, Any] | None = None,
+              smc: Mapping[str, Any] | None = None, seed: int = 0,
+              callback: Callable[[dict[str, Any]], None] | None = None) -> ActiveResult:
+    """Active-design calibration of a log-likelihood given as a Python function.
+
+    Runs the rounds of the pipeline's ``active`` stage in-process: the same
+    surrogate fit, SMC and :func:`acquire_round` as the Snakemake rules.
+
+    Parameters
+    ----------
+    loglik
+        Vectorized log-likelihood: (q, d) points -> (q,) values (-inf: failed).
+    space
+        :class:`~bayescalib.inference.parameters.ParameterSpace` (prior and design box).
+    bound
+        Known upper bound of the log-likelihood (log-misfit warping); None: none.
+    active, surrogate, smc
+        Partial ``design.active``, ``surrogate`` and ``smc`` config sections; the
+        schema's defaults fill the rest.
+    seed
+        Seed of the Sobol design of round 0.
+    callback
+        Called with each round's record.
+    """
+    from bayescalib.config import validate
+    from bayescalib.inference.design import sobol_design
+    from bayescalib.inference.smc import smc_from_config
+    from bayescalib.inference.surrogate import fit_from_config
+
+    cfg = validate({"design": {"active": dict(active or {})}, "surrogate": dict(surrogate or {}),
+                    "smc": dict(smc or {})}, "inference", where="calibrate")
+    a = cfg["design"]["active"]
+    X = sobol_design(space.bounds, int(a["n_initial"]), seed)
+    L = np.asarray(loglik(X), float)
+    rounds: list[dict[str, Any]] = []
+    previous = None
+    r = 0
+    while True:
+        gp = fit_from_config(X, L, cfg["surrogate"], space.bounds, bound=bound)
+        res = smc_from_config(gp.predict, space, cfg["smc"])
+        rec = acquire_round(r, X, L, gp, res.particles, res.weights, res.log_evidence, space,
+                            a, previous)
+        rounds.append(rec)
+        if callback is not None:
+            callback(rec)
+        log.info("active round %d: %d solves; %s", r, rec["n_solves"], rec["reason"])
+        if rec["stop"]:
+            return ActiveResult(X, L, gp, res, rounds)
+        Xn = np.asarray(rec["next"]["points"], float)
+        X = np.vstack([X, Xn])
+        L = np.concatenate([L, np.asarray(loglik(Xn), float)])
+        previous = rec
+        r += 1
+
+
+def history_table(rounds: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
+    """Compact per-round history for summary.json (no batches, no covariances)."""
+    out = []
+    for rec in rounds:
+        t, c = rec.get("trust"), rec.get("change")
+        out.append({
+            "round": rec["round"], "n_solves": rec["n_solves"], "n_failed": rec["n_failed"],
+            "posterior_mean": dict(zip(rec["names"], rec["posterior"]["mean"], strict=True)),
+            "posterior_sd": dict(zip(rec["names"], rec["posterior"]["sd"], strict=True)),
+            "log_evidence": rec["posterior"]["log_evidence"],
+            "gp_max_error_nats": None if t is None else t["max_abs_error"],
+            "gp_points_in_region": None if t is None else t["n_region"],
+            "shift_sd": None if c is None else c["shift_sd"],
+            "sd_change": None if c is None else c["sd_change"],
+            "hellinger": None if c is None else c["hellinger"],
+            "checks_passed": rec["checks_passed"],
+        })
+    return out

@@ -1,0 +1,797 @@
+"""Gaussian-process surrogate of the log-likelihood (paper Sec. 3.2 and App. D).
+
+Model (eq. prior_gp, eq. matern32)
+    L(x) ~ GP(m, k),   k(x, x') = s^2 (1 + sqrt(3) r) exp(-sqrt(3) r),
+    r = || (u - u') / l ||_2,
+
+on *unit-box-scaled* inputs u = (x - lo) / (hi - lo): each input is mapped
+to [0, 1] by the design box (``bounds``; when not given, by the min/max of the
+training inputs). ``ard=False`` uses one length scale l for all scaled inputs
+(the paper's 2D case); ``ard=True`` one per input (the paper's 6D/7D case).
+
+Constant prior mean (App. D remark)
+    m = min(L) - f_m (max(L) - min(L)),   f_m = ``mean_offset_factor`` = 1.0,
+    so far from the data the surrogate log-likelihood falls below every observed
+    value (the likelihood tends to zero rather than to exp(0)).
+
+Fixed nugget
+    sigma_n^2 = f_n (max(L) - min(L)),  f_n = ``nugget_factor`` = 1e-5, fixed
+    (not optimized), for numerical stability.
+
+Training (eq. gploglikeli)
+    The kernel variance s^2 and length scale(s) l maximize the evidence
+    log p(L | s^2, l) with GPy's L-BFGS-B (``optimizer="lbfgsb"``) or scaled
+    conjugate gradients (``"scg"``), from ``restarts`` starting points: the
+    first a fixed default (s^2 = mean((L - m)^2), l = 0.3), the others drawn
+    log-uniformly around it from ``numpy.random.default_rng(seed)``. The best
+    evidence wins. Failed forward runs (non-finite L) are excluded before
+    training; their number is kept in ``n_excluded``.
+
+Log-misfit warping (``bound``; the default of the pipeline)
+    The Gaussian log-likelihood (eq. loglik) is L = B - Phi with the known
+    upper bound B = -n/2 log(2 pi sigma_N^2) and the misfit Phi = D^2 / (2
+    sigma_N^2) >= 0. With ``bound=B`` the GP models the warped output
+    g = log(1 + Phi) = log(1 + B - L) instead of L, and predictions map back
+    through L = B - expm1(max(g, 0)). Hence (i) the surrogate never exceeds the
+    bound, so neither does the SMC log-evidence; (ii) the many orders of
+    magnitude that Phi spans over a prior box (sharply peaked likelihoods) are
+    compressed to a few units of g, where a stationary GP fits well; (iii) far
+    from the data the GP reverts to its constant mean, which is placed *above*
+    the largest g (m = max(g) + f_m (max(g) - min(g))): a low likelihood, never a
+    spurious mode between training points. This is the log-discrepancy model of
+    GP-accelerated ABC (Wilkinson 2014; Jarvenpaa et al. 2018), applied to the
+    Gaussian likelihood's misfit. The latent variance maps to the likelihood
+    scale by the delta method, var(L) = exp(2 g) var(g).
+
+Prediction (eq. posterior_gp)
+    mean(x*) = m + k*^T (K + sigma_n^2 I)^{-1} (L - m)
+    var(x*)  = k(x*, x*) - k*^T (K + sigma_n^2 I)^{-1} k*     (latent, noise-free)
+
+:class:`GPSurrogate` caches the Cholesky factor of K + sigma_n^2 I and the
+weights alpha = (K + sigma_n^2 I)^{-1} (L - m) and evaluates the formulas above
+as plain batched array algebra in float64 -- this is what the SMC calls
+millions of times. It equals GPy's ``predict_noiseless`` to round-off (tested
+to 1e-8 relative); ``gpy_model()`` rebuilds the GPy model with the stored
+hyperparameters for comparison.
+
+* CPU (``device="cpu"``): NumPy. Squared distances come from one matrix
+  product of augmented inputs [a, |a|^2, 1] @ [-2b, 1, |b|^2]^T with
+  sqrt(3)/l folded into the input scaling and s^2 into the weights. Rows are
+  processed in chunks small enough that each (chunk, n) kernel block stays in
+  cache (the algebra is memory-bound) and that the distance product stays
+  below OpenBLAS's multithreading threshold (threaded small products were
+  measured 100x slower on a loaded machine). ``threads`` > 1 spreads chunks
+  over a thread pool (default 1: on a small machine shared with forward
+  solves, extra threads measured slower).
+* GPU (``device="auto"`` with CUDA, or any torch device; ``"torch:cpu"`` for
+  testing): the same algebra in torch, in chunks of at most
+  ``chunk_entries`` kernel entries.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import warnings
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+from functools import cache
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from bayescalib.io._atomic_write import atomic_path
+
+__all__ = ["KERNELS", "GPSurrogate", "fit_from_config", "fit_gp", "kernel_matrix", "matern32"]
+
+log = logging.getLogger(__name__)
+
+_SQRT3 = math.sqrt(3.0)
+_FORMAT_VERSION = 2
+_GEMM_SINGLE_THREAD_MNK = 2**18
+
+
+#: stationary kernels k(r) = s^2 f(c r) of the surrogate: name -> (c, GPy class name).
+#: With t = c r: Matérn 3/2 f = (1 + t) e^-t (the paper's, eq. matern32), Matérn 5/2
+#: f = (1 + t + t^2/3) e^-t, squared exponential (rbf) f = e^(-t^2) (c = 1/sqrt 2).
+KERNELS: dict[str, tuple[float, str]] = {
+    "matern32": (_SQRT3, "Matern32"),
+    "matern52": (math.sqrt(5.0), "Matern52"),
+    "rbf": (math.sqrt(0.5), "RBF"),
+}
+
+
+def _unit_kernel_from_t2(T2: np.ndarray, kernel: str) -> np.ndarray:
+    """f(t) of :data:`KERNELS` from t^2 (any shape), overwriting ``T2``."""
+    np.maximum(T2, 0.0, out=T2)
+    if kernel == "rbf":
+        np.negative(T2, out=T2)
+        return np.exp(T2, out=T2)
+    t2 = T2.copy() if kernel == "matern52" else None
+    np.sqrt(T2, out=T2)
+    E = np.exp(-T2)
+    T2 += 1.0
+    if t2 is not None:
+        T2 += t2 / 3.0
+    T2 *= E
+    return T2
+
+
+def kernel_matrix(A: np.ndarray, B: np.ndarray, variance: float, lengthscale: np.ndarray,
+                  kernel: str = "matern32") -> np.ndarray:
+    """Kernel matrix of :data:`KERNELS` between A (m, d) and B (n, d) -> (m, n)."""
+    c = KERNELS[kernel][0]
+    a = c * np.asarray(A, float) / lengthscale
+    b = c * np.asarray(B, float) / lengthscale
+    t2 = np.sum(a * a, 1)[:, None] + np.sum(b * b, 1)[None, :] - 2.0 * a @ b.T
+    return variance * _unit_kernel_from_t2(t2, kernel)
+
+
+def matern32(A: np.ndarray, B: np.ndarray, variance: float, lengthscale: np.ndarray) -> np.ndarray:
+    """Matérn 3/2 kernel matrix (eq. matern32) between A (m, d) and B (n, d) -> (m, n)."""
+    return kernel_matrix(A, B, variance, lengthscale, "matern32")
+
+
+@cache
+def _pool(n: int) -> ThreadPoolExecutor:
+    return ThreadPoolExecutor(max_workers=n, thread_name_prefix="gp-predict")
+
+
+def _torch():
+    import torch
+
+    return torch
+
+
+def _resolve_device(device: str) -> str:
+    """"auto" -> "cuda" when torch sees a GPU, else "cpu" (the NumPy path).
+
+    "cpu" selects the NumPy implementation; any other value is a torch device
+    ("cuda", "cuda:1"; "torch:cpu" runs the torch implementation on the CPU).
+    """
+    if device != "auto":
+        return device
+    try:
+        torch = _torch()
+    except ImportError:  # pragma: no cover - torch is a dependency
+        return "cpu"
+    return "cuda" if torch.cuda.is_available() else "cpu"
+
+
+@dataclass
+class GPSurrogate:
+    """A trained GP surrogate of the log-likelihood with a fast batched predictor.
+
+    Attributes
+    ----------
+    X_train : (n, d) training inputs in user units (failed runs removed).
+    y_train : (n,) GP targets: the log-likelihoods, or their warped values
+        g = log(1 + bound - L) when ``bound`` is set (see :attr:`loglik_train`).
+    shift, scale : (d,) input scaling u = (x - shift) / scale.
+    mean_const : constant prior mean m.
+    nugget : fixed nugget variance sigma_n^2.
+    variance : kernel variance s^2.
+    lengthscale : (1,) or (d,) length scale(s) on scaled inputs.
+    ard : one length scale per input.
+    n_excluded : number of training points left out (non-finite L).
+    log_marginal_likelihood : evidence at the optimum (eq. gploglikeli, with nugget).
+    optimizer, restarts : training settings (metadata).
+    chol : (n, n) lower Cholesky factor of K + sigma_n^2 I.
+    alpha : (n,) (K + sigma_n^2 I)^{-1} (y - m).
+    bound : upper bound B of the log-likelihood (None: unknown). Predictions never
+        exceed it.
+    warp : the GP models the log-misfit g = log(1 + B - L) (``y_train`` holds g);
+        otherwise it models L and predictions are capped at ``bound``.
+    kernel : one of :data:`KERNELS` (default the paper's Matérn 3/2).
+    """
+
+    X_train: np.ndarray
+    y_train: np.ndarray
+    shift: np.ndarray
+    scale: np.ndarray
+    mean_const: float
+    nugget: float
+    variance: float
+    lengthscale: np.ndarray
+    ard: bool
+    n_excluded: int = 0
+    log_marginal_likelihood: float = float("nan")
+    optimizer: str = "lbfgsb"
+    restarts: int = 0
+    chol: np.ndarray | None = None
+    alpha: np.ndarray | None = None
+    device: str = "auto"
+    chunk_entries: int = 4_000_000
+    cpu_chunk_entries: int = 65536
+    threads: int = 1
+    bound: float | None = None
+    warp: bool = False
+    kernel: str = "matern32"
+    _cache: dict[str, Any] = field(default_factory=dict, repr=False)
+
+    def __post_init__(self) -> None:
+        self.X_train = np.asarray(self.X_train, float)
+        self.y_train = np.asarray(self.y_train, float).reshape(-1)
+        self.shift = np.asarray(self.shift, float)
+        self.scale = np.asarray(self.scale, float)
+        self.lengthscale = np.atleast_1d(np.asarray(self.lengthscale, float))
+        if self.chol is None or self.alpha is None:
+            self._factorize()
+        self.device = _resolve_device(self.device)
+
+    # ------------------------------------------------------------------
+    @property
+    def _torch_device(self) -> str:
+        return self.device.removeprefix("torch:")
+
+    @property
+    def n_train(self) -> int:
+        return int(self.X_train.shape[0])
+
+    @property
+    def dim(self) -> int:
+        return int(self.X_train.shape[1])
+
+    @property
+    def warped(self) -> bool:
+        """True when the GP models the log-misfit g = log(1 + bound - L)."""
+        return bool(self.warp) and self.bound is not None
+
+    @property
+    def loglik_train(self) -> np.ndarray:
+        """Training log-likelihoods L (n,), whatever the GP's output transform."""
+        return self.loglik_from_latent(self.y_train)
+
+    def loglik_from_latent(self, g: np.ndarray) -> np.ndarray:
+        """Map latent GP values to log-likelihoods: L = B - expm1(max(g, 0)) if warped."""
+        g = np.asarray(g, float)
+        if self.warped:
+            return self.bound - np.expm1(np.maximum(g, 0.0))
+        if self.bound is not None:
+            return np.minimum(g, self.bound)
+        return g
+
+    def latent_from_loglik(self, L: np.ndarray) -> np.ndarray:
+        """Inverse of :meth:`loglik_from_latent` (values above the bound map to g = 0)."""
+        L = np.asarray(L, float)
+        if not self.warped:
+            return L
+        return np.log1p(np.maximum(self.bound - L, 0.0))
+
+    @property
+    def hyperparameters(self) -> dict[str, Any]:
+        """Kernel variance, length scale(s), mean, nugget (JSON-serializable)."""
+        return {
+            "kernel": KERNELS[self.kernel][1],
+            "variance": float(self.variance),
+            "lengthscale": [float(v) for v in self.lengthscale],
+            "ard": bool(self.ard),
+            "mean": float(self.mean_const),
+            "nugget": float(self.nugget),
+            "log_marginal_likelihood": float(self.log_marginal_likelihood),
+            "input_shift": [float(v) for v in self.shift],
+            "input_scale": [float(v) for v in self.scale],
+            "output": "log_misfit" if self.warped else "loglik",
+            "bound": None if self.bound is None else float(self.bound),
+        }
+
+    def scale_inputs(self, X: np.ndarray) -> np.ndarray:
+        """User units -> scaled GP inputs u = (x - shift) / scale."""
+        return (np.asarray(X, float) - self.shift) / self.scale
+
+    def _factorize(self) -> None:
+        U = self.scale_inputs(self.X_train)
+        K = kernel_matrix(U, U, self.variance, self.lengthscale, self.kernel)
+        K[np.diag_indices_from(K)] += self.nugget
+        self.chol = np.linalg.cholesky(K)
+        from scipy.linalg import cho_solve
+
+        self.alpha = cho_solve((self.chol, True), self.y_train - self.mean_const)
+
+    # ------------------------------------------------------------------
+    def _numpy_cache(self) -> dict[str, Any]:
+        if "np_Baug" not in self._cache:
+            # B = c * u_train / l; kernel rows come from one matrix product
+            # [a, |a|^2, 1] @ [-2 B, 1, |b|^2]^T = |a - b|^2 (a = c u / l, c of KERNELS).
+            ck = KERNELS[self.kernel][0]
+            B = ck * self.scale_inputs(self.X_train) / self.lengthscale
+            n = B.shape[0]
+            self._cache["np_Baug"] = np.ascontiguousarray(
+                np.column_stack([-2.0 * B, np.ones(n), np.sum(B * B, 1)]).T
+            )
+            self._cache["np_in_scale"] = ck / (self.scale * self.lengthscale)
+            self._cache["np_alpha_s2"] = self.variance * self.alpha
+        return self._cache
+
+    def _torch_cache(self) -> dict[str, Any]:
+        if "t_B" not in self._cache:
+            torch = _torch()
+            dev = self._torch_device
+            B = torch.as_tensor(
+                self.scale_inputs(self.X_train) / self.lengthscale, dtype=torch.float64, device=dev
+            )
+            self._cache["t_B"] = B
+            self._cache["t_Bsq"] = (B * B).sum(1)
+            self._cache["t_alpha"] = torch.as_tensor(self.alpha, dtype=torch.float64, device=dev)
+            self._cache["t_shift"] = torch.as_tensor(self.shift, dtype=torch.float64, device=dev)
+            self._cache["t_inv_sl"] = torch.as_tensor(
+                1.0 / (self.scale * self.lengthscale), dtype=torch.float64, device=dev
+            )
+            self._cache["t_L"] = torch.as_tensor(self.chol, dtype=torch.float64, device=dev)
+        return self._cache
+
+    def _unit_kernel_rows(self, Xc: np.ndarray) -> np.ndarray:
+        """k(x*, X_train) / s^2 for a chunk of points (c, d) -> (c, n), computed in place."""
+        c = self._numpy_cache()
+        A = (Xc - self.shift) * c["np_in_scale"]
+        Aaug = np.column_stack([A, np.sum(A * A, 1), np.ones(A.shape[0])])
+        K = Aaug @ c["np_Baug"]  # t^2 = (c r)^2
+        K = _unit_kernel_from_t2(K, self.kernel)
+        return K
+
+    def _predict_numpy(self, X: np.ndarray, return_var: bool):
+        from scipy.linalg import solve_triangular
+
+        M = X.shape[0]
+        mean = np.empty(M)
+        var = np.empty(M) if return_var else None
+        alpha_s2 = self._numpy_cache()["np_alpha_s2"]
+        # small chunks keep the (chunk, n) kernel block in cache (the algebra is
+        # memory-bound); chunks run on a thread pool (NumPy releases the GIL).
+        # (the variance's triangular solve is BLAS-3 and prefers larger chunks)
+        n = max(self.n_train, 1)
+        entries = 16 * self.cpu_chunk_entries if return_var else self.cpu_chunk_entries
+        # Keep the distance product (chunk x (d+2)) @ ((d+2) x n) below OpenBLAS's
+        # multithreading threshold (~2^19 multiply-adds): on a loaded machine a threaded
+        # small GEMM was measured 100-300x slower than a single-threaded one.
+        gemm_rows = _GEMM_SINGLE_THREAD_MNK // (n * (self.dim + 2))
+        chunk = max(1, min(M, entries // n, max(gemm_rows, 1)))
+
+        def job(s: int) -> None:
+            K = self._unit_kernel_rows(X[s : s + chunk])
+            mean[s : s + chunk] = K @ alpha_s2 + self.mean_const
+            if return_var:
+                V = solve_triangular(self.chol, K.T, lower=True, check_finite=False)
+                V *= self.variance
+                var[s : s + chunk] = np.maximum(self.variance - np.sum(V * V, 0), 0.0)
+
+        starts = range(0, M, chunk)
+        if self.threads > 1 and M > chunk:
+            list(_pool(self.threads).map(job, starts))
+        else:
+            for s in starts:
+                job(s)
+        return mean, var
+
+    def _predict_torch(self, X: np.ndarray, return_var: bool):
+        torch = _torch()
+        c = self._torch_cache()
+        M = X.shape[0]
+        mean = np.empty(M)
+        var = np.empty(M) if return_var else None
+        chunk = max(1, self.chunk_entries // max(self.n_train, 1))
+        with torch.no_grad():
+            Xt = torch.as_tensor(X, dtype=torch.float64, device=self._torch_device)
+            for s in range(0, M, chunk):
+                A = (Xt[s : s + chunk] - c["t_shift"]) * c["t_inv_sl"]
+                r2 = (A * A).sum(1)[:, None] + c["t_Bsq"][None, :] - 2.0 * (A @ c["t_B"].T)
+                t2 = torch.clamp_min_(r2, 0.0).mul_(KERNELS[self.kernel][0] ** 2)
+                if self.kernel == "rbf":
+                    K = torch.exp(t2.neg_()).mul_(self.variance)
+                else:
+                    t = torch.sqrt(t2)
+                    poly = 1.0 + t + (t2 / 3.0 if self.kernel == "matern52" else 0.0)
+                    K = poly.mul_(torch.exp(t.neg())).mul_(self.variance)
+                mean[s : s + chunk] = (K @ c["t_alpha"] + self.mean_const).cpu().numpy()
+                if return_var:
+                    V = torch.linalg.solve_triangular(c["t_L"], K.T, upper=False)
+                    v = torch.clamp_min(self.variance - (V * V).sum(0), 0.0)
+                    var[s : s + chunk] = v.cpu().numpy()
+        return mean, var
+
+    def predict(
+        self, X: np.ndarray, return_var: bool = False
+    ) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
+        """Posterior mean (and variance) of the log-likelihood (eq. posterior_gp).
+
+        With the log-misfit warping the mean is B - expm1(max(mean_g, 0)) (never
+        above the bound B) and the variance exp(2 mean_g) var_g (delta method).
+
+        Parameters
+        ----------
+        X
+            (M, d) points in user units (a single point (d,) is accepted).
+        return_var
+            Also return the latent (noise-free) posterior variance.
+
+        Returns
+        -------
+        mean : (M,) in units of log-likelihood
+        var : (M,), only if ``return_var``
+        """
+        if not self.warped:
+            if not return_var:
+                return self.loglik_from_latent(self.predict_latent(X))
+            g, var_g = self.predict_latent(X, True)
+            return self.loglik_from_latent(g), var_g
+        if not return_var:
+            return self.loglik_from_latent(self.predict_latent(X))
+        g, var_g = self.predict_latent(X, True)
+        return self.loglik_from_latent(g), np.exp(2.0 * np.maximum(g, 0.0)) * var_g
+
+    def predict_latent(
+        self, X: np.ndarray, return_var: bool = False
+    ) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
+        """Posterior mean (and latent variance) of the GP itself, in the units of
+        ``y_train`` (the warped output g when ``bound`` is set), shapes (M,)."""
+        X = np.asarray(X, float)
+        if X.ndim == 1:
+            X = X[None, :]
+        if X.ndim != 2 or X.shape[1] != self.dim:
+            raise ValueError(f"expected inputs of shape (M, {self.dim}), got {X.shape}")
+        if self.device == "cpu":
+            mean, var = self._predict_numpy(X, return_var)
+        else:
+            mean, var = self._predict_torch(X, return_var)
+        if return_var:
+            return mean, var
+        return mean
+
+    def latent_cov_factor(self, X: np.ndarray) -> np.ndarray:
+        """V = L^{-1} k(X_train, X), shape (n, M), for posterior covariances of the
+        latent GP: cov(a, b) = k(a, b) - V_a^T V_b (batch acquisition)."""
+        from scipy.linalg import solve_triangular
+
+        K = self.latent_kernel(self.X_train, X)
+        return solve_triangular(self.chol, K, lower=True, check_finite=False)
+
+    def latent_kernel(self, A: np.ndarray, B: np.ndarray) -> np.ndarray:
+        """Prior kernel matrix k(A, B) of the latent GP (inputs in user units), (m, n)."""
+        return kernel_matrix(self.scale_inputs(A), self.scale_inputs(B), self.variance,
+                             self.lengthscale, self.kernel)
+
+    __call__ = predict
+
+    # ------------------------------------------------------------------
+    def gpy_model(self):
+        """A GPy ``GPRegression`` with the stored hyperparameters (inputs: scaled).
+
+        Use ``model.predict_noiseless(surrogate.scale_inputs(X))`` to compare.
+        """
+        return _build_gpy(
+            self.scale_inputs(self.X_train),
+            self.y_train,
+            self.mean_const,
+            self.variance,
+            self.lengthscale,
+            self.nugget,
+            self.ard,
+            self.kernel,
+        )
+
+    def gpy_predict(self, X: np.ndarray, return_var: bool = False, model=None):
+        """Prediction through GPy itself (slow reference; for tests and benchmarks)."""
+        model = self.gpy_model() if model is None else model
+        mu, var = model.predict_noiseless(self.scale_inputs(np.atleast_2d(X)))
+        mu, var = mu[:, 0], var[:, 0]
+        if self.warped:
+            mu, var = self.loglik_from_latent(mu), np.exp(2.0 * np.maximum(mu, 0.0)) * var
+        return (mu, var) if return_var else mu
+
+    # ------------------------------------------------------------------
+    def save(self, path: str | Path) -> None:
+        """Write the surrogate to HDF5 (atomically): data, scaling, hyperparameters, factors."""
+        import h5py
+
+        with atomic_path(path, suffix=".h5") as tmp, h5py.File(tmp, "w") as f:
+            f.attrs["format"] = "bayescalib.GPSurrogate"
+            f.attrs["format_version"] = _FORMAT_VERSION
+            f.attrs["kernel"] = KERNELS[self.kernel][1]
+            f.create_dataset("X_train", data=self.X_train)
+            f.create_dataset("y_train", data=self.y_train)
+            f.create_dataset("input_shift", data=self.shift)
+            f.create_dataset("input_scale", data=self.scale)
+            f.create_dataset("lengthscale", data=self.lengthscale)
+            f.create_dataset("chol", data=self.chol, compression="gzip")
+            f.create_dataset("alpha", data=self.alpha)
+            for k in ("mean_const", "nugget", "variance", "log_marginal_likelihood"):
+                f.attrs[k] = float(getattr(self, k))
+            f.attrs["ard"] = bool(self.ard)
+            f.attrs["n_excluded"] = int(self.n_excluded)
+            f.attrs["optimizer"] = self.optimizer
+            f.attrs["restarts"] = int(self.restarts)
+            f.attrs["bound"] = float("nan") if self.bound is None else float(self.bound)
+            f.attrs["warp"] = bool(self.warp)
+
+    @classmethod
+    def load(cls, path: str | Path, device: str = "auto") -> GPSurrogate:
+        """Read a surrogate written by :meth:`save`; predictions are reproduced exactly."""
+        import h5py
+
+        with h5py.File(path, "r") as f:
+            if f.attrs.get("format") != "bayescalib.GPSurrogate":
+                raise ValueError(f"'{path}' is not a bayescalib GP surrogate file")
+            return cls(
+                X_train=f["X_train"][()],
+                y_train=f["y_train"][()],
+                shift=f["input_shift"][()],
+                scale=f["input_scale"][()],
+                mean_const=float(f.attrs["mean_const"]),
+                nugget=float(f.attrs["nugget"]),
+                variance=float(f.attrs["variance"]),
+                lengthscale=f["lengthscale"][()],
+                ard=bool(f.attrs["ard"]),
+                n_excluded=int(f.attrs["n_excluded"]),
+                log_marginal_likelihood=float(f.attrs["log_marginal_likelihood"]),
+                optimizer=str(f.attrs["optimizer"]),
+                restarts=int(f.attrs["restarts"]),
+                chol=f["chol"][()],
+                alpha=f["alpha"][()],
+                device=device,
+                bound=_bound_attr(f.attrs.get("bound")),
+                warp=bool(f.attrs.get("warp", False)),
+                kernel=_kernel_name(str(f.attrs.get("kernel", "Matern32"))),
+            )
+
+    def loo_residuals(self) -> np.ndarray:
+        """Leave-one-out residuals y_i - mean_{-i}(x_i) = alpha_i / [(K + s_n^2 I)^{-1}]_ii, (n,).
+
+        Closed form (Rasmussen & Williams 2006, eq. 5.12) at fixed hyperparameters.
+        """
+        from scipy.linalg import cho_solve
+
+        Kinv = cho_solve((self.chol, True), np.eye(self.n_train))
+        return self.alpha / np.diag(Kinv)
+
+
+def _kernel_name(stored: str) -> str:
+    for name, (_, gpy_name) in KERNELS.items():
+        if gpy_name == stored:
+            return name
+    raise ValueError(f"unknown kernel {stored!r} in a surrogate file")
+
+
+def _bound_attr(value: Any) -> float | None:
+    """The stored bound attribute (NaN or absent: no warping; format version 1)."""
+    if value is None or not math.isfinite(float(value)):
+        return None
+    return float(value)
+
+
+def _build_gpy(U, y, mean_const, variance, lengthscale, nugget, ard, kernel="matern32"):
+    import GPy
+
+    d = U.shape[1]
+    kern = getattr(GPy.kern, KERNELS[kernel][1])(
+        input_dim=d,
+        variance=float(variance),
+        lengthscale=np.array(lengthscale, float) if ard else float(np.ravel(lengthscale)[0]),
+        ARD=ard,
+    )
+    mf = GPy.mappings.Constant(d, 1, value=float(mean_const))
+    mf.fix()
+    model = GPy.models.GPRegression(
+        np.asarray(U, float), np.asarray(y, float)[:, None], kernel=kern, mean_function=mf,
+        noise_var=float(nugget),
+    )
+    model.Gaussian_noise.variance.fix()
+    return model
+
+
+def fit_gp(
+    X: np.ndarray,
+    y: np.ndarray,
+    *,
+    ard: bool = False,
+    optimizer: str = "lbfgsb",
+    restarts: int = 3,
+    seed: int = 0,
+    bounds: np.ndarray | None = None,
+    mean_offset_factor: float = 1.0,
+    nugget_factor: float = 1e-5,
+    max_iters: int = 1000,
+    device: str = "auto",
+    bound: float | None = None,
+    warp: bool = True,
+    kernel: str = "matern32",
+) -> GPSurrogate:
+    """Train the GP surrogate of the log-likelihood (paper Sec. 3.2, App. D).
+
+    Parameters
+    ----------
+    X
+        (n, d) design points in user units.
+    y
+        (n,) log-likelihood values; non-finite entries (failed runs) are excluded.
+    ard
+        Per-dimension length scales instead of one.
+    optimizer
+        ``"lbfgsb"`` or ``"scg"`` (GPy optimizers).
+    restarts
+        Number of optimizer starts (>= 1), seeded by ``seed``.
+    bounds
+        (d, 2) design box for the input scaling; default: min/max of ``X``.
+    mean_offset_factor, nugget_factor
+        m = min(y) - mean_offset_factor * (max(y) - min(y));
+        sigma_n^2 = nugget_factor * (max(y) - min(y)) (fixed). With ``bound``
+        the same rules act on the warped values g, with the mean placed above
+        them: m = max(g) + mean_offset_factor * (max(g) - min(g)).
+    max_iters
+        Iteration limit of each optimizer run.
+    device
+        Torch device of the fast predictor ("auto": CUDA when available).
+    bound
+        Known upper bound B of the log-likelihood; predictions never exceed it.
+        None: unknown (the paper's surrogate, uncapped).
+    warp
+        With a ``bound``: model the log-misfit g = log(1 + B - y) (module
+        docstring; values above B from round-off count as g = 0) instead of y.
+    kernel
+        One of :data:`KERNELS`.
+
+    Returns
+    -------
+    GPSurrogate
+
+    Raises
+    ------
+    ValueError
+        Fewer than two finite training values, bad shapes or options.
+    """
+    X = np.asarray(X, float)
+    y = np.asarray(y, float).reshape(-1)
+    if X.ndim != 2 or X.shape[0] != y.shape[0]:
+        raise ValueError(f"X must be (n, d) and y (n,), got {X.shape} and {y.shape}")
+    if optimizer not in ("lbfgsb", "scg"):
+        raise ValueError(f"optimizer must be 'lbfgsb' or 'scg', got {optimizer!r}")
+    if restarts < 1:
+        raise ValueError(f"restarts must be >= 1, got {restarts}")
+    if kernel not in KERNELS:
+        raise ValueError(f"kernel must be one of {sorted(KERNELS)}, got {kernel!r}")
+    ok = np.isfinite(y) & np.all(np.isfinite(X), axis=1)
+    n_excluded = int((~ok).sum())
+    X, y = X[ok], y[ok]
+    if X.shape[0] < 2:
+        raise ValueError(f"need at least 2 finite training values, got {X.shape[0]}")
+    d = X.shape[1]
+    if bounds is not None:
+        b = np.asarray(bounds, float)
+        shift, scale = b[:, 0].copy(), b[:, 1] - b[:, 0]
+    else:
+        shift = X.min(0)
+        scale = X.max(0) - shift
+    scale = np.where(scale > 0, scale, 1.0)
+    U = (X - shift) / scale
+    if bound is not None:
+        if not math.isfinite(float(bound)):
+            raise ValueError(f"bound must be finite, got {bound!r}")
+        bound = float(bound)
+    warp = bool(warp and bound is not None)
+    if warp:
+        y = np.log1p(np.maximum(bound - y, 0.0))
+    y_range = float(y.max() - y.min())
+    if y_range <= 0:
+        y_range = max(abs(float(y.max())), 1.0)
+    if not warp:  # far from the data: below every observed log-likelihood
+        mean_const = float(y.min() - mean_offset_factor * y_range)
+    else:  # far from the data: above every observed misfit
+        mean_const = float(y.max() + mean_offset_factor * y_range)
+    nugget = float(nugget_factor * y_range)
+
+    v0 = float(np.mean((y - mean_const) ** 2))
+    l0 = np.full(d if ard else 1, 0.3)
+    model = _build_gpy(U, y, mean_const, v0, l0, nugget, ard, kernel)
+    rng = np.random.default_rng(seed)
+    best = None
+    for r in range(restarts):
+        if r == 0:
+            v, ls = v0, l0
+        else:
+            v = v0 * 10 ** rng.uniform(-1.0, 1.0)
+            ls = 10 ** rng.uniform(np.log10(0.05), np.log10(1.0), size=l0.shape)
+        model.kern.variance[:] = v
+        model.kern.lengthscale[:] = ls
+        try:
+            with np.errstate(over="ignore"), warnings.catch_warnings():
+                # paramz's log-exp transform overflows harmlessly on wild line-search steps
+                warnings.filterwarnings("ignore", message="overflow encountered", category=RuntimeWarning)
+                model.optimize(optimizer=optimizer, max_iters=max_iters, messages=False)
+            lml = float(model.log_likelihood())
+        except (np.linalg.LinAlgError, ValueError, FloatingPointError) as exc:
+            log.warning("GP restart %d failed: %s", r, exc)
+            continue
+        log.info("GP restart %d: log evidence %.6g", r, lml)
+        if np.isfinite(lml) and (best is None or lml > best[0]):
+            best = (lml, float(model.kern.variance[0]), np.array(model.kern.lengthscale, float))
+    if best is None:
+        raise RuntimeError("every GP hyperparameter optimization failed")
+    lml, var, ls = best
+    return GPSurrogate(
+        X_train=X,
+        y_train=y,
+        shift=shift,
+        scale=scale,
+        mean_const=mean_const,
+        nugget=nugget,
+        variance=var,
+        lengthscale=ls,
+        ard=ard,
+        n_excluded=n_excluded,
+        log_marginal_likelihood=lml,
+        optimizer=optimizer,
+        restarts=restarts,
+        device=device,
+        bound=bound,
+        warp=warp,
+        kernel=kernel,
+    )
+
+
+#: tolerated excess of a model of L over the likelihood's bound (nats)
+OVERSHOOT_NATS = 0.5
+
+
+def _overshoots(gp: GPSurrogate, bounds: np.ndarray, bound: float, n: int = 4096) -> bool:
+    """True when the GP mean of L exceeds ``bound + OVERSHOOT_NATS`` somewhere in the
+    box (scrambled Sobol sample of ``n`` points plus the training points)."""
+    from bayescalib.inference.design import sobol_design
+
+    Z = np.vstack([sobol_design(np.asarray(bounds, float), n, 12345), gp.X_train])
+    return bool(np.max(gp.predict_latent(Z)) > bound + OVERSHOOT_NATS)
+
+
+def fit_from_config(X: np.ndarray, y: np.ndarray, surrogate: dict[str, Any],
+                    bounds: np.ndarray, *, bound: float | None = None) -> GPSurrogate:
+    """:func:`fit_gp` with the settings of a validated ``surrogate`` config section.
+
+    ``surrogate["output"]`` chooses what the GP models when the log-likelihood's
+    upper bound ``bound`` is known: ``log_misfit`` (the warped output), ``loglik``
+    (L itself, capped at the bound) or ``auto``; ``surrogate["kernel"]`` one of
+    :data:`KERNELS` or ``auto``. Every candidate model is fitted and the one with
+    the largest evidence *of the log-likelihood values* wins (type-II maximum
+    likelihood over the model's discrete choices). The warped model's evidence
+    is carried to the units of L by the Jacobian of the warping,
+    log p(L) = log p(g) + sum_i log|dg/dL|_i = log p(g) - sum_i g_i (warped GPs,
+    Snelson et al. 2004), so all evidences compare like with like. A model of L
+    whose mean rises above the bound inside the box (by more than
+    ``OVERSHOOT_NATS``, on a Sobol sample) contradicts what is known and is not
+    chosen: capping it would leave a plateau of spurious maximal likelihood.
+    Without a bound the GP models L with the paper's kernel.
+    """
+    kw = {"ard": surrogate["ard"], "optimizer": surrogate["optimizer"],
+              "restarts": surrogate["restarts"], "seed": surrogate["seed"], "bounds": bounds,
+              "mean_offset_factor": surrogate["mean_offset_factor"],
+              "nugget_factor": surrogate["nugget_factor"], "bound": bound}
+    output = surrogate["output"]
+    warps = [False] if bound is None or output == "loglik" else \
+        [True] if output == "log_misfit" else [False, True]
+    if surrogate["kernel"] != "auto":
+        kernels = [surrogate["kernel"]]
+    elif bound is None:  # uncapped: keep the paper's kernel (smoother ones overshoot more)
+        kernels = ["matern32"]
+    else:
+        kernels = list(KERNELS)
+    best, best_ev = None, -math.inf
+    for kernel in kernels:
+        for warp in warps:
+            try:
+                gp = fit_gp(X, y, warp=warp, kernel=kernel, **kw)
+            except (RuntimeError, np.linalg.LinAlgError) as exc:
+                log.warning("surrogate %s (%s): fit failed: %s", kernel,
+                            "log-misfit" if warp else "L", exc)
+                continue
+            if bound is not None and not gp.warped and _overshoots(gp, bounds, bound):
+                log.info("surrogate %s of L: rejected, its mean exceeds the likelihood's "
+                         "upper bound %.6g inside the box", kernel, bound)
+                continue
+            ev = gp.log_marginal_likelihood - (float(np.sum(gp.y_train)) if gp.warped else 0.0)
+            log.info("surrogate %s of %s: evidence of L %.6g", kernel,
+                     "log-misfit" if warp else "L", ev)
+            if best is None or ev > best_ev:
+                best, best_ev = gp, ev
+    if best is None:
+        raise RuntimeError("every GP surrogate fit failed")
+    if len(kernels) * len(warps) > 1:
+        log.info("surrogate chosen: %s of %s", best.kernel, "log-misfit" if best.warped else "L")
+    return best

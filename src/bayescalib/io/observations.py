@@ -1,0 +1,619 @@
+"""Observed interfaces: file readers, synthetic data, observation sets.
+
+Sources (all coordinates end up in mm):
+
+* synthetic: a model interface, optionally with Gaussian noise on the node
+  coordinates, ``y_obs = y_model + sigma_obs * eps`` (eq:noisy_data), drawn
+  from an explicit :class:`numpy.random.Generator` (:func:`add_noise`);
+* CSV (``.csv``): an ordered curve, header row naming the columns ``x,y`` (2D;
+  extra columns ignored). ``x,y,z`` is accepted when z is constant (a planar
+  curve; 3D observations must be surfaces, read from VTK). A last row equal
+  to the first closes the curve. Values are in ``units`` (m, mm or um);
+* VTK (``.vtp``, ``.vtu``, ``.vtk``, read with the ``vtk`` package): line /
+  polyline cells give a 2D polyline (all z equal), polygon / triangle / strip
+  cells a 3D triangulated surface. Points not used by any cell are dropped; a
+  set of segments forming one path is re-ordered into an ordered curve;
+* segmented image (``.png``, ``.tif``, ``.tiff``): see :mod:`bayescalib.geometry.imaging`.
+
+Every reader checks its input and raises :class:`ObservationError` naming the
+file and the problem: missing file, empty or single-point curve, NaN/inf,
+duplicate consecutive points, self-intersecting curve (2D), mask without
+foreground, and, when an expected ``domain`` (bounding box) is given, an
+extent that does not fit it (a typical sign of a unit mismatch, e.g. a curve
+2000 units wide in a 2 mm channel read as mm).
+
+Several snapshots (e.g. one per inflow rate) form an :class:`ObservationSet`.
+"""
+
+from __future__ import annotations
+
+import csv
+import itertools
+import re
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from bayescalib.geometry.interface import Interface, InterfaceError, segment_intersections
+from bayescalib.io._atomic_write import atomic_path
+
+__all__ = [
+    "UNITS",
+    "ObservationError",
+    "ObservationSet",
+    "add_noise",
+    "check_domain",
+    "read_interface",
+    "read_points",
+    "write_interface_csv",
+    "write_interface_vtk",
+]
+
+#: length unit -> factor to mm
+UNITS: dict[str, float] = {"m": 1000.0, "mm": 1.0, "um": 1.0e-3}
+
+CSV_SUFFIXES = {".csv"}
+VTK_SUFFIXES = {".vtp", ".vtu", ".vtk"}
+IMAGE_SUFFIXES = {".png", ".tif", ".tiff"}
+
+
+class ObservationError(ValueError):
+    """Bad observation input; the message names the file and the problem."""
+
+
+def _unit_factor(units: str, where: str) -> float:
+    if units not in UNITS:
+        raise ObservationError(f"{where}: unknown units {units!r}; use one of {', '.join(UNITS)}")
+    return UNITS[units]
+
+
+# ---------------------------------------------------------------------------- checks
+def _check_curve_points(pts: np.ndarray, where: str, rows: np.ndarray | None = None) -> None:
+    """Empty/single point, NaN/inf and duplicate consecutive points (rows are 1-based file rows)."""
+    if pts.shape[0] == 0:
+        raise ObservationError(f"{where}: the curve is empty (no points)")
+    if pts.shape[0] == 1:
+        raise ObservationError(f"{where}: the curve has a single point; at least 2 are needed")
+    bad = ~np.isfinite(pts).all(axis=1)
+    if bad.any():
+        i = int(np.flatnonzero(bad)[0])
+        at = f"row {int(rows[i])}" if rows is not None else f"point {i}"
+        raise ObservationError(f"{where}: {int(bad.sum())} point(s) with NaN/inf coordinates (first at {at})")
+    dup = np.all(pts[1:] == pts[:-1], axis=1)
+    if dup.any():
+        i = int(np.flatnonzero(dup)[0]) + 1
+        at = f"row {int(rows[i])}" if rows is not None else f"point {i}"
+        raise ObservationError(
+            f"{where}: duplicate consecutive points ({int(dup.sum())}; first at {at}: {pts[i].tolist()})"
+        )
+
+
+def _check_simple(curve: Interface, where: str) -> None:
+    if curve.dim != 2:
+        return
+    hits = segment_intersections(curve, max_report=1)
+    if hits:
+        i, j = hits[0]
+        raise ObservationError(
+            f"{where}: the curve intersects itself (segments {i} and {j}, near "
+            f"{curve.centres[i].round(6).tolist()})"
+        )
+
+
+def check_domain(interface: Interface, domain: Sequence[Sequence[float]] | None, where: str, units: str = "mm") -> None:
+    """Check that the interface fits an expected bounding box (catches unit mismatches).
+
+    Parameters
+    ----------
+    domain : sequence of (min, max) per axis, mm, optional
+        Expected bounding box, e.g. ``[[0, 2], [0, 1]]`` for the 2 mm x 1 mm
+        channel. The interface may exceed it by at most half its extent per axis.
+    """
+    if domain is None:
+        return
+    dom = np.asarray(domain, dtype=float)
+    if dom.shape != (interface.dim, 2) or not np.all(dom[:, 1] > dom[:, 0]):
+        raise ObservationError(
+            f"{where}: domain must be {interface.dim} pairs (min, max) with max > min, got {dom.tolist()}"
+        )
+    ext = dom[:, 1] - dom[:, 0]
+    lo, hi = interface.bounds
+    if np.any(lo < dom[:, 0] - 0.5 * ext) or np.any(hi > dom[:, 1] + 0.5 * ext):
+        size = float(np.max(hi - lo))
+        ratio = size / float(np.max(ext))
+        hint = ""
+        for u, f in UNITS.items():
+            if u != units and 0.05 < ratio * f / UNITS[units] < 20:
+                hint = f"; the numbers fit if the file is in {u} (units={u!r})"
+                break
+        raise ObservationError(
+            f"{where}: interface extent {(hi - lo).round(6).tolist()} mm (box {lo.round(6).tolist()} "
+            f"to {hi.round(6).tolist()}) does not fit the expected domain {dom.tolist()} mm; "
+            f"unit mismatch? (read as {units}){hint}"
+        )
+
+
+# ---------------------------------------------------------------------------- CSV
+def _read_csv_table(path: Path, where: str) -> tuple[list[str], np.ndarray, np.ndarray]:
+    try:
+        text = path.read_text()
+    except UnicodeDecodeError:
+        raise ObservationError(f"{where}: not a text CSV file") from None
+    rows = [r for r in csv.reader(text.splitlines())]
+    lines = [(i + 1, r) for i, r in enumerate(rows) if r and any(c.strip() for c in r)]
+    lines = [(i, r) for i, r in lines if not r[0].lstrip().startswith("#")]
+    if not lines:
+        raise ObservationError(f"{where}: the file is empty")
+    header = [c.strip().lower() for c in lines[0][1]]
+    values = []
+    rownum = []
+    for i, r in lines[1:]:
+        if len(r) != len(header):
+            raise ObservationError(f"{where}: row {i} has {len(r)} columns, header has {len(header)}")
+        try:
+            values.append([float(c) for c in r])
+        except ValueError:
+            raise ObservationError(f"{where}: row {i} has a non-numeric value: {r}") from None
+        rownum.append(i)
+    arr = np.array(values, dtype=float).reshape(-1, len(header))
+    return header, arr, np.array(rownum, dtype=int)
+
+
+def _columns(header: list[str], wanted: list[str], where: str) -> list[int] | None:
+    if all(w in header for w in wanted):
+        return [header.index(w) for w in wanted]
+    return None
+
+
+def _read_csv(path: Path, units: str, where: str) -> Interface:
+    header, arr, rows = _read_csv_table(path, where)
+    cols = _columns(header, ["x", "y", "z"], where) or _columns(header, ["x", "y"], where)
+    if cols is None:
+        raise ObservationError(
+            f"{where}: the header row must name the columns x,y (2D) or x,y,z; got {','.join(header)}"
+        )
+    pts = arr[:, cols] * _unit_factor(units, where)
+    if pts.shape[1] == 3:
+        z = pts[:, 2]
+        if pts.shape[0] and np.isfinite(z).all() and np.ptp(z) > 1e-12 * max(1.0, float(np.abs(z).max())):
+            raise ObservationError(
+                f"{where}: a 3D curve (varying z) is not supported; 3D observations must be "
+                "triangulated surfaces (VTK)"
+            )
+        pts = pts[:, :2]
+    _check_curve_points(pts, where, rows)
+    closed = pts.shape[0] > 3 and np.array_equal(pts[0], pts[-1])
+    if closed:
+        pts = pts[:-1]
+    try:
+        curve = Interface.polyline(pts, closed=closed, name=where)
+    except InterfaceError as exc:
+        raise ObservationError(str(exc)) from None
+    _check_simple(curve, where)
+    return curve
+
+
+def read_points(path: str | Path, *, units: str = "mm") -> tuple[np.ndarray, np.ndarray | None]:
+    """Measurement points (and optional directions) from a CSV file.
+
+    Header ``x,y[,z]`` with optional direction columns ``nx,ny[,nz]``
+    (directions are dimensionless; only the coordinates are scaled by ``units``).
+
+    Returns
+    -------
+    points : ndarray, shape (k, d)
+    directions : ndarray, shape (k, d) or None
+    """
+    p = Path(path)
+    where = str(p)
+    if not p.is_file():
+        raise ObservationError(f"{where}: measurement point file does not exist")
+    header, arr, rows = _read_csv_table(p, where)
+    cols = _columns(header, ["x", "y", "z"], where) or _columns(header, ["x", "y"], where)
+    if cols is None:
+        raise ObservationError(f"{where}: the header row must name x,y (or x,y,z); got {','.join(header)}")
+    if arr.shape[0] == 0:
+        raise ObservationError(f"{where}: no measurement points")
+    pts = arr[:, cols] * _unit_factor(units, where)
+    bad = ~np.isfinite(pts).all(axis=1)
+    if bad.any():
+        raise ObservationError(f"{where}: NaN/inf in row {int(rows[np.flatnonzero(bad)[0]])}")
+    dcols = _columns(header, ["nx", "ny", "nz"][: len(cols)], where)
+    dirs = arr[:, dcols] if dcols is not None else None
+    if dirs is not None and (not np.isfinite(dirs).all() or np.any(np.linalg.norm(dirs, axis=1) == 0)):
+        raise ObservationError(f"{where}: directions must be finite and non-zero")
+    return pts, dirs
+
+
+# ---------------------------------------------------------------------------- VTK
+def _vtk_reader(path: Path):
+    import vtk
+
+    suffix = path.suffix.lower()
+    if suffix == ".vtp":
+        reader = vtk.vtkXMLPolyDataReader()
+    elif suffix == ".vtu":
+        reader = vtk.vtkXMLUnstructuredGridReader()
+    else:
+        reader = vtk.vtkGenericDataObjectReader()
+    reader.SetFileName(str(path))
+    reader.Update()
+    return reader.GetOutput()
+
+
+def _order_chain(n: int, seg: np.ndarray) -> np.ndarray | None:
+    """Node order of segments forming one simple path or cycle, else None."""
+    if seg.shape[0] == 0:
+        return None
+    deg = np.bincount(seg.ravel(), minlength=n)
+    if deg.max() > 2 or np.count_nonzero(deg) != n:
+        return None
+    adj: dict[int, list[int]] = {i: [] for i in range(n)}
+    for a, b in seg:
+        adj[int(a)].append(int(b))
+        adj[int(b)].append(int(a))
+    ends = np.flatnonzero(deg == 1)
+    start = int(ends[0]) if ends.size else int(seg[0, 0])
+    order = [start]
+    prev = -1
+    cur = start
+    while True:
+        nxt = [v for v in adj[cur] if v != prev]
+        if not nxt or (nxt[0] == start):
+            break
+        prev, cur = cur, nxt[0]
+        order.append(cur)
+    if len(order) != n:
+        return None
+    # keep the orientation of the first segment as given
+    first = seg[0]
+    pos = {v: i for i, v in enumerate(order)}
+    if ends.size and pos[int(first[0])] > pos[int(first[1])]:
+        order = order[::-1]
+    if not ends.size and (pos[int(first[1])] - pos[int(first[0])]) % n != 1:
+        order = [order[0]] + order[1:][::-1]
+    return np.array(order)
+
+
+#: largest count of points, cells or components a VTK header may declare: VTK allocates
+#: what the header says before reading, and a corrupt count aborts the process
+#: (std::bad_alloc) or takes minutes; an observed interface is far smaller
+MAX_VTK_COUNT = 50_000_000
+_VTK_COUNT = re.compile(
+    rb'NumberOf(?:Points|Cells|Verts|Lines|Strips|Polys|Components|Tuples)\s*=\s*"\s*(\d+)'
+    rb"|^[ \t]*(?:POINTS|VERTICES|LINES|POLYGONS|TRIANGLE_STRIPS|CELLS|CELL_TYPES|OFFSETS"
+    rb"|CONNECTIVITY|POINT_DATA|CELL_DATA|DIMENSIONS)[ \t]+(\d+)(?:[ \t]+(\d+))?",
+    re.MULTILINE,
+)
+
+
+def _check_vtk_header(path: Path, where: str) -> None:
+    """Refuse a VTK file whose header declares absurd sizes (before VTK allocates them)."""
+    with open(path, "rb") as fh:
+        head = fh.read(1 << 20)
+    for m in _VTK_COUNT.finditer(head):
+        n = max(int(g) for g in m.groups() if g)
+        if n > MAX_VTK_COUNT:
+            raise ObservationError(
+                f"{where}: the VTK header declares {n} points/cells/components, more than "
+                f"{MAX_VTK_COUNT:,}: the file is corrupt (or not an interface)"
+            )
+
+
+def _check_vtk_cell_ids(data, where: str) -> None:
+    """Cells must refer to existing points (VTK filters may crash otherwise)."""
+    import vtk
+    from vtk.util.numpy_support import vtk_to_numpy
+
+    if isinstance(data, vtk.vtkPolyData):
+        arrays = [data.GetVerts(), data.GetLines(), data.GetPolys(), data.GetStrips()]
+    elif isinstance(data, vtk.vtkUnstructuredGrid):
+        arrays = [data.GetCells()]
+    else:
+        return
+    n = data.GetNumberOfPoints()
+    for cells in arrays:
+        if cells is None or cells.GetNumberOfCells() == 0:
+            continue
+        conn = vtk_to_numpy(cells.GetConnectivityArray())
+        if conn.size and (conn.min() < 0 or conn.max() >= n):
+            raise ObservationError(
+                f"{where}: cells refer to point ids from {int(conn.min())} to {int(conn.max())} "
+                f"but the file has {n} point(s)"
+            )
+
+
+def _read_vtk(path: Path, units: str, where: str) -> Interface:
+    import vtk
+    from vtk.util.numpy_support import vtk_to_numpy
+
+    _check_vtk_header(path, where)
+    data = _vtk_reader(path)
+    # an unreadable legacy file gives a bare vtkDataObject (no points at all)
+    if not isinstance(data, vtk.vtkDataSet) or data.GetNumberOfPoints() == 0:
+        raise ObservationError(f"{where}: the VTK file holds no points (empty or unreadable)")
+    _check_vtk_cell_ids(data, where)
+    if not isinstance(data, vtk.vtkPolyData):
+        geo = vtk.vtkGeometryFilter()
+        geo.SetInputData(data)
+        geo.Update()
+        data = geo.GetOutput()
+    if data.GetNumberOfPolys() or data.GetNumberOfStrips():
+        tri = vtk.vtkTriangleFilter()
+        tri.SetInputData(data)
+        tri.PassLinesOff()
+        tri.PassVertsOff()
+        tri.Update()
+        data = tri.GetOutput()
+        conn = vtk_to_numpy(data.GetPolys().GetConnectivityArray()).astype(np.int64)
+        cells = conn.reshape(-1, 3)
+        dim = 3
+    elif data.GetNumberOfLines():
+        lines = data.GetLines()
+        conn = vtk_to_numpy(lines.GetConnectivityArray()).astype(np.int64)
+        offs = vtk_to_numpy(lines.GetOffsetsArray()).astype(np.int64)
+        segs = []
+        for a, b in itertools.pairwise(offs):
+            ids = conn[a:b]
+            if ids.size >= 2:
+                segs.append(np.stack([ids[:-1], ids[1:]], axis=1))
+        if not segs:
+            raise ObservationError(f"{where}: the VTK lines have fewer than 2 points")
+        cells = np.vstack(segs)
+        dim = 2
+    else:
+        raise ObservationError(
+            f"{where}: no line, polyline, polygon or triangle cells (a point cloud is not an interface)"
+        )
+    pts = vtk_to_numpy(data.GetPoints().GetData()).astype(float) * _unit_factor(units, where)
+    if not np.isfinite(pts).all():
+        raise ObservationError(f"{where}: NaN/inf point coordinates")
+    used = np.unique(cells)
+    remap = -np.ones(pts.shape[0], dtype=np.int64)
+    remap[used] = np.arange(used.size)
+    pts, cells = pts[used], remap[cells]
+    try:
+        if dim == 2:
+            z = pts[:, 2]
+            if np.ptp(z) > 1e-12 * max(1.0, float(np.abs(pts).max())):
+                raise ObservationError(
+                    f"{where}: a 3D curve (varying z) is not supported; give a planar curve or a surface"
+                )
+            pts = pts[:, :2]
+            order = _order_chain(pts.shape[0], cells)
+            if order is not None:
+                closed = cells.shape[0] == pts.shape[0]
+                ordered = pts[order]
+                _check_curve_points(ordered, where)
+                curve = Interface.polyline(ordered, closed=closed, name=where)
+            else:
+                curve = Interface(pts, cells, name=where)
+            _check_simple(curve, where)
+            return curve
+        return Interface.surface(pts, cells, name=where)
+    except InterfaceError as exc:
+        raise ObservationError(str(exc)) from None
+
+
+# ---------------------------------------------------------------------------- image
+def _read_image(path: Path, pixel_size, origin, drop_border: bool, floor, units: str, where: str) -> Interface:
+    from bayescalib.geometry import imaging
+
+    if pixel_size is None:
+        raise ObservationError(f"{where}: an image needs a pixel size (pixel_size, in {units})")
+    f = _unit_factor(units, where)
+    org = (0.0, 0.0) if origin is None else tuple(float(v) * f for v in origin)
+    if len(org) != 2:
+        raise ObservationError(f"{where}: origin must be two numbers (x, y), got {origin}")
+    try:
+        mask = imaging.load_mask(path)
+    except imaging._MaskError as exc:
+        raise ObservationError(f"{where}: {exc}") from None
+    except Exception as exc:  # noqa: BLE001 - decoders raise anything on a broken file
+        raise ObservationError(
+            f"{where}: cannot read the image ({type(exc).__name__}: {exc})"
+        ) from None
+    try:
+        return imaging.mask_contour(
+            mask, float(pixel_size) * f, org, drop_border=drop_border,
+            floor=None if floor is None else float(floor) * f, name=where,
+        )
+    except InterfaceError as exc:
+        raise ObservationError(str(exc)) from None
+    except ValueError as exc:
+        msg = str(exc)
+        raise ObservationError(msg if msg.startswith(where) else f"{where}: {msg}") from None
+    except OSError as exc:
+        raise ObservationError(f"{where}: cannot read the image ({exc})") from None
+
+
+# ---------------------------------------------------------------------------- API
+def read_interface(
+    path: str | Path,
+    *,
+    units: str = "mm",
+    pixel_size: float | None = None,
+    origin: Sequence[float] | None = None,
+    drop_border: bool = True,
+    floor: float | None = None,
+    domain: Sequence[Sequence[float]] | None = None,
+) -> Interface:
+    """Read an interface from CSV, VTK or a mask image, in mm.
+
+    Parameters
+    ----------
+    path : str or Path
+        ``.csv``, ``.vtp``/``.vtu``/``.vtk`` or ``.png``/``.tif``/``.tiff``.
+    units : {"mm", "m", "um"}
+        Units of the coordinates in the file (and of ``pixel_size``/``origin``).
+    pixel_size : float, optional
+        Image pixel size (required for images).
+    origin : (float, float), optional
+        Image: position of the centre of the bottom-left pixel (default (0, 0)).
+    drop_border : bool
+        Image: drop the boundary along the image border/floor (see
+        :mod:`bayescalib.geometry.imaging`).
+    floor : float, optional
+        Image: y of the floor (in ``units``); the contour part on it is dropped.
+    domain : sequence of (min, max) per axis in mm, optional
+        Expected bounding box; an interface that does not fit raises (unit check).
+
+    Raises
+    ------
+    ObservationError
+        Naming the file and the problem.
+    """
+    p = Path(path)
+    where = str(p)
+    if not p.exists():
+        raise ObservationError(f"{where}: file does not exist")
+    if not p.is_file():
+        raise ObservationError(f"{where}: not a file")
+    suffix = p.suffix.lower()
+    _unit_factor(units, where)
+    if suffix in CSV_SUFFIXES:
+        iface = _read_csv(p, units, where)
+    elif suffix in VTK_SUFFIXES:
+        iface = _read_vtk(p, units, where)
+    elif suffix in IMAGE_SUFFIXES:
+        iface = _read_image(p, pixel_size, origin, drop_border, floor, units, where)
+    else:
+        known = sorted(CSV_SUFFIXES | VTK_SUFFIXES | IMAGE_SUFFIXES)
+        raise ObservationError(f"{where}: unknown interface file type {suffix!r}; use one of {', '.join(known)}")
+    check_domain(iface, domain, where, units)
+    return iface
+
+
+def write_interface_csv(path: str | Path, interface: Interface) -> None:
+    """Write an ordered 2D curve as CSV (header ``x,y``, mm, full precision).
+
+    A closed curve is written with its first point repeated at the end, which
+    :func:`read_interface` reads back as closed.
+    """
+    p = Path(path)
+    if interface.dim != 2 or not interface.is_chain():
+        raise ObservationError(f"{p}: CSV holds ordered 2D curves only; write surfaces as VTK (.vtp)")
+    pts = interface.points
+    if interface.n_cells == interface.n_points:
+        pts = np.vstack([pts, pts[:1]])
+    with atomic_path(p, suffix=".csv") as tmp, tmp.open("w", newline="") as fh:
+        fh.write("x,y\n")
+        for x, y in pts:
+            fh.write(f"{float(x)!r},{float(y)!r}\n")
+
+
+def write_interface_vtk(path: str | Path, interface: Interface) -> None:
+    """Write an interface as VTK XML PolyData (``.vtp``): lines in 2D (z = 0), triangles in 3D."""
+    import vtk
+    from vtk.util.numpy_support import numpy_to_vtk, numpy_to_vtkIdTypeArray
+
+    p = Path(path)
+    pts = interface.points
+    if interface.dim == 2:
+        pts = np.column_stack([pts, np.zeros(pts.shape[0])])
+    vpts = vtk.vtkPoints()
+    vpts.SetData(numpy_to_vtk(np.ascontiguousarray(pts), deep=True))
+    m, k = interface.cells.shape
+    offsets = np.arange(0, (m + 1) * k, k, dtype=np.int64)
+    arr = vtk.vtkCellArray()
+    arr.SetData(
+        numpy_to_vtkIdTypeArray(offsets, deep=True),
+        numpy_to_vtkIdTypeArray(np.ascontiguousarray(interface.cells.ravel()), deep=True),
+    )
+    poly = vtk.vtkPolyData()
+    poly.SetPoints(vpts)
+    if interface.dim == 2:
+        poly.SetLines(arr)
+    else:
+        poly.SetPolys(arr)
+    writer = vtk.vtkXMLPolyDataWriter()
+    writer.SetFileName(str(p))
+    writer.SetInputData(poly)
+    if not writer.Write():
+        raise OSError(f"{p}: writing the VTK file failed")
+
+
+def add_noise(interface: Interface, sigma_obs: float, rng: np.random.Generator) -> Interface:
+    """Synthetic observation with Gaussian coordinate noise (eq:noisy_data).
+
+    Parameters
+    ----------
+    interface : Interface
+        Model interface (mm).
+    sigma_obs : float
+        Noise standard deviation in mm (>= 0; 0 returns the interface unchanged).
+    rng : numpy.random.Generator
+        Source of randomness (pass a seeded generator for reproducibility).
+
+    Returns
+    -------
+    Interface
+        Same cells, points ``+ sigma_obs * N(0, I)``.
+    """
+    if not (np.isfinite(sigma_obs) and sigma_obs >= 0):
+        raise ObservationError(f"sigma_obs must be >= 0 mm, got {sigma_obs}")
+    if not isinstance(rng, np.random.Generator):
+        raise TypeError("rng must be a numpy.random.Generator")
+    if sigma_obs == 0:
+        return interface
+    noisy = interface.points + sigma_obs * rng.standard_normal(interface.points.shape)
+    return Interface(noisy, interface.cells, name=f"{interface.name} + noise({sigma_obs} mm)")
+
+
+@dataclass
+class ObservationSet:
+    """Observed snapshots of one experiment (e.g. one per inflow rate).
+
+    Attributes
+    ----------
+    snapshots : list of Interface
+    labels : list of str
+        One unique label per snapshot.
+    loads : list of float, optional
+        The load/inflow rate of each snapshot (e.g. mm^2/s), when known.
+    """
+
+    snapshots: list[Interface]
+    labels: list[str] = field(default_factory=list)
+    loads: list[float] | None = None
+
+    def __post_init__(self) -> None:
+        self.snapshots = list(self.snapshots)
+        if not self.snapshots:
+            raise ObservationError("an observation set needs at least one snapshot")
+        if not all(isinstance(s, Interface) for s in self.snapshots):
+            raise ObservationError("observation snapshots must be Interface objects")
+        if not self.labels:
+            self.labels = [f"snapshot{i}" for i in range(len(self.snapshots))]
+        self.labels = [str(x) for x in self.labels]
+        if len(self.labels) != len(self.snapshots):
+            raise ObservationError(
+                f"{len(self.labels)} label(s) for {len(self.snapshots)} snapshot(s)"
+            )
+        if len(set(self.labels)) != len(self.labels):
+            raise ObservationError(f"snapshot labels must be unique, got {self.labels}")
+        if self.loads is not None:
+            self.loads = [float(v) for v in self.loads]
+            if len(self.loads) != len(self.snapshots):
+                raise ObservationError(f"{len(self.loads)} load(s) for {len(self.snapshots)} snapshot(s)")
+        dims = {s.dim for s in self.snapshots}
+        if len(dims) != 1:
+            raise ObservationError("all snapshots of an observation set must have the same dimension")
+
+    def __len__(self) -> int:
+        return len(self.snapshots)
+
+    @classmethod
+    def from_files(
+        cls,
+        paths: Sequence[str | Path],
+        labels: Sequence[str] | None = None,
+        loads: Sequence[float] | None = None,
+        **read_options,
+    ) -> ObservationSet:
+        """Read one snapshot per file with :func:`read_interface` (labels default to file stems)."""
+        snaps = [read_interface(p, **read_options) for p in paths]
+        labs = list(labels) if labels else [Path(p).stem for p in paths]
+        return cls(snaps, labs, list(loads) if loads is not None else None)

@@ -1,0 +1,414 @@
+"""RKHS ("surface current") norm between two interfaces.
+
+Each interface is represented as a discrete current: at every cell centre
+``c_i`` the normal scaled by the cell measure, ``a_i = |e_i| n_i`` (length in
+2D, area in 3D). With the Gaussian kernel of eq:surface_current / eq:surfcurrkernel,
+
+    k(x, y) = exp(-|x - y|^2 / (2 sigma_W^2)),
+    <a, b>_V = sum_i sum_j a_i . b_j k(c_i, c_j)                 (eq:inner_prod_rkhs)
+    D^2 = <a1, a1>_V - 2 <a1, a2>_V + <a2, a2>_V                (eq:surfcurrontriang)
+
+(the printed double sum in the paper repeats one cross term; the three
+distinct terms above are the norm of the difference current, as in the SPEC).
+D has units mm^(d-1) * (kernel, dimensionless); it is a scalar.
+
+Discretization
+--------------
+The double sum is a midpoint quadrature of the continuous current inner
+product. With sigma_W (paper: 0.005 mm) below the element length (~0.02 mm)
+this quadrature is poor, and the norm between a curve and the *same* curve
+with different nodes is as large as a real 0.01 mm offset. Both interfaces are
+therefore first subdivided (:meth:`bayescalib.geometry.interface.Interface.resampled`)
+so every sub-element is at most ``spacing`` long (curves: by arc length;
+triangles: regular subdivision until the longest edge is below the bound).
+Default rule: ``spacing = sigma_W / 4``, for which the midpoint rule's
+relative error on a Gaussian of width sigma_W is about
+``h^2 / (24 sigma_W^2) <= 1/384`` (0.26 %). The geometry is unchanged by the
+subdivision, so the result depends on the interfaces, not on their meshes.
+
+Computation
+-----------
+Pair sums are evaluated block by block (at most ``chunk`` kernel entries in
+memory at once) either with NumPy (float64) or with torch (CUDA when
+available, else CPU; float64 by default, float32 on request). Squared
+distances use the matrix-product expansion ``|x|^2 + |y|^2 - 2 x.y`` after
+shifting each block to the mean of its rows, so its cancellation error
+``eps |x|^2`` is set by the block radius plus the cut-off (about 15 sigma_W
+for the kernel values that matter), not by the position in the domain: about
+1e-5 relative kernel error in float32, 1e-14 in float64. The reduction is a
+matrix product ``K @ b``, and the self terms use the
+symmetry of the kernel (only blocks on and above the diagonal). Block sums are
+accumulated in float64. Points are sorted along a Morton (Z-order) curve and,
+for each block of rows, only the columns within ``truncate * sigma_W`` (11.9,
+i.e. kernel values < 4e-31) of the rows' bounding box are evaluated, which
+makes the cost close to linear when sigma_W is small against the interface.
+Exponents are clipped to [-80, 0] (no subnormal floats; the clipped values
+lie beyond the truncation radius).
+
+Threads: the torch path runs with one intra-op CPU thread by default
+(``threads=1``, restored afterwards): on the shared 2-core machine two threads
+made the small block products up to 40x slower (``benchmarks/bench_rkhs.py``).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from bayescalib.geometry.interface import Interface
+
+__all__ = ["current", "default_spacing", "naive_rkhs_squared", "pair_sum", "rkhs_distance", "rkhs_squared"]
+
+#: sub-element size relative to sigma_W used when no spacing is given
+SPACING_FACTOR = 0.25
+#: default maximum number of kernel entries held in memory per block
+DEFAULT_CHUNK = 1 << 20
+#: below this many kernel pairs the NumPy path is used by backend="auto"
+AUTO_NUMPY_PAIRS = 4_000_000
+#: kernel truncation radius in units of sigma_W (exp(-11.9^2/2) < 4e-31)
+DEFAULT_TRUNCATE = 11.9
+#: exponents are clipped to [MIN_EXPONENT, 0]: exp(-80) ~ 1.8e-35 is below the
+#: truncation level and keeps float32 out of (slow) subnormal numbers
+MIN_EXPONENT = -80.0
+#: torch CPU intra-op threads used by the torch path (see pair_sum)
+DEFAULT_THREADS = 1
+
+
+def default_spacing(sigma_w: float) -> float:
+    """Default resampling spacing ``sigma_W / 4`` (mm)."""
+    return SPACING_FACTOR * float(sigma_w)
+
+
+def current(
+    interface: Interface, sigma_w: float, spacing: float | None = None, max_elements: float = 2e6
+) -> tuple[np.ndarray, np.ndarray]:
+    """Centres and measure-scaled normals of the (resampled) interface.
+
+    Parameters
+    ----------
+    interface : Interface
+    sigma_w : float
+        Kernel width in mm (> 0).
+    spacing : float, optional
+        Maximum sub-element size in mm; None -> ``sigma_w / 4``;
+        ``math.inf`` -> no resampling (use the cells as given).
+    max_elements : float
+        Refuse (ValueError) resampling into more elements than this: a sign of
+        a unit mismatch or of a sigma_W far below the interface size.
+
+    Returns
+    -------
+    centres : ndarray, shape (m, d)
+    weights : ndarray, shape (m, d)
+        ``|e_i| n_i``.
+    """
+    h = default_spacing(sigma_w) if spacing is None else float(spacing)
+    if not (h > 0):
+        raise ValueError(f"RKHS spacing must be > 0 (or inf for no resampling), got {spacing}")
+    if not math.isinf(h):
+        if interface.dim == 2:
+            count = float(np.sum(np.ceil(interface.measures / h)))
+        else:
+            p = interface.points[interface.cells]
+            longest = np.linalg.norm(p - np.roll(p, 1, axis=1), axis=2).max(axis=1)
+            count = float(np.sum(np.ceil(longest / h) ** 2))
+        if count > max_elements:
+            raise ValueError(
+                f"{interface.name}: resampling to spacing {h:g} mm would give {count:.3g} elements "
+                f"(limit {max_elements:.3g}); the interface is large compared with sigma_W = "
+                f"{sigma_w:g} mm -- check the units, or pass a larger spacing"
+            )
+        interface = interface.resampled(h)
+    return interface.centres, interface.current
+
+
+def _morton_order(x: np.ndarray, cell: float) -> np.ndarray:
+    """Permutation sorting points along a Z-order (Morton) curve of grid ``cell``."""
+    d = x.shape[1]
+    bits = 63 // d
+    g = np.floor((x - x.min(axis=0)) / cell)
+    g = np.clip(g, 0, (1 << bits) - 1).astype(np.uint64)
+    code = np.zeros(x.shape[0], dtype=np.uint64)
+    for bit in range(bits):
+        for k in range(d):
+            code |= ((g[:, k] >> np.uint64(bit)) & np.uint64(1)) << np.uint64(bit * d + k)
+    return np.argsort(code, kind="stable")
+
+
+def _blocks(x, y, cutoff, rows, symmetric):
+    """Row blocks of ``x`` with the columns of ``y`` that can interact.
+
+    Yields ``(i0, i1, cols, n_diag)``: rows ``i0:i1``, column indices ``cols``
+    (sorted) of ``y`` within ``cutoff`` of the rows' bounding box, and for
+    ``symmetric`` (``x is y``) only columns ``>= i0``, of which the first
+    ``n_diag`` are the diagonal block ``i0:i1``.
+    """
+    n, m = x.shape[0], y.shape[0]
+    for i0 in range(0, n, rows):
+        i1 = min(n, i0 + rows)
+        if cutoff is None:
+            cols = np.arange(i0 if symmetric else 0, m)
+        else:
+            lo = x[i0:i1].min(axis=0) - cutoff
+            hi = x[i0:i1].max(axis=0) + cutoff
+            yy = y[i0:] if symmetric else y
+            inside = np.all((yy >= lo) & (yy <= hi), axis=1)
+            cols = np.flatnonzero(inside) + (i0 if symmetric else 0)
+        n_diag = int(np.count_nonzero(cols < i1)) if symmetric else 0
+        if cols.size:
+            yield i0, i1, cols, n_diag
+
+
+def _block_sum_numpy(xi, ai, yj, bj, inv2s2, symmetric, n_diag):
+    centre = xi.mean(axis=0)
+    xi = xi - centre
+    yj = yj - centre
+    d2 = np.sum(xi * xi, axis=1)[:, None] + np.sum(yj * yj, axis=1)[None, :] - 2.0 * (xi @ yj.T)
+    kern = np.exp(np.clip(-inv2s2 * d2, MIN_EXPONENT, 0.0))
+    kb = kern @ bj
+    if symmetric:  # off-diagonal pairs stand for (i, j) and (j, i)
+        kb = 2.0 * kb
+        if n_diag:
+            kb = kb - kern[:, :n_diag] @ bj[:n_diag]
+    return float(np.sum(ai * kb))
+
+
+def _block_sum_torch(xi, ai, yj, bj, inv2s2, symmetric, n_diag):
+    import torch
+
+    centre = xi.mean(dim=0)
+    xi = xi - centre
+    yj = yj - centre
+    d2 = torch.addmm(torch.sum(yj * yj, dim=1)[None, :], xi, yj.T, alpha=-2.0)
+    d2.add_(torch.sum(xi * xi, dim=1)[:, None])
+    kern = d2.mul_(-inv2s2).clamp_(min=MIN_EXPONENT, max=0.0).exp_()
+    kb = kern @ bj
+    if symmetric:  # off-diagonal pairs stand for (i, j) and (j, i)
+        kb = 2.0 * kb
+        if n_diag:
+            kb = kb - kern[:, :n_diag] @ bj[:n_diag]
+    return torch.sum(ai * kb, dtype=torch.float64)
+
+
+def pair_sum(
+    x: np.ndarray,
+    a: np.ndarray,
+    y: np.ndarray,
+    b: np.ndarray,
+    sigma_w: float,
+    *,
+    backend: str = "numpy",
+    device: str | None = None,
+    dtype: str = "float64",
+    chunk: int = DEFAULT_CHUNK,
+    symmetric: bool = False,
+    truncate: float | None = DEFAULT_TRUNCATE,
+    threads: int | None = DEFAULT_THREADS,
+) -> float:
+    """``sum_i sum_j a_i . b_j exp(-|x_i - y_j|^2 / (2 sigma_w^2))``.
+
+    Parameters
+    ----------
+    x : ndarray, shape (n, d)
+    a : ndarray, shape (n, d)
+    y : ndarray, shape (m, d)
+    b : ndarray, shape (m, d)
+    sigma_w : float
+        Kernel width (mm).
+    backend : {"numpy", "torch"}
+    device : str, optional
+        torch device; None -> "cuda" when available, else "cpu".
+    dtype : {"float64", "float32"}
+        torch working precision (NumPy always uses float64); block sums are
+        accumulated in float64.
+    chunk : int
+        Maximum number of kernel entries per block (bounds the memory).
+    symmetric : bool
+        ``x is y`` and ``a is b``: evaluate only blocks on/above the diagonal.
+    truncate : float or None
+        Skip pairs farther apart than ``truncate * sigma_w`` (by block bounding
+        boxes after a Morton sort). The default 11.9 drops only kernel values
+        ``< exp(-70) ~ 4e-31``, i.e. the result equals the dense sum to double
+        precision. None evaluates every pair.
+    threads : int or None
+        torch intra-op threads on CPU while computing (the previous setting is
+        restored). Default 1: the blocks are small matrix products, which
+        multi-threading slows down badly on a shared, loaded CPU (measured up
+        to 40x), and the pipeline runs one job per core. None keeps the
+        global setting.
+    """
+    inv2s2 = 1.0 / (2.0 * float(sigma_w) ** 2)
+    x = np.asarray(x, float)
+    a = np.asarray(a, float)
+    y = np.asarray(y, float)
+    b = np.asarray(b, float)
+    cutoff = None if truncate is None else float(truncate) * float(sigma_w)
+    if cutoff is not None:
+        ox = _morton_order(x, 4.0 * cutoff)
+        x, a = x[ox], a[ox]
+        if symmetric:
+            y, b = x, a
+        else:
+            oy = _morton_order(y, 4.0 * cutoff)
+            y, b = y[oy], b[oy]
+    rows = max(1, min(x.shape[0], int(chunk) // max(1, y.shape[0]), 4096))
+    if cutoff is not None:
+        rows = max(rows, min(x.shape[0], 256))
+    if backend == "numpy":
+        total = 0.0
+        for i0, i1, cols, nd in _blocks(x, y, cutoff, rows, symmetric):
+            for c0 in range(0, cols.size, max(1, int(chunk) // (i1 - i0))):
+                cc = cols[c0 : c0 + max(1, int(chunk) // (i1 - i0))]
+                ndc = max(0, min(nd - c0, cc.size)) if symmetric else 0
+                total += _block_sum_numpy(x[i0:i1], a[i0:i1], y[cc], b[cc], inv2s2, symmetric, ndc)
+        return total
+    if backend != "torch":
+        raise ValueError(f"unknown RKHS backend {backend!r}; use 'numpy', 'torch' or 'auto'")
+    import torch
+
+    dev = torch.device(device if device else ("cuda" if torch.cuda.is_available() else "cpu"))
+    tdt = {"float64": torch.float64, "float32": torch.float32}.get(dtype)
+    if tdt is None:
+        raise ValueError(f"unknown RKHS dtype {dtype!r}; use 'float64' or 'float32'")
+    xt = torch.as_tensor(np.ascontiguousarray(x), dtype=tdt, device=dev)
+    at = torch.as_tensor(np.ascontiguousarray(a), dtype=tdt, device=dev)
+    if symmetric:
+        yt, bt = xt, at
+    else:
+        yt = torch.as_tensor(np.ascontiguousarray(y), dtype=tdt, device=dev)
+        bt = torch.as_tensor(np.ascontiguousarray(b), dtype=tdt, device=dev)
+    total = torch.zeros((), dtype=torch.float64, device=dev)
+    saved_threads = torch.get_num_threads()
+    if dev.type == "cpu" and threads is not None:
+        torch.set_num_threads(max(1, int(threads)))
+    try:
+        _torch_blocks(x, y, xt, at, yt, bt, cutoff, rows, symmetric, chunk, inv2s2, dev, total)
+    finally:
+        torch.set_num_threads(saved_threads)
+    return float(total)
+
+
+def _torch_blocks(x, y, xt, at, yt, bt, cutoff, rows, symmetric, chunk, inv2s2, dev, total):
+    import torch
+
+    with torch.no_grad():
+        for i0, i1, cols, nd in _blocks(x, y, cutoff, rows, symmetric):
+            step = max(1, int(chunk) // (i1 - i0))
+            for c0 in range(0, cols.size, step):
+                cc = cols[c0 : c0 + step]
+                ndc = max(0, min(nd - c0, cc.size)) if symmetric else 0
+                if int(cc[-1]) - int(cc[0]) + 1 == cc.size:  # contiguous: a view
+                    yj, bj = yt[int(cc[0]) : int(cc[-1]) + 1], bt[int(cc[0]) : int(cc[-1]) + 1]
+                else:
+                    idx = torch.as_tensor(cc, device=dev)
+                    yj, bj = yt[idx], bt[idx]
+                total += _block_sum_torch(xt[i0:i1], at[i0:i1], yj, bj, inv2s2, symmetric, ndc)
+
+
+def rkhs_squared(
+    c1: np.ndarray,
+    a1: np.ndarray,
+    c2: np.ndarray,
+    a2: np.ndarray,
+    sigma_w: float,
+    *,
+    backend: str = "auto",
+    device: str | None = None,
+    dtype: str = "float64",
+    chunk: int = DEFAULT_CHUNK,
+    truncate: float | None = DEFAULT_TRUNCATE,
+    threads: int | None = DEFAULT_THREADS,
+) -> tuple[float, float, float]:
+    """The three terms ``(<a1,a1>, <a1,a2>, <a2,a2>)`` of eq:surfcurrontriang.
+
+    Coordinates are shifted to their common mean first (translation invariance
+    of the kernel; better conditioned in float32). ``backend="auto"`` uses
+    NumPy below ``AUTO_NUMPY_PAIRS`` kernel pairs and torch above.
+    """
+    if not (np.isfinite(sigma_w) and sigma_w > 0):
+        raise ValueError(f"sigma_w must be a positive number (mm), got {sigma_w}")
+    c1 = np.asarray(c1, float)
+    c2 = np.asarray(c2, float)
+    shift = np.vstack([c1, c2]).mean(axis=0)
+    c1, c2 = c1 - shift, c2 - shift
+    if backend == "auto":
+        pairs = (c1.shape[0] + c2.shape[0]) ** 2
+        backend = "numpy" if pairs <= AUTO_NUMPY_PAIRS else "torch"
+    kw = {"backend": backend, "device": device, "dtype": dtype, "chunk": chunk, "truncate": truncate, "threads": threads}
+    s11 = pair_sum(c1, a1, c1, a1, sigma_w, symmetric=True, **kw)
+    s12 = pair_sum(c1, a1, c2, a2, sigma_w, **kw)
+    s22 = pair_sum(c2, a2, c2, a2, sigma_w, symmetric=True, **kw)
+    return s11, s12, s22
+
+
+#: most kernel pairs one distance may evaluate (about a minute on one core)
+DEFAULT_MAX_PAIRS = 1.0e10
+
+
+def kernel_pairs(c1: np.ndarray, c2: np.ndarray, sigma_w: float,
+                 truncate: float | None) -> float:
+    """Estimate of the kernel pairs the three sums of D^2 evaluate: all pairs of the
+    (n1 + n2) elements, times the fraction within the cut-off ``truncate * sigma_w``
+    along the curves' extent (1 without a cut-off)."""
+    n = len(c1) + len(c2)
+    both = np.vstack([np.asarray(c1, float), np.asarray(c2, float)])
+    extent = float(np.max(np.ptp(both, axis=0))) if len(both) else 0.0
+    frac = 1.0 if truncate is None or extent <= 0 else \
+        min(1.0, 2.0 * float(truncate) * float(sigma_w) / extent)
+    return float(n) * float(n) * frac
+
+
+def rkhs_distance(
+    model: Interface,
+    obs: Interface,
+    sigma_w: float,
+    *,
+    spacing: float | None = None,
+    backend: str = "auto",
+    device: str | None = None,
+    dtype: str = "float64",
+    chunk: int = DEFAULT_CHUNK,
+    truncate: float | None = DEFAULT_TRUNCATE,
+    threads: int | None = DEFAULT_THREADS,
+    max_pairs: float = DEFAULT_MAX_PAIRS,
+) -> float:
+    """RKHS norm D between two interfaces (after resampling; see module docstring).
+
+    Refuses (ValueError) work above ``max_pairs`` kernel pairs (:func:`kernel_pairs`),
+    before computing anything.
+
+    Returns
+    -------
+    float
+        ``D = sqrt(max(0, <a1,a1> - 2 <a1,a2> + <a2,a2>))``.
+    """
+    if model.dim != obs.dim:
+        raise ValueError(f"cannot compare a {model.dim}D interface with a {obs.dim}D one")
+    c1, a1 = current(model, sigma_w, spacing)
+    c2, a2 = current(obs, sigma_w, spacing)
+    pairs = kernel_pairs(c1, c2, sigma_w, truncate)
+    if pairs > max_pairs:
+        raise ValueError(
+            f"RKHS: about {pairs:.3g} kernel pairs for {len(c1)} + {len(c2)} elements (limit "
+            f"measure.rkhs.max_pairs = {max_pairs:.3g}): the curves hold far more points than "
+            f"sigma_W = {sigma_w:g} mm needs (spacing {default_spacing(sigma_w):g} mm is "
+            "enough); resample the observed interface, or raise the limit")
+    s11, s12, s22 = rkhs_squared(
+        c1, a1, c2, a2, sigma_w, backend=backend, device=device, dtype=dtype, chunk=chunk,
+        truncate=truncate, threads=threads,
+    )
+    return math.sqrt(max(0.0, s11 - 2.0 * s12 + s22))
+
+
+def naive_rkhs_squared(c1, a1, c2, a2, sigma_w: float) -> float:
+    """Reference double loop for D^2 (slow; for tests on small cases only)."""
+    def inner(x, a, y, b):
+        s = 0.0
+        for i in range(len(x)):
+            for j in range(len(y)):
+                d2 = float(np.sum((x[i] - y[j]) ** 2))
+                s += float(np.dot(a[i], b[j])) * math.exp(-d2 / (2.0 * sigma_w**2))
+        return s
+
+    return inner(c1, a1, c1, a1) - 2.0 * inner(c1, a1, c2, a2) + inner(c2, a2, c2, a2)

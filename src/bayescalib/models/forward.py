@@ -1,0 +1,776 @@
+"""Pluggable forward models and the isolated solve of one design point.
+
+A forward model maps parameter values (keyed by their *target*, a dotted
+config key such as ``material.E``) to the deformed interface. Three kinds are
+built in, chosen by ``forward_model.type`` in the study config:
+
+``fsi``
+    The NGSolve monolithic ALE fluid–structure model (:mod:`bayescalib.models.fsi`).
+``python``
+    A Python callable given as ``module:function`` (the module must be
+    importable, e.g. from the working directory or an installed package). It is
+    called as ``function(params, **options)`` with ``params`` a ``dict`` of
+    floats and must return the deformed interface: an ``(n, 2)`` or ``(n, 3)``
+    array of ordered points, an :class:`~bayescalib.geometry.interface.Interface`, or a
+    mapping with ``current`` (and optionally ``reference``) entries of either
+    kind. Raising an exception marks the run as failed.
+``command``
+    An external solver (e.g. 4C): a Jinja2 input template is rendered with the
+    parameter values (strict undefined variables: a misspelt name is an error),
+    the command is run *without a shell* in a private work directory, and the
+    interface file it writes (CSV or VTK) is read back.
+
+:func:`solve_point` runs one model evaluation in a forked child process with a
+wall-clock limit, so that a crash, a hang or a segmentation fault inside a
+solver ends as a recorded failed run (:class:`~bayescalib.io.runrecord.SolveResult`
+with ``status == "failed"``) instead of taking the study down. The run record
+is always written atomically.
+"""
+
+from __future__ import annotations
+
+import importlib
+import logging
+import math
+import multiprocessing as mp
+import multiprocessing.connection
+import os
+import re
+import subprocess
+import sys
+import time
+import traceback
+from collections.abc import Mapping, Sequence
+from functools import partial
+from pathlib import Path
+from typing import Any, Protocol
+
+import numpy as np
+
+from bayescalib._process import die_with_parent
+from bayescalib.io.runrecord import LoadingResult, SolveResult, write_run
+
+log = logging.getLogger(__name__)
+
+__all__ = [
+    "CommandModel",
+    "FSIForward",
+    "ForwardModel",
+    "ForwardModelError",
+    "PythonModel",
+    "failed_result",
+    "loading_labels",
+    "make_forward_model",
+    "solve_point",
+    "solve_points",
+    "solve_series",
+]
+
+
+class ForwardModelError(ValueError):
+    """A forward model is misconfigured (bad module path, template, command...)."""
+
+
+class ForwardModel(Protocol):
+    """Anything that maps parameter values to a :class:`SolveResult`."""
+
+    def solve(self, params: Mapping[str, float]) -> SolveResult:  # pragma: no cover
+        ...
+
+
+def failed_result(params: Mapping[str, float], reason: str, wall_time: float = 0.0,
+                  **stats: Any) -> SolveResult:
+    """A failed-run record with no interface."""
+    empty = np.zeros((0, 2))
+    return SolveResult(
+        status="failed",
+        reason=reason,
+        parameters={k: float(v) for k, v in params.items()},
+        load_fraction=0.0,
+        newton_iterations=0,
+        load_steps=0,
+        wall_time=float(wall_time),
+        interface_reference=empty,
+        interface_current=empty,
+        segments=np.zeros((0, 2), dtype=np.int64),
+        max_displacement=float("nan"),
+        stats=dict(stats),
+    )
+
+
+def _points_of(obj: Any, what: str) -> np.ndarray:
+    pts = getattr(obj, "points", obj)
+    arr = np.asarray(pts, dtype=float)
+    if arr.ndim != 2 or arr.shape[1] not in (2, 3) or arr.shape[0] < 2:
+        raise ForwardModelError(
+            f"{what} must be an (n, 2) or (n, 3) array of at least 2 ordered points, "
+            f"got shape {arr.shape}"
+        )
+    return arr
+
+
+def _result_from_points(params: Mapping[str, float], current: np.ndarray,
+                        reference: np.ndarray | None, wall_time: float,
+                        **stats: Any) -> SolveResult:
+    ref = current if reference is None else reference
+    if ref.shape != current.shape:
+        raise ForwardModelError(
+            f"reference interface has shape {ref.shape} but current has {current.shape}"
+        )
+    n = current.shape[0]
+    segs = np.column_stack([np.arange(n - 1), np.arange(1, n)]).astype(np.int64)
+    finite = bool(np.all(np.isfinite(current)))
+    disp = np.linalg.norm(current - ref, axis=1)
+    return SolveResult(
+        status="ok" if finite else "failed",
+        reason="" if finite else "interface contains NaN or inf",
+        parameters={k: float(v) for k, v in params.items()},
+        load_fraction=1.0 if finite else 0.0,
+        newton_iterations=0,
+        load_steps=1,
+        wall_time=float(wall_time),
+        interface_reference=ref,
+        interface_current=current,
+        segments=segs,
+        max_displacement=float(disp.max()) if finite else float("nan"),
+        stats=dict(stats),
+    )
+
+
+class PythonModel:
+    """Forward model given as a Python callable ``module:function``.
+
+    Parameters
+    ----------
+    function
+        ``"package.module:function"``.
+    options
+        Extra keyword arguments passed to the callable on every call.
+    """
+
+    def __init__(self, function: str, options: Mapping[str, Any] | None = None):
+        if not isinstance(function, str) or ":" not in function:
+            raise ForwardModelError(
+                f"forward_model.python.function must look like 'module:function', got {function!r}"
+            )
+        mod_name, _, fn_name = function.partition(":")
+        if os.getcwd() not in sys.path:
+            sys.path.insert(0, os.getcwd())
+        try:
+            mod = importlib.import_module(mod_name)
+        except ImportError as exc:
+            raise ForwardModelError(
+                f"forward_model.python.function: cannot import module '{mod_name}': {exc}"
+            ) from None
+        fn = getattr(mod, fn_name, None)
+        if not callable(fn):
+            raise ForwardModelError(
+                f"forward_model.python.function: module '{mod_name}' has no callable '{fn_name}'"
+            )
+        self.function = fn
+        self.options = dict(options or {})
+
+    def solve(self, params: Mapping[str, float]) -> SolveResult:
+        t0 = time.perf_counter()
+        try:
+            out = self.function(dict(params), **self.options)
+            if isinstance(out, Mapping):
+                if "current" not in out:
+                    raise ForwardModelError("the callable returned a mapping without 'current'")
+                current = _points_of(out["current"], "returned 'current'")
+                reference = (
+                    _points_of(out["reference"], "returned 'reference'")
+                    if out.get("reference") is not None else None
+                )
+            else:
+                current, reference = _points_of(out, "the returned interface"), None
+            return _result_from_points(params, current, reference, time.perf_counter() - t0)
+        except Exception as exc:  # noqa: BLE001 - the model's failure is data, not a crash
+            return failed_result(
+                params, f"{type(exc).__name__}: {exc}", time.perf_counter() - t0,
+                log_tail=traceback.format_exc()[-2000:],
+            )
+
+
+_ARG_FIELD = re.compile(r"\{([A-Za-z_][A-Za-z0-9_.]*)\}")
+_PLAIN_NAME = re.compile(r"[A-Za-z0-9_-][A-Za-z0-9_.-]*")
+
+
+def _run_command(argv: list[str], cwd: Path, log: Path, time_limit_s: float) -> tuple[int, str]:
+    """Run ``argv`` (no shell) in its own session with stdout/stderr to ``log``.
+
+    Returns the exit status and a failure reason ("" on success). Whatever the
+    command leaves running when it ends or when its time limit is reached (an
+    MPI launcher's ranks, a wrapper script's solver) is killed with the whole
+    session, and the command dies with the solve process if that is killed.
+    """
+    import signal
+
+    deadline = time.monotonic() + time_limit_s
+    with open(log, "wb") as fh:
+        try:
+            proc = subprocess.Popen(argv, cwd=cwd, stdout=fh, stderr=subprocess.STDOUT,
+                                    stdin=subprocess.DEVNULL, start_new_session=True,
+                                    preexec_fn=partial(die_with_parent, os.getpid()))  # noqa: PLW1509 - no threads start in the child
+        except (OSError, ValueError, subprocess.SubprocessError) as exc:
+            return -1, f"command could not be started: {exc}"
+        timed_out = False
+        try:
+            # wait without reaping, so that the session id cannot be reused meanwhile
+            while not os.waitid(os.P_PID, proc.pid, os.WEXITED | os.WNOHANG | os.WNOWAIT):
+                if time.monotonic() >= deadline:
+                    timed_out = True
+                    break
+                time.sleep(0.02)
+        finally:
+            try:
+                os.killpg(proc.pid, signal.SIGKILL)
+            except (ProcessLookupError, PermissionError):
+                pass
+            proc.wait()
+    if timed_out:
+        return -1, f"command exceeded its time limit of {time_limit_s:g} s (killed)"
+    rc = proc.returncode
+    return rc, "" if rc == 0 else f"command exited with status {rc}"
+
+
+def _log_tail(path: Path, n: int = 2000) -> str:
+    """Last ``n`` bytes of a log file as text (without reading a huge log whole)."""
+    try:
+        with open(path, "rb") as fh:
+            fh.seek(0, os.SEEK_END)
+            fh.seek(max(0, fh.tell() - n))
+            return fh.read().decode(errors="replace")
+    except OSError:
+        return ""
+
+
+class CommandModel:
+    """Forward model run as an external command (no shell).
+
+    Parameters
+    ----------
+    template
+        Path of a Jinja2 input template. Parameter values are available by
+        target name (``{{ E }}``) and as ``{{ params["material.E"] }}``; all
+        are Python floats, so only numbers reach the file.
+    command
+        Argument list. ``{input}``, ``{output}``, ``{workdir}`` are replaced
+        by paths; ``{NAME}`` by the number of parameter ``NAME``. No shell is
+        involved, so no value can change the command.
+    input_name, output_name
+        File names inside the per-run work directory.
+    workdir
+        Directory for the run's files (created).
+    time_limit_s
+        Wall-clock limit of the command.
+    """
+
+    def __init__(self, template: str | Path, command: list[str], *, input_name: str,
+                 output_name: str, workdir: str | Path, time_limit_s: float = 600.0,
+                 units: str = "mm"):
+        import jinja2
+
+        tpath = Path(template)
+        if not tpath.is_file():
+            raise ForwardModelError(f"forward_model.command.template: file '{tpath}' does not exist")
+        if not command or not all(isinstance(a, str) for a in command):
+            raise ForwardModelError("forward_model.command.command must be a non-empty list of strings")
+        from jinja2.sandbox import SandboxedEnvironment
+
+        for key, name in (("input_name", input_name), ("output_name", output_name)):
+            if not _PLAIN_NAME.fullmatch(str(name)) or name == "solver.log":
+                raise ForwardModelError(
+                    f"forward_model.command.{key}: '{name}' must be a plain file name inside "
+                    "the run's work folder (letters, digits, _ . -; no folder, not solver.log)")
+        if input_name == output_name:
+            raise ForwardModelError("forward_model.command: input_name and output_name must differ")
+        # a template renders numbers into a file; it never needs Python's internals
+        env = SandboxedEnvironment(undefined=jinja2.StrictUndefined, keep_trailing_newline=True)
+        try:
+            self.template = env.from_string(tpath.read_text())
+        except jinja2.TemplateSyntaxError as exc:
+            raise ForwardModelError(
+                f"forward_model.command.template '{tpath}': syntax error line {exc.lineno}: {exc.message}"
+            ) from None
+        self.template_path = tpath
+        self.command = list(command)
+        self.input_name = input_name
+        self.output_name = output_name
+        self.workdir = Path(workdir)
+        self.time_limit_s = float(time_limit_s)
+        self.units = units
+
+    def _values(self, params: Mapping[str, float]) -> dict[str, Any]:
+        values: dict[str, Any] = {}
+        for k, v in params.items():
+            fv = float(v)  # numbers only, by construction
+            if not math.isfinite(fv):
+                raise ForwardModelError(f"parameter '{k}' has non-finite value {v!r}")
+            values[k] = fv
+        return values
+
+    def render_input(self, params: Mapping[str, float]) -> str:
+        import jinja2
+
+        values = self._values(params)
+        ctx: dict[str, Any] = {k: v for k, v in values.items() if k.isidentifier()}
+        ctx["params"] = values
+        try:
+            return self.template.render(**ctx)
+        except jinja2.UndefinedError as exc:
+            raise ForwardModelError(
+                f"forward_model.command.template '{self.template_path}': {exc.message}; "
+                f"available: {', '.join(sorted(values))}"
+            ) from None
+        except jinja2.exceptions.SecurityError as exc:
+            raise ForwardModelError(
+                f"forward_model.command.template '{self.template_path}': not allowed in a "
+                f"template: {exc}") from None
+
+    def argv(self, params: Mapping[str, float], input_path: Path, output_path: Path) -> list[str]:
+        values = self._values(params)
+        paths = {"input": str(input_path), "output": str(output_path), "workdir": str(self.workdir)}
+
+        def sub(m: re.Match) -> str:
+            name = m.group(1)
+            if name in paths:
+                return paths[name]
+            if name in values:
+                return repr(values[name])
+            raise ForwardModelError(
+                f"forward_model.command.command: unknown placeholder '{{{name}}}'; "
+                f"available: {', '.join(sorted([*paths, *values]))}"
+            )
+
+        return [_ARG_FIELD.sub(sub, a) for a in self.command]
+
+    def solve(self, params: Mapping[str, float]) -> SolveResult:
+        from bayescalib.io.observations import read_interface
+
+        t0 = time.perf_counter()
+        self.workdir.mkdir(parents=True, exist_ok=True)
+        inp = self.workdir / self.input_name
+        out = self.workdir / self.output_name
+        if out.exists():
+            out.unlink()
+        inp.write_text(self.render_input(params))
+        log = self.workdir / "solver.log"
+        argv = self.argv(params, inp, out)
+        rc, reason = _run_command(argv, self.workdir, log, self.time_limit_s)
+        tail = _log_tail(log)
+        wall = time.perf_counter() - t0
+        if rc != 0:
+            return failed_result(params, reason, wall, log_tail=tail)
+        if not out.is_file() or out.stat().st_size == 0:
+            return failed_result(params, f"command wrote no output file '{out.name}'", wall,
+                                 log_tail=tail)
+        try:
+            iface = read_interface(out, units=self.units)
+            return _result_from_points(params, np.asarray(iface.points), None, wall)
+        except Exception as exc:  # noqa: BLE001 - any unreadable output is a failed run
+            return failed_result(params, f"unreadable output '{out.name}': {exc}", wall,
+                                 log_tail=tail)
+
+
+class FSIForward:
+    """The built-in NGSolve FSI model (:class:`bayescalib.models.fsi.model.FSIModel`).
+
+    Parameters
+    ----------
+    fsi_config
+        The ``forward_model.fsi`` section.
+    warm_start
+        State file (``.npz`` from :meth:`FSIModel.save_state`) to start from.
+    time_limit_s
+        Wall-clock limit of one solve (the solver's own limit).
+    vtu_path
+        When given, the fields of every solve are written there (ParaView).
+    state_path
+        When given, the converged state of every successful solve is saved there.
+    """
+
+    def __init__(self, fsi_config: Mapping[str, Any], warm_start: str | Path | None = None,
+                 time_limit_s: float | None = None, vtu_path: str | Path | None = None,
+                 state_path: str | Path | None = None):
+        from bayescalib.models.fsi.model import FSIModel
+
+        self.model = FSIModel(dict(fsi_config))
+        self.warm_start = warm_start
+        self.time_limit_s = time_limit_s
+        self.vtu_path = vtu_path
+        self.state_path = state_path
+
+    def solve(self, params: Mapping[str, float]) -> SolveResult:
+        res = self.model.solve(dict(params), warm_start=self.warm_start,
+                               time_limit=self.time_limit_s)
+        self._extra_outputs(res)
+        return res
+
+    def _extra_outputs(self, res: SolveResult) -> None:
+        if self.vtu_path is not None and res.status == "ok":
+            self.model.write_vtu(self.vtu_path)
+            res.stats["vtu"] = str(self.vtu_path)
+        if self.state_path is not None and res.status == "ok":
+            self.model.save_state(self.state_path)
+            res.stats["state_file"] = str(self.state_path)
+
+    def solve_loadings(self, params: Mapping[str, float], parameter: str,
+                       factors: list[float], nominal: float | None) -> list[SolveResult]:
+        """Series of loadings by continuation in the inflow rate (see
+        :meth:`bayescalib.models.fsi.model.FSIModel.solve_loadings`); VTU/state of the last one."""
+        if parameter != "inflow.rate":
+            raise ForwardModelError(
+                f"forward_model.loadings.parameter: the fsi model loads 'inflow.rate', "
+                f"not '{parameter}'"
+            )
+        overrides = dict(params)
+        if nominal is not None and parameter not in overrides:
+            overrides[parameter] = float(nominal)
+        results = self.model.solve_loadings(overrides, factors, warm_start=self.warm_start,
+                                            time_limit=self.time_limit_s)
+        self._extra_outputs(results[-1])
+        return results
+
+
+def loading_labels(factors: list[float]) -> list[str]:
+    """Snapshot labels of a series of loadings, e.g. ``["load_0", "load_0.5", "load_1"]``."""
+    return [f"load_{float(f):g}" for f in factors]
+
+
+def solve_series(model: ForwardModel, params: Mapping[str, float],
+                 loadings: Mapping[str, Any] | None) -> SolveResult:
+    """Solve ``model`` at ``params`` for every loading of ``loadings`` and combine.
+
+    Parameters
+    ----------
+    model
+        A forward model; one with a ``solve_loadings`` method (fsi) solves the series
+        by continuation, any other is called once per loading with the loaded
+        parameter set to ``factor * nominal``.
+    params
+        Parameter values by target.
+    loadings
+        The ``forward_model.loadings`` section (``parameter``, ``nominal``,
+        ``factors``); ``None`` or ``factors == [1.0]`` is a single solve.
+
+    Returns
+    -------
+    SolveResult
+        ``ok`` when every loading converged. ``loadings`` holds one interface per
+        factor (in order); ``interface_current`` is the one at factor 1 if present,
+        else at the largest factor. On failure the reason names the loading.
+    """
+    loadings = dict(loadings or {})
+    factors = [float(f) for f in loadings.get("factors", [1.0])]
+    if factors == [1.0]:
+        return model.solve(params)
+    key = str(loadings.get("parameter", "inflow.rate"))
+    nominal = loadings.get("nominal")
+    t0 = time.perf_counter()
+    solve_loadings = getattr(model, "solve_loadings", None)
+    if solve_loadings is not None:
+        results = solve_loadings(params, key, factors, nominal)
+    else:
+        base = params.get(key, nominal)
+        if base is None:
+            raise ForwardModelError(
+                f"forward_model.loadings.nominal is required: '{key}' is not a calibrated "
+                "parameter of this study"
+            )
+        results = [model.solve({**params, key: f * float(base)}) for f in factors]
+    labels = loading_labels(factors)
+    failed = [(lab, r) for lab, r in zip(labels, results) if not r.ok]
+    primary = factors.index(1.0) if 1.0 in factors else int(np.argmax(factors))
+    first = results[primary]
+    combined_params = {k: float(v) for k, v in params.items()}
+    if key not in combined_params:  # the nominal value of a loaded parameter not calibrated
+        if nominal is not None:
+            combined_params[key] = float(nominal)
+        elif key in first.parameters and factors[primary] > 0:
+            combined_params[key] = float(first.parameters[key]) / factors[primary]
+    stats = dict(first.stats)
+    stats.update(n_loadings=len(factors), loadings_wall_time=time.perf_counter() - t0)
+    for extra in ("newton_per_step", "failed_steps"):  # per loading, in the order given
+        parts = [f"[{lab}] {r.stats[extra]}" for lab, r in zip(labels, results)
+                 if r.stats.get(extra)]
+        if parts:
+            stats[extra] = " ".join(parts)
+    if failed:
+        reason = "; ".join(f"loading {lab}: {r.reason}" for lab, r in failed)
+        res = failed_result(combined_params, reason, time.perf_counter() - t0, **stats)
+        res.load_fraction = float(min(r.load_fraction for _, r in failed))
+        return res
+    return SolveResult(
+        status="ok",
+        reason="",
+        parameters={**combined_params,
+                    **{k: v for k, v in first.parameters.items() if k not in combined_params}},
+        load_fraction=1.0,
+        newton_iterations=int(sum(r.newton_iterations for r in results)),
+        load_steps=int(sum(r.load_steps for r in results)),
+        wall_time=time.perf_counter() - t0,
+        interface_reference=first.interface_reference,
+        interface_current=first.interface_current,
+        segments=first.segments,
+        max_displacement=float(max(r.max_displacement for r in results)),
+        stats=stats,
+        loadings=[LoadingResult(lab, f, float(r.parameters.get(key, float("nan"))),
+                                r.interface_current)
+                  for lab, f, r in zip(labels, factors, results)],
+    )
+
+
+def make_forward_model(fm: Mapping[str, Any], *, workdir: str | Path = ".",
+                       warm_start: str | Path | None = None,
+                       extra_outputs: Mapping[str, str] | None = None) -> ForwardModel:
+    """Build the forward model described by a validated ``forward_model`` section.
+
+    ``extra_outputs`` may name a ``vtu`` and a ``state`` path (fsi only).
+    """
+    kind = fm.get("type")
+    extra = dict(extra_outputs or {})
+    if kind == "fsi":
+        return FSIForward(fm["fsi"], warm_start=warm_start, time_limit_s=fm.get("time_limit_s"),
+                          vtu_path=extra.get("vtu"), state_path=extra.get("state"))
+    if kind == "python":
+        py = fm.get("python") or {}
+        return PythonModel(py.get("function"), py.get("options"))
+    if kind == "command":
+        c = fm.get("command") or {}
+        return CommandModel(
+            c.get("template"), c.get("command"), input_name=c.get("input_name", "input.txt"),
+            output_name=c.get("output_name", "interface.csv"), workdir=workdir,
+            time_limit_s=fm.get("time_limit_s") or 600.0, units=c.get("units", "mm"),
+        )
+    raise ForwardModelError(
+        f"forward_model.type: unknown forward model type {kind!r} (expected fsi, python or command)"
+    )
+
+
+def _child(fm: Mapping[str, Any], params: Mapping[str, float], workdir: str,
+           warm_start: str | None, extra: Mapping[str, str], conn, parent: int) -> None:
+    die_with_parent(parent)  # a killed job takes its solve with it
+    try:
+        model = make_forward_model(fm, workdir=workdir, warm_start=warm_start,
+                                   extra_outputs=extra)
+        res = solve_series(model, params, fm.get("loadings"))
+    except BaseException as exc:  # noqa: BLE001 - any failure is recorded
+        res = failed_result(params, f"{type(exc).__name__}: {exc}",
+                            log_tail=traceback.format_exc()[-2000:])
+    conn.send(res)
+    conn.close()
+
+
+class _Solve:
+    """One model evaluation in flight: a forked child process with its pipe."""
+
+    def __init__(self, fm: Mapping[str, Any], params: Mapping[str, float], out_path: Path,
+                 workdir: Path, warm_start: str | Path | None,
+                 extra_outputs: Mapping[str, str] | None, hard_limit: float | None) -> None:
+        ctx = mp.get_context("fork" if "fork" in mp.get_all_start_methods() else "spawn")
+        self.params, self.out_path, self.hard = dict(params), out_path, hard_limit
+        self.conn, child = ctx.Pipe(duplex=False)
+        self.proc = ctx.Process(target=_child, args=(dict(fm), dict(params), str(workdir),
+                                                     None if warm_start is None else str(warm_start),
+                                                     dict(extra_outputs or {}), child,
+                                                     os.getpid()))
+        self.t0 = time.perf_counter()
+        self.proc.start()
+        child.close()
+
+    def remaining(self) -> float | None:
+        """Seconds left before the hard limit (None: no limit)."""
+        return None if self.hard is None else self.hard - (time.perf_counter() - self.t0)
+
+    def finish(self) -> SolveResult:
+        """Collect the result (killing the child past its limit) and write the run record."""
+        res = None
+        left = self.remaining()
+        if self.conn.poll(None if left is None else max(left, 0.0)):
+            try:
+                res = self.conn.recv()
+            except EOFError:
+                res = None
+        self.proc.join(timeout=5 if res is not None else 0.1)
+        if self.proc.is_alive():
+            self.proc.kill()
+            self.proc.join()
+        self.conn.close()
+        if res is None:
+            wall = time.perf_counter() - self.t0
+            if self.hard is not None and wall >= self.hard:
+                res = failed_result(self.params,
+                                    f"killed after exceeding the time limit ({self.hard:g} s)", wall)
+            else:
+                res = failed_result(self.params,
+                                    f"solver process died (exit code {self.proc.exitcode})", wall)
+        write_run(self.out_path, res)
+        return res
+
+
+def _hard_limit(fm: Mapping[str, Any], time_limit_s: float | None, grace_s: float) -> float | None:
+    limit = time_limit_s if time_limit_s is not None else fm.get("time_limit_s")
+    return None if limit is None else float(limit) + float(grace_s)
+
+
+def solve_point(fm: Mapping[str, Any], params: Mapping[str, float], out_path: str | Path, *,
+                time_limit_s: float | None = None, warm_start: str | Path | None = None,
+                workdir: str | Path | None = None, isolate: bool = True,
+                extra_outputs: Mapping[str, str] | None = None,
+                grace_s: float = 30.0) -> SolveResult:
+    """Evaluate the forward model at ``params`` and write the run record.
+
+    Parameters
+    ----------
+    fm
+        Validated ``forward_model`` config section.
+    params
+        Parameter values keyed by target (user units).
+    out_path
+        HDF5 run record to write (atomically), whatever happens.
+    time_limit_s
+        Hard wall-clock limit for the whole evaluation; past it the child
+        process is killed and the run recorded as failed. Defaults to
+        ``fm["time_limit_s"]``.
+    isolate
+        Run in a forked child (default). ``False`` runs in-process (for tests
+        of cheap models).
+    extra_outputs
+        Optional ``{"vtu": path, "state": path}`` written by the fsi model on success.
+    grace_s
+        Extra seconds past ``time_limit_s`` before the child is killed, so that
+        the model's own time limit (which records how far it got) acts first.
+
+    Returns
+    -------
+    SolveResult
+        The record that was written.
+    """
+    out_path = Path(out_path)
+    workdir = Path(workdir) if workdir is not None else out_path.with_suffix(".work")
+    if isolate:
+        res = _Solve(fm, params, out_path, workdir, warm_start, extra_outputs,
+                     _hard_limit(fm, time_limit_s, grace_s)).finish()
+        log_solve(res, out_path)
+        return res
+    try:
+        res = solve_series(make_forward_model(fm, workdir=workdir, warm_start=warm_start,
+                                              extra_outputs=extra_outputs),
+                           params, fm.get("loadings"))
+    except ForwardModelError:
+        raise
+    except Exception as exc:  # noqa: BLE001
+        res = failed_result(params, f"{type(exc).__name__}: {exc}",
+                            log_tail=traceback.format_exc()[-2000:])
+    write_run(out_path, res)
+    log_solve(res, out_path)
+    return res
+
+
+def log_solve(res: SolveResult, out_path: str | Path) -> None:
+    """One log record per solve: status, values, time, load steps and Newton iterations
+    (per step when the model records them), the reason of a failure."""
+    values = ", ".join(f"{k} = {v:.6g}" for k, v in res.parameters.items())
+    text = (f"solve {Path(out_path).name}: {res.status} at {values} in {res.wall_time:.2f} s; "
+            f"{res.load_steps} load step(s), {res.newton_iterations} Newton iteration(s), "
+            f"load fraction reached {res.load_fraction:.3g}")
+    if res.stats.get("newton_per_step"):
+        text += f"; Newton per load step (load:iterations) {res.stats['newton_per_step']}"
+    if res.stats.get("failed_steps"):
+        text += f"; failed steps: {res.stats['failed_steps']}"
+    if not res.ok:
+        text += f"; reason: {res.reason}"
+    (log.info if res.ok else log.warning)(text)
+
+
+def _same_inputs(run: SolveResult, params: Mapping[str, Any]) -> bool:
+    """Whether a run record was solved at ``params`` (switches are not recorded)."""
+    for k, v in params.items():
+        if isinstance(v, bool):
+            continue
+        if k not in run.parameters or abs(run.parameters[k] - float(v)) > 1e-12 * max(1.0, abs(float(v))):
+            return False
+    return True
+
+
+def solve_points(fm: Mapping[str, Any], points: Sequence[Mapping[str, Any]],
+                 out_paths: Sequence[str | Path], *, workers: int = 1,
+                 warm_start: str | Path | None = None, grace_s: float = 30.0) -> list[SolveResult]:
+    """:func:`solve_point` at many points, ``workers`` at a time, reusing valid records.
+
+    The stages whose points are known only while they run (the diagnosis: posterior
+    draws, finite-difference steps, extended calibrations) solve through here: every
+    point is the same isolated, time-limited evaluation as a ``solve`` job of the
+    workflow. A run record that exists, reads and was solved at the same values is
+    kept, so an interrupted stage resumes without redoing finished solves.
+
+    Parameters
+    ----------
+    fm
+        Validated ``forward_model`` section (``loadings`` included).
+    points
+        Parameter values keyed by target, plus switches such as
+        ``physics.growth.enabled: True``, one mapping per point.
+    out_paths
+        One run-record path per point.
+    workers
+        Child processes at a time.
+    warm_start
+        State file every solve starts from (fsi only).
+
+    Returns
+    -------
+    list of SolveResult
+        In the order of ``points``.
+    """
+    from bayescalib.io.runrecord import RunFileError, read_run
+
+    if len(points) != len(out_paths):
+        raise ValueError("solve_points: one output path per point is needed")
+    todo = []
+    for p, out in zip(points, out_paths, strict=True):
+        out = Path(out)
+        if out.is_file():
+            try:
+                if _same_inputs(read_run(out), p):
+                    continue
+            except RunFileError:
+                pass  # corrupt or incomplete: solve again
+        out.parent.mkdir(parents=True, exist_ok=True)
+        todo.append((dict(p), out))
+    log.info("solves: %d of %d to do (%d reused), %d at a time", len(todo), len(points),
+             len(points) - len(todo), workers)
+    hard = _hard_limit(fm, None, grace_s)
+    running: list[_Solve] = []
+    while todo or running:
+        while todo and len(running) < max(int(workers), 1):
+            p, out = todo.pop(0)
+            running.append(_Solve(fm, p, out, out.with_suffix(".work"), warm_start, None, hard))
+        left = [s.remaining() for s in running if s.hard is not None]
+        ready = mp.connection.wait([s.conn for s in running],
+                                   timeout=max(min(left), 0.0) if left else None)
+        for s in [s for s in running if s.conn in ready or
+                  (s.remaining() is not None and s.remaining() <= 0)]:
+            s.finish()
+            running.remove(s)
+    return [read_run(p) for p in out_paths]
+
+
+def solve_base_state(fm: Mapping[str, Any], params: Mapping[str, float], run_path: str | Path,
+                     state_path: str | Path) -> SolveResult:
+    """Solve at ``params`` (the design-box centre) and save the warm-start state.
+
+    Raises
+    ------
+    ForwardModelError
+        If the base solve fails: the design-point solves cannot start from it.
+    """
+    single = {**fm, "loadings": {}}  # the warm-start state is at the nominal loading
+    res = solve_point(single, params, run_path, extra_outputs={"state": str(state_path)})
+    if res.status != "ok" or not Path(state_path).is_file():
+        raise ForwardModelError(
+            f"the warm-start base solve at the design-box centre {dict(params)} failed "
+            f"({res.reason}); set forward_model.warm_start: none or change the bounds"
+        )
+    return res

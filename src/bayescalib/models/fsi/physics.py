@@ -1,0 +1,228 @@
+"""Candidate physics for model-form diagnosis: nested extensions of the FSI model.
+
+Each candidate adds one effect that the paper's base model (homogeneous SVK biofilm,
+clamped base, parabolic inflow, no body force) leaves out. Each has a single extra
+parameter ``phi`` (config key ``physics.<name>.phi``) and is *nested*: at ``phi = 0``
+the extended weak form is the base form exactly (a factor ``exp(0) = 1``, a zero
+term, or — for the attachment springs — the base clamp itself), so the base model is
+recovered to solver round-off. The switch ``physics.<name>.enabled`` adds the terms to
+the compiled forms; ``phi`` is an NGSolve ``Parameter``, so a new value recompiles
+nothing. Units: config in mm, Pa, kg/m^3; the solver works in mm, s, mg (stresses in
+mPa, see :mod:`bayescalib.models.fsi.model`).
+
+Notation: ``F = I + grad d`` (2 x 2, plane strain, ``F_33 = 1``), ``S`` the second
+Piola–Kirchhoff stress of the law, ``P`` the first, ``W`` the stored energy per unit
+reference volume, ``chi`` an indicator function, ``H`` the channel height.
+
+1. ``layer`` — heterogeneous stiffness. A layer of thickness ``t`` at the base
+   (``y < t``) or under the top of the patch (``y > h - t``, ``h`` the patch height)
+   has Young's modulus ``E exp(phi)``: since both Lamé constants are linear in E,
+   ``P = exp(phi chi_layer) P_base``. ``phi = ln(E_layer/E)``, dimensionless. The
+   layer is an indicator on the reference mesh (no re-meshing, so that ``phi = 0``
+   is the same discrete problem); its boundary cuts elements, an error of the order
+   of the quadrature of a step function, not in the nestedness.
+2. ``growth`` — isotropic growth or swelling prestrain, multiplicative split
+   ``F = F_e F_g`` with ``F_g = g I_3``, ``g = 1 + phi``. In plane strain
+   ``F_e = F / g`` in the plane and ``F_e,33 = 1/g``. The energy per reference volume is
+   ``g^3 W(F_e)``, hence ``P = g^3 dW/dF_e : dF_e/dF = g^2 F_e S_e = g F S_e`` with
+   ``S_e`` the in-plane block of the law's stress at ``C_e = F^T F / g^2``,
+   ``C_e,33 = g^-2`` (SVK: ``S_e = lambda tr E_e I + 2 mu E_e`` with the 3D trace
+   ``tr E_e = tr_2 E_e + (g^-2 - 1)/2``; neo-Hooke: ``S_e = mu (I - C_e^-1) +
+   lambda ln J_e C_e^-1`` with ``J_e = det F / g^3``). A swelling patch (phi > 0)
+   bulges up with no flow at all; the base stays clamped.
+3. ``attachment`` — imperfect attachment. The base ``y = 0`` of the biofilm is not
+   clamped but held by distributed tangential springs of compliance ``phi`` (mm/Pa):
+   traction ``t_x = -d_x / phi`` on the base, with ``d_y = 0`` (no lift-off, no
+   penetration). Weak form: ``+ int_base d_x v_x / phi ds``. The ALE mesh may slide
+   along the flat fluid floor (``d_y = 0`` there), so the feet can move. ``phi = 0``
+   is the clamp of the base model (the springs are switched in for ``phi > 0`` only;
+   the change of boundary condition rebuilds the spaces once). Springs let the base
+   slide downstream under the shear of the flow.
+4. ``inflow_skew`` — inflow disturbance. The inflow profile is skewed at the same
+   volume rate ``V``: ``u_x(y) = 6 V y (H - y) / H^3 (1 + phi (2 y/H - 1))``; the
+   added term is odd about ``y = H/2``, so it integrates to zero, and ``|phi| <= 1``
+   keeps the profile non-negative. ``phi > 0`` shifts the flow towards the top,
+   away from the biofilm, and lowers the load on it.
+5. ``stiffening`` — strain stiffening of Fung type. The stored energy
+   ``W_f = mu/(2 phi) (exp(2 phi W / mu) - 1)`` tends to ``W`` as ``phi -> 0`` and
+   gives ``P_f = exp(2 phi W / mu) P``; ``phi >= 0`` dimensionless (``W/mu`` is a
+   strain measure squared, so stiffening becomes visible when ``phi`` times the squared
+   strain is of order 0.1). Uses the energy of the chosen law (with growth, ``W`` of
+   ``F_e``).
+6. ``gravity`` — density mismatch between biofilm and water, ``phi = rho_b - rho_w``
+   (kg/m^3): a body force ``-phi g e_y`` on the biofilm (``g = 9.81 m/s^2``; the
+   model's pressure is the dynamic pressure, so the hydrostatic part and the
+   buoyancy of the water's own density cancel). A physically small effect: a useful
+   negative control for the diagnosis.
+
+Gravity and growth act at full value at every load step: the load continuation scales
+the inflow only.
+
+Not implemented: a poroelastic biofilm (Darcy/Brinkman flow through the solid with
+effective stress) — it needs a pore-pressure field in the solid and a different
+coupling at the interface; see the project notes.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+__all__ = [
+    "CANDIDATES",
+    "G_MM_S2",
+    "Candidate",
+    "SolidPhysics",
+    "check_physics",
+    "enabled_candidates",
+    "physics_parameters",
+    "springs_active",
+]
+
+#: standard gravity in mm/s^2
+G_MM_S2 = 9810.0
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """Description of one candidate effect.
+
+    Attributes
+    ----------
+    name
+        Config name (``physics.<name>``).
+    unit
+        Unit of ``phi`` in the config.
+    summary
+        One line in plain words for reports.
+    typical
+        A moderate value of ``phi`` (used for benchmarks and finite-difference steps).
+    lo, hi
+        Admissible range of ``phi`` (the schema's bounds; ``None`` = unbounded).
+    """
+
+    name: str
+    unit: str
+    summary: str
+    typical: float
+    lo: float | None
+    hi: float | None
+
+    @property
+    def key(self) -> str:
+        """Dotted config key of ``phi``."""
+        return f"physics.{self.name}.phi"
+
+
+CANDIDATES: dict[str, Candidate] = {c.name: c for c in (
+    Candidate("layer", "-", "stiffer or softer layer at the base (or cap) of the biofilm, "
+              "phi = ln(E_layer/E)", 1.0, -5.0, 5.0),
+    Candidate("growth", "-", "isotropic growth/swelling prestrain, F_g = (1 + phi) I", 0.03,
+              -0.5, 0.5),
+    Candidate("attachment", "mm/Pa", "imperfect attachment: base held by tangential springs "
+              "of compliance phi", 2.0e-4, 0.0, None),
+    Candidate("inflow_skew", "-", "skewed inflow profile at the same volume rate", 0.3,
+              -1.0, 1.0),
+    Candidate("stiffening", "-", "Fung-type exponential strain stiffening", 20.0, 0.0, None),
+    Candidate("gravity", "kg/m^3", "density mismatch biofilm - water (body force)", 50.0,
+              None, None),
+)}
+
+
+def enabled_candidates(physics: Mapping[str, Any]) -> list[str]:
+    """Names of the switched-on candidates of a validated ``physics`` section."""
+    return [n for n in CANDIDATES if physics.get(n, {}).get("enabled", False)]
+
+
+def check_physics(physics: Mapping[str, Any], where: str = "physics") -> str:
+    """Return a message if ``phi`` is non-zero for a switched-off candidate, else ``""``."""
+    for name in CANDIDATES:
+        sec = physics.get(name, {})
+        if not sec.get("enabled", False) and float(sec.get("phi", 0.0)) != 0.0:
+            return (f"{where}.{name}.phi = {sec['phi']} but {where}.{name}.enabled is false: "
+                    f"switch the candidate on or set phi to 0")
+    return ""
+
+
+def physics_parameters(physics: Mapping[str, Any]) -> dict[str, float]:
+    """``{"physics.<name>.phi": phi}`` of the switched-on candidates (user units)."""
+    return {CANDIDATES[n].key: float(physics[n]["phi"]) for n in enabled_candidates(physics)}
+
+
+def springs_active(physics: Mapping[str, Any]) -> bool:
+    """True when the attachment springs replace the clamp (enabled and ``phi > 0``)."""
+    sec = physics.get("attachment", {})
+    return bool(sec.get("enabled", False)) and float(sec.get("phi", 0.0)) > 0.0
+
+
+class SolidPhysics:
+    """NGSolve parameters and coefficient functions of the switched-on candidates.
+
+    Built once per compiled model (the structural part of the ``physics`` section);
+    :meth:`set_values` puts the ``phi`` values of a solve into the parameters.
+
+    Parameters
+    ----------
+    physics
+        Validated ``physics`` section of the fsi config.
+    patch_height
+        Height of the biofilm patch, mm (for a cap layer).
+    """
+
+    def __init__(self, physics: Mapping[str, Any], patch_height: float):
+        import ngsolve as ng
+
+        self.enabled = set(enabled_candidates(physics))
+        self.layer_phi = ng.Parameter(0.0)
+        self.growth_phi = ng.Parameter(0.0)
+        self.stiffening_phi = ng.Parameter(0.0)
+        self.gravity_phi = ng.Parameter(0.0)
+        self.spring_stiffness = ng.Parameter(0.0)
+        self.springs = springs_active(physics)
+        self._layer_indicator = None
+        if "layer" in self.enabled:
+            sec = physics["layer"]
+            t = float(sec["thickness"])
+            if sec["where"] == "base":
+                self._layer_indicator = ng.IfPos(t - ng.y, 1.0, 0.0)
+            else:
+                self._layer_indicator = ng.IfPos(ng.y - (patch_height - t), 1.0, 0.0)
+
+    # ------------------------------------------------------------------ forms
+    def stress_factor(self) -> Any:
+        """Scalar factor on ``P`` from the stiffness layer (``None`` when off)."""
+        import ngsolve as ng
+
+        if self._layer_indicator is None:
+            return None
+        return ng.exp(self.layer_phi * self._layer_indicator)
+
+    def growth(self) -> Any:
+        """``phi`` of the growth candidate as a parameter (``None`` when off)."""
+        return self.growth_phi if "growth" in self.enabled else None
+
+    def stiffening(self) -> Any:
+        """``phi`` of the stiffening candidate as a parameter (``None`` when off)."""
+        return self.stiffening_phi if "stiffening" in self.enabled else None
+
+    def body_force(self) -> Any:
+        """Body force per reference volume on the solid (solver units), or ``None``."""
+        import ngsolve as ng
+
+        if "gravity" not in self.enabled:
+            return None
+        return ng.CoefficientFunction((0.0, -G_MM_S2 * 1.0e-3 * self.gravity_phi))
+
+    # ------------------------------------------------------------------ values
+    def set_values(self, physics: Mapping[str, Any], stress_unit: float) -> None:
+        """Set the parameters from the ``phi`` values of ``physics`` (user units).
+
+        ``stress_unit`` converts Pa to solver stress units (spring stiffness Pa/mm).
+        """
+        self.layer_phi.Set(float(physics["layer"]["phi"]))
+        self.growth_phi.Set(float(physics["growth"]["phi"]))
+        self.stiffening_phi.Set(float(physics["stiffening"]["phi"]))
+        self.gravity_phi.Set(float(physics["gravity"]["phi"]))
+        c = float(physics["attachment"]["phi"])
+        self.spring_stiffness.Set(stress_unit / c if c > 0 else 0.0)

@@ -1,0 +1,826 @@
+"""Pipeline stages: one function per Snakemake rule, over plain values and paths.
+
+The rule scripts in ``scripts/`` only unpack ``snakemake.input/params/output``
+and call these functions, so every stage can be run and tested without
+Snakemake. Each stage reads its inputs, does its one job with the library, and
+writes its outputs atomically, so an interrupted run never leaves a
+half-written file that a later run would trust.
+
+Stages (paper Sec. 3, Fig. "workflow"):
+
+``observe``         observation set (synthetic from a ground-truth solve, or files)
+``discrepancy``     D and log-likelihood of one design point for one measure
+``gather``          training table of all design points
+``train_surrogate`` GP surrogate of the log-likelihood
+``convergence``     GP error over n_train on held-out Sobol points
+``smc``             SMC particles on the surrogate
+``acquire``         active design: checks, stop rule and next batch of a round
+``marginalize``     posterior summaries and ArviZ export
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import os
+import sys
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from bayescalib.io._atomic_write import atomic_path
+
+__all__ = [
+    "PipelineError",
+    "acquire",
+    "convergence",
+    "design_summary",
+    "discrepancy",
+    "front_page",
+    "gather",
+    "gather_rows",
+    "marginalize",
+    "observe",
+    "read_json",
+    "read_training",
+    "run_line",
+    "smc",
+    "train_surrogate",
+    "write_json",
+]
+
+log = logging.getLogger("bayescalib")
+
+
+class PipelineError(RuntimeError):
+    """A stage cannot proceed; the message says what to change."""
+
+
+# ----------------------------------------------------------------------------- json
+def _clean(obj: Any) -> Any:
+    """Make ``obj`` strict-JSON serializable (non-finite floats become None)."""
+    if isinstance(obj, Mapping):
+        return {str(k): _clean(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_clean(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return _clean(obj.tolist())
+    if isinstance(obj, (np.floating, float)):
+        f = float(obj)
+        return f if math.isfinite(f) else None
+    if isinstance(obj, np.integer):
+        return int(obj)
+    if isinstance(obj, np.bool_):
+        return bool(obj)
+    return obj
+
+
+def write_json(path: str | Path, obj: Any) -> None:
+    """Write ``obj`` as indented strict JSON, atomically."""
+    with atomic_path(path, suffix=".json") as tmp:
+        tmp.write_text(json.dumps(_clean(obj), indent=2, sort_keys=False, allow_nan=False) + "\n")
+
+
+def read_json(path: str | Path) -> Any:
+    p = Path(path)
+    try:
+        return json.loads(p.read_text())
+    except (OSError, json.JSONDecodeError) as exc:
+        raise PipelineError(f"cannot read JSON file '{p}': {exc}") from None
+
+
+def setup_logging(path: str | Path | None) -> None:
+    """Send the library's log records to ``path`` (a rule's log file) and stderr.
+
+    With a log file (a job of the workflow), the console gets warnings and errors only:
+    a study runs thousands of jobs, and their information is in their logs.
+    """
+    root = logging.getLogger("bayescalib")
+    root.setLevel(logging.INFO)
+    fmt = logging.Formatter("%(asctime)s %(levelname)s %(message)s")
+    console = logging.StreamHandler()
+    if path is not None:
+        console.setLevel(logging.WARNING)
+    handlers: list[logging.Handler] = [console]
+    if path is not None:
+        Path(path).parent.mkdir(parents=True, exist_ok=True)
+        handlers.append(logging.FileHandler(path, mode="w"))
+    for h in handlers:
+        h.setFormatter(fmt)
+        root.addHandler(h)
+    if path is not None:
+        # a job of a study (its log under <root>/logs/) marks itself running, so that a
+        # new run of the study waits for the orphans of a killed one
+        parts = Path(path).resolve().parts
+        if "logs" in parts:
+            from bayescalib.study import hold_job_lock
+
+            hold_job_lock(Path(*parts[: len(parts) - 1 - parts[::-1].index("logs")]))
+        # an error that ends the job goes into the rule's log too, not only to the console
+        previous = sys.excepthook
+
+        file_handler = handlers[-1]
+
+        def _log_and_raise(kind, exc, tb):
+            if not issubclass(kind, KeyboardInterrupt):
+                file_handler.handle(root.makeRecord(
+                    root.name, logging.ERROR, __file__, 0, "%s: %s", (kind.__name__, exc),
+                    (kind, exc, tb)))
+                file_handler.flush()
+            previous(kind, exc, tb)
+
+        sys.excepthook = _log_and_raise
+
+
+# ------------------------------------------------------------------ broken inputs
+def _set_aside(path: str | Path, problem: str) -> PipelineError:
+    """Move a corrupt per-point file to ``<name>.corrupt`` and say how to redo it.
+
+    The file is the output of an upstream job (a run record, a discrepancy file).
+    The workflow's gather rule lists the set-aside files as a parameter, so the
+    next run of the same ``snakemake`` command recomputes the missing file (that
+    one design point only) and what depends on it, instead of failing on it again.
+    """
+    p = Path(path)
+    aside = p.with_name(p.name + ".corrupt")
+    k = 1
+    while aside.exists():  # every event gets its own name (the gather rule lists them)
+        aside = p.with_name(f"{p.name}.{k}.corrupt")
+        k += 1
+    where = ""
+    if p.exists():
+        try:
+            os.replace(p, aside)
+            where = f"; it was moved to '{aside}'"
+        except OSError as exc:  # pragma: no cover - read-only results folder
+            where = f"; it could not be moved aside ({exc}): delete it"
+    return PipelineError(
+        f"{problem}{where}. Run the same snakemake command again: it is recomputed, "
+        "and only what depends on it."
+    )
+
+
+def _read_run_checked(path: str | Path):
+    """:func:`read_run`, but a missing, truncated or corrupt record is set aside."""
+    from bayescalib.io.runrecord import RunFileError, read_run
+
+    try:
+        return read_run(path)
+    except RunFileError as exc:
+        raise _set_aside(path, str(exc)) from None
+
+
+def _read_json_checked(path: str | Path) -> Any:
+    try:
+        return read_json(path)
+    except PipelineError as exc:
+        raise _set_aside(path, str(exc)) from None
+
+
+def _read_checked(path: str | Path, reader, what: str):
+    """``reader(path)`` for a stage output (training table, surrogate, particles,
+    posterior, observation set, round record): a file that cannot be read is set aside,
+    so the next identical command rebuilds it (every stage output is a target of the
+    workflow) and what depends on it, instead of failing on it again."""
+    try:
+        return reader(path)
+    except PipelineError as exc:
+        raise _set_aside(path, str(exc)) from None
+    except (OSError, KeyError, ValueError, TypeError, EOFError, IndexError) as exc:
+        raise _set_aside(path, f"the {what} '{path}' cannot be read "
+                               f"({type(exc).__name__}: {exc})") from None
+
+
+# -------------------------------------------------------------------------- observe
+def observe(observations: Mapping[str, Any], out_path: str | Path, *,
+            ground_truth_run: str | Path | None = None) -> None:
+    """Build the observation set and write ``observations.h5``.
+
+    Parameters
+    ----------
+    observations
+        Validated ``observations`` config section.
+    ground_truth_run
+        Run record of the forward solve at the ground truth (synthetic source).
+    """
+    from bayescalib.geometry.interface import Interface
+    from bayescalib.io.observation_store import StoredObservations, write_observations
+    from bayescalib.io.observations import add_noise, read_interface
+
+    source = observations.get("source", "synthetic")
+    if source == "synthetic":
+        if ground_truth_run is None:
+            raise PipelineError("synthetic observations need the ground-truth run record")
+        run = _read_run_checked(ground_truth_run)
+        if run.status != "ok":
+            raise PipelineError(
+                f"the forward solve at the ground truth failed ({run.reason}); synthetic "
+                "observations cannot be made: change the ground truth or the forward model"
+            )
+        reference = Interface.polyline(run.interface_reference, run.segments, name="reference")
+        sigma = float(observations.get("noise_sigma", 0.0))
+        seed = int(observations.get("seed", 0))
+        rng = np.random.default_rng(seed)
+        if run.loadings:  # one snapshot per loading of the series
+            curves = [ld.current for ld in run.loadings]
+            labels = [ld.label for ld in run.loadings]
+            loads = [ld.value for ld in run.loadings]
+        else:
+            curves, labels = [run.interface_current], ["ground_truth"]
+            loads = [run.parameters.get("inflow.rate")]
+        snaps = []
+        for pts, label in zip(curves, labels):
+            current = Interface.polyline(pts, run.segments, name=f"observed {label}")
+            snaps.append(add_noise(current, sigma, rng) if sigma > 0 else current)
+        stored = StoredObservations(
+            snaps, labels, loads, reference,
+            {"source": "synthetic", "noise_sigma_mm": sigma, "seed": seed,
+             "ground_truth": run.parameters,
+             "hidden": dict(observations.get("hidden") or {})},
+        )
+    elif source == "files":
+        snaps, labels, loads = [], [], []
+        domain = observations.get("domain")
+        for entry in observations.get("files", []):
+            iface = read_interface(entry["path"], domain=domain, **_reader_options(entry))
+            snaps.append(iface)
+            labels.append(entry.get("label") or Path(entry["path"]).stem)
+            loads.append(entry.get("load"))
+        if not snaps:
+            raise PipelineError("observations.files is empty: list at least one interface file")
+        ref = None
+        if observations.get("reference"):
+            ref_entry = observations["reference"]
+            ref = read_interface(ref_entry["path"], domain=domain, **_reader_options(ref_entry))
+        stored = StoredObservations(snaps, labels, loads, ref,
+                                    {"source": "files", "files": observations.get("files", [])})
+    else:
+        raise PipelineError(f"observations.source: unknown source {source!r}")
+    write_observations(out_path, stored)
+    log.info("observation set: %d snapshot(s) -> %s", len(stored.snapshots), out_path)
+
+
+def _reader_options(entry: Mapping[str, Any]) -> dict[str, Any]:
+    keys = ("units", "pixel_size", "origin", "drop_border", "floor")
+    return {k: entry[k] for k in keys if entry.get(k) is not None}
+
+
+# --------------------------------------------------------------------- discrepancy
+def discrepancy(run_path: str | Path, obs_path: str | Path, measure_name: str,
+                measure: Mapping[str, Any], likelihood: Mapping[str, Any],
+                out_path: str | Path) -> dict[str, Any]:
+    """D, distance vector and log-likelihood of one design point for one measure.
+
+    A failed run gives ``loglik = None`` (i.e. -inf: excluded from training).
+    """
+    from bayescalib.inference.likelihood import gaussian_loglik
+    from bayescalib.io.observation_store import read_observations
+    from bayescalib.measures import compute
+
+    run = _read_run_checked(run_path)
+    obs = _read_checked(obs_path, read_observations, "observation set")
+    record: dict[str, Any] = {
+        "measure": measure_name,
+        "status": run.status,
+        "reason": run.reason,
+        "parameters": run.parameters,
+    }
+    if run.status != "ok":
+        record.update(D=None, n=None, loglik=None, snapshots=[])
+        write_json(out_path, record)
+        return record
+    if run.loadings and len(run.loadings) != len(obs.snapshots):
+        raise PipelineError(
+            f"run '{run_path}' has {len(run.loadings)} loadings but the observation set "
+            f"'{obs_path}' has {len(obs.snapshots)} snapshots: give one snapshot per loading"
+        )
+    models = model_interfaces(run, len(obs.snapshots))
+    for label, snap, model in zip(obs.labels, obs.snapshots, models, strict=True):
+        _check_scales(np.asarray(model.points), np.asarray(snap.points), label, obs_path)
+    sigma_n2 = _sigma_n2(likelihood)
+    options = _measure_options(measure_name, measure, obs)
+    total, snaps = 0.0, []
+    from bayescalib.measures import MeasureOptionError
+
+    for label, snap, model in zip(obs.labels, obs.snapshots, models, strict=True):
+        try:
+            res = compute(measure_name, model, snap, **options)
+        except MeasureOptionError:
+            raise
+        except ValueError as exc:  # e.g. a ray missing the model with on_miss: raise
+            record.update(status="failed", reason=f"measure {measure_name}: {exc}", D=None,
+                          n=None, loglik=None, snapshots=[])
+            write_json(out_path, record)
+            return record
+        ll = gaussian_loglik(res.D, res.n, sigma_n2)
+        total += ll
+        snaps.append({"label": label, "D": res.D, "n": res.n, "loglik": ll,
+                      "distances": np.atleast_1d(res.distances)})
+    record.update(D=float(np.sqrt(sum(s["D"] ** 2 for s in snaps))),
+                  n=int(sum(s["n"] for s in snaps)), loglik=total, sigma_n2=sigma_n2,
+                  snapshots=snaps)
+    write_json(out_path, record)
+    return record
+
+
+#: observed and model interfaces further apart in size or position than this factor
+#: are a unit slip, not a misfit
+SCALE_FACTOR = 10.0
+
+
+def _check_scales(model: np.ndarray, observed: np.ndarray, label: str, obs_path) -> None:
+    """Refuse to compare interfaces whose sizes or positions differ by more than
+    :data:`SCALE_FACTOR`: a discrepancy between them would be a number without meaning
+    (typically observations in m or um read as mm)."""
+    ext_m = float(np.max(np.ptp(model, axis=0)))
+    ext_o = float(np.max(np.ptp(observed, axis=0)))
+    size = max(ext_m, ext_o)
+    if size <= 0:
+        return
+    ratio = max(ext_m, ext_o) / max(min(ext_m, ext_o), 1e-300)
+    shift = float(np.linalg.norm(model.mean(axis=0) - observed.mean(axis=0)))
+    if ratio > SCALE_FACTOR or shift > SCALE_FACTOR * size:
+        raise PipelineError(
+            f"observed interface '{label}' ({obs_path}) spans {ext_o:.4g} mm around "
+            f"{np.round(observed.mean(axis=0), 4).tolist()}, the model's {ext_m:.4g} mm around "
+            f"{np.round(model.mean(axis=0), 4).tolist()} (size ratio {ratio:.3g}): more than "
+            f"{SCALE_FACTOR:g}x apart, which is a unit slip rather than a misfit. Check "
+            "observations.files[].units (mm, m, um), pixel_size and origin.")
+
+
+def model_interfaces(run, n_snapshots: int) -> list:
+    """The predicted interface for each observation snapshot: one per loading of a series,
+    or the single interface repeated (every snapshot compared with the same solve)."""
+    from bayescalib.geometry.interface import Interface
+
+    if run.loadings:
+        return [Interface.polyline(ld.current, run.segments, name=f"model {ld.label}")
+                for ld in run.loadings]
+    return [Interface.polyline(run.interface_current, run.segments, name="model")] * n_snapshots
+
+
+def _sigma_n2(likelihood: Mapping[str, Any]) -> float:
+    from bayescalib.inference.likelihood import sigma_n2_from_config
+
+    return sigma_n2_from_config(likelihood)
+
+
+def _measure_options(name: str, measure: Mapping[str, Any], obs) -> dict[str, Any]:
+    """Options of measure ``name`` from the ``measure`` config section."""
+    sub = dict(measure.get(name, {}) or {})
+    if name == "euclidean" and obs.reference is not None and "reference" not in sub:
+        sub["reference"] = obs.reference
+    return sub
+
+
+# --------------------------------------------------------------------------- gather
+def gather_rows(run_paths: Sequence[str | Path], disc_paths: Sequence[str | Path],
+                targets: Sequence[str]) -> dict[str, Any]:
+    """The rows of a training table from run records and their discrepancy records.
+
+    Returns ``X (n, d)`` (columns in the order of ``targets``), ``loglik (n,)``
+    (-inf for failed runs), ``D (n,)``, ``status (n,)`` (1 ok, 0 failed),
+    ``bound (n,)`` (:func:`record_bound`, NaN for failed runs) and ``reason``
+    (n strings).
+    """
+    if len(run_paths) != len(disc_paths):
+        raise PipelineError("gather: the number of run records and discrepancy files differ")
+    n, d = len(run_paths), len(targets)
+    X = np.full((n, d), np.nan)
+    L = np.full(n, -np.inf)
+    D = np.full(n, np.nan)
+    ok = np.zeros(n, dtype=np.int8)
+    bound = np.full(n, np.nan)
+    reasons: list[str] = []
+    for i, (rp, dp) in enumerate(zip(run_paths, disc_paths, strict=True)):
+        run = _read_run_checked(rp)
+        missing = [t for t in targets if t not in run.parameters]
+        if missing:
+            raise _set_aside(rp, f"run file '{rp}' has no value for {', '.join(missing)} "
+                                 f"(it has {', '.join(sorted(run.parameters)) or 'none'}): "
+                                 "it was written for another parameter setup")
+        X[i] = [run.parameters[t] for t in targets]
+        rec = _read_json_checked(dp)
+        if run.status == "ok" and rec.get("loglik") is not None:
+            L[i] = float(rec["loglik"])
+            D[i] = float(rec["D"])
+            ok[i] = 1
+            bound[i] = record_bound(rec)
+        reasons.append(run.reason or rec.get("reason") or "")
+    return {"X": X, "loglik": L, "D": D, "status": ok, "bound": bound, "reason": reasons}
+
+
+def gather(run_paths: Sequence[str | Path], disc_paths: Sequence[str | Path],
+           names: Sequence[str], targets: Sequence[str], n_train: int | None,
+           out_path: str | Path) -> None:
+    """Training table of all design points for one measure (HDF5).
+
+    Datasets: ``X (n, d)`` inputs in user units (columns = parameter names),
+    ``loglik (n,)`` (-inf for failed runs), ``D (n,)``, ``status`` (1 ok, 0
+    failed), ``is_train`` (first ``n_train`` points; the rest are held out for
+    the convergence study; ``n_train=None``: all), ``reason`` (str per point),
+    ``bound (n,)``: the largest value the point's Gaussian log-likelihood can take,
+    -n/2 log(2 pi sigma_N^2) summed over snapshots (NaN for failed runs).
+    """
+    rows = gather_rows(run_paths, disc_paths, targets)
+    n = len(rows["loglik"])
+    write_training(out_path, rows["X"], rows["loglik"], rows["D"], rows["status"],
+                   rows["reason"], names, n if n_train is None else n_train, bound=rows["bound"])
+
+
+def record_bound(rec: Mapping[str, Any]) -> float:
+    """The largest value the log-likelihood of a discrepancy record can take,
+    sum over snapshots of -n/2 log(2 pi sigma_N^2) (NaN without the record's data)."""
+    from bayescalib.inference.likelihood import gaussian_loglik
+
+    if not (rec.get("sigma_n2") and rec.get("snapshots")):
+        return math.nan
+    return float(sum(gaussian_loglik(0.0, s["n"], rec["sigma_n2"]) for s in rec["snapshots"]))
+
+
+def write_training(out_path: str | Path, X: np.ndarray, L: np.ndarray, D: np.ndarray,
+                   ok: np.ndarray, reasons: Sequence[str], names: Sequence[str],
+                   n_train: int, *, bound: np.ndarray | None = None) -> None:
+    """Write a training table (layout of :func:`gather`) atomically."""
+    import h5py
+
+    n = len(L)
+    with atomic_path(out_path, suffix=".h5") as tmp, h5py.File(tmp, "w") as f:
+        f["X"] = np.asarray(X, dtype=float)
+        f["loglik"] = np.asarray(L, dtype=float)
+        f["D"] = np.asarray(D, dtype=float)
+        f["status"] = np.asarray(ok, dtype=np.int8)
+        f["is_train"] = (np.arange(n) < n_train).astype(np.int8)
+        f["bound"] = np.full(n, np.nan) if bound is None else np.asarray(bound, dtype=float)
+        f.create_dataset("reason", data=np.array(list(reasons), dtype=object),
+                         dtype=h5py.string_dtype())
+        f.attrs["names"] = json.dumps(list(names))
+        f.attrs["n_train"] = int(n_train)
+        f.attrs["n_failed"] = int(n - np.asarray(ok).sum())
+    log.info("training table: %d points, %d failed -> %s", n, n - int(np.asarray(ok).sum()),
+             out_path)
+
+
+def read_training(path: str | Path) -> dict[str, Any]:
+    """Read a training table written by :func:`gather`."""
+    import h5py
+
+    with h5py.File(path, "r") as f:
+        out = {k: f[k][...] for k in ("X", "loglik", "D", "status", "is_train")}
+        out["bound"] = f["bound"][...] if "bound" in f else np.full(len(out["loglik"]), np.nan)
+        out["reason"] = [r.decode() if isinstance(r, bytes) else str(r) for r in f["reason"][...]]
+        out["names"] = json.loads(f.attrs["names"])
+        out["n_train"] = int(f.attrs["n_train"])
+        out["n_failed"] = int(f.attrs["n_failed"])
+    return out
+
+
+# ---------------------------------------------------------------------------- train
+def _space(parameters: Sequence[Mapping[str, Any]]):
+    from bayescalib.inference.parameters import ParameterSpace
+
+    return ParameterSpace.from_config(parameters)
+
+
+def train_surrogate(training_path: str | Path, surrogate: Mapping[str, Any],
+          parameters: Sequence[Mapping[str, Any]], out_path: str | Path) -> None:
+    """Fit the GP surrogate on the training points (failed runs left out)."""
+    from bayescalib.inference.surrogate import fit_from_config
+
+    tab = _read_checked(training_path, read_training, "training table")
+    train_mask = tab["is_train"].astype(bool)
+    X, L = tab["X"][train_mask], tab["loglik"][train_mask]
+    finite = np.isfinite(L)
+    if finite.sum() == 0:
+        reasons = sorted({r for r, ok in zip(tab["reason"], train_mask, strict=True) if ok and r})
+        raise PipelineError(
+            f"all {len(L)} design points failed or have a log-likelihood of -inf, so no "
+            "surrogate can be trained. Reasons seen: "
+            + ("; ".join(reasons[:5]) or "none recorded")
+            + ". Check the forward model settings, the parameter bounds, and sigma_n."
+        )
+    if finite.sum() < 3:
+        raise PipelineError(
+            f"only {int(finite.sum())} of {len(L)} design points succeeded; at least 3 are "
+            "needed to train the surrogate: increase design.n_train or narrow the bounds"
+        )
+    _check_distinct(X, finite, tab["names"])
+    space = _space(parameters)
+    bound = loglik_bound(tab, train_mask)
+    try:
+        gp = fit_from_config(X, L, surrogate, space.bounds, bound=bound)
+    except (RuntimeError, ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:
+        Lf = L[finite]
+        raise PipelineError(
+            f"the GP surrogate cannot be fitted to the {int(finite.sum())} log-likelihood "
+            f"values (range {Lf.min():.6g} to {Lf.max():.6g}): {type(exc).__name__}: {exc}. "
+            "Try more surrogate.restarts (now "
+            f"{surrogate['restarts']}), the other surrogate.optimizer (now "
+            f"'{surrogate['optimizer']}'), a larger surrogate.nugget_factor (now "
+            f"{surrogate['nugget_factor']:g}), or a larger likelihood.sigma_n2 if the values "
+            "are extreme."
+        ) from None
+    gp.save(out_path)
+    log.info("GP surrogate on %d points (%d excluded): %s", gp.n_train, gp.n_excluded,
+             gp.hyperparameters)
+
+
+def loglik_bound(tab: Mapping[str, Any], use: np.ndarray | None = None) -> float | None:
+    """Upper bound of the log-likelihood over the training table's points (the
+    largest per-point bound), or None when the table has none (older tables)."""
+    b = np.asarray(tab["bound"], float)
+    if use is not None:
+        b = b[np.asarray(use, bool)]
+    b = b[np.isfinite(b)]
+    return float(b.max()) if b.size else None
+
+
+def _check_distinct(X: np.ndarray, use: np.ndarray, names: Sequence[str]) -> None:
+    """Refuse repeated design points: a Sobol design never repeats one, so a repeat
+    means run records that do not belong to this design."""
+    idx = np.flatnonzero(use)
+    _, inverse, counts = np.unique(X[idx], axis=0, return_inverse=True, return_counts=True)
+    if np.all(counts == 1):
+        return
+    k = int(np.flatnonzero(counts > 1)[0])
+    pts = idx[np.flatnonzero(inverse.ravel() == k)]
+    values = ", ".join(f"{n}={v:g}" for n, v in zip(names, X[pts[0]], strict=False))
+    raise PipelineError(
+        f"design points {', '.join(map(str, pts.tolist()))} have the same parameter values "
+        f"({values}); {int((counts - 1).sum())} repeated point(s) in all. A Sobol design "
+        "never repeats a point, so these run records do not belong to the design: delete "
+        "the results/<study>/runs folder (or the repeated records) and rerun."
+    )
+
+
+def convergence(training_path: str | Path, surrogate: Mapping[str, Any],
+                parameters: Sequence[Mapping[str, Any]], n_train_list: Sequence[int],
+                out_path: str | Path) -> dict[str, Any]:
+    """GP convergence over n_train against the held-out Sobol points."""
+    from bayescalib.inference.convergence import convergence_study
+
+    tab = _read_checked(training_path, read_training, "training table")
+    tr = tab["is_train"].astype(bool)
+    space = _space(parameters)
+    res = convergence_study(
+        tab["X"][tr], tab["loglik"][tr], tab["X"][~tr], tab["loglik"][~tr],
+        n_train_list=list(n_train_list), bounds=space.bounds, ard=surrogate["ard"],
+        optimizer=surrogate["optimizer"], restarts=surrogate["restarts"],
+        seed=surrogate["seed"], mean_offset_factor=surrogate["mean_offset_factor"],
+        nugget_factor=surrogate["nugget_factor"],
+    )
+    write_json(out_path, res)
+    return res
+
+
+# ------------------------------------------------------------------------------ smc
+def smc(surrogate_path: str | Path, smc_cfg: Mapping[str, Any],
+        parameters: Sequence[Mapping[str, Any]], out_path: str | Path) -> None:
+    """Run SMC with adaptive tempering on the GP mean of the log-likelihood."""
+    from bayescalib.inference.posterior import write_particles_h5
+    from bayescalib.inference.smc import smc_from_config
+    from bayescalib.inference.surrogate import GPSurrogate
+
+    gp = _read_checked(surrogate_path, GPSurrogate.load, "GP surrogate")
+    space = _space(parameters)
+
+    result = smc_from_config(gp.predict, space, smc_cfg)
+    write_particles_h5(out_path, result, space)
+    log.info("SMC done: %d steps, log evidence %.4f", result.n_steps, result.log_evidence)
+
+
+def acquire(round_index: int, training_path: str | Path, surrogate_path: str | Path,
+            particles_path: str | Path, previous_path: str | Path | None,
+            active: Mapping[str, Any], parameters: Sequence[Mapping[str, Any]],
+            out_path: str | Path) -> dict[str, Any]:
+    """Active design, end of round ``round_index``: trust check, posterior change,
+    stop rule and the next batch (:func:`bayescalib.inference.active.acquire_round`), as JSON."""
+    from bayescalib.inference.active import acquire_round
+    from bayescalib.inference.posterior import read_particles_h5
+    from bayescalib.inference.surrogate import GPSurrogate
+
+    tab = _read_checked(training_path, read_training, "training table")
+    gp = _read_checked(surrogate_path, GPSurrogate.load, "GP surrogate")
+    res = _read_checked(particles_path, read_particles_h5, "SMC particle file")
+    previous = None if previous_path is None else \
+        _read_checked(previous_path, read_json, "active round record")
+    try:
+        rec = acquire_round(int(round_index), tab["X"], tab["loglik"], gp, res.particles,
+                            res.weights, res.log_evidence, _space(parameters), active, previous)
+    except ValueError as exc:
+        raise PipelineError(f"active round {round_index}: {exc}. Delete results/<study>/active "
+                            "and the runs of the active rounds, then rerun.") from None
+    rec["surrogate_output"] = gp.hyperparameters["output"]
+    write_json(out_path, rec)
+    log.info("active round %d (%d solves): %s", round_index, rec["n_solves"], rec["reason"])
+    return rec
+
+
+def marginalize(particles_path: str | Path, surrogate_path: str | Path,
+                posterior_cfg: Mapping[str, Any], parameters: Sequence[Mapping[str, Any]],
+                seed: int, out_json: str | Path, out_netcdf: str | Path) -> dict[str, Any]:
+    """Posterior summaries (JSON) and the ArviZ NetCDF export."""
+    from bayescalib.inference.posterior import read_particles_h5, summarize, write_netcdf
+    from bayescalib.inference.surrogate import GPSurrogate
+
+    gp = _read_checked(surrogate_path, GPSurrogate.load, "GP surrogate")
+    space = _space(parameters)
+    result = _read_checked(particles_path, read_particles_h5, "SMC particle file")
+    summary = summarize(result, space, loglik=lambda X: gp.predict(X),
+                        map_bins=posterior_cfg.get("map_bins"),
+                        levels=tuple(posterior_cfg.get("levels", (0.5, 0.9, 0.99))))
+    write_json(out_json, summary)
+    write_netcdf(out_netcdf, result, space, np.random.default_rng(seed),
+                 posterior_cfg.get("n_draws", 4000))
+    return summary
+
+
+# -------------------------------------------------------------------------- summary
+def summary(study_name: str, parameters: Sequence[Mapping[str, Any]], measures: Sequence[str],
+            posterior_paths: Sequence[str | Path], training_paths: Sequence[str | Path],
+            particles_paths: Sequence[str | Path], figures: Mapping[str, Any],
+            out_path: str | Path, *, extra: Mapping[str, Any] | None = None) -> dict[str, Any]:
+    """Write ``summary.json``: the study's results in the user's units.
+
+    The first measure is the calibration measure: its results are the top-level
+    ``map``, ``posterior_mean``, ``posterior_cov`` and ``log_evidence``; every
+    measure's results are also listed under ``measures``.
+    """
+    from bayescalib.inference.posterior import read_particles_h5
+
+    names = [p["name"] for p in parameters]
+    targets = [p.get("target") or p["name"] for p in parameters]
+    per_measure: dict[str, Any] = {}
+    posts: dict[str, Any] = {}
+    failed_runs: list[dict[str, Any]] = []
+    for m, pp, tp, parts in zip(measures, posterior_paths, training_paths, particles_paths,
+                                strict=True):
+        post = posts[m] = _read_checked(pp, read_json, "posterior summary")
+        tab = _read_checked(tp, read_training, "training table")
+        res = _read_checked(parts, read_particles_h5, "SMC particle file")
+        tr = tab["is_train"].astype(bool)
+        # one line per measure; the full posterior analysis is in its posterior.json
+        per_measure[m] = {
+            "posterior_json": str(pp),
+            "posterior_mean": post["mean"], "posterior_sd": post["std"], "map": post["map"],
+            "log_evidence": float(res.log_evidence),
+            "n_smc_steps": int(res.n_steps),
+            "n_train": int(tr.sum()),
+            "n_failed": int((tab["status"][tr] == 0).sum()),
+        }
+        if m == measures[0]:
+            failed_runs = [
+                {"point": int(i), "parameters": dict(zip(names, map(float, tab["X"][i]),
+                                                         strict=True)),
+                 "reason": tab["reason"][i] or "no reason recorded"}
+                for i in np.flatnonzero(tab["status"] == 0)]
+    primary = per_measure[measures[0]]
+    post = posts[measures[0]]
+    truth = {p["name"]: p.get("ground_truth") for p in parameters}
+    lap = post.get("laplace") or {}
+    out = {
+        "study": study_name,
+        "measure": measures[0],
+        "parameters": [
+            {"name": n, "unit": p.get("unit", "-"), "target": t,
+             "uncertain": bool(p.get("uncertain")), "bounds": p.get("bounds")}
+            for n, t, p in zip(names, targets, parameters, strict=True)
+        ],
+        "units": {"length": "mm", **{p["name"]: p.get("unit", "-") for p in parameters}},
+        "map": post["map"],
+        "map_marginal": post.get("map_marginal"),
+        "posterior_mean": post["mean"],
+        "posterior_sd": post["std"],
+        "posterior_cov": post["cov"],
+        "credible_interval_type": "equal-tailed (weighted quantiles of the SMC particles)",
+        "credible_intervals": post.get("intervals"),
+        "laplace": {"names": lap.get("names"), "mean": lap.get("mean"), "cov": lap.get("cov"),
+                    "positive_definite": lap.get("positive_definite"),
+                    "hessian_convention": lap.get("hessian_convention")} if lap else None,
+        "log_evidence": primary["log_evidence"],
+        "n_train": primary["n_train"],
+        "n_failed": primary["n_failed"],
+        "failed_runs": failed_runs,
+        "ground_truth": truth if all(v is not None for v in truth.values()) else None,
+        "converged": (extra or {}).get("design", {}).get("converged"),
+        "measures": per_measure,
+        "figures": dict(figures),
+    }
+    if extra:
+        out.update(extra)
+    write_json(out_path, out)
+    log.info("summary of %s (%s) -> %s", study_name, ", ".join(names), out_path)
+    return out
+
+
+def design_summary(strategy: str, acquire_paths: Sequence[str | Path],
+                   n_solves: int) -> dict[str, Any]:
+    """The ``design`` block of summary.json: how the solves were chosen and whether
+    the calibration converged (active design), with the per-round history.
+
+    A fixed design has no convergence check: ``converged`` is None and the reason
+    says so.
+    """
+    from bayescalib.inference.active import history_table
+
+    if strategy != "active":
+        return {"strategy": strategy, "n_solves": int(n_solves), "converged": None,
+                "reason": "fixed design (design.strategy: fixed): the surrogate was not "
+                          "checked against solves placed where the posterior lives, so "
+                          "nothing says whether this posterior has converged",
+                "rounds": []}
+    rounds = [_read_checked(p, read_json, "active round record") for p in acquire_paths]
+    last = rounds[-1]
+    return {"strategy": "active", "n_solves": int(last["n_solves"]),
+            "n_failed": int(last["n_failed"]), "n_rounds": len(rounds),
+            "converged": bool(last["converged"]), "reason": last["reason"],
+            "surrogate_output": last.get("surrogate_output"),
+            "rounds": history_table(rounds)}
+
+
+def run_line(summary_json: Mapping[str, Any]) -> str:
+    """One plain line for the end of a run: posterior mean +- sd with units,
+    convergence, solves used and failed."""
+    names = [p["name"] for p in summary_json["parameters"]]
+    units = {p["name"]: p.get("unit", "-") for p in summary_json["parameters"]}
+    cov = np.asarray(summary_json["posterior_cov"], float)
+    sd = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    mean = summary_json["posterior_mean"]
+    parts = []
+    for k, name in enumerate(names):
+        unit = "" if units[name] in ("-", "") else f" {units[name]}"
+        parts.append(f"{name} = {mean[name]:.4g} +- {sd[k]:.2g}{unit}")
+    design = summary_json.get("design") or {}
+    n_solves = design.get("n_solves", summary_json.get("n_train"))
+    n_failed = design.get("n_failed", summary_json.get("n_failed"))
+    if design.get("converged") is True:
+        state = "converged"
+    elif design.get("converged") is False:
+        state = "NOT CONVERGED"
+    else:
+        state = "convergence not checked (fixed design)"
+    return (f"bayescalib {summary_json['study']}: {', '.join(parts)}; {state}; "
+            f"{n_solves} solves, {n_failed} failed")
+
+
+def front_page(summary_path: str | Path) -> dict[str, Any] | None:
+    """The key numbers of a finished study for the report's front page: the run line,
+    whether it converged and why, and per parameter MAP, mean, sd, the 90 % equal-tailed
+    interval and the ground truth (strings, in the user's units). None before the
+    study has a summary.json (or when it cannot be read)."""
+    path = Path(summary_path)
+    if not path.is_file():
+        return None
+    try:
+        s = read_json(path)
+    except PipelineError:
+        return None
+
+    def fmt(v) -> str:
+        return "-" if v is None else f"{float(v):.4g}"
+
+    truth = s.get("ground_truth") or {}
+    ci = s.get("credible_intervals") or {}
+    rows = []
+    for p in s["parameters"]:
+        n = p["name"]
+        lohi = (ci.get(n) or {}).get("0.9")
+        rows.append([n, p.get("unit", "-"), fmt(s["map"].get(n)), fmt(s["posterior_mean"].get(n)),
+                     fmt((s.get("posterior_sd") or {}).get(n)),
+                     "-" if not lohi else f"[{fmt(lohi[0])}, {fmt(lohi[1])}]",
+                     fmt(truth.get(n))])
+    design = s.get("design") or {}
+    return {"line": run_line(s), "reason": design.get("reason", ""), "rows": rows,
+            "converged": design.get("converged"), "measure": s.get("measure")}
+
+
+def collect_timings(root: str | Path) -> dict[str, Any]:
+    """Wall time per stage from Snakemake's benchmark files under ``root/benchmarks``.
+
+    Returns the summed seconds per stage (``solve``, ``discrepancy``, ...) and,
+    for solves, the median and count. Stages without benchmark files are absent.
+    """
+    import csv
+
+    base = Path(root) / "benchmarks"
+    out: dict[str, Any] = {}
+    if not base.is_dir():
+        return out
+    for tsv in sorted(base.rglob("*.tsv")):
+        stage = tsv.relative_to(base).parts[0]
+        stage = stage.removesuffix(".tsv")
+        try:
+            with open(tsv) as fh:
+                rows = list(csv.DictReader(fh, delimiter="\t"))
+            seconds = float(rows[-1]["s"])
+        except (OSError, KeyError, ValueError, IndexError):
+            continue
+        out.setdefault(stage, []).append(seconds)
+    summary: dict[str, Any] = {}
+    for stage, values in out.items():
+        summary[stage] = {"total_s": float(np.sum(values)), "median_s": float(np.median(values)),
+                          "count": len(values)}
+    return summary

@@ -1,0 +1,176 @@
+"""The active-design calibration chain in one process, for stages that calibrate inside
+a job.
+
+The workflow calibrates a study rule by rule: ``solve`` every point of a round,
+``discrepancy``, ``gather``, ``train_surrogate``, ``smc``, the ``acquire`` checkpoint (trust
+check, stop rule and next batch, :func:`bayescalib.inference.active.acquire_round`), and, after
+the last round, ``marginalize``. The diagnosis must calibrate models that are known
+only while it runs (the base model plus one candidate effect), so it cannot be given
+rules in advance. :func:`calibrate_rounds` runs that same chain in-process: the same
+stage functions of :mod:`bayescalib.stages`, the same solve path
+(:func:`bayescalib.models.forward.solve_points`, one isolated and time-limited
+:func:`~bayescalib.models.forward.solve_point` per point), the same acquisition and stop
+rule, and the files of each round laid out as in the workflow's results::
+
+    <workdir>/runs/<i>.h5                  run record of new point i
+    <workdir>/discrepancy/<i>.json         its discrepancy and log-likelihood
+    <workdir>/active/<r>/training.h5       training table of round r (reused rows first)
+    <workdir>/active/<r>/surrogate.h5      GP surrogate of round r
+    <workdir>/active/<r>/particles.h5      SMC on it
+    <workdir>/active/<r>/acquire.json      checks, stop rule and the batch of round r+1
+    <workdir>/posterior.json, posterior.nc summaries of the last round
+
+Solves are reused when their run record exists with the same values; surrogates, SMC
+and the acquisition are recomputed (they are seeded, so a rerun chooses the same
+points and solves nothing again).
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+__all__ = ["calibrate_rounds", "training_rows"]
+
+log = logging.getLogger(__name__)
+
+_ROW_KEYS = ("X", "loglik", "D", "status", "bound")
+
+
+def training_rows(training: str | Path) -> dict[str, Any]:
+    """The rows of a training table (:func:`bayescalib.stages.gather`) used for training:
+    ``X (m, d)``, ``loglik``, ``D``, ``status``, ``bound`` (m,) and ``reason`` (m strings)."""
+    from bayescalib.stages import read_training
+
+    tab = read_training(training)
+    use = tab["is_train"].astype(bool)
+    return {**{k: tab[k][use] for k in _ROW_KEYS},
+            "reason": [r for r, u in zip(tab["reason"], use, strict=True) if u]}
+
+
+def _stack(a: Mapping[str, Any], b: Mapping[str, Any]) -> dict[str, Any]:
+    out = {k: np.concatenate([np.asarray(a[k]), np.asarray(b[k])]) for k in _ROW_KEYS if k != "X"}
+    out["X"] = np.vstack([np.asarray(a["X"], float).reshape(-1, np.shape(b["X"])[1]),
+                          np.asarray(b["X"], float)])
+    out["reason"] = list(a["reason"]) + list(b["reason"])
+    return out
+
+
+def calibrate_rounds(
+    *,
+    fm: Mapping[str, Any],
+    parameters: Sequence[Mapping[str, Any]],
+    initial: np.ndarray,
+    obs_path: str | Path,
+    measure_name: str,
+    measure: Mapping[str, Any],
+    likelihood: Mapping[str, Any],
+    surrogate: Mapping[str, Any],
+    smc_cfg: Mapping[str, Any],
+    posterior_cfg: Mapping[str, Any],
+    active: Mapping[str, Any],
+    workdir: str | Path,
+    switches: Mapping[str, Any] | None = None,
+    reused: Mapping[str, Any] | None = None,
+    workers: int = 1,
+    warm_start: str | Path | None = None,
+) -> dict[str, Any]:
+    """Calibrate by active-design rounds (see the module docstring).
+
+    Parameters
+    ----------
+    fm
+        Validated ``forward_model`` section (``loadings`` included).
+    parameters
+        Parameter list of the calibrated model (columns of the design).
+    initial
+        Points solved in round 0, shape (n0, d), in the parameters' units.
+    active
+        Validated ``design.active`` section. ``max_solves`` counts the reused rows too.
+    switches
+        Forward-model settings added to every solve (e.g. ``physics.growth.enabled``).
+    reused
+        Training rows that enter every round as they are (:func:`training_rows`, with
+        ``X`` of shape (m, d)); e.g. the base design at ``phi = 0``.
+
+    Returns
+    -------
+    dict
+        ``parameters``, ``log_evidence``, ``posterior`` (the summary of
+        :func:`bayescalib.inference.posterior.summarize`), ``converged``, ``reason``,
+        ``rounds`` (the acquire records), ``n_new``, ``n_reused``, ``n_failed`` (of the
+        new solves) and the paths ``training``, ``surrogate``, ``particles``.
+    """
+    from bayescalib.inference.posterior import read_particles_h5
+    from bayescalib.models.forward import solve_points
+    from bayescalib.stages import (
+        acquire,
+        discrepancy,
+        gather_rows,
+        marginalize,
+        smc,
+        train_surrogate,
+        write_training,
+    )
+
+    work = Path(workdir)
+    switches = dict(switches or {})
+    targets = [p.get("target") or p["name"] for p in parameters]
+    names = [p["name"] for p in parameters]
+    d = len(names)
+    base = dict(reused) if reused is not None else {
+        **{k: np.zeros(0) for k in _ROW_KEYS}, "X": np.zeros((0, d)), "reason": []}
+    n_reused = len(base["loglik"])
+    run_paths: list[Path] = []
+    disc_paths: list[Path] = []
+
+    def solve(X_new: np.ndarray) -> None:
+        i0 = len(run_paths)
+        X_new = np.atleast_2d(np.asarray(X_new, float))
+        points = [{**dict(zip(targets, map(float, row), strict=True)), **switches}
+                  for row in X_new]
+        runs = [work / "runs" / f"{i0 + k}.h5" for k in range(len(points))]
+        discs = [work / "discrepancy" / f"{i0 + k}.json" for k in range(len(points))]
+        solve_points(fm, points, runs, workers=workers, warm_start=warm_start)
+        for rp, dp in zip(runs, discs, strict=True):
+            discrepancy(rp, obs_path, measure_name, measure, likelihood, dp)
+        run_paths.extend(runs)
+        disc_paths.extend(discs)
+
+    solve(initial)
+    previous: Path | None = None
+    rounds: list[dict[str, Any]] = []
+    r = 0
+    while True:
+        rd = work / "active" / str(r)
+        rows = _stack(base, gather_rows(run_paths, disc_paths, targets))
+        training = rd / "training.h5"
+        write_training(training, rows["X"], rows["loglik"], rows["D"], rows["status"],
+                       rows["reason"], names, len(rows["loglik"]), bound=rows["bound"])
+        train_surrogate(training, surrogate, parameters, rd / "surrogate.h5")
+        smc(rd / "surrogate.h5", smc_cfg, parameters, rd / "particles.h5")
+        rec = acquire(r, training, rd / "surrogate.h5", rd / "particles.h5", previous, active,
+                      parameters, rd / "acquire.json")
+        rounds.append(rec)
+        if rec["stop"]:
+            break
+        solve(np.asarray(rec["next"]["points"], float))
+        previous = rd / "acquire.json"
+        r += 1
+    summary = marginalize(rd / "particles.h5", rd / "surrogate.h5", posterior_cfg, parameters,
+                          int(smc_cfg["seed"]), work / "posterior.json", work / "posterior.nc")
+    res = read_particles_h5(rd / "particles.h5")
+    n_new = len(run_paths)
+    n_failed = int(n_new - np.asarray(rows["status"][n_reused:]).sum())
+    log.info("calibration in %s: %d round(s), %d new solves (%d failed), %d reused; %s",
+             work, len(rounds), n_new, n_failed, n_reused, rec["reason"])
+    return {"parameters": [dict(p) for p in parameters],
+            "log_evidence": float(res.log_evidence), "posterior": summary,
+            "converged": bool(rec["converged"]), "reason": str(rec["reason"]),
+            "rounds": rounds, "n_new": n_new, "n_reused": n_reused, "n_failed": n_failed,
+            "training": str(training), "surrogate": str(rd / "surrogate.h5"),
+            "particles": str(rd / "particles.h5")}

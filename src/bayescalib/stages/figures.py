@@ -1,0 +1,329 @@
+"""Figure stages of the pipeline: read the study's files, call :mod:`bayescalib.plotting`.
+
+One function per figure family (one Snakemake rule each), so that changing a
+plot setting reruns only the figures:
+
+* :func:`response_figures` -- likelihood, log-likelihood and GP std over the
+  design space with training points and failed runs (paper Figs. likexamples,
+  loglikexamples, stdexamples). With more than two inputs, a 2-D slice through
+  the first two calibrated inputs at the ground truth (else the box centre).
+* :func:`convergence_figure` -- GP error over n_train (paper Fig. gpconv).
+* :func:`posterior_figures` -- joint posterior with marginals, priors, MAP,
+  PM, Gaussian and Laplace approximations; particles; 1-D marginals; pair
+  marginals; parallel axes (paper Figs. sc_posteriors_twodim, 6D figures).
+* :func:`interface_figure` -- undeformed, observed and posterior-sample interfaces.
+* :func:`field_figure` -- velocity, pressure and displacement of the ground truth.
+* :func:`rounds_figure` -- active design: posterior and solves per round, stop-rule checks.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from bayescalib.stages import read_json, read_training
+
+__all__ = [
+    "convergence_figure",
+    "field_figure",
+    "interface_figure",
+    "posterior_draws",
+    "posterior_figures",
+    "response_figures",
+    "rounds_figure",
+]
+
+
+def _space(parameters):
+    from bayescalib.inference.parameters import ParameterSpace
+
+    return ParameterSpace.from_config(parameters)
+
+
+def _paths(stem: str | Path, formats: Sequence[str]) -> list[str]:
+    return [f"{stem}.{fmt}" for fmt in formats]
+
+
+def _prior_pdf(p):
+    """The prior density of parameter ``p`` as a function of an array of values."""
+    return lambda x: np.exp(p.logpdf(np.asarray(x, float)))
+
+
+def _labels(space) -> tuple[list[str], list[str]]:
+    greek = {"nu": "ν", "theta": "θ"}
+    names = [greek.get(n, n) for n in space.names]
+    return names, list(space.units)
+
+
+def response_figures(training_path: str | Path, surrogate_path: str | Path,
+                     parameters: Sequence[Mapping[str, Any]], plots: Mapping[str, Any],
+                     stem: str | Path) -> list[str]:
+    """Response surfaces of the GP log-likelihood over two inputs."""
+    from bayescalib.inference.surrogate import GPSurrogate
+    from bayescalib.plotting import plot_response_surface
+
+    space = _space(parameters)
+    tab = read_training(training_path)
+    gp = GPSurrogate.load(surrogate_path)
+    d = space.dim
+    if d < 2:
+        raise ValueError("response surfaces need at least two inputs")
+    ix, iy = _shown_pair(space)
+    b = space.bounds
+    n = int(plots["grid"])
+    gx = np.linspace(b[ix, 0], b[ix, 1], n)
+    gy = np.linspace(b[iy, 0], b[iy, 1], n)
+    base = space.ground_truth if space.ground_truth is not None else b.mean(axis=1)
+    XX, YY = np.meshgrid(gx, gy)
+    pts = np.tile(base, (XX.size, 1))
+    pts[:, ix] = XX.ravel()
+    pts[:, iy] = YY.ravel()
+    mean, var = gp.predict(pts, return_var=True)
+    tr = tab["is_train"].astype(bool)
+    ok = tab["status"].astype(bool)
+    X = tab["X"]
+    names, units = _labels(space)
+    truth = None if space.ground_truth is None else [space.ground_truth[ix], space.ground_truth[iy]]
+    title = None
+    if d > 2:
+        others = [f"{space.names[k]} = {base[k]:.3g}" for k in range(d) if k not in (ix, iy)]
+        title = "slice at " + ", ".join(others)
+    return plot_response_surface(
+        gx, gy, mean.reshape(n, n), np.sqrt(np.maximum(var, 0.0)).reshape(n, n),
+        X[tr & ok][:, [ix, iy]], X[tr & ~ok][:, [ix, iy]],
+        [names[ix], names[iy]], [units[ix], units[iy]],
+        _paths(stem, plots["formats"]), truth=truth, title=title, dpi=plots["dpi"],
+    )
+
+
+def convergence_figure(convergence_path: str | Path, plots: Mapping[str, Any],
+                       stem: str | Path) -> list[str]:
+    """GP error over the number of training points."""
+    from bayescalib.plotting import plot_gp_convergence
+
+    res = read_json(convergence_path)
+    n = np.asarray(res["n_train"], float)
+    rel = np.asarray(res["rel_error"], float)
+    loo = np.asarray(res["loo_rel_error"], float)
+    return plot_gp_convergence(
+        n, rel, loo if np.all(np.isfinite(loo)) else None,
+        _paths(stem, plots["formats"]), relative=True, dpi=plots["dpi"],
+    )
+
+
+def posterior_figures(particles_path: str | Path, posterior_path: str | Path,
+                      parameters: Sequence[Mapping[str, Any]], plots: Mapping[str, Any],
+                      stems: Mapping[str, str | Path]) -> dict[str, list[str]]:
+    """Joint, particles, 1-D marginals, pair marginals and parallel-axis figures.
+
+    ``stems`` maps ``joint``, ``particles``, ``marginals``, ``pairs``,
+    ``parallel`` to output stems (without suffix).
+    """
+    from bayescalib.inference.posterior import read_particles_h5
+    from bayescalib.plotting import (
+        plot_joint_posterior,
+        plot_marginals_1d,
+        plot_pair_marginals,
+        plot_parallel_axes,
+        plot_particles,
+    )
+
+    space = _space(parameters)
+    res = read_particles_h5(particles_path)
+    post = read_json(posterior_path)
+    X = np.asarray(res.particles)
+    W = np.asarray(res.weights)
+    names, units = _labels(space)
+    fmt = plots["formats"]
+    dpi = plots["dpi"]
+    b = space.bounds
+    truth = space.ground_truth
+    prior_pdfs = [_prior_pdf(p) for p in space.parameters]
+    mean_all = np.array([post["mean"][n] for n in space.names])
+    map_all = np.array([post["map_full"][n] for n in space.names])
+    out: dict[str, list[str]] = {}
+
+    cal = [i for i in range(space.dim) if space.calibrated_mask[i]]
+    pair = (cal + [i for i in range(space.dim) if i not in cal])[:2]
+    if len(pair) == 2:
+        i, j = pair
+        cal_names = post["gaussian"]["names"]
+
+        def sub_gauss(g):
+            if not g or g.get("mean") is None or g.get("cov") is None:
+                return None
+            gn = g.get("names", cal_names)
+            if space.names[i] not in gn or space.names[j] not in gn:
+                return None
+            a, c = gn.index(space.names[i]), gn.index(space.names[j])
+            m = np.asarray(g["mean"], float)[[a, c]]
+            C = np.asarray(g["cov"], float)[np.ix_([a, c], [a, c])]
+            if not np.all(np.isfinite(C)) or np.any(np.linalg.eigvalsh(C) <= 0):
+                return None
+            return (m, C)
+
+        out["joint"] = plot_joint_posterior(
+            X[:, [i, j]], W, [names[i], names[j]], [units[i], units[j]],
+            _paths(stems["joint"], fmt), prior_pdfs=(prior_pdfs[i], prior_pdfs[j]),
+            map=map_all[[i, j]], mean=mean_all[[i, j]], gaussian=sub_gauss(post.get("gaussian")),
+            laplace=sub_gauss(post.get("laplace")),
+            levels=tuple(post.get("levels", (0.5, 0.9, 0.99))),
+            truth=None if truth is None else truth[[i, j]], bounds=b[[i, j]], dpi=dpi,
+        )
+        out["particles"] = plot_particles(
+            X[:, [i, j]], W, [names[i], names[j]], [units[i], units[j]],
+            _paths(stems["particles"], fmt), bounds=b[[i, j]],
+            truth=None if truth is None else truth[[i, j]], dpi=dpi,
+        )
+    out["marginals"] = plot_marginals_1d(
+        X, W, names, units, _paths(stems["marginals"], fmt), prior_pdfs=prior_pdfs,
+        map=map_all, mean=mean_all, truth=truth, bounds=b, dpi=dpi,
+    )
+    out["pairs"] = plot_pair_marginals(
+        X, W, names, units, _paths(stems["pairs"], fmt), truth=truth, bounds=b, dpi=dpi,
+    )
+    logpost = np.asarray(res.loglik) + np.asarray(res.logprior)
+    out["parallel"] = plot_parallel_axes(
+        X, logpost, names, units, _paths(stems["parallel"], fmt), values_are_log=True,
+        value_name="log posterior density", bounds=b, dpi=dpi,
+    )
+    return out
+
+
+def posterior_draws(particles_path: str | Path, parameters: Sequence[Mapping[str, Any]],
+                    k: int, n: int, seed: int) -> dict[str, float]:
+    """Draw ``k`` of ``n`` equally weighted posterior draws, keyed by target.
+
+    The ``n`` draws are a systematic resample of the final SMC particles with
+    a generator seeded by ``seed``, so draw ``k`` is the same in every job.
+    """
+    from bayescalib.inference.posterior import equal_weight_draws
+
+    x = equal_weight_draws(particles_path, n, seed)[int(k)]
+    targets = [p.get("target") or p["name"] for p in parameters]
+    return {t: float(v) for t, v in zip(targets, x, strict=True)}
+
+
+def interface_figure(obs_path: str | Path, sample_runs: Sequence[str | Path],
+                     plots: Mapping[str, Any], stem: str | Path,
+                     ground_truth_run: str | Path | None = None) -> list[str]:
+    """Undeformed, observed and posterior-sample interfaces."""
+    from bayescalib.io.observation_store import read_observations
+    from bayescalib.io.runrecord import read_run
+    from bayescalib.plotting import plot_interfaces
+
+    obs = read_observations(obs_path)
+    samples, ref = [], None
+    for rp in sample_runs:
+        run = read_run(rp)
+        if run.status == "ok":
+            samples.append(np.asarray(run.interface_current))
+            ref = np.asarray(run.interface_reference) if ref is None else ref
+    if obs.reference is not None:
+        ref = np.asarray(obs.reference.points)
+    if ref is None:
+        ref = np.asarray(obs.snapshots[0].points)
+    truth = None
+    if ground_truth_run is not None:
+        gt = read_run(ground_truth_run)
+        if gt.status == "ok":
+            truth = np.asarray(gt.interface_current)
+    return plot_interfaces(
+        ref, [np.asarray(s.points) for s in obs.snapshots], samples,
+        _paths(stem, plots["formats"]), truth_interface=truth, dpi=plots["dpi"],
+    )
+
+
+def read_vtu_fields(path: str | Path) -> dict[str, np.ndarray]:
+    """Points, triangles and point fields of a 2-D VTU written by the FSI model."""
+    import vtk
+    from vtk.util.numpy_support import vtk_to_numpy
+
+    r = vtk.vtkXMLUnstructuredGridReader()
+    r.SetFileName(str(path))
+    r.Update()
+    grid = r.GetOutput()
+    if grid is None or grid.GetNumberOfPoints() == 0:
+        raise ValueError(f"VTU file '{path}' is empty or unreadable")
+    pts = vtk_to_numpy(grid.GetPoints().GetData())[:, :2]
+    cells = vtk_to_numpy(grid.GetCells().GetConnectivityArray()).reshape(-1, 3)
+    pd = grid.GetPointData()
+    out = {"points": pts, "triangles": cells}
+    for name in ("velocity", "pressure", "displacement"):
+        arr = pd.GetArray(name)
+        if arr is None:
+            raise ValueError(f"VTU file '{path}' has no point array '{name}'")
+        a = vtk_to_numpy(arr)
+        out[name] = a[:, :2] if a.ndim == 2 else a
+    reg = grid.GetCellData().GetArray("region")
+    out["region"] = vtk_to_numpy(reg) if reg is not None else np.zeros(len(cells))
+    return out
+
+
+def field_figure(vtu_path: str | Path, run_path: str | Path, plots: Mapping[str, Any],
+                 stem: str | Path) -> list[str]:
+    """Velocity, pressure and displacement fields of the ground truth."""
+    from bayescalib.io.runrecord import read_run
+    from bayescalib.plotting import plot_fields
+
+    f = read_vtu_fields(vtu_path)
+    run = read_run(run_path)
+    return plot_fields(
+        f["points"], f["triangles"], f["velocity"], f["pressure"], f["displacement"],
+        _paths(stem, plots["formats"]), interface=np.asarray(run.interface_current),
+        solid_mask_triangles=f["region"] > 0, dpi=plots["dpi"],
+    )
+
+
+def _shown_pair(space, posterior_sd: Sequence[float] | None = None) -> list[int]:
+    """Indices of the two inputs shown in 2-D figures (in the parameters' order).
+
+    Without ``posterior_sd``: the first two calibrated inputs (then uncertain
+    conditions). With it: the two calibrated inputs the data identify best, i.e. with
+    the smallest posterior sd relative to their box width (in 6 or more dimensions the
+    first two are often ones the data say nothing about)."""
+    d = space.dim
+    cal = [i for i in range(d) if space.calibrated_mask[i]]
+    order = cal + [i for i in range(d) if i not in cal]
+    if posterior_sd is None or len(cal) < 2:
+        return order[:2]
+    width = space.bounds[:, 1] - space.bounds[:, 0]
+    rel = np.asarray(posterior_sd, float) / width
+    best = sorted(cal, key=lambda i: (rel[i], i))[:2]
+    return sorted(best)
+
+
+def rounds_figure(acquire_paths: Sequence[str | Path], particles_paths: Sequence[str | Path],
+                  training_path: str | Path, parameters: Sequence[Mapping[str, Any]],
+                  active: Mapping[str, Any], plots: Mapping[str, Any],
+                  stem: str | Path) -> list[str]:
+    """Active design rounds (posterior draws, solves, chosen batches) and the stop
+    rule's checks per round; needs at least two parameters."""
+    from bayescalib.inference.posterior import equal_weight_draws
+    from bayescalib.plotting.rounds import plot_rounds
+
+    space = _space(parameters)
+    if space.dim < 2:
+        raise ValueError("the rounds figure needs at least two parameters")
+    recs = [read_json(p) for p in acquire_paths]
+    ix = _shown_pair(space, recs[-1]["posterior"]["sd"])
+    draws = [equal_weight_draws(p, 600, 0)[:, ix] for p in particles_paths]
+    tab = read_training(training_path)
+    X = tab["X"][:, ix]
+    failed = X[tab["status"] == 0]
+    batches = [np.asarray(r["next"]["points"], float)[:, ix] if "next" in r else None
+               for r in recs]
+    names, units = _labels(space)
+    truth = None if space.ground_truth is None else space.ground_truth[ix]
+    return plot_rounds(
+        draws, X, [r["n_solves"] for r in recs], batches,
+        [None if r["change"] is None else r["change"]["shift_sd"] for r in recs],
+        [None if r["trust"] is None else r["trust"]["max_abs_error"] for r in recs],
+        [names[i] for i in ix], [units[i] for i in ix], _paths(stem, plots["formats"]),
+        bounds=space.bounds[ix], shift_tol=active["stop"]["shift_tol"],
+        gp_tol=active["stop"]["gp_tol"], converged=bool(recs[-1]["converged"]),
+        truth=truth, failed=failed, dpi=plots["dpi"],
+    )
