@@ -1,4 +1,4 @@
-"""Throughput of the RKHS surface-current norm (bayescalib.measures.rkhs).
+"""Throughput of the RKHS surface-current norm (bayescalib.measures.currents).
 
 Cases
 -----
@@ -34,7 +34,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
 from _interface_shapes import arc, icosphere
 
-from bayescalib.measures.rkhs import current, rkhs_squared
+from bayescalib.measures.currents import current, rkhs_squared
 
 
 def timed(fn, repeats):

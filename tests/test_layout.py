@@ -60,3 +60,17 @@ def test_imports_go_one_way_down_the_layers():
             if other != me and RANK[other] > RANK[me]:
                 upward.append(f"{path.relative_to(PKG)} imports {module}")
     assert not upward, "imports against the layering:\n" + "\n".join(sorted(upward))
+
+
+def test_no_module_shares_its_name_with_a_function_of_its_package():
+    """Importing ``pkg.x`` rebinds the package's attribute ``x`` to the module: a
+    function ``x`` defined in ``pkg/__init__.py`` would be replaced by it."""
+    clashes = []
+    for init in PKG.rglob("__init__.py"):
+        tree = ast.parse(init.read_text())
+        names = {n.name for n in tree.body
+                 if isinstance(n, (ast.FunctionDef, ast.ClassDef, ast.AsyncFunctionDef))}
+        modules = {p.stem for p in init.parent.glob("*.py")} | \
+            {p.name for p in init.parent.iterdir() if (p / "__init__.py").is_file()}
+        clashes += [f"{init.parent.relative_to(PKG)}: {n}" for n in sorted(names & modules)]
+    assert not clashes, clashes

@@ -22,7 +22,7 @@ from bayescalib.measures import (
     euclidean,
     rkhs,
 )
-from bayescalib.measures.rkhs import current, naive_rkhs_squared, rkhs_squared
+from bayescalib.measures.currents import current, naive_rkhs_squared, rkhs_squared
 
 R, DR = 0.4, 0.01
 

@@ -24,7 +24,7 @@ observed normal points to.
 Resampling (:meth:`Interface.resampled`) subdivides every element into equal
 sub-elements whose size is at most a given spacing without changing the
 geometry; the RKHS norm (eq:surfcurrontriang) needs this to be independent of
-the input discretization (see :mod:`bayescalib.measures.rkhs`).
+the input discretization (see :mod:`bayescalib.measures.currents`).
 """
 
 from __future__ import annotations

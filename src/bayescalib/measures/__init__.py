@@ -39,7 +39,7 @@ measurements n used there:
     ``D = ||d||_2``, ``n = n_in`` (number of model interface nodes).
 
 ``rkhs`` (eq:inner_prod_rkhs, eq:surfcurrontriang)
-    The surface-current norm of :mod:`bayescalib.measures.rkhs` after resampling both
+    The surface-current norm of :mod:`bayescalib.measures.currents` after resampling both
     interfaces to ``spacing`` (default ``sigma_w / 4``). D is one scalar; the
     distance vector is ``[D]`` and ``n = 1``: the measure reduces the whole
     interface to a single number, which is the one "measurement" whose
@@ -313,12 +313,12 @@ def rkhs(
         torch precision.
     truncate : float, optional
         Kernel truncation radius in units of sigma_w (default: exact to double
-        precision, see :func:`bayescalib.measures.rkhs.pair_sum`).
+        precision, see :func:`bayescalib.measures.currents.pair_sum`).
     threads : int, optional
         torch CPU threads during the computation (None: 1; 0: keep the global
         torch setting).
     max_pairs : float, optional
-        Most kernel pairs to evaluate (None: :data:`bayescalib.measures.rkhs.DEFAULT_MAX_PAIRS`);
+        Most kernel pairs to evaluate (None: :data:`bayescalib.measures.currents.DEFAULT_MAX_PAIRS`);
         above it the measure is refused before any work.
 
     Returns
@@ -326,7 +326,7 @@ def rkhs(
     MeasureResult
         ``distances = [D]``, ``D``, ``n = 1``.
     """
-    from bayescalib.measures import rkhs as _rk
+    from bayescalib.measures import currents as _rk
 
     _check_pair(model, obs)
     if not (isinstance(sigma_w, (int, float)) and np.isfinite(sigma_w) and sigma_w > 0):
