@@ -26,6 +26,14 @@ MEASURE = {"rkhs": {"sigma_w": 0.005}}
 LIK = {"sigma_n2": 0.0005}
 
 
+def _observations(section):
+    """A validated observations section (stages trust the validated config)."""
+    from bayescalib.config import validate
+
+    return validate({"observations": section}, "measures")["observations"]
+
+
+
 def test_series_solves_each_loading_at_factor_times_nominal():
     res = solve_series(PythonModel(FM["python"]["function"]), TRUTH, FM["loadings"])
     assert res.ok
@@ -66,7 +74,7 @@ def test_hidden_effect_series_observation_and_summed_likelihood(tmp_path):
     # synthetic data with a hidden base slip, at three loadings
     hidden = {"base_slip": 0.01}
     solve_point(FM, {**TRUTH, **hidden}, tmp_path / "truth.h5", isolate=False)
-    observe({"source": "synthetic", "noise_sigma": 0.0, "seed": 0, "hidden": hidden},
+    observe(_observations({"source": "synthetic", "hidden": hidden}),
             tmp_path / "obs.h5", ground_truth_run=tmp_path / "truth.h5")
     obs = read_observations(tmp_path / "obs.h5")
     assert obs.labels == loading_labels([0.0, 0.5, 1.0])
@@ -91,7 +99,7 @@ def test_hidden_effect_series_observation_and_summed_likelihood(tmp_path):
 
 def test_snapshot_count_must_match_the_loadings(tmp_path):
     solve_point(FM, TRUTH, tmp_path / "truth.h5", isolate=False)
-    observe({"source": "synthetic"}, tmp_path / "obs.h5", ground_truth_run=tmp_path / "truth.h5")
+    observe(_observations({"source": "synthetic"}), tmp_path / "obs.h5", ground_truth_run=tmp_path / "truth.h5")
     two = {**FM, "loadings": {**FM["loadings"], "factors": [0.5, 1.0]}}
     solve_point(two, TRUTH, tmp_path / "0.h5", isolate=False)
     with pytest.raises(PipelineError, match="2 loadings but the observation set"):

@@ -29,6 +29,14 @@ PARAMETERS = [
 SURROGATE = validate({"surrogate": {"restarts": 1}}, "inference")["surrogate"]
 
 
+def _observations(section):
+    """A validated observations section (stages trust the validated config)."""
+    from bayescalib.config import validate
+
+    return validate({"observations": section}, "measures")["observations"]
+
+
+
 def _points(n: int = 8) -> np.ndarray:
     rng = np.random.default_rng(3)
     return np.column_stack([rng.uniform(100, 800, n), rng.uniform(-0.8, 0.45, n)])
@@ -143,7 +151,7 @@ def observed(tmp_path):
     truth = tmp_path / "obs" / "truth.h5"
     solve_point(ANALYTIC, {"E": 400.0, "nu": 0.3}, truth, isolate=False)
     obs = tmp_path / "obs" / "observations.h5"
-    stages.observe({"source": "synthetic"}, obs, ground_truth_run=truth)
+    stages.observe(_observations({"source": "synthetic"}), obs, ground_truth_run=truth)
     return obs
 
 
@@ -219,7 +227,7 @@ def test_observe_sets_a_corrupt_ground_truth_record_aside(tmp_path):
     solve_point(ANALYTIC, {"E": 400.0, "nu": 0.3}, truth, isolate=False)
     _truncate(truth)
     with pytest.raises(PipelineError, match="truth.h5") as info:
-        stages.observe({"source": "synthetic"}, tmp_path / "obs.h5", ground_truth_run=truth)
+        stages.observe(_observations({"source": "synthetic"}), tmp_path / "obs.h5", ground_truth_run=truth)
     _assert_clean(info)
     assert (tmp_path / "truth.h5.corrupt").is_file()
 

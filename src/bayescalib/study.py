@@ -246,7 +246,7 @@ class Study:
             )
         names = [p["name"] for p in cfg["parameters"]]
         obs = cfg["observations"]
-        if obs.get("source", "synthetic") == "synthetic":
+        if obs["source"] == "synthetic":
             missing = [p["name"] for p in cfg["parameters"] if p.get("ground_truth") is None]
             if missing:
                 raise ConfigError(
@@ -280,7 +280,7 @@ class Study:
         )
 
         obs = cfg["observations"]
-        if obs.get("source", "synthetic") != "files":
+        if obs["source"] != "files":
             return
         entries = [(f"observations.files[{k}]", e) for k, e in enumerate(obs.get("files") or [])]
         if not entries:
@@ -368,7 +368,7 @@ class Study:
         hidden = cfg["observations"].get("hidden") or {}
         if not hidden:
             return
-        if cfg["observations"].get("source", "synthetic") != "synthetic":
+        if cfg["observations"]["source"] != "synthetic":
             raise ConfigError(f"{where}: observations.hidden needs observations.source synthetic")
         if cfg["forward_model"]["type"] != "fsi":
             return  # passed to the python/command model as extra parameters

@@ -190,9 +190,9 @@ def run_diagnosis(
     base_evidence = float(read_particles_h5(particles_path).log_evidence)
     base_summary = json.loads(Path(posterior_path).read_text())
     base_design = {k: design.get(k) for k in ("strategy", "n_solves", "converged", "reason")}
-    sigma = cfg.get("noise_sigma")
-    if sigma is None and observations.get("source", "synthetic") == "synthetic" \
-            and float(observations.get("noise_sigma", 0.0)) > 0:
+    sigma = cfg["noise_sigma"]
+    if sigma is None and observations["source"] == "synthetic" \
+            and float(observations["noise_sigma"]) > 0:
         sigma = float(observations["noise_sigma"])
 
     # 1-2: check and locate ------------------------------------------------------

@@ -461,11 +461,12 @@ def solve_series(model: ForwardModel, params: Mapping[str, float],
         factor (in order); ``interface_current`` is the one at factor 1 if present,
         else at the largest factor. On failure the reason names the loading.
     """
-    loadings = dict(loadings or {})
-    factors = [float(f) for f in loadings.get("factors", [1.0])]
+    if not loadings:
+        return model.solve(params)
+    factors = [float(f) for f in loadings["factors"]]
     if factors == [1.0]:
         return model.solve(params)
-    key = str(loadings.get("parameter", "inflow.rate"))
+    key = str(loadings["parameter"])
     nominal = loadings.get("nominal")
     t0 = time.perf_counter()
     solve_loadings = getattr(model, "solve_loadings", None)
@@ -528,20 +529,20 @@ def make_forward_model(fm: Mapping[str, Any], *, workdir: str | Path = ".",
 
     ``extra_outputs`` may name a ``vtu`` and a ``state`` path (fsi only).
     """
-    kind = fm.get("type")
+    kind = fm["type"]
     extra = dict(extra_outputs or {})
     if kind == "fsi":
-        return FSIForward(fm["fsi"], warm_start=warm_start, time_limit_s=fm.get("time_limit_s"),
+        return FSIForward(fm["fsi"], warm_start=warm_start, time_limit_s=fm["time_limit_s"],
                           vtu_path=extra.get("vtu"), state_path=extra.get("state"))
     if kind == "python":
-        py = fm.get("python") or {}
-        return PythonModel(py.get("function"), py.get("options"))
+        py = fm["python"]
+        return PythonModel(py["function"], py.get("options"))
     if kind == "command":
-        c = fm.get("command") or {}
+        c = fm["command"]
         return CommandModel(
-            c.get("template"), c.get("command"), input_name=c.get("input_name", "input.txt"),
-            output_name=c.get("output_name", "interface.csv"), workdir=workdir,
-            time_limit_s=fm.get("time_limit_s") or 600.0, units=c.get("units", "mm"),
+            c["template"], c["command"], input_name=c["input_name"],
+            output_name=c["output_name"], workdir=workdir,
+            time_limit_s=fm["time_limit_s"], units=c["units"],
         )
     raise ForwardModelError(
         f"forward_model.type: unknown forward model type {kind!r} (expected fsi, python or command)"

@@ -210,7 +210,7 @@ def observe(observations: Mapping[str, Any], out_path: str | Path, *,
     from bayescalib.io.observation_store import StoredObservations, write_observations
     from bayescalib.io.observations import add_noise, read_interface
 
-    source = observations.get("source", "synthetic")
+    source = observations["source"]
     if source == "synthetic":
         if ground_truth_run is None:
             raise PipelineError("synthetic observations need the ground-truth run record")
@@ -221,8 +221,8 @@ def observe(observations: Mapping[str, Any], out_path: str | Path, *,
                 "observations cannot be made: change the ground truth or the forward model"
             )
         reference = Interface.polyline(run.interface_reference, run.segments, name="reference")
-        sigma = float(observations.get("noise_sigma", 0.0))
-        seed = int(observations.get("seed", 0))
+        sigma = float(observations["noise_sigma"])
+        seed = int(observations["seed"])
         rng = np.random.default_rng(seed)
         if run.loadings:  # one snapshot per loading of the series
             curves = [ld.current for ld in run.loadings]
@@ -631,10 +631,10 @@ def marginalize(particles_path: str | Path, surrogate_path: str | Path,
     result = _read_checked(particles_path, read_particles_h5, "SMC particle file")
     summary = summarize(result, space, loglik=lambda X: gp.predict(X),
                         map_bins=posterior_cfg.get("map_bins"),
-                        levels=tuple(posterior_cfg.get("levels", (0.5, 0.9, 0.99))))
+                        levels=tuple(posterior_cfg["levels"]))
     write_json(out_json, summary)
     write_netcdf(out_netcdf, result, space, np.random.default_rng(seed),
-                 posterior_cfg.get("n_draws", 4000))
+                 posterior_cfg["n_draws"])
     return summary
 
 

@@ -170,7 +170,7 @@ def posterior_figures(particles_path: str | Path, posterior_path: str | Path,
             _paths(stems["joint"], fmt), prior_pdfs=(prior_pdfs[i], prior_pdfs[j]),
             map=map_all[[i, j]], mean=mean_all[[i, j]], gaussian=sub_gauss(post.get("gaussian")),
             laplace=sub_gauss(post.get("laplace")),
-            levels=tuple(post.get("levels", (0.5, 0.9, 0.99))),
+            levels=tuple(post["levels"]),
             truth=None if truth is None else truth[[i, j]], bounds=b[[i, j]], dpi=dpi,
         )
         out["particles"] = plot_particles(
