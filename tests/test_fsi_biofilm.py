@@ -322,3 +322,20 @@ def test_sequence_reuses_mesh_state_and_factorization(coarse):
     # nearby parameters: chord steps with the factorization of the previous solve only
     assert nxt.stats["factorizations"] == 0
     assert nxt.newton_iterations < first.newton_iterations
+
+
+def test_solver_controls_come_from_the_validated_solver_section():
+    """Every Newton and continuation control is read from fsi.solver (one place for
+    the defaults: the schema); a changed setting reaches the solver."""
+    from dataclasses import fields
+
+    from bayescalib.config import validate
+    from bayescalib.models.fsi.solver import SolverControls
+
+    section = validate({"solver": {"max_iterations": 7, "min_step": 0.125}}, "fsi")["solver"]
+    c = SolverControls.from_config(section)
+    for f in fields(SolverControls):
+        expected = section["time_limit_s"] if f.name == "time_limit" else section[f.name]
+        assert getattr(c, f.name) == expected, f.name
+    assert (c.max_iterations, c.min_step) == (7, 0.125)
+    assert SolverControls.from_config(section, time_limit=5.0).time_limit == 5.0

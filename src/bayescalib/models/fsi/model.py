@@ -351,20 +351,7 @@ class FSIModel:
         params = self._parameters(cfg, overrides)
         materials = self._materials(cfg)
         scfg = cfg["solver"]
-        controls = SolverControls(
-            rtol_velocity=float(scfg["rtol_velocity"]),
-            atol_velocity=float(scfg["atol_velocity"]),
-            atol_displacement=float(scfg["atol_displacement"]),
-            rtol_displacement=float(scfg["rtol_displacement"]),
-            max_iterations=int(scfg["max_iterations"]),
-            initial_step=float(scfg["initial_step"]),
-            min_step=float(scfg["min_step"]),
-            growth=float(scfg["growth"]),
-            time_limit=float(time_limit if time_limit is not None else scfg["time_limit_s"]),
-            reuse_factorization=bool(scfg["reuse_factorization"]),
-            reuse_contraction=float(scfg["reuse_contraction"]),
-            chord_threshold=float(scfg["chord_threshold"]),
-        )
+        controls = SolverControls.from_config(scfg, time_limit=time_limit)
         initial = None
         if warm_start is not None:
             if isinstance(warm_start, np.ndarray):

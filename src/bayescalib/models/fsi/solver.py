@@ -47,7 +47,9 @@ quadrature point of the solid or the fluid mesh), the wall-clock deadline — en
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from collections.abc import Mapping
+from dataclasses import dataclass, field, fields
+from typing import Any
 
 import numpy as np
 
@@ -95,6 +97,16 @@ class SolverControls:
     reuse_factorization: bool = True
     reuse_contraction: float = 0.3
     chord_threshold: float = 0.1
+
+    @classmethod
+    def from_config(cls, solver: Mapping[str, Any], *,
+                    time_limit: float | None = None) -> SolverControls:
+        """The controls of a validated ``fsi.solver`` section (its ``time_limit_s``
+        unless ``time_limit`` is given); the other keys of the section are the
+        model's, not the Newton loop's."""
+        names = {f.name for f in fields(cls)} - {"time_limit"}
+        limit = solver["time_limit_s"] if time_limit is None else time_limit
+        return cls(**{k: solver[k] for k in names}, time_limit=float(limit))
 
 
 @dataclass
