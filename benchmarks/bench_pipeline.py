@@ -117,8 +117,9 @@ def _physics(root: Path, study_cfg: dict) -> dict[str, list[float]]:
     with tempfile.TemporaryDirectory() as tmp:
         for k, p in enumerate([runs[0], *runs]):  # the first call warms up
             t0 = time.perf_counter()
-            discrepancy(p, obs, study_cfg["measures"][0],
-                        study_cfg["measure"], study_cfg["likelihood"], Path(tmp) / f"{k}.json")
+            name = study_cfg["measures"][0]
+            discrepancy(p, obs, name, study_cfg["measure"][name], study_cfg["likelihood"],
+                        Path(tmp) / f"{k}.json")
             if k:
                 disc.append(time.perf_counter() - t0)
     return {"solve": solve, "discrepancy": disc}

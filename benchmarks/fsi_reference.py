@@ -329,7 +329,7 @@ def solve_grid(study, paths: Mapping[str, Any], E: np.ndarray, nu: np.ndarray, s
             have_last = have_last or res.status == "ok"
             td = time.perf_counter()
             write_run(run_path, res)
-            rec = discrepancy(run_path, paths["obs"], measure_name, measure, likelihood,
+            rec = discrepancy(run_path, paths["obs"], measure_name, measure[measure_name], likelihood,
                               disc_path)
             g["discrepancy_s"] += time.perf_counter() - td
             if rec["loglik"] is None:
@@ -400,7 +400,8 @@ def check_against_rule(study, paths: Mapping[str, Any], grid: Mapping[str, Any],
     subprocess.run([sys.executable, "-c", _RULE_SOLVES, str(work / "jobs.json")], check=True)
     rows = []
     for (i, j), job in zip(picks, jobs, strict=True):
-        rec = discrepancy(job["run"], paths["obs"], study.primary_measure, study.config["measure"],
+        rec = discrepancy(job["run"], paths["obs"], study.primary_measure,
+                          study.config["measure"][study.primary_measure],
                           study.config["likelihood"], work / f"{i}_{j}.json")
         lr = -np.inf if rec["loglik"] is None else float(rec["loglik"])
         lg = float(L[i, j])

@@ -22,7 +22,7 @@ from bayescalib.study import Study
 FM = {"type": "python", "python": {"function": "bayescalib.models.analytic:interface"},
       "loadings": {"parameter": "V", "nominal": 100.0, "factors": [0.0, 0.5, 1.0]}}
 TRUTH = {"E": 400.0, "nu": 0.3}
-MEASURE = {"rkhs": {"sigma_w": 0.005}}
+MEASURE = {"sigma_w": 0.005}  # the options of measure.rkhs
 LIK = {"sigma_n2": 0.0005}
 
 

@@ -172,7 +172,7 @@ def test_discrepancy_sets_a_corrupt_run_record_aside(tmp_path, observed, damage)
         run.write_bytes(b"")
     out = tmp_path / "disc" / "3.json"
     with pytest.raises(PipelineError) as info:
-        stages.discrepancy(run, observed, "rkhs", {"rkhs": {"sigma_w": 0.005}},
+        stages.discrepancy(run, observed, "rkhs", {"sigma_w": 0.005},
                              {"sigma_n2": 0.0005}, out)
     msg = str(info.value)
     assert "runs/3.h5" in msg and "moved to" in msg
@@ -182,7 +182,7 @@ def test_discrepancy_sets_a_corrupt_run_record_aside(tmp_path, observed, damage)
     assert not out.exists()
     # once re-solved (what the next snakemake run does: the record is missing) all is well
     solve_point(ANALYTIC, {"E": 500.0, "nu": 0.2}, run, isolate=False)
-    rec = stages.discrepancy(run, observed, "rkhs", {"rkhs": {"sigma_w": 0.005}},
+    rec = stages.discrepancy(run, observed, "rkhs", {"sigma_w": 0.005},
                                {"sigma_n2": 0.0005}, out)
     assert rec["loglik"] is not None
 
@@ -249,7 +249,7 @@ def test_each_set_aside_gets_its_own_name(tmp_path, observed):
         solve_point(ANALYTIC, {"E": 500.0, "nu": 0.2}, run, isolate=False)
         _truncate(run)
         with pytest.raises(PipelineError, match=expected.replace(".", r"\.")):
-            stages.discrepancy(run, observed, "rkhs", {"rkhs": {"sigma_w": 0.005}},
+            stages.discrepancy(run, observed, "rkhs", {"sigma_w": 0.005},
                                  {"sigma_n2": 0.0005}, tmp_path / "d.json")
     assert sorted(p.name for p in run.parent.glob("*.corrupt")) == [
         "3.h5.1.corrupt", "3.h5.2.corrupt", "3.h5.corrupt"]
@@ -270,13 +270,13 @@ def test_observations_in_other_units_are_a_unit_slip_not_a_misfit(tmp_path, scal
     write_observations(obs, StoredObservations([Interface.polyline(pts)], ["scan"], [None], None,
                                                {"source": "files"}))
     with pytest.raises(PipelineError, match="unit slip") as exc:
-        stages.discrepancy(truth, obs, "rkhs", {"rkhs": {"sigma_w": 0.005}},
+        stages.discrepancy(truth, obs, "rkhs", {"sigma_w": 0.005},
                              {"sigma_n2": 5e-4}, tmp_path / "d.json")
     _assert_clean(exc)
     assert "observations.files[].units" in str(exc.value)
     # the same curve in the right units is a normal discrepancy
     write_observations(obs, StoredObservations([Interface.polyline(np.asarray(
         res.interface_current))], ["scan"], [None], None, {"source": "files"}))
-    rec = stages.discrepancy(truth, obs, "rkhs", {"rkhs": {"sigma_w": 0.005}},
+    rec = stages.discrepancy(truth, obs, "rkhs", {"sigma_w": 0.005},
                                {"sigma_n2": 5e-4}, tmp_path / "d.json")
     assert rec["D"] == pytest.approx(0.0, abs=1e-9)

@@ -114,6 +114,9 @@ def test_every_result_file_is_readable_by_collaborators(done_run):
         ({"smc__n_rej": 4}, {"smc", "marginalize"}, {"solve", "discrepancy", "train_surrogate"}),
         ({"likelihood__sigma_n2": 0.001}, {"discrepancy", "train_surrogate"}, {"solve"}),
         ({"measure__rkhs__sigma_w": 0.006}, {"discrepancy"}, {"solve"}),
+        # the study uses the RKHS measure only: another measure's options rerun nothing
+        ({"measure__euclidean__n_points": 12}, set(),
+         {"solve", "discrepancy", "train_surrogate", "smc"}),
         ({"plots__dpi": 70}, {"fig_posterior", "fig_response"},
          {"solve", "discrepancy", "train_surrogate", "smc"}),
     ],

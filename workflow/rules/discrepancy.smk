@@ -1,6 +1,7 @@
 # Discrepancy between model and observed interfaces, one job per design point
-# and measure: distance vector, D, log-likelihood. Depends on the measure and
-# likelihood sections (sigma_N, sigma_W), never on the forward model settings.
+# and measure: distance vector, D, log-likelihood. Depends on this measure's own
+# options (e.g. sigma_W) and the likelihood section (sigma_N), never on the forward
+# model settings or another measure's options.
 
 
 rule discrepancy:
@@ -12,7 +13,7 @@ rule discrepancy:
     output:
         f"{R}/discrepancy/{{measure}}/{{i}}.json",
     params:
-        measure=study.config["measure"],
+        measure=lambda wc: study.config["measure"][wc.measure],
         likelihood=study.config["likelihood"],
     benchmark:
         f"{R}/benchmarks/discrepancy/{{measure}}/{{i}}.tsv"

@@ -274,7 +274,9 @@ def discrepancy(run_path: str | Path, obs_path: str | Path, measure_name: str,
                 out_path: str | Path) -> dict[str, Any]:
     """D, distance vector and log-likelihood of one design point for one measure.
 
-    A failed run gives ``loglik = None`` (i.e. -inf: excluded from training).
+    ``measure`` holds the validated options of this measure only (the section
+    ``measure.<measure_name>``), so that a job depends on nothing else. A failed
+    run gives ``loglik = None`` (i.e. -inf: excluded from training).
     """
     from bayescalib.inference.likelihood import gaussian_loglik
     from bayescalib.io.observation_store import read_observations
@@ -368,9 +370,10 @@ def _sigma_n2(likelihood: Mapping[str, Any]) -> float:
     return sigma_n2_from_config(likelihood)
 
 
-def _measure_options(name: str, measure: Mapping[str, Any], obs) -> dict[str, Any]:
-    """Options of measure ``name`` from the ``measure`` config section."""
-    sub = dict(measure.get(name, {}) or {})
+def _measure_options(name: str, options: Mapping[str, Any], obs) -> dict[str, Any]:
+    """Keyword options of measure ``name``: its config options, plus the observed
+    reference configuration for the Euclidean measure."""
+    sub = dict(options)
     if name == "euclidean" and obs.reference is not None and "reference" not in sub:
         sub["reference"] = obs.reference
     return sub

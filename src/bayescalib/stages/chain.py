@@ -137,7 +137,7 @@ def calibrate_rounds(
         discs = [work / "discrepancy" / f"{i0 + k}.json" for k in range(len(points))]
         solve_points(fm, points, runs, workers=workers, warm_start=warm_start)
         for rp, dp in zip(runs, discs, strict=True):
-            discrepancy(rp, obs_path, measure_name, measure, likelihood, dp)
+            discrepancy(rp, obs_path, measure_name, measure[measure_name], likelihood, dp)
         run_paths.extend(runs)
         disc_paths.extend(discs)
 
