@@ -498,3 +498,13 @@ def test_the_rounds_figure_shows_the_best_identified_pair():
     # posterior sd: E1 and nu1 at their prior sd, E2 and nu2 narrow, V narrowest (uncertain)
     sd = [305.0, 0.36, 49.0, 0.22, 1.0]
     assert _shown_pair(space, sd) == [2, 3]
+
+
+def test_the_joint_figure_draws_its_contours_at_the_summarys_credible_levels():
+    """posterior.levels reaches the joint figure through posterior.json's intervals,
+    so the contours and the reported intervals use the same levels."""
+    from bayescalib.stages.figures import _levels
+
+    post = {"intervals": {"E": {"0.8": [1, 2], "0.5": [1, 2], "0.95": [0, 3]},
+                          "nu": {"0.8": [0, 1], "0.5": [0, 1], "0.95": [0, 1]}}}
+    assert _levels(post) == (0.5, 0.8, 0.95)

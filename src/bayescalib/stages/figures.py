@@ -114,6 +114,13 @@ def convergence_figure(convergence_path: str | Path, plots: Mapping[str, Any],
     )
 
 
+def _levels(post: Mapping[str, Any]) -> tuple[float, ...]:
+    """The credible levels the summary was made at (posterior.levels): the joint
+    figure's contours are drawn at the same levels as the intervals reported."""
+    per_parameter = next(iter(post["intervals"].values()))
+    return tuple(sorted(float(k) for k in per_parameter))
+
+
 def posterior_figures(particles_path: str | Path, posterior_path: str | Path,
                       parameters: Sequence[Mapping[str, Any]], plots: Mapping[str, Any],
                       stems: Mapping[str, str | Path]) -> dict[str, list[str]]:
@@ -170,7 +177,7 @@ def posterior_figures(particles_path: str | Path, posterior_path: str | Path,
             _paths(stems["joint"], fmt), prior_pdfs=(prior_pdfs[i], prior_pdfs[j]),
             map=map_all[[i, j]], mean=mean_all[[i, j]], gaussian=sub_gauss(post.get("gaussian")),
             laplace=sub_gauss(post.get("laplace")),
-            levels=tuple(post["levels"]),
+            levels=_levels(post),
             truth=None if truth is None else truth[[i, j]], bounds=b[[i, j]], dpi=dpi,
         )
         out["particles"] = plot_particles(
