@@ -107,7 +107,7 @@ def test_jobs_through_the_server_equal_jobs_in_a_fresh_interpreter(done_run, bas
             disc = f"{STUDY}/check/{label}{i}.json"
             proc = _job(sock, tmp, "discrepancy", log=f"logs/d{label}{i}.log", out=disc,
                         run=f"{STUDY}/runs/{i}.h5", obs=f"{STUDY}/observations/observations.h5",
-                        measure_name="rkhs", measure=repr(study.config["measure"]),
+                        measure_name="rkhs", measure=repr(study.config["measure"]["rkhs"]),
                         likelihood=repr(study.config["likelihood"]))
             assert proc.returncode == 0, proc.stderr
             assert json.loads((tmp / disc).read_text()) == \
@@ -118,7 +118,7 @@ def test_a_failing_job_exits_nonzero_with_its_error_in_its_log(tmp_path, server,
     study = Study(base_study)
     proc = _job(server, tmp_path, "discrepancy", log="logs/d.log", out="d.json",
                 run="missing.h5", obs="missing_obs.h5", measure_name="rkhs",
-                measure=repr(study.config["measure"]),
+                measure=repr(study.config["measure"]["rkhs"]),
                 likelihood=repr(study.config["likelihood"]))
     assert proc.returncode == 1
     assert "missing.h5" in proc.stderr  # the job's stderr is the client's
