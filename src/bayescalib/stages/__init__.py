@@ -32,6 +32,7 @@ from typing import Any
 import numpy as np
 
 from bayescalib.io._atomic_write import atomic_path
+from bayescalib.io.header import check_header, write_header
 
 __all__ = [
     "PipelineError",
@@ -452,6 +453,7 @@ def write_training(out_path: str | Path, X: np.ndarray, L: np.ndarray, D: np.nda
 
     n = len(L)
     with atomic_path(out_path, suffix=".h5") as tmp, h5py.File(tmp, "w") as f:
+        write_header(f, "training")
         f["X"] = np.asarray(X, dtype=float)
         f["loglik"] = np.asarray(L, dtype=float)
         f["D"] = np.asarray(D, dtype=float)
@@ -472,6 +474,7 @@ def read_training(path: str | Path) -> dict[str, Any]:
     import h5py
 
     with h5py.File(path, "r") as f:
+        check_header(f, "training", path)
         out = {k: f[k][...] for k in ("X", "loglik", "D", "status", "is_train")}
         out["bound"] = f["bound"][...] if "bound" in f else np.full(len(out["loglik"]), np.nan)
         out["reason"] = [r.decode() if isinstance(r, bytes) else str(r) for r in f["reason"][...]]
