@@ -22,7 +22,7 @@ from bayescalib.io.observation_store import (
     write_observations,
 )
 from bayescalib.io.runrecord import SolveResult, read_run, write_run
-from bayescalib.stages import read_training, write_training
+from bayescalib.io.training import read_training, write_training
 
 RNG = np.random.default_rng(3)
 X = RNG.random((12, 2))
