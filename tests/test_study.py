@@ -117,7 +117,7 @@ def test_parameter_errors_name_the_parameter():
 
 
 @pytest.mark.parametrize("k, change, message", [
-    (1, {"bounds": [-0.5, 0.7]}, r"parameters\[1\] \('nu'\): the upper bound 0.7 .*material.nu"),
+    (1, {"bounds": [-0.5, 0.7]}, r"parameters\[1\] \('nu'\): the upper bound 0.7 .*target 'material.nu'"),
     (0, {"bounds": [-10.0, 800.0]}, r"parameters\[0\] \('E'\): the lower bound -10 .*material.E"),
     (0, {"target": "material.Young"}, r"parameters\[0\].*unknown key 'material.Young'"),
 ])

@@ -389,7 +389,7 @@ class Study:
                 except ConfigError as exc:
                     raise ConfigError(
                         f"{where}: parameters[{k}] ('{par['name']}'): the {end} bound {value:g} of "
-                        f"its box is not a valid setting '{target}' of the fsi model "
+                        f"its box is not a valid value of its target '{target}' in the fsi model "
                         f"(forward_model.type: fsi): "
                         f"{str(exc).splitlines()[-1].strip()}") from None
 
