@@ -10,7 +10,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from bayescalib.io.runrecord import FORMAT_VERSION, RunFileError, SolveResult, read_run, write_run
+from bayescalib.io.header import FORMATS
+from bayescalib.io.runrecord import RunFileError, SolveResult, read_run, write_run
 
 
 def _result(n: int = 7, status: str = "ok", seed: int = 0) -> SolveResult:
@@ -114,7 +115,7 @@ def test_wrong_version_detected(tmp_path):
     path = tmp_path / "run.h5"
     write_run(path, _result())
     with h5py.File(path, "a") as f:
-        f.attrs["format_version"] = FORMAT_VERSION + 1
+        f.attrs["format_version"] = FORMATS["run"][1] + 1
     with pytest.raises(RunFileError, match="version"):
         read_run(path)
 

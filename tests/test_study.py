@@ -116,6 +116,23 @@ def test_parameter_errors_name_the_parameter():
         Study({**DEFAULT, "parameters": params})
 
 
+@pytest.mark.parametrize("k, change, message", [
+    (1, {"bounds": [-0.5, 0.7]}, r"parameters\[1\] \('nu'\): the upper bound 0.7 .*target 'material.nu'"),
+    (0, {"bounds": [-10.0, 800.0]}, r"parameters\[0\] \('E'\): the lower bound -10 .*material.E"),
+    (0, {"target": "material.Young"}, r"parameters\[0\].*unknown key 'material.Young'"),
+])
+def test_a_box_the_fsi_model_cannot_solve_is_refused_before_any_solve(k, change, message):
+    """Every value of a design box must be a setting the fsi model accepts: a box past
+    the schema's limits (or a target it does not have) would fail its solves one by
+    one; it is refused when the study is read, naming the parameter and the bound."""
+    params = [dict(p) for p in DEFAULT["parameters"]]
+    params[k] = {**params[k], **change}
+    if "bounds" in change:
+        params[k]["prior"] = {"type": "uniform"}
+    with pytest.raises(ConfigError, match=message):
+        Study({**DEFAULT, "parameters": params})
+
+
 def test_run_lock_is_exclusive_and_dies_with_its_holder(tmp_path):
     import subprocess
     import sys

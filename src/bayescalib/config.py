@@ -37,6 +37,7 @@ __all__ = [
     "merge_layers",
     "parse_override",
     "schema",
+    "set_dotted",
     "sorted_keys",
     "validate",
 ]
@@ -68,6 +69,22 @@ def load_yaml(path: str | Path) -> dict[str, Any]:
             f"config file '{p}' must hold a mapping of keys to values, got {type(data).__name__}"
         )
     return data
+
+
+def set_dotted(cfg: dict[str, Any], dotted: str, value: Any) -> None:
+    """Set ``cfg["a"]["b"]["c"] = value`` for ``dotted = "a.b.c"`` in place, creating
+    missing sections; a path through a value is a :class:`ConfigError` naming it."""
+    parts = dotted.split(".")
+    node = cfg
+    for i, part in enumerate(parts[:-1]):
+        if node.get(part) is None:
+            node[part] = {}
+        nxt = node[part]
+        if not isinstance(nxt, dict):
+            raise ConfigError(f"override '{dotted}': '{'.'.join(parts[: i + 1])}' is a value, "
+                              "not a section")
+        node = nxt
+    node[parts[-1]] = value
 
 
 def _schema_dir():
@@ -256,18 +273,7 @@ def apply_overrides(config: Mapping[str, Any], overrides: Iterable[str]) -> dict
     cfg = copy.deepcopy(dict(config))
     for text in overrides:
         parts, value = parse_override(text)
-        node = cfg
-        for i, p in enumerate(parts[:-1]):
-            nxt = node.get(p)
-            if nxt is None:
-                nxt = {}
-                node[p] = nxt
-            if not isinstance(nxt, dict):
-                raise ConfigError(
-                    f"override '{text}': '{'.'.join(parts[: i + 1])}' is a value, not a section"
-                )
-            node = nxt
-        node[parts[-1]] = value
+        set_dotted(cfg, ".".join(parts), value)
     return cfg
 
 

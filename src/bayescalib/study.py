@@ -262,6 +262,8 @@ class Study:
         except ValueError as exc:
             raise ConfigError(f"{where}: {exc}") from None
         Study._check_loadings(cfg, where)
+        if cfg["forward_model"]["type"] == "fsi":
+            Study._check_boxes(cfg, where)
         Study._check_hidden(cfg, where)
         Study._check_observation_files(cfg, where)
         Study._check_diagnose(cfg, where)
@@ -362,6 +364,34 @@ class Study:
                 f"forward_model.loadings.factors has {len(factors)} loadings: give one "
                 "snapshot per loading, in the same order"
             )
+
+    @staticmethod
+    def _check_boxes(cfg: dict[str, Any], where: str) -> None:
+        """Every value of a parameter's design box must be a valid setting of the fsi
+        model: each end of each box is set into the fsi section (the others at their
+        defaults) and validated, once per study. The schema's limits are intervals, so
+        the ends decide; a box reaching past one (nu above 0.5, E at or below 0, a
+        target the model does not have) is refused here instead of failing solves."""
+        import copy
+
+        from bayescalib.config import set_dotted
+        from bayescalib.inference.parameters import ParameterSpace
+
+        fsi = cfg["forward_model"]["fsi"]
+        boxes = ParameterSpace.from_config(cfg["parameters"]).bounds
+        for k, (par, box) in enumerate(zip(cfg["parameters"], boxes, strict=True)):
+            target = par.get("target") or par["name"]
+            for end, value in zip(("lower", "upper"), box, strict=True):
+                trial = copy.deepcopy(fsi)
+                try:
+                    set_dotted(trial, target, float(value))
+                    validate(trial, "fsi")
+                except ConfigError as exc:
+                    raise ConfigError(
+                        f"{where}: parameters[{k}] ('{par['name']}'): the {end} bound {value:g} of "
+                        f"its box is not a valid value of its target '{target}' in the fsi model "
+                        f"(forward_model.type: fsi): "
+                        f"{str(exc).splitlines()[-1].strip()}") from None
 
     @staticmethod
     def _check_hidden(cfg: dict[str, Any], where: str) -> None:

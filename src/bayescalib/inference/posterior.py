@@ -48,6 +48,7 @@ from bayescalib.inference.resampling import systematic_resample
 from bayescalib.inference.smc import SMCResult, weighted_cov
 from bayescalib.inference.weights import ess, weighted_quantile
 from bayescalib.io._atomic_write import atomic_path
+from bayescalib.io.header import check_header, write_header
 
 __all__ = [
     "credible_intervals",
@@ -271,7 +272,7 @@ def write_particles_h5(path: str | Path, result: SMCResult, space: ParameterSpac
     import h5py
 
     with atomic_path(path, suffix=".h5") as tmp, h5py.File(tmp, "w") as f:
-        f.attrs["format"] = "bayescalib.SMCParticles"
+        write_header(f, "particles")
         f.attrs["names"] = np.array(space.names, dtype=h5py.string_dtype())
         f.attrs["units"] = np.array(space.units, dtype=h5py.string_dtype())
         f.attrs["uncertain"] = ~space.calibrated_mask
@@ -293,8 +294,7 @@ def read_particles_h5(path: str | Path) -> SMCResult:
     import h5py
 
     with h5py.File(path, "r") as f:
-        if f.attrs.get("format") != "bayescalib.SMCParticles":
-            raise ValueError(f"'{path}' is not a bayescalib particle file")
+        check_header(f, "particles", path)
         names = [n.decode() if isinstance(n, bytes) else str(n) for n in f.attrs["names"]]
         return SMCResult(
             particles=f["particles"][()],

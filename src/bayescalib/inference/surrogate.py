@@ -82,13 +82,13 @@ from typing import Any
 import numpy as np
 
 from bayescalib.io._atomic_write import atomic_path
+from bayescalib.io.header import check_header, write_header
 
 __all__ = ["KERNELS", "GPSurrogate", "fit_from_config", "fit_gp", "kernel_matrix", "matern32"]
 
 log = logging.getLogger(__name__)
 
 _SQRT3 = math.sqrt(3.0)
-_FORMAT_VERSION = 2
 _GEMM_SINGLE_THREAD_MNK = 2**18
 
 
@@ -485,8 +485,7 @@ class GPSurrogate:
         import h5py
 
         with atomic_path(path, suffix=".h5") as tmp, h5py.File(tmp, "w") as f:
-            f.attrs["format"] = "bayescalib.GPSurrogate"
-            f.attrs["format_version"] = _FORMAT_VERSION
+            write_header(f, "surrogate")
             f.attrs["kernel"] = KERNELS[self.kernel][1]
             f.create_dataset("X_train", data=self.X_train)
             f.create_dataset("y_train", data=self.y_train)
@@ -510,8 +509,7 @@ class GPSurrogate:
         import h5py
 
         with h5py.File(path, "r") as f:
-            if f.attrs.get("format") != "bayescalib.GPSurrogate":
-                raise ValueError(f"'{path}' is not a bayescalib GP surrogate file")
+            check_header(f, "surrogate", path)
             return cls(
                 X_train=f["X_train"][()],
                 y_train=f["y_train"][()],

@@ -23,10 +23,10 @@ import numpy as np
 
 from bayescalib.geometry.interface import Interface
 from bayescalib.io._atomic_write import atomic_path
+from bayescalib.io.header import check_header, write_header
 
 __all__ = ["StoredObservations", "read_observations", "write_observations"]
 
-FORMAT_VERSION = 1
 
 
 @dataclass
@@ -91,7 +91,7 @@ def write_observations(path: str | Path, obs: StoredObservations) -> None:
         f.attrs["units"] = "mm"
         f.attrs["n_snapshots"] = len(obs.snapshots)
         f.attrs["meta"] = json.dumps(obs.meta, sort_keys=True)
-        f.attrs["format_version"] = FORMAT_VERSION
+        write_header(f, "observations")
         f.attrs["complete"] = 1
 
 
@@ -110,6 +110,7 @@ def read_observations(path: str | Path) -> StoredObservations:
         raise ValueError(f"observation file '{p}' does not exist")
     try:
         with h5py.File(p, "r") as f:
+            check_header(f, "observations", p)
             if int(f.attrs.get("complete", 0)) != 1:
                 raise ValueError(f"observation file '{p}' is incomplete (interrupted write?)")
             n = int(f.attrs["n_snapshots"])

@@ -5,7 +5,7 @@ status (``"ok"`` or ``"failed"`` with a reason — a failed solve is data, paper
 solver statistics and timing, and the undeformed and deformed fluid–solid interface as
 ordered node coordinates (mm) with segments.
 
-File layout (format version :data:`FORMAT_VERSION`)::
+File layout (the ``run`` kind of :mod:`bayescalib.io.header`)::
 
     /                     attrs: format="bayescalib-run", format_version, status, reason,
                                  load_fraction, newton_iterations, load_steps, wall_time,
@@ -31,9 +31,9 @@ from pathlib import Path
 import numpy as np
 
 from bayescalib.io._atomic_write import atomic_path
+from bayescalib.io.header import check_header, write_header
 
 __all__ = [
-    "FORMAT_VERSION",
     "LoadingResult",
     "RunFileError",
     "SolveResult",
@@ -41,8 +41,6 @@ __all__ = [
     "write_run",
 ]
 
-FORMAT_VERSION = 1
-_FORMAT = "bayescalib-run"
 
 
 class RunFileError(ValueError):
@@ -146,8 +144,7 @@ def write_run(path: str | Path, result: SolveResult) -> None:
     if result.status not in ("ok", "failed"):
         raise ValueError(f"status must be 'ok' or 'failed', got {result.status!r}")
     with atomic_path(path, suffix=".h5") as tmp, h5py.File(tmp, "w") as f:
-        f.attrs["format"] = _FORMAT
-        f.attrs["format_version"] = FORMAT_VERSION
+        write_header(f, "run")
         f.attrs["complete"] = 0
         f.attrs["status"] = result.status
         f.attrs["reason"] = result.reason
@@ -202,13 +199,7 @@ def read_run(path: str | Path) -> SolveResult:
         raise RunFileError(f"run file '{path}' does not exist")
     try:
         with h5py.File(path, "r") as f:
-            if _plain(f.attrs.get("format")) != _FORMAT:
-                raise RunFileError(f"run file '{path}' is not a bayescalib run record")
-            version = int(_plain(f.attrs.get("format_version", -1)))
-            if version != FORMAT_VERSION:
-                raise RunFileError(
-                    f"run file '{path}' has format version {version}, expected {FORMAT_VERSION}"
-                )
+            check_header(f, "run", path, RunFileError)
             if int(_plain(f.attrs.get("complete", 0))) != 1:
                 raise RunFileError(f"run file '{path}' is incomplete (writing was interrupted)")
             a = f.attrs

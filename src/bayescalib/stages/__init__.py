@@ -32,6 +32,7 @@ from typing import Any
 import numpy as np
 
 from bayescalib.io._atomic_write import atomic_path
+from bayescalib.io.training import read_training, write_training
 
 __all__ = [
     "PipelineError",
@@ -45,7 +46,6 @@ __all__ = [
     "marginalize",
     "observe",
     "read_json",
-    "read_training",
     "run_line",
     "smc",
     "train_surrogate",
@@ -444,41 +444,6 @@ def record_bound(rec: Mapping[str, Any]) -> float:
     return float(sum(gaussian_loglik(0.0, s["n"], rec["sigma_n2"]) for s in rec["snapshots"]))
 
 
-def write_training(out_path: str | Path, X: np.ndarray, L: np.ndarray, D: np.ndarray,
-                   ok: np.ndarray, reasons: Sequence[str], names: Sequence[str],
-                   n_train: int, *, bound: np.ndarray | None = None) -> None:
-    """Write a training table (layout of :func:`gather`) atomically."""
-    import h5py
-
-    n = len(L)
-    with atomic_path(out_path, suffix=".h5") as tmp, h5py.File(tmp, "w") as f:
-        f["X"] = np.asarray(X, dtype=float)
-        f["loglik"] = np.asarray(L, dtype=float)
-        f["D"] = np.asarray(D, dtype=float)
-        f["status"] = np.asarray(ok, dtype=np.int8)
-        f["is_train"] = (np.arange(n) < n_train).astype(np.int8)
-        f["bound"] = np.full(n, np.nan) if bound is None else np.asarray(bound, dtype=float)
-        f.create_dataset("reason", data=np.array(list(reasons), dtype=object),
-                         dtype=h5py.string_dtype())
-        f.attrs["names"] = json.dumps(list(names))
-        f.attrs["n_train"] = int(n_train)
-        f.attrs["n_failed"] = int(n - np.asarray(ok).sum())
-    log.info("training table: %d points, %d failed -> %s", n, n - int(np.asarray(ok).sum()),
-             out_path)
-
-
-def read_training(path: str | Path) -> dict[str, Any]:
-    """Read a training table written by :func:`gather`."""
-    import h5py
-
-    with h5py.File(path, "r") as f:
-        out = {k: f[k][...] for k in ("X", "loglik", "D", "status", "is_train")}
-        out["bound"] = f["bound"][...] if "bound" in f else np.full(len(out["loglik"]), np.nan)
-        out["reason"] = [r.decode() if isinstance(r, bytes) else str(r) for r in f["reason"][...]]
-        out["names"] = json.loads(f.attrs["names"])
-        out["n_train"] = int(f.attrs["n_train"])
-        out["n_failed"] = int(f.attrs["n_failed"])
-    return out
 
 
 # ---------------------------------------------------------------------------- train

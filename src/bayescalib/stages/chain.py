@@ -44,7 +44,7 @@ _ROW_KEYS = ("X", "loglik", "D", "status", "bound")
 def training_rows(training: str | Path) -> dict[str, Any]:
     """The rows of a training table (:func:`bayescalib.stages.gather`) used for training:
     ``X (m, d)``, ``loglik``, ``D``, ``status``, ``bound`` (m,) and ``reason`` (m strings)."""
-    from bayescalib.stages import read_training
+    from bayescalib.io.training import read_training
 
     tab = read_training(training)
     use = tab["is_train"].astype(bool)
@@ -106,6 +106,7 @@ def calibrate_rounds(
         new solves) and the paths ``training``, ``surrogate``, ``particles``.
     """
     from bayescalib.inference.posterior import read_particles_h5
+    from bayescalib.io.training import write_training
     from bayescalib.models.forward import solve_points
     from bayescalib.stages import (
         acquire,
@@ -114,7 +115,6 @@ def calibrate_rounds(
         marginalize,
         smc,
         train_surrogate,
-        write_training,
     )
 
     work = Path(workdir)

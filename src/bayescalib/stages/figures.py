@@ -24,7 +24,8 @@ from typing import Any
 
 import numpy as np
 
-from bayescalib.stages import read_json, read_training
+from bayescalib.io.training import read_training
+from bayescalib.stages import read_json
 
 __all__ = [
     "convergence_figure",

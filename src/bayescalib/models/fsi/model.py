@@ -41,7 +41,7 @@ from typing import Any
 
 import numpy as np
 
-from bayescalib.config import ConfigError, validate
+from bayescalib.config import ConfigError, set_dotted, validate
 from bayescalib.io._atomic_write import atomic_path
 from bayescalib.io.runrecord import SolveResult, write_run
 from bayescalib.models.fsi.geometry import SOLID_SUBDOMAINS, BiofilmMesh, build_mesh
@@ -96,17 +96,6 @@ def _get(cfg: Mapping[str, Any], dotted: str) -> Any:
     for part in dotted.split("."):
         node = node[part]
     return node
-
-
-def _set(cfg: dict[str, Any], dotted: str, value: Any) -> None:
-    parts = dotted.split(".")
-    node = cfg
-    for i, part in enumerate(parts[:-1]):
-        nxt = node.setdefault(part, {})
-        if not isinstance(nxt, dict):
-            raise ConfigError(f"override '{dotted}': '{'.'.join(parts[: i + 1])}' is a value, not a section")
-        node = nxt
-    node[parts[-1]] = value
 
 
 def _space_key(cfg: Mapping[str, Any]) -> str:
@@ -258,7 +247,7 @@ class FSIModel:
         """The config with dotted ``overrides`` applied and validated (raises ConfigError)."""
         cfg = copy.deepcopy(self.config)
         for k, v in (overrides or {}).items():
-            _set(cfg, k, v)
+            set_dotted(cfg, k, v)
         cfg = validate(cfg, "fsi", where="overrides" if overrides else "")
         msg = check_physics(cfg["physics"])
         if msg:

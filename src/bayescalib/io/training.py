@@ -1,0 +1,68 @@
+"""The training table: one row per design point of a study and measure (the output of
+the ``gather`` stage, the input of ``train_surrogate``, ``smc`` and ``acquire``).
+
+Layout (kind ``training`` of :mod:`bayescalib.io.header`)::
+
+    /X (n, d)  /loglik (n,)  /D (n,)  /status (n,) int8  /is_train (n,) int8
+    /bound (n,)  /reason (n,) str
+    attrs: format, format_version, names (JSON list), n_train, n_failed
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from bayescalib.io._atomic_write import atomic_path
+from bayescalib.io.header import check_header, write_header
+
+__all__ = ["read_training", "write_training"]
+
+log = logging.getLogger(__name__)
+
+
+def write_training(out_path: str | Path, X: np.ndarray, L: np.ndarray, D: np.ndarray,
+                   ok: np.ndarray, reasons: Sequence[str], names: Sequence[str],
+                   n_train: int, *, bound: np.ndarray | None = None) -> None:
+    """Write a training table atomically: the design points ``X`` (n, d), their
+    log-likelihoods ``L``, discrepancies ``D``, success flags ``ok`` and failure
+    ``reasons`` (n,), the parameter ``names``, the number of training rows ``n_train``
+    (the rest are held-out test points) and each row's likelihood ``bound``."""
+    import h5py
+
+    n = len(L)
+    with atomic_path(out_path, suffix=".h5") as tmp, h5py.File(tmp, "w") as f:
+        write_header(f, "training")
+        f["X"] = np.asarray(X, dtype=float)
+        f["loglik"] = np.asarray(L, dtype=float)
+        f["D"] = np.asarray(D, dtype=float)
+        f["status"] = np.asarray(ok, dtype=np.int8)
+        f["is_train"] = (np.arange(n) < n_train).astype(np.int8)
+        f["bound"] = np.full(n, np.nan) if bound is None else np.asarray(bound, dtype=float)
+        f.create_dataset("reason", data=np.array(list(reasons), dtype=object),
+                         dtype=h5py.string_dtype())
+        f.attrs["names"] = json.dumps(list(names))
+        f.attrs["n_train"] = int(n_train)
+        f.attrs["n_failed"] = int(n - np.asarray(ok).sum())
+    log.info("training table: %d points, %d failed -> %s", n, n - int(np.asarray(ok).sum()),
+             out_path)
+
+
+def read_training(path: str | Path) -> dict[str, Any]:
+    """Read a training table written by :func:`write_training` (arrays and attributes)."""
+    import h5py
+
+    with h5py.File(path, "r") as f:
+        check_header(f, "training", path)
+        out = {k: f[k][...] for k in ("X", "loglik", "D", "status", "is_train")}
+        out["bound"] = f["bound"][...] if "bound" in f else np.full(len(out["loglik"]), np.nan)
+        out["reason"] = [r.decode() if isinstance(r, bytes) else str(r) for r in f["reason"][...]]
+        out["names"] = json.loads(f.attrs["names"])
+        out["n_train"] = int(f.attrs["n_train"])
+        out["n_failed"] = int(f.attrs["n_failed"])
+    return out
