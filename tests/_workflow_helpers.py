@@ -22,12 +22,20 @@ def setup_study(tmp: Path, study: dict) -> Path:
     return tmp
 
 
+def _env(tmp: Path) -> dict[str, str]:
+    """The environment of a workflow run: ``tmp`` first on the module path (for study
+    files that name modules there), then the caller's PYTHONPATH, so that a test run
+    with PYTHONPATH=<checkout>/src tests that checkout's bayescalib."""
+    path = os.pathsep.join(p for p in (str(tmp), os.environ.get("PYTHONPATH", "")) if p)
+    return {**os.environ, "PYTHONPATH": path}
+
+
 def smk(tmp: Path, *args: str, check: bool = True, timeout: int = 600):
     """Run Snakemake on the repository's Snakefile with ``tmp`` as working directory."""
     cmd = [*SNAKEMAKE, "-s", str(REPO / "Snakefile"), "--directory", str(tmp), "--cores", "2",
            *args]
     proc = subprocess.run(cmd, check=False, capture_output=True, text=True, timeout=timeout,
-                          env={**os.environ, "PYTHONPATH": str(tmp)})
+                          env=_env(tmp))
     if check and proc.returncode != 0:
         raise AssertionError(f"snakemake failed:\n{proc.stdout[-4000:]}\n{proc.stderr[-6000:]}")
     return proc
@@ -50,7 +58,7 @@ def run_and_kill(tmp: Path, runs: Path, n: int, *, sleep: float = 1.0,
     (tmp / "slow_model.py").write_text(SLOW_MODEL.format(sleep=sleep))
     cmd = [*SNAKEMAKE, "-s", str(REPO / "Snakefile"), "--directory", str(tmp), "--cores", "2"]
     proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-                            env={**os.environ, "PYTHONPATH": str(tmp)}, start_new_session=True)
+                            env=_env(tmp), start_new_session=True)
     deadline = time.time() + timeout
     while time.time() < deadline:
         if runs.is_dir() and len(list(runs.glob("[0-9]*.h5"))) >= n:

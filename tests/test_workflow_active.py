@@ -64,6 +64,12 @@ def test_summary_says_whether_the_active_design_converged(active_run):
     # the end of the run says it in one line
     line = [ln for ln in proc.stdout.splitlines() if ln.startswith("bayescalib analytic:")]
     assert line and ("converged" in line[0] or "NOT CONVERGED" in line[0]), proc.stdout[-2000:]
+    # the absolute check of the best solve against the noise model (RKHS: n = 1 per
+    # snapshot; noise-free data of the model itself, so the fit is within the noise)
+    fit = s["fit"]
+    assert fit["n_measurements"] == 1 and fit["consistent"] and 0 <= fit["misfit_nats"] < 3
+    assert s["measures"]["rkhs"]["fit"] == fit
+    assert "best fit within the noise" in line[0]
     assert "Nothing to be done" in _smk(tmp, "-n").stdout
 
 

@@ -517,6 +517,8 @@ class ActiveResult:
     surrogate : the last round's GP surrogate.
     smc : the last round's :class:`~bayescalib.inference.smc.SMCResult`.
     rounds : the per-round records of :func:`acquire_round`.
+    fit : :func:`bayescalib.inference.likelihood.fit_check` of the best evaluation
+        (None without ``bound`` and ``n_measurements``).
     """
 
     X: np.ndarray
@@ -524,6 +526,7 @@ class ActiveResult:
     surrogate: Any
     smc: Any
     rounds: list[dict[str, Any]] = field(default_factory=list)
+    fit: dict[str, Any] | None = None
 
     @property
     def n_evaluations(self) -> int:
@@ -546,7 +549,8 @@ def calibrate(loglik: Callable[[np.ndarray], np.ndarray], space, *, bound: float
               active: Mapping[str, Any] | None = None,
               surrogate: Mapping[str, Any] | None = None,
               smc: Mapping[str, Any] | None = None, seed: int = 0,
-              callback: Callable[[dict[str, Any]], None] | None = None) -> ActiveResult:
+              callback: Callable[[dict[str, Any]], None] | None = None,
+              n_measurements: int | None = None) -> ActiveResult:
     """Active-design calibration of a log-likelihood given as a Python function.
 
     Runs the rounds of the pipeline's ``active`` stage in-process: the same
@@ -567,6 +571,9 @@ def calibrate(loglik: Callable[[np.ndarray], np.ndarray], space, *, bound: float
         Seed of the Sobol design of round 0.
     callback
         Called with each round's record.
+    n_measurements
+        Number of measurements behind the Gaussian log-likelihood: with ``bound``,
+        the result's ``fit`` checks the best evaluation against the noise model.
     """
     from bayescalib.config import validate
     from bayescalib.inference.design import sobol_design
@@ -591,7 +598,13 @@ def calibrate(loglik: Callable[[np.ndarray], np.ndarray], space, *, bound: float
             callback(rec)
         log.info("active round %d: %d solves; %s", r, rec["n_solves"], rec["reason"])
         if rec["stop"]:
-            return ActiveResult(X, L, gp, res, rounds)
+            fit = None
+            if bound is not None and n_measurements is not None:
+                from bayescalib.inference.likelihood import fit_check
+
+                fit = fit_check(L, np.full(L.shape, float(bound)),
+                                np.full(L.shape, float(n_measurements)))
+            return ActiveResult(X, L, gp, res, rounds, fit)
         Xn = np.asarray(rec["next"]["points"], float)
         X = np.vstack([X, Xn])
         L = np.concatenate([L, np.asarray(loglik(Xn), float)])

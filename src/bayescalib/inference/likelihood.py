@@ -12,6 +12,16 @@ observation set (e.g. one per flow rate) are conditionally independent, so
 their log-likelihoods add. A failed or missing model snapshot (None), a
 geometry the measure cannot evaluate, or a non-finite D give ``-inf``: the
 value is never NaN.
+
+Absolute check of the fit (:func:`fit_check`). The likelihood states a noise
+model: with n measurements and the parameters at their true values,
+D^2 / sigma_N^2 ~ chi2_n, so the misfit Phi = B - log L = D^2 / (2 sigma_N^2)
+(B the bound at D = 0) is about n/2 +- sqrt(n/2). A surrogate can agree with
+itself around a wrong mode; this check cannot be fooled that way: when even
+the best solve misfits the data far more than the noise allows, either the
+posterior mode has not been found, the model misses physics, or sigma_N is
+smaller than the data's noise. It uses the likelihood's own assumptions only,
+so it holds for every measure (for the RKHS norm n = 1 per snapshot).
 """
 
 from __future__ import annotations
@@ -20,12 +30,15 @@ import math
 from collections.abc import Mapping, Sequence
 from typing import TYPE_CHECKING, Any
 
+import numpy as np
+
 if TYPE_CHECKING:  # the measures (scipy.spatial) load with log_likelihood, not with the
     # noise settings that the study reads when the Snakefile is parsed
     from bayescalib.geometry.interface import Interface
     from bayescalib.io.observations import ObservationSet
 
-__all__ = ["DEFAULT_SIGMA_N2", "gaussian_loglik", "log_likelihood", "sigma_n2_from_config"]
+__all__ = ["DEFAULT_SIGMA_N2", "FIT_P_VALUE", "fit_check", "gaussian_loglik", "log_likelihood",
+           "sigma_n2_from_config"]
 
 #: default noise variance sigma_N^2 in mm^2 (paper Sec. 4, later examples)
 DEFAULT_SIGMA_N2 = 0.0005
@@ -118,6 +131,57 @@ def log_likelihood(
             continue
         total += gaussian_loglik(res.D, res.n, sigma_n2)
     return -math.inf if failed else total
+
+
+#: upper-tail probability below which the best fit is called worse than the noise
+FIT_P_VALUE = 1e-3
+
+
+def fit_check(loglik: Sequence[float], bound: Sequence[float],
+              n_measurements: Sequence[float]) -> dict[str, Any] | None:
+    """Is the best solve's misfit what the likelihood's noise model expects?
+
+    Parameters
+    ----------
+    loglik, bound, n_measurements
+        Per solve (N,): the log-likelihood (-inf: failed), its bound B (the value at
+        D = 0) and the number of measurements n summed over snapshots (NaN where
+        unknown, e.g. tables of earlier runs).
+
+    Returns
+    -------
+    dict or None
+        None when no solve has all three values. Otherwise ``misfit_nats`` (B - L at
+        the best solve), ``n_measurements``, ``expected_nats`` (n/2) and
+        ``expected_sd_nats`` (sqrt(n/2)), ``p_value`` (upper tail of chi2_n at
+        2 misfit), ``consistent`` (p >= :data:`FIT_P_VALUE`) and ``words``.
+    """
+    from scipy.stats import chi2
+
+    L = np.asarray(loglik, float)
+    B = np.asarray(bound, float)
+    n = np.asarray(n_measurements, float)
+    ok = np.isfinite(L) & np.isfinite(B) & np.isfinite(n) & (n >= 1)
+    if not ok.any():
+        return None
+    idx = np.flatnonzero(ok)
+    i = int(idx[np.argmax(L[idx])])
+    misfit = max(float(B[i] - L[i]), 0.0)
+    nm = int(n[i])
+    p = float(chi2.sf(2.0 * misfit, nm))
+    consistent = p >= FIT_P_VALUE
+    expect = f"{nm / 2:.3g} +- {math.sqrt(nm / 2):.2g} nats for {nm} measurement(s)"
+    if consistent:
+        words = (f"the best solve fits the data as the likelihood's noise model expects "
+                 f"(misfit {misfit:.3g} nats; noise alone gives {expect})")
+    else:
+        words = (f"the best solve misfits the data by {misfit:.3g} nats where the "
+                 f"likelihood's noise model expects {expect} (p = {p:.1e}): the posterior "
+                 "mode has not been found, or the model misses physics (run the diagnosis), "
+                 "or sigma_N is smaller than the data's noise")
+    return {"misfit_nats": misfit, "n_measurements": nm, "expected_nats": nm / 2,
+            "expected_sd_nats": math.sqrt(nm / 2), "p_value": p,
+            "consistent": bool(consistent), "words": words}
 
 
 def sigma_n2_from_config(section: Mapping[str, Any]) -> float:

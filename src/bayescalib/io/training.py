@@ -28,11 +28,13 @@ log = logging.getLogger(__name__)
 
 def write_training(out_path: str | Path, X: np.ndarray, L: np.ndarray, D: np.ndarray,
                    ok: np.ndarray, reasons: Sequence[str], names: Sequence[str],
-                   n_train: int, *, bound: np.ndarray | None = None) -> None:
+                   n_train: int, *, bound: np.ndarray | None = None,
+                   n_measurements: np.ndarray | None = None) -> None:
     """Write a training table atomically: the design points ``X`` (n, d), their
     log-likelihoods ``L``, discrepancies ``D``, success flags ``ok`` and failure
     ``reasons`` (n,), the parameter ``names``, the number of training rows ``n_train``
-    (the rest are held-out test points) and each row's likelihood ``bound``."""
+    (the rest are held-out test points), each row's likelihood ``bound`` and its
+    number of measurements ``n_measurements`` (NaN where unknown)."""
     import h5py
 
     n = len(L)
@@ -44,6 +46,8 @@ def write_training(out_path: str | Path, X: np.ndarray, L: np.ndarray, D: np.nda
         f["status"] = np.asarray(ok, dtype=np.int8)
         f["is_train"] = (np.arange(n) < n_train).astype(np.int8)
         f["bound"] = np.full(n, np.nan) if bound is None else np.asarray(bound, dtype=float)
+        f["n_measurements"] = np.full(n, np.nan) if n_measurements is None else \
+            np.asarray(n_measurements, dtype=float)
         f.create_dataset("reason", data=np.array(list(reasons), dtype=object),
                          dtype=h5py.string_dtype())
         f.attrs["names"] = json.dumps(list(names))
@@ -60,7 +64,8 @@ def read_training(path: str | Path) -> dict[str, Any]:
     with h5py.File(path, "r") as f:
         check_header(f, "training", path)
         out = {k: f[k][...] for k in ("X", "loglik", "D", "status", "is_train")}
-        out["bound"] = f["bound"][...] if "bound" in f else np.full(len(out["loglik"]), np.nan)
+        for key in ("bound", "n_measurements"):  # absent from tables of earlier runs
+            out[key] = f[key][...] if key in f else np.full(len(out["loglik"]), np.nan)
         out["reason"] = [r.decode() if isinstance(r, bytes) else str(r) for r in f["reason"][...]]
         out["names"] = json.loads(f.attrs["names"])
         out["n_train"] = int(f.attrs["n_train"])

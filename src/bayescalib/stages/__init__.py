@@ -386,8 +386,8 @@ def gather_rows(run_paths: Sequence[str | Path], disc_paths: Sequence[str | Path
 
     Returns ``X (n, d)`` (columns in the order of ``targets``), ``loglik (n,)``
     (-inf for failed runs), ``D (n,)``, ``status (n,)`` (1 ok, 0 failed),
-    ``bound (n,)`` (:func:`record_bound`, NaN for failed runs) and ``reason``
-    (n strings).
+    ``bound (n,)`` (:func:`record_bound`, NaN for failed runs), ``n_measurements``
+    (n,) (summed over snapshots, NaN for failed runs) and ``reason`` (n strings).
     """
     if len(run_paths) != len(disc_paths):
         raise PipelineError("gather: the number of run records and discrepancy files differ")
@@ -397,6 +397,7 @@ def gather_rows(run_paths: Sequence[str | Path], disc_paths: Sequence[str | Path
     D = np.full(n, np.nan)
     ok = np.zeros(n, dtype=np.int8)
     bound = np.full(n, np.nan)
+    n_meas = np.full(n, np.nan)
     reasons: list[str] = []
     for i, (rp, dp) in enumerate(zip(run_paths, disc_paths, strict=True)):
         run = _read_run_checked(rp)
@@ -412,8 +413,10 @@ def gather_rows(run_paths: Sequence[str | Path], disc_paths: Sequence[str | Path
             D[i] = float(rec["D"])
             ok[i] = 1
             bound[i] = record_bound(rec)
+            n_meas[i] = sum(float(s_["n"]) for s_ in rec.get("snapshots") or []) or math.nan
         reasons.append(run.reason or rec.get("reason") or "")
-    return {"X": X, "loglik": L, "D": D, "status": ok, "bound": bound, "reason": reasons}
+    return {"X": X, "loglik": L, "D": D, "status": ok, "bound": bound,
+            "n_measurements": n_meas, "reason": reasons}
 
 
 def gather(run_paths: Sequence[str | Path], disc_paths: Sequence[str | Path],
@@ -431,7 +434,8 @@ def gather(run_paths: Sequence[str | Path], disc_paths: Sequence[str | Path],
     rows = gather_rows(run_paths, disc_paths, targets)
     n = len(rows["loglik"])
     write_training(out_path, rows["X"], rows["loglik"], rows["D"], rows["status"],
-                   rows["reason"], names, n if n_train is None else n_train, bound=rows["bound"])
+                   rows["reason"], names, n if n_train is None else n_train, bound=rows["bound"],
+                   n_measurements=rows["n_measurements"])
 
 
 def record_bound(rec: Mapping[str, Any]) -> float:
@@ -615,8 +619,11 @@ def summary(study_name: str, parameters: Sequence[Mapping[str, Any]], measures: 
 
     The first measure is the calibration measure: its results are the top-level
     ``map``, ``posterior_mean``, ``posterior_cov`` and ``log_evidence``; every
-    measure's results are also listed under ``measures``.
+    measure's results are also listed under ``measures``. ``fit`` is the absolute
+    check of the calibration measure's best solve against the likelihood's noise
+    model (:func:`bayescalib.inference.likelihood.fit_check`; per measure as well).
     """
+    from bayescalib.inference.likelihood import fit_check
     from bayescalib.inference.posterior import read_particles_h5
 
     names = [p["name"] for p in parameters]
@@ -638,6 +645,7 @@ def summary(study_name: str, parameters: Sequence[Mapping[str, Any]], measures: 
             "n_smc_steps": int(res.n_steps),
             "n_train": int(tr.sum()),
             "n_failed": int((tab["status"][tr] == 0).sum()),
+            "fit": fit_check(tab["loglik"][tr], tab["bound"][tr], tab["n_measurements"][tr]),
         }
         if m == measures[0]:
             failed_runs = [
@@ -674,6 +682,7 @@ def summary(study_name: str, parameters: Sequence[Mapping[str, Any]], measures: 
         "failed_runs": failed_runs,
         "ground_truth": truth if all(v is not None for v in truth.values()) else None,
         "converged": (extra or {}).get("design", {}).get("converged"),
+        "fit": primary["fit"],
         "measures": per_measure,
         "figures": dict(figures),
     }
@@ -711,7 +720,7 @@ def design_summary(strategy: str, acquire_paths: Sequence[str | Path],
 
 def run_line(summary_json: Mapping[str, Any]) -> str:
     """One plain line for the end of a run: posterior mean +- sd with units,
-    convergence, solves used and failed."""
+    convergence, the absolute fit check, solves used and failed."""
     names = [p["name"] for p in summary_json["parameters"]]
     units = {p["name"]: p.get("unit", "-") for p in summary_json["parameters"]}
     cov = np.asarray(summary_json["posterior_cov"], float)
@@ -730,6 +739,11 @@ def run_line(summary_json: Mapping[str, Any]) -> str:
         state = "NOT CONVERGED"
     else:
         state = "convergence not checked (fixed design)"
+    fit = summary_json.get("fit")
+    if fit is not None:
+        state += ("; best fit within the noise" if fit["consistent"] else
+                  "; BEST FIT WORSE THAN THE NOISE (mode not found, missing physics or "
+                  "sigma_N too small: see fit in summary.json)")
     return (f"bayescalib {summary_json['study']}: {', '.join(parts)}; {state}; "
             f"{n_solves} solves, {n_failed} failed")
 
@@ -761,8 +775,10 @@ def front_page(summary_path: str | Path) -> dict[str, Any] | None:
                      "-" if not lohi else f"[{fmt(lohi[0])}, {fmt(lohi[1])}]",
                      fmt(truth.get(n))])
     design = s.get("design") or {}
+    fit = s.get("fit") or {}
     return {"line": run_line(s), "reason": design.get("reason", ""), "rows": rows,
-            "converged": design.get("converged"), "measure": s.get("measure")}
+            "converged": design.get("converged"), "measure": s.get("measure"),
+            "fit": fit.get("words", ""), "fit_consistent": fit.get("consistent")}
 
 
 def collect_timings(root: str | Path) -> dict[str, Any]:

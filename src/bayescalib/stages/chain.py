@@ -38,12 +38,13 @@ __all__ = ["calibrate_rounds", "training_rows"]
 
 log = logging.getLogger(__name__)
 
-_ROW_KEYS = ("X", "loglik", "D", "status", "bound")
+_ROW_KEYS = ("X", "loglik", "D", "status", "bound", "n_measurements")
 
 
 def training_rows(training: str | Path) -> dict[str, Any]:
     """The rows of a training table (:func:`bayescalib.stages.gather`) used for training:
-    ``X (m, d)``, ``loglik``, ``D``, ``status``, ``bound`` (m,) and ``reason`` (m strings)."""
+    ``X (m, d)``, ``loglik``, ``D``, ``status``, ``bound``, ``n_measurements`` (m,) and
+    ``reason`` (m strings)."""
     from bayescalib.io.training import read_training
 
     tab = read_training(training)
@@ -150,7 +151,8 @@ def calibrate_rounds(
         rows = _stack(base, gather_rows(run_paths, disc_paths, targets))
         training = rd / "training.h5"
         write_training(training, rows["X"], rows["loglik"], rows["D"], rows["status"],
-                       rows["reason"], names, len(rows["loglik"]), bound=rows["bound"])
+                       rows["reason"], names, len(rows["loglik"]), bound=rows["bound"],
+                       n_measurements=rows["n_measurements"])
         train_surrogate(training, surrogate, parameters, rd / "surrogate.h5")
         smc(rd / "surrogate.h5", smc_cfg, parameters, rd / "particles.h5")
         rec = acquire(r, training, rd / "surrogate.h5", rd / "particles.h5", previous, active,
@@ -168,9 +170,12 @@ def calibrate_rounds(
     n_failed = int(n_new - np.asarray(rows["status"][n_reused:]).sum())
     log.info("calibration in %s: %d round(s), %d new solves (%d failed), %d reused; %s",
              work, len(rounds), n_new, n_failed, n_reused, rec["reason"])
+    from bayescalib.inference.likelihood import fit_check
+
     return {"parameters": [dict(p) for p in parameters],
             "log_evidence": float(res.log_evidence), "posterior": summary,
             "converged": bool(rec["converged"]), "reason": str(rec["reason"]),
+            "fit": fit_check(rows["loglik"], rows["bound"], rows["n_measurements"]),
             "rounds": rounds, "n_new": n_new, "n_reused": n_reused, "n_failed": n_failed,
             "training": str(training), "surrogate": str(rd / "surrogate.h5"),
             "particles": str(rd / "particles.h5")}
