@@ -57,7 +57,9 @@ Metrics (per problem and method; medians over ``--repeats`` seeds)
 * ``mean_err`` / ``sd_err``: max over parameters of |mean - mean_ref| / sd_ref
   and |sd - sd_ref| / sd_ref, from the method's (weighted) samples.
 * ``kl_gauss``: KL(reference || method) between moment-matched Gaussians.
-* ``active`` also reports ``converged`` and ``reason``.
+* ``active`` also reports ``converged`` and ``reason``, and on ``hetero7d`` (a
+  least-squares likelihood of 40 measurements) the absolute fit check of its best
+  evaluation (``fit``).
 
 Run (repository root as working directory)::
 
@@ -733,7 +735,7 @@ def summarize(runs: list[dict[str, Any]]) -> dict[str, Any]:
         vals = [r[k] for r in ok if k in r and r[k] is not None and np.isfinite(r[k])]
         if vals:
             s[k] = float(statistics.median(vals))
-    for k in ("converged", "reason", "hellinger_from", "success_flag", "gpry_config"):
+    for k in ("converged", "reason", "fit", "hellinger_from", "success_flag", "gpry_config"):
         vals = [r[k] for r in ok if k in r]
         if vals:
             s[k] = vals[0] if len(set(map(str, vals))) == 1 else "/".join(map(str, vals))
@@ -792,6 +794,8 @@ def table(
                 notes.append(f"converged={s['converged']}: {reason}")
             elif "converged" in s:
                 notes.append(f"converged={s['converged']}")
+            if s.get("fit"):
+                notes.append("fit: " + _short(s["fit"].split(" (p = ")[0], 120))
             if s.get("gpry_config", "default") != "default":
                 notes.append(s["gpry_config"])
             if "success_flag" in s:
