@@ -14,6 +14,7 @@ from bayescalib.config import validate
 from bayescalib.inference.active import (
     acquire_round,
     calibrate,
+    candidate_pool,
     point_round,
     posterior_change,
     round_sizes,
@@ -233,3 +234,22 @@ def test_the_rounds_are_reproducible():
     ll = _gaussian_misfit([0.0, 0.5], np.diag([0.2, 0.3]))
     a, b = calibrate(ll, space, **kw), calibrate(ll, space, **kw)
     np.testing.assert_array_equal(a.X, b.X)
+
+
+def test_the_exploring_candidates_include_lines_through_the_posterior_along_each_axis():
+    """A posterior concentrated at c: half the pool jitters around c; of the exploring
+    half, the first half are lines through c (one coordinate redrawn over its whole
+    range, the others within the jitter of c), the rest uniform over the box."""
+    rng = np.random.default_rng(0)
+    c = np.array([0.3, 0.6, 0.8])
+    particles = c + 1e-4 * rng.standard_normal((500, 3))
+    pool = candidate_pool(particles, np.ones(500), np.array([[0.0, 1.0]] * 3), 400,
+                          np.random.default_rng(1))
+    post, line, uniform = pool[:200], pool[200:300], pool[300:]
+    assert np.all(np.abs(post - c) < 0.05)
+    off = np.abs(line - c) > 0.05  # the jitter is 0.5 % of the box here
+    assert np.all(off.sum(axis=1) <= 1)
+    for k in range(3):  # every axis is redrawn, over most of its range
+        redrawn = line[np.abs(line[:, k] - c[k]) > 1e-3, k]
+        assert redrawn.size >= 15 and np.ptp(redrawn) > 0.8
+    assert np.mean(np.all(np.abs(uniform - c) > 0.05, axis=1)) > 0.6

@@ -22,7 +22,9 @@ points). Each round r then
 
 Acquisition (:func:`select_batch`). Candidates are drawn from the current
 posterior (resampled SMC particles, jittered by half a posterior sd per
-parameter, reflected into the box) and, as many, uniformly over the box. Most of
+parameter, reflected into the box) and, as many, for exploring: half of them
+jittered particles with one coordinate redrawn over its whole range (lines
+through the posterior along each axis), half uniformly over the box. Most of
 a batch exploits: each candidate is scored by the uncertainty of the
 unnormalized posterior where it is large,
 
@@ -37,7 +39,7 @@ candidates is conditioned on that point (the variance of a GP does not depend
 on the value that will be observed, so this is exact for the variance; the mean
 is kept, as in the "kriging believer"), so the batch spreads over the
 uncertain posterior region instead of piling up at its maximum. A share
-``explore_fraction`` of each batch explores: among the uniform candidates that
+``explore_fraction`` of each batch explores: among the exploring candidates that
 the surrogate cannot rule out of the posterior region (probability at least
 ``P_PLAUSIBLE`` that their log-likelihood lies within ``delta`` of the best
 solve), the one of largest GP variance, again with conditioning. Exploitation
@@ -83,7 +85,7 @@ log = logging.getLogger(__name__)
 REGION_LEVEL = 0.99
 #: jitter of the posterior candidates, in posterior standard deviations
 BANDWIDTH = 0.5
-#: share of the candidate pool drawn uniformly over the box
+#: share of the candidate pool that explores (axis lines through the posterior, uniform)
 POOL_UNIFORM = 0.5
 #: smallest probability of lying in the posterior region for an exploring pick
 P_PLAUSIBLE = 1e-3
@@ -250,8 +252,13 @@ def candidate_pool(particles: np.ndarray, weights: np.ndarray, bounds: np.ndarra
     """Candidate points for the next batch, (n, d) in user units.
 
     ``(1 - uniform_fraction) n`` are resampled particles jittered by ``bandwidth``
-    posterior sd per parameter (at least 0.5 % of the box), reflected into the box;
-    the last ``round(uniform_fraction n)`` rows are uniform over the box.
+    posterior sd per parameter (at least 0.5 % of the box), reflected into the box.
+    The last ``round(uniform_fraction n)`` rows are the exploring candidates: half
+    of them (rounded down) are such jittered particles with one coordinate, chosen
+    at random, redrawn uniformly over its range (*line* candidates: they reach a
+    mode that differs from the current one in one parameter, such as the second
+    branch of a Poisson's ratio whose effect is not monotonic, which a uniform draw
+    in several dimensions almost never hits); the rest are uniform over the box.
     """
     from bayescalib.inference.resampling import systematic_resample
 
@@ -267,7 +274,11 @@ def candidate_pool(particles: np.ndarray, weights: np.ndarray, bounds: np.ndarra
     sd = np.sqrt(np.maximum(W @ (U - mean) ** 2, 0.0))
     jitter = bandwidth * np.maximum(sd, 0.005)
     post = U[systematic_resample(W, rng, n_post)] + rng.standard_normal((n_post, U.shape[1])) * jitter
-    pool = np.vstack([_reflect(post), rng.random((n_explore, U.shape[1]))])
+    n_line = n_explore // 2  # exploring: jittered particles with one coordinate redrawn
+    line = _reflect(U[systematic_resample(W, rng, n_line)]
+                    + rng.standard_normal((n_line, U.shape[1])) * jitter)
+    line[np.arange(n_line), rng.integers(0, U.shape[1], n_line)] = rng.random(n_line)
+    pool = np.vstack([_reflect(post), line, rng.random((n_explore - n_line, U.shape[1]))])
     return lo + pool * width
 
 
@@ -294,7 +305,7 @@ def select_batch(gp, pool: np.ndarray, logprior: np.ndarray, q: int, *,
         Log-likelihood above which a point lies in the posterior region (exploring
         picks need a probability of at least ``P_PLAUSIBLE`` to exceed it).
     explore_mask
-        (M,) bool: candidates eligible for exploring picks (the uniform ones).
+        (M,) bool: candidates eligible for exploring picks (the exploring ones: lines and uniform).
 
     Returns
     -------
@@ -473,12 +484,12 @@ def acquire_round(r: int, X: np.ndarray, L: np.ndarray, gp, particles: np.ndarra
         pool = candidate_pool(particles, weights, space.bounds, int(active["pool_size"]), rng)
         q = min(int(active["batch_size"]), budget_left)
         n_explore = math.floor(q * float(active["explore_fraction"]) + 0.5)
-        uniform = np.arange(len(pool)) >= len(pool) - round(len(pool) * POOL_UNIFORM)
+        exploring = np.arange(len(pool)) >= len(pool) - round(len(pool) * POOL_UNIFORM)
         from scipy.stats import chi2
 
         threshold = best - 0.5 * float(chi2.ppf(REGION_LEVEL, d))
         batch = select_batch(gp, pool, space.logprior(pool), q, failed=X[~finite],
-                             n_explore=n_explore, threshold=threshold, explore_mask=uniform)
+                             n_explore=n_explore, threshold=threshold, explore_mask=exploring)
         rec["next"] = {"points": batch["points"].tolist(), "mean": batch["mean"].tolist(),
                        "sd": batch["sd"].tolist(), "score": batch["score"].tolist()}
     return rec
