@@ -45,6 +45,7 @@ answer is ``t_p = f_max * (1 - p)``, which the tests use.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from typing import Any
 
@@ -272,6 +273,14 @@ def kde_on_grid(kde, xlim: Sequence[float], ylim: Sequence[float],
                 n: int = 100) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Evaluate a 2-D KDE on a regular grid.
 
+    A weighted Gaussian KDE (:func:`weighted_kde`, with or without reflection) is
+    evaluated by linear binning and an FFT convolution (:func:`_binned_kde_grid`):
+    O(n^2 log n) instead of O(n^2 N) for N particles, the same estimator up to
+    the binning error O((grid step / bandwidth)^2): below 2 % of the peak density
+    for bandwidths of two grid steps or more (measured on correlated clouds with
+    reflection; tested). Where the bandwidth is below two grid steps, or for any
+    other callable, the KDE is evaluated point by point.
+
     Parameters
     ----------
     kde : callable
@@ -291,9 +300,89 @@ def kde_on_grid(kde, xlim: Sequence[float], ylim: Sequence[float],
     """
     gx = np.linspace(xlim[0], xlim[1], n)
     gy = np.linspace(ylim[0], ylim[1], n)
-    xx, yy = np.meshgrid(gx, gy)
-    dens = kde(np.vstack([xx.ravel(), yy.ravel()])).reshape(xx.shape)
+    dens = _binned_kde_grid(kde, gx, gy)
+    if dens is None:
+        xx, yy = np.meshgrid(gx, gy)
+        dens = kde(np.vstack([xx.ravel(), yy.ravel()])).reshape(xx.shape)
     return gx, gy, dens
+
+
+def _binned_kde_grid(kde, gx: np.ndarray, gy: np.ndarray) -> np.ndarray | None:
+    """Binned FFT evaluation of a 2-D weighted Gaussian KDE on the grid gx x gy.
+
+    The particles (and, for :class:`BoundedKDE`, their mirror images at the box's
+    finite faces) are linearly binned onto the grid extended by four kernel sds
+    on each side; the binned masses are convolved with the Gaussian kernel of
+    covariance ``kde.covariance`` sampled at the grid offsets (for images
+    reflected in one axis, with the sign of its correlation flipped). Returns the (ny, nx)
+    densities (0 outside a BoundedKDE's box), or None where this does not apply
+    (not a 2-D Gaussian KDE, a bandwidth below two grid steps, a degenerate grid).
+    """
+    from scipy import stats
+    from scipy.signal import fftconvolve
+
+    base = kde.kde if isinstance(kde, BoundedKDE) else kde
+    if not isinstance(base, stats.gaussian_kde) or base.d != 2 or len(gx) < 2 or len(gy) < 2:
+        return None
+    dx, dy = float(gx[1] - gx[0]), float(gy[1] - gy[0])
+    H = np.asarray(base.covariance, float)
+    sx, sy = math.sqrt(H[0, 0]), math.sqrt(H[1, 1])
+    if not (dx > 0 and dy > 0) or sx < 2 * dx or sy < 2 * dy:
+        return None
+    kx = min(math.ceil(4 * sx / dx), 4 * len(gx))
+    ky = min(math.ceil(4 * sy / dy), 4 * len(gy))
+    pts = np.asarray(base.dataset, float)  # (2, N)
+    w = np.asarray(base.weights, float)
+    # Mirror images as in BoundedKDE.__call__, which reflects the evaluation point:
+    # K_H(Rx + c - p) = K_{RHR}(x - (Rp + c)), so an image reflected in one axis is
+    # smoothed with the kernel whose correlation changes sign (its own "parity").
+    images = [(pts, 0)]
+    if isinstance(kde, BoundedKDE):
+        for k in range(2):
+            new = []
+            for y, parity in images:
+                for bound in (kde.lo[k], kde.hi[k]):
+                    if np.isfinite(bound):
+                        z = y.copy()
+                        z[k] = 2.0 * bound - z[k]
+                        new.append((z, parity ^ 1))
+            images += new
+    nx, ny = len(gx) + 2 * kx, len(gy) + 2 * ky
+    ox = np.arange(-kx, kx + 1) * dx
+    oy = np.arange(-ky, ky + 1) * dy
+    XX, YY = np.meshgrid(ox, oy)
+    dens = np.zeros((len(gy), len(gx)))
+    for parity in (0, 1):
+        group = [y for y, par in images if par == parity]
+        if not group:
+            continue
+        P = np.hstack(group)
+        W = np.tile(w, len(group))
+        fx = (P[0] - gx[0]) / dx + kx  # fractional index on the extended grid
+        fy = (P[1] - gy[0]) / dy + ky
+        inside = (fx >= 0) & (fx <= nx - 1) & (fy >= 0) & (fy <= ny - 1)
+        fx, fy, W = fx[inside], fy[inside], W[inside]
+        ix = np.minimum(np.floor(fx).astype(int), nx - 2)
+        iy = np.minimum(np.floor(fy).astype(int), ny - 2)
+        tx, ty = fx - ix, fy - iy
+        mass = np.zeros((ny, nx))
+        for ox_, oy_, c in ((0, 0, (1 - tx) * (1 - ty)), (1, 0, tx * (1 - ty)),
+                            (0, 1, (1 - tx) * ty), (1, 1, tx * ty)):
+            np.add.at(mass, (iy + oy_, ix + ox_), W * c)
+        Hp = H.copy()
+        if parity:
+            Hp[0, 1] = Hp[1, 0] = -H[0, 1]
+        Hinv = np.linalg.inv(Hp)
+        q = Hinv[0, 0] * XX**2 + 2 * Hinv[0, 1] * XX * YY + Hinv[1, 1] * YY**2
+        kernel = np.exp(-0.5 * q) / (2 * math.pi * math.sqrt(np.linalg.det(Hp)))
+        dens += fftconvolve(mass, kernel, mode="same")[ky:ky + len(gy), kx:kx + len(gx)]
+    dens = np.maximum(dens, 0.0)  # FFT round-off
+    if isinstance(kde, BoundedKDE):
+        xx, yy = np.meshgrid(gx, gy)
+        inside_box = ((xx >= kde.lo[0]) & (xx <= kde.hi[0])
+                      & (yy >= kde.lo[1]) & (yy <= kde.hi[1]))
+        dens = np.where(inside_box, dens, 0.0)
+    return dens
 
 
 # --- highest-density regions --------------------------------------------------------
