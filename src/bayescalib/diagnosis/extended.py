@@ -1,9 +1,11 @@
-"""Calibration of the extended model "base + one candidate" (step 4 of the diagnosis).
+"""Calibration of the extended model "base + candidates" (step 4 of the diagnosis).
 
-The extended parameter vector is ``(x, theta, phi)``: the study's parameters plus the
-candidate's ``phi`` with a uniform prior on its range. Because the candidate is nested
-(``phi = 0`` is the base model exactly), every base design point is a valid training
-point of the extended model at ``phi = 0``: the base training table is reused as is,
+The extended parameter vector is ``(x, theta, phi_1, ..., phi_k)``: the study's
+parameters plus each candidate's ``phi`` with a uniform prior on its range (one
+candidate, or two found together by the attribution, which are then modelled
+together). Because every candidate is nested (``phi = 0`` is the base model exactly),
+every base design point is a valid training point of the extended model at
+``phi = 0``: the base training table is reused as is,
 and round 0 adds ``n_new`` scrambled Sobol points over the extended box. From there the
 extended model is calibrated exactly as the study was: active-design rounds with the
 study's ``design.active`` settings (surrogate, SMC, trust check, stop rule, next batch),
@@ -27,7 +29,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["CandidateSpec", "extended_calibration", "extended_parameters"]
+__all__ = ["CandidateSpec", "extended_calibration", "extended_parameters", "joint_name"]
 
 
 @dataclass
@@ -62,18 +64,29 @@ class CandidateSpec:
     summary: str = ""
 
 
+def _as_list(cands: CandidateSpec | Sequence[CandidateSpec]) -> list[CandidateSpec]:
+    return [cands] if isinstance(cands, CandidateSpec) else list(cands)
+
+
+def joint_name(cands: CandidateSpec | Sequence[CandidateSpec]) -> str:
+    """Name of the extended model: ``"growth"``, or ``"growth + layer"`` for two."""
+    return " + ".join(c.name for c in _as_list(cands))
+
+
 def extended_parameters(parameters: Sequence[Mapping[str, Any]],
-                        cand: CandidateSpec) -> list[dict[str, Any]]:
-    """The study's parameter list plus ``phi`` of ``cand`` (uniform prior on its range)."""
-    lo, hi = (float(v) for v in cand.prior)
+                        cands: CandidateSpec | Sequence[CandidateSpec]) -> list[dict[str, Any]]:
+    """The study's parameter list plus ``phi_<name>`` of each candidate (uniform prior
+    on its range), in the given order."""
     out = [copy.deepcopy(dict(p)) for p in parameters]
-    out.append({"name": f"phi_{cand.name}", "unit": cand.unit, "target": cand.target,
-                "prior": {"type": "uniform", "lo": lo, "hi": hi}, "bounds": [lo, hi]})
+    for cand in _as_list(cands):
+        lo, hi = (float(v) for v in cand.prior)
+        out.append({"name": f"phi_{cand.name}", "unit": cand.unit, "target": cand.target,
+                    "prior": {"type": "uniform", "lo": lo, "hi": hi}, "bounds": [lo, hi]})
     return out
 
 
 def extended_calibration(
-    cand: CandidateSpec,
+    cands: CandidateSpec | Sequence[CandidateSpec],
     *,
     fm: Mapping[str, Any],
     parameters: Sequence[Mapping[str, Any]],
@@ -85,10 +98,12 @@ def extended_calibration(
     workdir: str | Path,
     **chain: Any,
 ) -> dict[str, Any]:
-    """Calibrate base + ``cand`` (see the module docstring).
+    """Calibrate base + ``cands`` (see the module docstring).
 
     Parameters
     ----------
+    cands
+        One candidate, or several modelled together (their switches all on).
     base_training
         Training table of the base calibration (its rows enter at ``phi = 0``).
     n_new
@@ -107,18 +122,22 @@ def extended_calibration(
     Returns
     -------
     dict
-        As :func:`~bayescalib.stages.chain.calibrate_rounds`, plus ``candidate``.
+        As :func:`~bayescalib.stages.chain.calibrate_rounds`, plus ``candidate``
+        (:func:`joint_name`).
     """
     from bayescalib.inference.design import sobol_design
     from bayescalib.inference.parameters import ParameterSpace
     from bayescalib.stages.chain import calibrate_rounds, training_rows
 
-    params_ext = extended_parameters(parameters, cand)
+    group = _as_list(cands)
+    params_ext = extended_parameters(parameters, group)
     space = ParameterSpace.from_config(params_ext)
     X0 = sobol_design(space.bounds, int(n_new), int(seed))
     base = training_rows(base_training)
-    reused = {**base, "X": np.hstack([base["X"], np.zeros((len(base["loglik"]), 1))])}
+    reused = {**base, "X": np.hstack([base["X"],
+                                      np.zeros((len(base["loglik"]), len(group)))])}
     budget = {**dict(active), "max_solves": len(base["loglik"]) + int(max_new)}
-    cal = calibrate_rounds(fm=fm, parameters=params_ext, initial=X0, switches=cand.switches,
+    switches = {k: v for c in group for k, v in c.switches.items()}
+    cal = calibrate_rounds(fm=fm, parameters=params_ext, initial=X0, switches=switches,
                            reused=reused, active=budget, workdir=workdir, **chain)
-    return {"candidate": cand.name, **cal}
+    return {"candidate": joint_name(group), **cal}

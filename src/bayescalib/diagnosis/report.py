@@ -84,11 +84,14 @@ def _html(d: Mapping[str, Any]) -> str:
         for r in d["attribution"]["ranking"])
     ext = "".join(
         f"<tr><td>{html.escape(e['candidate'])}</td><td>{e['log_bayes_factor']:.2f}</td>"
-        f"<td>{e['phi_mean']:.3g} &plusmn; {e['phi_std']:.2g} {html.escape(e['unit'])}</td>"
+        + "<td>" + "<br>".join(f"{html.escape(n)}: {p['mean']:.3g} &plusmn; {p['std']:.2g} "
+                               f"{html.escape(p['unit'])}" for n, p in e["phi"].items())
+        + "</td>"
         + (f"<td>{1e3 * e['check_after']['residual_rms_mm']:.2f} &micro;m</td>"
-           f"<td>{100 * e['check_after']['pointwise_band_coverage']:.0f} %</td></tr>"
+           f"<td>{100 * e['check_after']['pointwise_band_coverage']:.0f} %</td>"
+           f"<td>{'yes' if e.get('explains') else 'no'}</td></tr>"
            if e["check_after"] is not None else
-           "<td colspan='2'>not solvable at its posterior draws</td></tr>")
+           "<td colspan='3'>not solvable at its posterior draws</td></tr>")
         for e in d["extended"])
     words = "".join(f"<p>{html.escape(s)}</p>" for s in d["plain_words"])
     return (
@@ -101,5 +104,6 @@ def _html(d: Mapping[str, Any]) -> str:
         f"{rows}</table>"
         + ("<h2>Extended models</h2><table border='1' cellpadding='3'><tr><th>candidate</th>"
            "<th>ln Bayes factor</th><th>phi</th><th>residual RMS after</th>"
-           f"<th>band coverage after</th></tr>{ext}</table>" if ext else "")
+           f"<th>band coverage after</th><th>explains the mismatch</th></tr>{ext}</table>"
+           if ext else "")
         + "</body></html>\n")

@@ -49,6 +49,7 @@ from scipy.special import ndtri
 
 from bayescalib.geometry.interface import Interface
 from bayescalib.geometry.projection import closest_points
+from bayescalib.geometry.registration import REGISTRATION_MODES
 
 __all__ = [
     "PredictiveCheck",
@@ -59,6 +60,7 @@ __all__ = [
     "intervals",
     "offsets",
     "predictive_check",
+    "registration_signatures",
     "smoother",
 ]
 
@@ -104,6 +106,44 @@ def offsets(observed: np.ndarray, reference: Interface,
         d, _, _ = closest_points(p, curve)
         o[k] = -fluid_side_sign(curve) * d
     return y, o
+
+
+def registration_signatures(observed: np.ndarray, reference: Interface, centre: np.ndarray,
+                            modes: Sequence[str]) -> np.ndarray:
+    """Change of the residual ``y`` of :func:`offsets` per unit misregistration.
+
+    If the observed nodes are misplaced by ``delta(x) = t + theta R_90 (x - c) +
+    s (x - c)`` (shift ``t``, small rotation ``theta`` and scale ``s`` about the centre
+    ``c``), their signed distance to the reference changes by ``n . delta`` to first
+    order, with ``n`` the unit normal (+ into the fluid) at the closest point.
+
+    Parameters
+    ----------
+    observed
+        (n, 2) observed nodes, mm.
+    reference
+        The reference curve of the residual (e.g. the posterior-mean prediction).
+    centre
+        (2,) centre of rotation and scaling, mm.
+    modes
+        Subset of :data:`REGISTRATION_MODES`, in the column order wanted.
+
+    Returns
+    -------
+    ndarray, shape (n, len(modes))
+        mm per mm (shifts), mm per rad (rotation), mm per unit relative scale.
+    """
+    obs = np.asarray(observed, dtype=float)
+    _, _, cell = closest_points(obs, reference)
+    nrm = fluid_side_sign(reference) * reference.normals[cell]
+    d = obs - np.asarray(centre, dtype=float)
+    cols = {"shift_x": nrm[:, 0], "shift_y": nrm[:, 1],
+            "rotation": -nrm[:, 0] * d[:, 1] + nrm[:, 1] * d[:, 0],
+            "scale": np.sum(nrm * d, axis=1)}
+    unknown = [m for m in modes if m not in cols]
+    if unknown:
+        raise ValueError(f"registration modes {unknown} unknown; choose from {REGISTRATION_MODES}")
+    return np.column_stack([cols[m] for m in modes]) if modes else np.zeros((len(obs), 0))
 
 
 def smoother(s: np.ndarray, ell: float) -> np.ndarray:

@@ -231,6 +231,12 @@ def observe(observations: Mapping[str, Any], out_path: str | Path, *,
         else:
             curves, labels = [run.interface_current], ["ground_truth"]
             loads = [run.parameters.get("inflow.rate")]
+        misreg = dict(observations.get("misregistration") or {})
+        if misreg:  # a hidden misplacement of the images, the same for every snapshot
+            from bayescalib.geometry.registration import misplace
+
+            centre = np.asarray(curves[0], dtype=float).mean(axis=0)
+            curves = [misplace(pts, misreg, centre) for pts in curves]
         snaps = []
         for pts, label in zip(curves, labels):
             current = Interface.polyline(pts, run.segments, name=f"observed {label}")
@@ -239,7 +245,8 @@ def observe(observations: Mapping[str, Any], out_path: str | Path, *,
             snaps, labels, loads, reference,
             {"source": "synthetic", "noise_sigma_mm": sigma, "seed": seed,
              "ground_truth": run.parameters,
-             "hidden": dict(observations.get("hidden") or {})},
+             "hidden": dict(observations.get("hidden") or {}),
+             **({"misregistration": misreg} if misreg else {})},
         )
     elif source == "files":
         snaps, labels, loads = [], [], []
