@@ -23,9 +23,24 @@
    residual RMS, band coverage and p-values before/after, the posterior of ``phi``,
    and the change of the base parameters' error against the ground truth when known.
 
-The chosen model is, among the extended models whose predictive check (real forward
-solves at their posterior draws) fits better than the base model's, the one with the
-largest log Bayes factor, if that exceeds ``ln 3``; otherwise the base model.
+A candidate whose signature solve fails at its step is tried again (:func:`retry_steps`:
+the opposite sign, half steps; then from the solved posterior draw nearest the mean);
+one that no attempt could solve is *not testable* and the verdict names it instead of
+saying that no candidate explains the mismatch. Candidates selected together by the
+attribution are also calibrated together (one extended model with both ``phi``).
+
+Not every mismatch is physics: a rigid misregistration of the observed interfaces
+(``diagnose.registration``; :mod:`bayescalib.geometry.registration`) is tested as a
+block of nuisance effects (:func:`~bayescalib.diagnosis.attribution.block_test`) and,
+when significant, re-checked with the observations registered back (the same draws'
+solves). A mismatch located on the zero-load snapshot is reported as not flow-driven.
+
+The chosen model is, among the extended models whose real forward solves at their
+posterior draws *explain* the mismatch (:func:`explains_mismatch`: the check passes or
+the residual RMS is within :data:`EXPLAINED_RMS` times the noise), the one with the
+largest log Bayes factor, if that exceeds ``ln 3``; otherwise the base model. The
+verdict (:func:`decide_verdict`) is decided after the modelling, so it never names a
+cause the chosen model does not contain.
 """
 
 from __future__ import annotations
