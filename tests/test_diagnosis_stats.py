@@ -202,8 +202,13 @@ def test_verdict_precedence():
     # never "no candidate" while one could not be evaluated
     v = decide_verdict(False, [], {**ok, "p_value": 0.01}, 0.05, untestable=["growth"])
     assert v == "mismatch located; no tested candidate explains it (not testable: growth)"
-    assert decide_verdict(False, [], {**ok, "p_value": 0.01}, 0.05,
+    # a misregistration confirmed by real solves beats a linearized attribution ...
+    assert decide_verdict(False, ["a"], {**ok, "p_value": 0.01}, 0.05,
                           registration={"explains": True}) == MISREGISTERED
+    # ... and when a modelled extension explains it as well, the verdict says both
+    assert decide_verdict(False, ["a"], ok, 0.05, chosen="a", modelled=True,
+                          registration={"explains": True}).endswith(
+        "or by a misregistration of the observed interfaces (the data cannot tell them apart)")
 
 
 def test_a_smaller_residual_is_not_an_explanation():
@@ -385,3 +390,81 @@ def test_registration_is_profiled_against_the_base_parameters():
     held = block_test(r, B, B, np.full(len(r), 1e-6), ["shift_y"])
     assert free["p_value"] < 1e-10
     assert held["identifiable_fraction"] < 1e-6 and held["p_value"] == 1.0
+
+
+# ------------------------------------------------------------- signature retries
+def _analytic_fm(solvable):
+    import yaml
+    from _workflow_helpers import DATA
+
+    from bayescalib.study import Study
+
+    cfg = yaml.safe_load((DATA / "analytic_concealed.yaml").read_text())
+    cfg["forward_model"]["python"]["options"] = {"prestrain_solvable": list(solvable)}
+    return Study(cfg).forward_section()
+
+
+@pytest.mark.parametrize("solvable, expect", [
+    ((-1.0, 0.0), {"phi_step": -0.01, "at": "posterior mean"}),  # fails on one side
+    ((0.0, 0.0), None),  # fails at every phi but 0: not testable
+])
+def test_a_failed_signature_is_retried_and_an_untestable_candidate_is_named(
+        tmp_path, solvable, expect):
+    """The candidate's step fails: the opposite sign is tried at the posterior mean and
+    gives the signature (it equals the forward-difference one of the analytic model to
+    first order); where every attempt fails the candidate is reported as not testable,
+    with the solver's reason, never silently dropped."""
+    from bayescalib.diagnosis.extended import CandidateSpec
+    from bayescalib.diagnosis.residuals import offsets
+    from bayescalib.diagnosis.stage import _signatures
+    from bayescalib.models.analytic import interface
+    from bayescalib.models.forward import solve_points
+    from bayescalib.stages import model_interfaces
+
+    fm = _analytic_fm(solvable)
+    cand = CandidateSpec("prestrain", "prestrain", 0.01, (-0.05, 0.05))
+    mean = {"E": 400.0, "nu": 0.3}
+    X = np.array([[390.0, 0.28], [410.0, 0.31]])
+    runs = solve_points(fm, [mean, {**mean, "prestrain": 0.01}]
+                        + [dict(zip(("E", "nu"), x)) for x in X],
+                        [tmp_path / f"{k}.h5" for k in range(4)])
+    assert runs[0].ok and not runs[1].ok and runs[2].ok and runs[3].ok
+    C0 = model_interfaces(runs[0], 2)
+    obs = [np.asarray(c.points) for c in C0]
+
+    def offsets_of(curves):
+        ys, os_ = [], []
+        for s in range(2):
+            y, o = offsets(obs[s], C0[s], [cv[s] for cv in curves])
+            ys.append(y)
+            os_.append(o)
+        return np.concatenate(ys), np.concatenate(os_, axis=1)
+
+    draws = {"X": X, "ok": np.array([True, True]),
+             "curves": [model_interfaces(r, 2) for r in runs[2:]]}
+    sig, failed, attempts = _signatures([cand], [runs[1]], mean, draws, np.array([700.0, 1.25]),
+                                        offsets_of, fm, tmp_path, 1, None, 2)
+    tried = attempts["prestrain"]["tried"]
+    assert tried[0] == {"phi_step": 0.01, "at": "posterior mean", "ok": False,
+                        "reason": tried[0]["reason"]}
+    if expect is None:
+        assert "prestrain" not in sig
+        assert "outside the solvable range" in failed["prestrain"]
+        # every retry was made: 3 steps at the mean and 2 at the nearest draw
+        assert len(tried) == 1 + 3 + 2
+        # (draw 1 is the nearer in box-scaled distance)
+        assert {t["at"] for t in tried} == {"posterior mean", "posterior draw 1"}
+    else:
+        assert failed == {}
+        assert {k: attempts["prestrain"][k] for k in ("phi_step", "at")} == expect
+        # the analytic prestrain scales the shape about the base centre, linearly in
+        # prestrain: the one-sided signature the other way equals a small forward step's
+        # (to within the closest-point projection's curvature terms: 2 %)
+        from bayescalib.geometry.interface import Interface
+
+        fwd = [Interface.polyline(interface({**mean, "V": V, "prestrain": 1e-4})["current"])
+               for V in (50.0, 100.0)]
+        ref = offsets_of([fwd])[1][0] / 1e-4
+        g = sig["prestrain"]
+        assert np.max(np.abs(ref)) > 0.1  # mm per unit prestrain: a visible effect
+        assert np.max(np.abs(g - ref)) <= 0.02 * np.max(np.abs(ref))

@@ -240,7 +240,8 @@ def block_test(r: np.ndarray, J: np.ndarray, B: np.ndarray, v: np.ndarray,
     dict
         ``statistic``, ``dof``, ``p_value``, ``estimate`` (by name), ``explained_fraction``
         (of the residual beyond noise, see :func:`score_test`), ``identifiable_fraction``
-        (``|Q B|_F / |B|_F``), ``chi2_after``, ``dof_after`` and ``p_after``.
+        (``|Q B|_F / |B|_F``), ``chi2_after``, ``dof_after``, ``p_after`` and
+        ``base_step`` (the base parameters' Gauss–Newton step of the joint fit, (p,)).
     """
     r = np.asarray(r, dtype=float)
     w = 1.0 / np.sqrt(np.asarray(v, dtype=float))
@@ -258,6 +259,10 @@ def block_test(r: np.ndarray, J: np.ndarray, B: np.ndarray, v: np.ndarray,
         keep = sv > tol
         est = Vt[keep].T @ ((U[:, keep].T @ qe) / sv[keep])
     fitted = qB @ est
+    # the base parameters' part of the joint fit: the Gauss-Newton step of theta with the
+    # block at its estimate (dtheta = A^+ (e - B est))
+    base_step = (np.linalg.lstsq(A, e - Bw @ est, rcond=1e-10)[0] if A.shape[1]
+                 else np.zeros(0))
     S = float(fitted @ fitted)
     before = float(qe @ qe)
     rank_a = int(np.linalg.matrix_rank(A)) if A.size else 0
@@ -268,7 +273,8 @@ def block_test(r: np.ndarray, J: np.ndarray, B: np.ndarray, v: np.ndarray,
             "explained_fraction": _excess_fraction(before, before - S, len(r) - rank_a),
             "identifiable_fraction": float(np.linalg.norm(qB) / nb) if nb > 0 else 0.0,
             "chi2_after": before - S, "dof_after": dof_after,
-            "p_after": float(chi2.sf(before - S, dof_after))}
+            "p_after": float(chi2.sf(before - S, dof_after)),
+            "base_step": [float(x) for x in base_step]}
 
 
 def refit_test(r: np.ndarray, J: np.ndarray, v: np.ndarray) -> dict:

@@ -235,6 +235,100 @@ def _signatures(cands: Sequence[CandidateSpec], first: Sequence[Any],
     return signatures, failed, attempts
 
 
+#: Gauss-Newton iterations (with real solves) of the joint fit of the base parameters
+#: and a misregistration
+N_REGISTRATION_ITERATIONS = 4
+
+
+def _registration(modes, r, J, v, C0, obs, obs_pts, check, draws, theta, h, fd, targets,
+                  names, box, fm, cfg, work: Path, workers: int, warm_start, sigma) -> dict:
+    """Test and, when significant, model a rigid misregistration of the observations.
+
+    The block test (:func:`~bayescalib.diagnosis.attribution.block_test`) at the posterior
+    mean says whether a misplacement beyond what E, nu, ... absorb is significant. If so,
+    the base parameters and the registration are fitted jointly by Gauss-Newton with real
+    solves (the mean and finite-difference steps, re-linearized each iteration; the base
+    posterior may sit far from the joint fit because it absorbed the misplacement), and
+    the registered observations are checked against the solved posterior draws moved by
+    the fitted change of the base parameters.
+    """
+    from bayescalib.diagnosis.attribution import block_test, jacobian_from_offsets
+    from bayescalib.diagnosis.residuals import offsets, predictive_check, registration_signatures
+    from bayescalib.geometry.interface import Interface
+    from bayescalib.geometry.registration import register
+    from bayescalib.models.forward import solve_points
+
+    lo, hi = box
+    n_snap = len(obs_pts)
+    centre = obs_pts[0].mean(axis=0)
+    B = np.concatenate([registration_signatures(obs_pts[s], C0[s], centre, modes)
+                        for s in range(n_snap)])
+    out = block_test(r, J, B, v, modes)
+    out["centre_mm"] = [float(x) for x in centre]
+    out["significant"] = bool(out["p_value"] < float(cfg["alpha"]))
+    out["check_after"] = None
+    out["explains"] = False
+    out["iterations"] = []
+    step0 = np.zeros(len(targets))
+    step0[fd] = out["base_step"]
+    out["base_step"] = dict(zip([names[i] for i in fd], out["base_step"], strict=True))
+    if not out["significant"] or check.adequate:
+        return out
+    est = dict(out["estimate"])
+    th = np.clip(theta + step0, lo, hi)
+    for it in range(N_REGISTRATION_ITERATIONS):
+        pts = [dict(zip(targets, map(float, th), strict=True))]
+        pts += [{**pts[0], targets[i]: float(th[i] + h[i])} for i in fd]
+        runs = solve_points(fm, pts, [work / "registration" / f"gauss_newton_{it}" / f"{k}.h5"
+                                      for k in range(len(pts))],
+                            workers=workers, warm_start=warm_start)
+        if not all(run.ok for run in runs):
+            out["iterations"].append({"failed": next(run.reason for run in runs if not run.ok)})
+            break
+        C = model_interfaces(runs[0], n_snap)
+        moved = [register(obs_pts[s], est, centre) for s in range(n_snap)]
+        ys, os_, bs = [], [], []
+        for s in range(n_snap):
+            y, o = offsets(moved[s], C[s], [model_interfaces(run, n_snap)[s] for run in runs[1:]])
+            ys.append(y)
+            os_.append(o)
+            bs.append(registration_signatures(moved[s], C[s], centre, modes))
+        rk = np.concatenate(ys)
+        Jk = jacobian_from_offsets(list(np.concatenate(os_, axis=1)), np.zeros(len(rk)),
+                                   [h[i] for i in fd])
+        bt = block_test(rk, Jk, np.concatenate(bs), v, modes)
+        est = {m: est[m] + bt["estimate"][m] for m in modes}
+        dth = np.zeros(len(targets))
+        dth[fd] = bt["base_step"]
+        th = np.clip(th + dth, lo, hi)
+        out["iterations"].append({"chi2": bt["chi2_after"], "p_after": bt["p_after"],
+                                  "estimate": dict(est),
+                                  "theta": dict(zip(names, map(float, th), strict=True))})
+        if np.all(np.abs(dth) <= 0.1 * np.abs(h)):
+            break
+    out["estimate"] = est
+    out["refit_parameters"] = dict(zip(names, map(float, th), strict=True))
+    moved = [Interface(register(obs_pts[s], est, centre), obs.snapshots[s].cells,
+                       name=f"registered {obs.labels[s]}") for s in range(n_snap)]
+    Xr = np.clip(draws["X"][draws["ok"]] + (th - theta), lo, hi)
+    rruns = solve_points(fm, [dict(zip(targets, map(float, x), strict=True)) for x in Xr],
+                         [work / "registration" / "draws" / f"{k}.h5" for k in range(len(Xr))],
+                         workers=workers, warm_start=warm_start)
+    rcurves = [model_interfaces(rr, n_snap) for rr in rruns if rr.ok]
+    if len(rcurves) < 2:
+        out["check_after_failed"] = "fewer than 2 moved posterior draws solved"
+        return out
+    after = predictive_check(
+        moved, rcurves, labels=obs.labels,
+        sigma=check.sigma if check.sigma_source == "given" else sigma,
+        noise_floor=cfg["noise_floor"], ell=cfg["smoothing"], alpha=cfg["alpha"],
+        n_noise=cfg["n_noise"], rng=np.random.default_rng(int(cfg["seed"]) + 1))
+    out["check_after"] = after.to_json()
+    out["explains"] = bool(out["explained_fraction"] >= float(cfg["r2_min"])
+                           and explains_mismatch(out["check_after"], check))
+    return out
+
+
 def _zero_load_label(fm: Mapping[str, Any], labels: Sequence[str]) -> str | None:
     """Label of the snapshot observed at zero load (loading factor 0), if any."""
     factors = (fm.get("loadings") or {}).get("factors") or []
@@ -294,17 +388,10 @@ def run_diagnosis(
     """
     from bayescalib.diagnosis.attribution import (
         attribute,
-        block_test,
         jacobian_from_offsets,
         refit_test,
     )
-    from bayescalib.diagnosis.residuals import (
-        offsets,
-        predictive_check,
-        registration_signatures,
-    )
-    from bayescalib.geometry.interface import Interface
-    from bayescalib.geometry.registration import register
+    from bayescalib.diagnosis.residuals import offsets
     from bayescalib.inference.active import history_table
     from bayescalib.inference.parameters import ParameterSpace
     from bayescalib.inference.posterior import read_particles_h5
@@ -388,30 +475,11 @@ def run_diagnosis(
         row["max_shift_at_step_mm"] = float(np.max(np.abs(signatures[c.name] * c.step)))
 
     # a mismatch that is not physics: the observed interfaces misplaced as a whole
-    modes = list(cfg["registration"])
     registration = None
-    if modes:
-        centre = obs_pts[0].mean(axis=0)
-        B = np.concatenate([registration_signatures(obs_pts[s], C0[s], centre, modes)
-                            for s in range(n_snap)])
-        registration = block_test(r, J, B, v, modes)
-        registration["centre_mm"] = [float(x) for x in centre]
-        registration["significant"] = bool(registration["p_value"] < float(cfg["alpha"]))
-        registration["check_after"] = None
-        if registration["significant"] and not check.adequate:
-            moved = [Interface(register(obs_pts[s], registration["estimate"], centre),
-                               obs.snapshots[s].cells, name=f"registered {obs.labels[s]}")
-                     for s in range(n_snap)]
-            after = predictive_check(
-                moved, draws["curves"], labels=obs.labels,
-                sigma=check.sigma if check.sigma_source == "given" else sigma,
-                noise_floor=cfg["noise_floor"], ell=cfg["smoothing"], alpha=cfg["alpha"],
-                n_noise=cfg["n_noise"], rng=np.random.default_rng(int(cfg["seed"]) + 1))
-            registration["check_after"] = after.to_json()
-        registration["explains"] = bool(
-            registration["check_after"] is not None
-            and registration["explained_fraction"] >= float(cfg["r2_min"])
-            and explains_mismatch(registration["check_after"], check))
+    if cfg["registration"]:
+        registration = _registration(
+            list(cfg["registration"]), r, J, v, C0, obs, obs_pts, check, draws, theta,
+            h, fd, targets, names, (lo, hi), fm, cfg, work, workers, warm_start, sigma)
 
     # 4-5: model and show ------------------------------------------------------------
     extended = []
@@ -423,9 +491,11 @@ def run_diagnosis(
     untestable = sorted(failed_sig)
     screen = decide_verdict(check.adequate, attr["selected"], refit, float(cfg["alpha"]),
                             registration=registration, untestable=untestable)
-    # no candidate is modelled when the base parameters or a misregistration absorb it
+    # no candidate is modelled when the base parameters absorb the mismatch, or when a
+    # misregistration explains it and the attribution selected no physics
     run_ext = (not check.adequate and screen != ABSORBED
-               and not screen.startswith(MISREGISTERED)) or bool(cfg["force_extend"])
+               and not (screen == MISREGISTERED and not attr["selected"])) \
+        or bool(cfg["force_extend"])
     if run_ext and int(cfg["n_extend"]) > 0:
         ranked = [row["candidate"] for row in attr["ranking"]
                   if row["identifiable_fraction"] > 0.05 and row["phi_hat_plausible"]]
@@ -554,11 +624,13 @@ def decide_verdict(adequate: bool, selected: Sequence[str], refit: Mapping[str, 
     1. ``"no significant mismatch"``: the predictive check passes.
     2. ``"mismatch explained by <chosen>"``: an extended model was calibrated and its
        real solves explain the mismatch (:func:`explains_mismatch`); the verdict and the
-       chosen model never disagree.
-    3. ``"mismatch attributed to <selected> (not modelled)"``: the linearized
-       attribution selected candidates and no extension was calibrated (yet).
-    4. ``"mismatch explained by a misregistration ..."``: a rigid misplacement of the
-       observed interfaces explains it, re-checked with the registered observations.
+       chosen model never disagree. When a misregistration explains it as well, the
+       verdict names both and says that the data cannot tell them apart.
+    3. ``"mismatch explained by a misregistration ..."``: a rigid misplacement of the
+       observed interfaces explains it, confirmed with real solves (registered
+       observations against the jointly re-fitted base model).
+    4. ``"mismatch attributed to <selected> (not modelled)"``: the linearized
+       attribution selected candidates and no extension was calibrated.
     5. ``"mismatch absorbed by the base parameters; ..."``: the re-fit test passes
        (``refit["p_value"] >= alpha``) at a re-fitted point inside the design box
        (``refit["in_bounds"]``; a step that leaves the box is outside the reach of
@@ -567,14 +639,18 @@ def decide_verdict(adequate: bool, selected: Sequence[str], refit: Mapping[str, 
        some candidates could not be evaluated (their signature solves failed), else
        ``"mismatch located; no candidate explains it"``.
     """
+    misregistered = registration is not None and bool(registration.get("explains"))
     if adequate:
         return "no significant mismatch"
+    if chosen and misregistered:
+        return (f"mismatch explained by {chosen} or by a misregistration of the observed "
+                "interfaces (the data cannot tell them apart)")
     if chosen:
         return "mismatch explained by " + chosen
+    if misregistered:
+        return MISREGISTERED
     if selected and not modelled:
         return "mismatch attributed to " + " + ".join(selected) + " (not modelled)"
-    if registration is not None and registration.get("explains"):
-        return MISREGISTERED
     if refit.get("in_bounds", False) and float(refit["p_value"]) >= alpha:
         return ABSORBED
     if untestable:
@@ -586,6 +662,10 @@ def decide_verdict(adequate: bool, selected: Sequence[str], refit: Mapping[str, 
 def _phi_words(e: Mapping[str, Any]) -> str:
     return ", ".join(f"phi_{n} = {p['mean']:.3g} +- {p['std']:.2g} {p['unit']}"
                      for n, p in e["phi"].items())
+
+
+def _p_words(p: float) -> str:
+    return "p < 1e-16" if p < 1e-16 else f"p = {p:.3g}"
 
 
 def _registration_words(reg: Mapping[str, Any]) -> str:
@@ -647,19 +727,22 @@ def plain_words(d: Mapping[str, Any]) -> list[str]:
     reg = d.get("registration")
     if reg is not None and reg.get("significant"):
         ca = reg.get("check_after")
+        refit = ", ".join(f"{k} = {v:.4g}" for k, v in
+                          (reg.get("refit_parameters") or {}).items())
         after = ("" if ca is None else
-                 f"; with the observations registered back, residual RMS "
-                 f"{1e3 * chk['residual_rms_mm']:.2f} -> {1e3 * ca['residual_rms_mm']:.2f} um")
+                 f"; with the observations registered back and the base parameters re-fitted "
+                 f"({refit}), residual RMS {1e3 * chk['residual_rms_mm']:.2f} -> "
+                 f"{1e3 * ca['residual_rms_mm']:.2f} um")
         if reg.get("explains"):
             lines.append(
                 f"The observed interfaces look misplaced as a whole ({_registration_words(reg)}"
-                f"; p = {reg['p_value']:.3g}{after}): a registration error of the images, "
+                f"; {_p_words(reg['p_value'])}{after}): a registration error of the images, "
                 "not physics. Check the image origin, pixel size and alignment, or register "
                 "the observations, then recalibrate.")
         else:
             lines.append(
                 f"A rigid misplacement of the observed interfaces ({_registration_words(reg)}) "
-                f"is significant (p = {reg['p_value']:.3g}) but explains only "
+                f"is significant ({_p_words(reg['p_value'])}) but explains only "
                 f"{100 * reg['explained_fraction']:.0f} % of the mismatch{after}.")
     rf = d.get("refit")
     if rf is not None and d["verdict"] == ABSORBED:

@@ -54,7 +54,7 @@ def reference_interface(n_nodes: int = 66, width: float = 0.6, height: float = 0
 def interface(params: Mapping[str, float], *, n_nodes: int = 66, width: float = 0.6,
               height: float = 0.4, centre: float = 1.0, u0: float = 0.028,
               E0: float = 400.0, V0: float = 100.0, fail_below_E: float = 0.0,
-              fail_prestrain_above: float | None = None) -> dict:
+              prestrain_solvable: tuple[float, float] | None = None) -> dict:
     """Deformed interface for parameters ``E`` (Pa), ``nu`` (-), ``V`` (mm^2/s).
 
     Parameters
@@ -65,9 +65,10 @@ def interface(params: Mapping[str, float], *, n_nodes: int = 66, width: float = 
     fail_below_E
         Raise (a failed solve) when ``E`` is below this value (Pa), mimicking
         the FSI model's failures for soft material.
-    fail_prestrain_above
-        Raise (a failed solve) when ``prestrain`` exceeds this value, mimicking a
-        candidate effect whose solves fail on one side (e.g. inverted elements).
+    prestrain_solvable
+        ``(lo, hi)``: raise (a failed solve) when ``prestrain`` lies outside, mimicking
+        a candidate effect whose solves fail on one side or everywhere but at 0 (e.g.
+        inverted elements).
 
     Returns
     -------
@@ -90,8 +91,10 @@ def interface(params: Mapping[str, float], *, n_nodes: int = 66, width: float = 
     comp = np.column_stack([np.zeros_like(t), -np.sin(t)])
     u = load * ((1 - nu**2) * shear + (1 + nu) * (1 - 2 * nu) * comp)
     pre = float(params.get("prestrain", 0.0))
-    if fail_prestrain_above is not None and pre > fail_prestrain_above:
-        raise RuntimeError(f"analytic model: prestrain = {pre:g} above the failure threshold")
+    if prestrain_solvable is not None and not (
+            prestrain_solvable[0] <= pre <= prestrain_solvable[1]):
+        raise RuntimeError(f"analytic model: prestrain = {pre:g} outside the solvable range "
+                           f"{list(prestrain_solvable)}")
     base = np.array([centre, 0.0])
     grown = base + (1.0 + pre) * (ref - base)
     slip = float(params.get("base_slip", 0.0)) * (V / V0) * (E0 / E)
