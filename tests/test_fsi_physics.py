@@ -263,3 +263,30 @@ def test_a_warm_series_down_to_zero_load_solves_and_equals_the_cold_series(
         tol = 2.0 * (ATOL_D + RTOL_D * max(w.max_displacement, c.max_displacement))
         assert _shift(w, c) < tol
 
+
+
+def test_a_warm_series_solves_its_zero_loading_first(box_centre_state, monkeypatch):
+    # the zero loading needs no other one: solved first, it never waits for a slow
+    # loading to use up the time limit of the series
+    m = FSIModel(COARSE)
+    rates = []
+    solve = m.solve
+
+    def recording(overrides=None, **kwargs):
+        rates.append(overrides["inflow.rate"])
+        return solve(overrides, **kwargs)
+
+    monkeypatch.setattr(m, "solve", recording)
+    assert all(r.ok for r in m.solve_loadings(TRUTH, [0.5, 1.0, 0.0],
+                                              warm_start=box_centre_state))
+    assert rates == [0.0, 100.0, 50.0]
+
+
+def test_the_zero_loading_leaves_the_others_of_a_warm_series_unchanged_to_the_bit(
+        box_centre_state):
+    point = {**TRUTH, "physics.growth.phi": CANDIDATES["growth"].typical}
+    with_zero = _model("growth").solve_loadings(point, FACTORS, warm_start=box_centre_state)
+    without = _model("growth").solve_loadings(point, FACTORS[1:], warm_start=box_centre_state)
+    for a, b in zip(with_zero[1:], without):
+        assert a.ok and b.ok
+        assert np.array_equal(a.interface_current, b.interface_current)

@@ -317,6 +317,16 @@ class MonolithicSolver:
         """Zero state (fluid at rest, undeformed)."""
         self._x[:] = 0.0
 
+    @property
+    def factorization(self) -> Any:
+        """The LU factorization kept from the last Newton step for chord steps of a solve
+        with ``keep_factorization`` (``None``: none kept)."""
+        return self._inv
+
+    @factorization.setter
+    def factorization(self, inv: Any) -> None:
+        self._inv = inv
+
     def set_materials(self, values: dict[str, tuple[float, float]]) -> None:
         """Set ``(E, nu)`` per solid region (solver stress units)."""
         for name, (E, nu) in values.items():
