@@ -64,7 +64,7 @@ in steps like the flow is ramped up; without that the first step would have to t
 the whole prestrain, and the step halving could not help (at zero inflow it would
 retry the same problem). A continuation from a converged state at another inflow rate
 keeps them at full value, as that state was solved with them. The factor is 1 at the
-end of every solve, so the solution is the same.
+end of every converged solve, so the solution is the same.
 
 Not implemented: a poroelastic biofilm (Darcy/Brinkman flow through the solid with
 effective stress) — it needs a pore-pressure field in the solid and a different
