@@ -214,3 +214,79 @@ def test_a_base_state_warm_starts_a_model_with_candidate_physics(tmp_path, base)
     res = m.solve({**TRUTH, "physics.growth.phi": 0.0}, warm_start=tmp_path / "base.npz")
     assert res.ok and res.stats["warm_start"] == 1
     assert _shift(res, base) < 1e-6
+
+
+# ------------------------------------------- a warm-started series down to zero load
+# The diagnosis solves its points (each candidate switched on) as a series of loadings
+# [0, 0.5, 1] warm-started from the base state at the centre of the design box, a state
+# of the base model at the nominal inflow. Nearly incompressible points (nu = 0.445)
+# are the hard case of the growth candidate: a prestrain taken in one Newton step from
+# rest inverts elements.
+FACTORS = [0.0, 0.5, 1.0]
+NEAR_INCOMPRESSIBLE = {"material.E": 316.0, "material.nu": 0.445}
+BOX_CENTRE = {"material.E": 450.0, "material.nu": -0.175}  # the concealed studies' box
+SERIES_TIME_LIMIT_S = 60.0  # the concealed studies' forward_model.time_limit_s
+ATOL_D, RTOL_D = 1e-9, 1e-5  # Newton's displacement test (solver defaults), mm
+
+
+@pytest.fixture(scope="module")
+def box_centre_state(tmp_path_factory):
+    path = tmp_path_factory.mktemp("warm") / "base_state.npz"
+    m = FSIModel(COARSE)
+    assert m.solve(BOX_CENTRE).ok
+    m.save_state(path)
+    return path
+
+
+def test_growth_without_flow_is_grown_by_the_continuation_from_rest():
+    # the load factor of the continuation from rest scales the prestrain too: at zero
+    # inflow the halved steps are smaller prestrains, not the same problem again
+    res = _model("growth").solve({**NEAR_INCOMPRESSIBLE, "inflow.rate": 0.0,
+                                  "physics.growth.phi": CANDIDATES["growth"].typical})
+    assert res.ok, res.reason
+    assert res.load_steps > 1 and res.stats["failed_steps"]  # one full step was too much
+
+
+@pytest.mark.parametrize("name", [n if n == "growth" else pytest.param(n, marks=pytest.mark.slow)
+                                  for n in sorted(CANDIDATES)])  # growth: the hard case
+def test_a_warm_series_down_to_zero_load_solves_and_equals_the_cold_series(
+        box_centre_state, name):
+    m = _model(name)
+    point = {**NEAR_INCOMPRESSIBLE, CANDIDATES[name].key: CANDIDATES[name].typical}
+    warm = m.solve_loadings(point, FACTORS, warm_start=box_centre_state,
+                            time_limit=SERIES_TIME_LIMIT_S)
+    cold = m.solve_loadings(point, FACTORS, time_limit=SERIES_TIME_LIMIT_S)
+    for f, w, c in zip(FACTORS, warm, cold):
+        assert w.ok, f"warm, load {f}: {w.reason}"
+        assert c.ok, f"cold, load {f}: {c.reason}"
+        # two converged solutions agree to within the Newton tolerance of each
+        tol = 2.0 * (ATOL_D + RTOL_D * max(w.max_displacement, c.max_displacement))
+        assert _shift(w, c) < tol
+
+
+
+def test_a_warm_series_solves_its_zero_loading_first(box_centre_state, monkeypatch):
+    # the zero loading needs no other one: solved first, it never waits for a slow
+    # loading to use up the time limit of the series
+    m = FSIModel(COARSE)
+    rates = []
+    solve = m.solve
+
+    def recording(overrides=None, **kwargs):
+        rates.append(overrides["inflow.rate"])
+        return solve(overrides, **kwargs)
+
+    monkeypatch.setattr(m, "solve", recording)
+    assert all(r.ok for r in m.solve_loadings(TRUTH, [0.5, 1.0, 0.0],
+                                              warm_start=box_centre_state))
+    assert rates == [0.0, 100.0, 50.0]
+
+
+def test_the_zero_loading_leaves_the_others_of_a_warm_series_unchanged_to_the_bit(
+        box_centre_state):
+    point = {**TRUTH, "physics.growth.phi": CANDIDATES["growth"].typical}
+    with_zero = _model("growth").solve_loadings(point, FACTORS, warm_start=box_centre_state)
+    without = _model("growth").solve_loadings(point, FACTORS[1:], warm_start=box_centre_state)
+    for a, b in zip(with_zero[1:], without):
+        assert a.ok and b.ok
+        assert np.array_equal(a.interface_current, b.interface_current)

@@ -420,9 +420,13 @@ class FSIModel:
 
         Without a warm start the loadings are solved in increasing order, each starting
         from the previous converged state (the first from rest). With a warm start (a
-        state at the nominal rate, factor 1) the factors <= 1 are solved downwards from
-        it and those > 1 upwards from it. A zero loading is solved from rest. After a
-        failed loading the next one continues from the last converged state.
+        state at the nominal rate, factor 1) a zero loading is solved first, from rest
+        (it needs no other loading, and so never waits for a slow one to use up the
+        time limit of the series); then the factors <= 1 are solved downwards from the
+        warm state and those > 1 upwards from it, the first of them with the
+        factorization this model kept before the series, as if the zero loading had
+        not been solved. After a failed loading the next one continues from the last
+        converged state.
 
         Parameters
         ----------
@@ -449,13 +453,18 @@ class FSIModel:
         f = [float(x) for x in factors]
         if any(x < 0 or not np.isfinite(x) for x in f):
             raise ConfigError(f"loading factors must be finite and >= 0, got {factors}")
+        zeros = [k for k in range(len(f)) if f[k] == 0.0]
         if warm_start is None:
             chains = [sorted(range(len(f)), key=lambda k: f[k])]
         else:
-            chains = [sorted((k for k in range(len(f)) if f[k] <= 1.0), key=lambda k: -f[k]),
+            chains = [zeros,
+                      sorted((k for k in range(len(f)) if 0.0 < f[k] <= 1.0), key=lambda k: -f[k]),
                       sorted((k for k in range(len(f)) if f[k] > 1.0), key=lambda k: f[k])]
+        kept = None if self.solver is None else self.solver.factorization  # before the series
         results: dict[int, SolveResult] = {}
-        for chain in chains:
+        for i, chain in enumerate(chains):
+            if warm_start is not None and i == 1 and self.solver is not None:
+                self.solver.factorization = kept  # not the zero loading's
             state: Any = warm_start
             state_factor = 1.0 if warm_start is not None else None
             for k in chain:

@@ -55,8 +55,16 @@ reference volume, ``chi`` an indicator function, ``H`` the channel height.
    buoyancy of the water's own density cancel). A physically small effect: a useful
    negative control for the diagnosis.
 
-Gravity and growth act at full value at every load step: the load continuation scales
-the inflow only.
+Loads and the continuation. The load factor of the solver's continuation scales the
+inflow; the two candidates that deform the biofilm without any flow, growth (a
+prestrain) and gravity (a body force), are loads too. A continuation that starts at
+rest (the zero state, the exact solution at zero load) scales their ``phi`` with the
+load factor (:meth:`SolidPhysics.set_load_factor`), so that a swelling patch is grown
+in steps like the flow is ramped up; without that the first step would have to take
+the whole prestrain, and the step halving could not help (at zero inflow it would
+retry the same problem). A continuation from a converged state at another inflow rate
+keeps them at full value, as that state was solved with them. The factor is 1 at the
+end of every converged solve, so the solution is the same.
 
 Not implemented: a poroelastic biofilm (Darcy/Brinkman flow through the solid with
 effective stress) — it needs a pore-pressure field in the solid and a different
@@ -179,6 +187,8 @@ class SolidPhysics:
         self.stiffening_phi = ng.Parameter(0.0)
         self.gravity_phi = ng.Parameter(0.0)
         self.spring_stiffness = ng.Parameter(0.0)
+        #: full values of the phi of growth and gravity (scaled by set_load_factor)
+        self._loads: tuple[float, float] = (0.0, 0.0)
         self.springs = springs_active(physics)
         self._layer_indicator = None
         if "layer" in self.enabled:
@@ -221,8 +231,24 @@ class SolidPhysics:
         ``stress_unit`` converts Pa to solver stress units (spring stiffness Pa/mm).
         """
         self.layer_phi.Set(float(physics["layer"]["phi"]))
-        self.growth_phi.Set(float(physics["growth"]["phi"]))
         self.stiffening_phi.Set(float(physics["stiffening"]["phi"]))
-        self.gravity_phi.Set(float(physics["gravity"]["phi"]))
+        self._loads = (float(physics["growth"]["phi"]), float(physics["gravity"]["phi"]))
+        self.set_load_factor(1.0)
         c = float(physics["attachment"]["phi"])
         self.spring_stiffness.Set(stress_unit / c if c > 0 else 0.0)
+
+    def set_load_factor(self, factor: float) -> None:
+        """Scale the candidates that load the solid without flow (growth, gravity).
+
+        Sets their parameters to ``factor * phi`` with ``phi`` from the last
+        :meth:`set_values`; ``factor = 1`` (the default state) is ``phi`` itself, to
+        the bit. Used by the load continuation from rest.
+
+        Parameters
+        ----------
+        factor
+            Fraction of the full value, in [0, 1].
+        """
+        growth, gravity = self._loads
+        self.growth_phi.Set(float(factor) * growth)
+        self.gravity_phi.Set(float(factor) * gravity)

@@ -33,7 +33,11 @@ Nonlinear solution
 Newton's method with NGSolve's automatic linearization and UMFPACK, inside a load
 continuation in the load factor ``lambda`` (scales the inflow and the body force):
 start with ``initial_step``, halve the step on failure, grow it by ``growth`` on
-success, give up below ``min_step``. Convergence needs *both* the velocity increment
+success, give up below ``min_step``. A continuation that starts at rest (the zero
+state) also scales the loads of the problem's candidate physics that act without flow
+(a growth prestrain, a body force: ``physics.set_load_factor``), as rest is the
+solution at zero load only with them at zero; one that starts from a converged state
+at another load keeps them at full value. Convergence needs *both* the velocity increment
 (relative to the velocity) and the displacement increment (absolute + relative) to be
 small — a test on the whole vector would be dominated by the pressure. Optionally the
 factorization is reused across iterations (chord steps) while the iteration contracts
@@ -213,6 +217,7 @@ class MonolithicSolver:
         self._res = self.gfu.vec.CreateVector()
         self._du = self.gfu.vec.CreateVector()
         self._ir_points = None
+        self._from_rest = False
         if self.has_solid:
             self._detF = ng.Det(ng.Id(2) + ng.Grad(self.gfu.components[self.i_d]))
             ir = ng.IntegrationRule(ng.TRIG, 2 * order)
@@ -312,6 +317,16 @@ class MonolithicSolver:
         """Zero state (fluid at rest, undeformed)."""
         self._x[:] = 0.0
 
+    @property
+    def factorization(self) -> Any:
+        """The LU factorization kept from the last Newton step for chord steps of a solve
+        with ``keep_factorization`` (``None``: none kept)."""
+        return self._inv
+
+    @factorization.setter
+    def factorization(self, inv: Any) -> None:
+        self._inv = inv
+
     def set_materials(self, values: dict[str, tuple[float, float]]) -> None:
         """Set ``(E, nu)`` per solid region (solver stress units)."""
         for name, (E, nu) in values.items():
@@ -334,6 +349,11 @@ class MonolithicSolver:
         self.load.Set(lam)
         if self._inflow_idx.size:
             self._x[self._inflow_idx] = lam * self._inflow_val
+        physics = self.problem.physics
+        if physics is not None:
+            # the loads without flow: with the load factor on the way up from rest,
+            # else at full value (a factor of exactly 1 leaves them bitwise as set)
+            physics.set_load_factor(min(lam, 1.0) if self._from_rest else 1.0)
 
     def fluid_force(self, boundary: str) -> tuple[float, float]:
         """Force of the fluid on ``boundary`` (regex), ``(Fx, Fy)``, from the fluid residual.
@@ -505,6 +525,8 @@ class MonolithicSolver:
         steps = 0
         reason = ""
         lam = float(max(start_load, 0.0))
+        #: the continuation starts at rest: the loads without flow go up with lambda
+        self._from_rest = lam == 0.0 and not np.any(self._x)
         if lam > 0.0:
             # converge at the starting load first; if the initial state is too far off,
             # fall back to the continuation from rest
@@ -521,6 +543,7 @@ class MonolithicSolver:
                     reason = str(fail)
                 lam = 0.0
                 self._x[:] = 0.0
+                self._from_rest = True
         self._apply_load(lam)
         saved = self._x.copy()
         step = float(controls.initial_step)
