@@ -55,12 +55,77 @@ reference volume, ``chi`` an indicator function, ``H`` the channel height.
    buoyancy of the water's own density cancel). A physically small effect: a useful
    negative control for the diagnosis.
 
+7. ``permeability`` — permeable (poroelastic) biofilm, ``phi = k`` the intrinsic
+   permeability of the biofilm in um^2 (1 um^2 = 1e-12 m^2 = 1e-6 mm^2). The biofilm is
+   a saturated porous skeleton; water flows through it by Darcy's law. Steady state:
+   the skeleton is at rest, so the Darcy (filtration) velocity relative to it is the
+   fluid flux itself, and the one velocity unknown ``u`` of the solver is, in the
+   biofilm, this filtration velocity (in the fluid it is the fluid velocity, and it is
+   continuous across the interface). With a pore pressure ``pi`` (P1 on the biofilm,
+   its own space) and ``F^-T grad pi`` the spatial gradient, the equations in the
+   biofilm are, on the reference domain,
+
+   * Darcy, tested with the displacement test function ``w`` (the rows that hold
+     ``u = 0`` in the base model)::
+
+         int_s  u . w + (k/mu) (F^-T grad pi) . w  dX = 0
+
+     so that ``k = 0`` is exactly the base model's kinematic form ``u = 0``;
+   * mass balance of the incompressible pore water, ``div_x u = 0``; with uniform k
+     and Darcy's law this is ``div_x grad_x pi = 0``, written in the *k-free* form::
+
+         int_s  J (F^-T grad pi) . (F^-T grad r) dX
+               + (beta / h) int_interface (pi - p) r dS = 0
+
+     (``r`` the test function of ``pi``), with the natural condition ``grad pi . n = 0``
+     on the clamped base (impermeable substratum) and continuity of pressure
+     ``pi = p`` on the interface, imposed by the penalty of weight ``beta / h``
+     (``beta`` = :data:`PORE_PENALTY`, ``h`` the interface mesh size: ``pi - p`` is
+     ``O(h / beta)`` times the normal derivative, far below round-off of interest).
+     Because the form does not contain k, the pore pressure is determined at ``k = 0``
+     too (the harmonic extension of the interface pressure); it only ever feeds back
+     through the two terms that vanish at ``phi = 0``. The fluid's own mass rows are
+     not touched: ``div u = 0`` holds in the fluid by itself;
+   * momentum of the mixture (total stress, Terzaghi, Biot coefficient 1:
+     incompressible grains and water), tested with ``v``::
+
+         int_s  P(F) : grad v - c pi J tr(grad v F^-1)  dX
+
+     with ``c = 1`` for ``k > 0`` and ``c = 0`` at ``k = 0``. The fluid's pressure
+     term ``- p J tr(grad v F^-1)`` has the same form, so with ``pi = p`` on the
+     interface the skeleton carries the viscous traction of the flow on its surface
+     and the pore-pressure gradient (the Darcy drag ``(mu/k) u = - grad pi``) in its
+     volume.
+
+   Interface conditions (Stokes–Darcy): the velocity is continuous (normal flux
+   continuity, and the tangential velocity equal to the Darcy velocity: the
+   Beavers–Joseph slip length ``sqrt(k)/alpha_BJ`` is a few um at most, below the
+   mesh size, so slip is not resolved and not modelled); the pressure is continuous
+   (the viscous normal stress of the flow at a nearly no-slip wall is left out of the
+   normal-stress balance, as is usual for a Darcy block); the total traction is
+   continuous (automatic, as in the base model). k is a constant of the skeleton (no
+   Kozeny–Carman dependence on the deformation).
+
+   Why ``c`` is a switch. In a *steady* state any permeable skeleton is drained: the
+   pore pressure has equilibrated with the flow whatever the value of k > 0 (the
+   consolidation time ``L^2 mu / (k E)``, minutes for um^2 permeabilities, is over);
+   only the flux through the biofilm scales with k. As ``k -> 0+`` the model tends
+   to a drained biofilm without through-flow, whose skeleton no longer feels the
+   ambient (mean) fluid pressure that compresses the base model's compressible solid;
+   the base model is the impermeable solid. The candidate is therefore nested as the
+   attachment is: ``phi = 0`` is the base model to round-off (same spaces as any other
+   ``phi``; the pore pressure is solved and decoupled), and ``phi > 0`` adds the pore
+   pressure's load at full strength. The step at ``phi -> 0+`` is physics of the
+   steady state, not a numerical artefact, and ``bench_physics.py`` reports its size.
+   Flow through the biofilm (``phi`` larger) then takes load off it: less water is
+   forced around the patch, and its displacement decreases with ``phi``.
+
+   Switching the candidate on adds the pore-pressure space (a structural change: new
+   state layout; a base state is embedded into it for a warm start, the pore pressure
+   starting at zero).
+
 Gravity and growth act at full value at every load step: the load continuation scales
 the inflow only.
-
-Not implemented: a poroelastic biofilm (Darcy/Brinkman flow through the solid with
-effective stress) — it needs a pore-pressure field in the solid and a different
-coupling at the interface; see the project notes.
 """
 
 from __future__ import annotations
@@ -72,6 +137,8 @@ from typing import Any
 __all__ = [
     "CANDIDATES",
     "G_MM_S2",
+    "PORE_PENALTY",
+    "UM2",
     "Candidate",
     "SolidPhysics",
     "check_physics",
@@ -82,6 +149,13 @@ __all__ = [
 
 #: standard gravity in mm/s^2
 G_MM_S2 = 9810.0
+#: um^2 -> mm^2 (the unit of the permeability phi)
+UM2 = 1.0e-6
+#: dimensionless weight of the interface penalty ``pi = p`` of the pore pressure
+#: (weight ``PORE_PENALTY / h`` against the O(1) Laplace form of ``pi``)
+PORE_PENALTY = 1.0e8
+#: a moderate permeability, um^2 (typical step of the candidate)
+TYPICAL_K = 100.0
 
 
 @dataclass(frozen=True)
@@ -127,6 +201,8 @@ CANDIDATES: dict[str, Candidate] = {c.name: c for c in (
     Candidate("stiffening", "-", "Fung-type exponential strain stiffening", 20.0, 0.0, None),
     Candidate("gravity", "kg/m^3", "density mismatch biofilm - water (body force)", 50.0,
               None, None),
+    Candidate("permeability", "um^2", "permeable (poroelastic) biofilm: Darcy flow through it "
+              "with permeability phi, skeleton loaded by the pore pressure", TYPICAL_K, 0.0, None),
 )}
 
 
@@ -179,6 +255,10 @@ class SolidPhysics:
         self.stiffening_phi = ng.Parameter(0.0)
         self.gravity_phi = ng.Parameter(0.0)
         self.spring_stiffness = ng.Parameter(0.0)
+        #: Darcy mobility k/mu of the biofilm, mm^2/(mPa s) in solver units
+        self.darcy_mobility = ng.Parameter(0.0)
+        #: 1 when the pore pressure loads the skeleton (k > 0), 0 at k = 0
+        self.pore_coupling = ng.Parameter(0.0)
         self.springs = springs_active(physics)
         self._layer_indicator = None
         if "layer" in self.enabled:
@@ -190,6 +270,11 @@ class SolidPhysics:
                 self._layer_indicator = ng.IfPos(ng.y - (patch_height - t), 1.0, 0.0)
 
     # ------------------------------------------------------------------ forms
+    @property
+    def permeable(self) -> bool:
+        """True when the biofilm has a pore pressure (candidate ``permeability`` on)."""
+        return "permeability" in self.enabled
+
     def stress_factor(self) -> Any:
         """Scalar factor on ``P`` from the stiffness layer (``None`` when off)."""
         import ngsolve as ng
@@ -215,11 +300,19 @@ class SolidPhysics:
         return ng.CoefficientFunction((0.0, -G_MM_S2 * 1.0e-3 * self.gravity_phi))
 
     # ------------------------------------------------------------------ values
-    def set_values(self, physics: Mapping[str, Any], stress_unit: float) -> None:
+    def set_values(self, physics: Mapping[str, Any], stress_unit: float,
+                   viscosity: float = 1.0) -> None:
         """Set the parameters from the ``phi`` values of ``physics`` (user units).
 
-        ``stress_unit`` converts Pa to solver stress units (spring stiffness Pa/mm).
+        ``stress_unit`` converts Pa to solver stress units (spring stiffness Pa/mm);
+        ``viscosity`` is the fluid's dynamic viscosity in solver units (mg/(mm s)), for
+        the Darcy mobility ``k/mu``.
         """
+        k = float(physics["permeability"]["phi"])
+        if k < 0.0:
+            raise ValueError(f"physics.permeability.phi = {k}: a permeability must be >= 0 um^2")
+        self.darcy_mobility.Set(k * UM2 / float(viscosity))
+        self.pore_coupling.Set(1.0 if k > 0.0 else 0.0)
         self.layer_phi.Set(float(physics["layer"]["phi"]))
         self.growth_phi.Set(float(physics["growth"]["phi"]))
         self.stiffening_phi.Set(float(physics["stiffening"]["phi"]))
