@@ -170,9 +170,12 @@ def test_stiffening_reduces_the_displacement_more_at_higher_load():
 K_DRAINED = 1.0e-3
 
 
-def test_permeable_biofilm_at_phi_zero_decouples_the_pore_pressure(base):
+def test_permeable_biofilm_at_phi_zero_decouples_the_pore_pressure(base, tmp_path):
     # the pore-pressure block is solved (the harmonic extension of the interface
     # pressure, finite) but feeds back into nothing: no flow, the base interface
+    import vtk
+    from vtk.util.numpy_support import vtk_to_numpy
+
     m = _model("permeability")
     res = m.solve(TRUTH)
     assert res.ok, res.reason
@@ -181,6 +184,17 @@ def test_permeable_biofilm_at_phi_zero_decouples_the_pore_pressure(base):
     assert res.stats["max_interface_velocity"] < 1e-6  # as the base: u = 0 on the interface
     pore = m.solver.block(m.solver.i_pore)
     assert np.all(np.isfinite(pore)) and np.max(np.abs(pore)) > 0.0
+    # the VTU shows it as the pressure inside the biofilm (0 there for the base model)
+    m.write_vtu(tmp_path / "f.vtu")
+    reader = vtk.vtkXMLUnstructuredGridReader()
+    reader.SetFileName(str(tmp_path / "f.vtu"))
+    reader.Update()
+    grid = reader.GetOutput()
+    pres = vtk_to_numpy(grid.GetPointData().GetArray("pressure"))
+    region = vtk_to_numpy(grid.GetCellData().GetArray("region"))
+    cells = vtk_to_numpy(grid.GetCells().GetConnectivityArray()).reshape(-1, 3)
+    inside = np.unique(cells[region != 0])
+    assert np.max(np.abs(pres[inside])) > 0.0
 
 
 def test_the_drained_limit_is_continuous_from_above_and_differs_from_the_base(base):
