@@ -212,7 +212,7 @@ def test_flow_through_the_biofilm_lowers_the_drag_driven_displacement():
     # more permeable -> more water through the patch instead of around it: larger
     # velocities on the interface, less load, a smaller displacement (monotone from
     # the drained, no-through-flow limit over the range where the flow through is
-    # large; below ~100 um^2 the through-flow changes the displacement by < 2 %)
+    # large; up to ~100 um^2 the through-flow changes the displacement by 2 % at most)
     m = _model("permeability")
     runs = [m.solve({**TRUTH, "physics.permeability.phi": k})
             for k in (K_DRAINED, 1000.0, 3000.0)]
