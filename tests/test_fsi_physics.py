@@ -286,13 +286,19 @@ def test_flux_through_a_porous_block_follows_darcys_law(k_um2):
     # pressure across the block. The exact solution (constant velocity, linear pore
     # pressure, constant pressures) lies in the discrete spaces, so the only errors are
     # the interface penalty pi = p, which shifts the pore pressure by (h/beta) dpi/dn
-    # on each face (2 h/(beta L) = 4e-7 relative on dp, beta = PORE_PENALTY = 1e6),
-    # and the block's residual deformation (1e-8 relative): tolerance 1e-6
+    # on each face: pi - p = -(h/beta) dpi/dn, so the pore pressure drops by
+    # dp / (1 + 2 h/(beta L)) (4e-5 less than dp, beta = PORE_PENALTY = 1e4), and
+    # the block's residual deformation (1e-8 relative). Darcy's law with the fluid's
+    # dp to 1e-4; with the penalty's correction, to 1e-7
+    from bayescalib.models.fsi.physics import PORE_PENALTY
+
     flux, dp, mismatch, H, L = _darcy_block(k_um2, inflow=1.0)
-    k_mm2, mu = k_um2 * 1.0e-6, 1.0
+    k_mm2, mu, h = k_um2 * 1.0e-6, 1.0, 0.1
     assert flux == pytest.approx(1.0 * H, rel=1e-9)  # mass conservation: the inflow
-    assert flux == pytest.approx(k_mm2 / mu * dp / L * H, rel=1e-6)
-    assert mismatch < 1e-6 * dp  # pore pressure = fluid pressure on the interface
+    assert flux == pytest.approx(k_mm2 / mu * dp / L * H, rel=1e-4)
+    dpi = dp / (1.0 + 2.0 * h / (PORE_PENALTY * L))
+    assert flux == pytest.approx(k_mm2 / mu * dpi / L * H, rel=1e-7)
+    assert mismatch < 1e-4 * dp  # pore pressure = fluid pressure on the interface
 
 
 def test_neo_hooke_with_growth_and_stiffening_is_nested():
@@ -334,6 +340,20 @@ def test_series_from_a_warm_start_goes_down_and_up(tmp_path):
         assert a.ok and b.ok
         assert _shift(a, b) < 1e-8
     assert series[0].max_displacement > series[2].max_displacement > series[1].max_displacement
+
+
+def test_permeable_biofilm_with_attachment_springs_fails_naming_both_keys(base):
+    m = FSIModel({**COARSE, "physics": {"permeability": {"enabled": True},
+                                        "attachment": {"enabled": True}}})
+    res = m.solve({**TRUTH, "physics.permeability.phi": 100.0,
+                   "physics.attachment.phi": 2.0e-4})
+    assert not res.ok
+    assert "physics.permeability.phi" in res.reason and "physics.attachment.phi" in res.reason
+    # either one at phi = 0 is fine: springs alone, or the base with the pore pressure
+    springs = m.solve({**TRUTH, "physics.attachment.phi": 2.0e-4})
+    alone = _model("attachment").solve({**TRUTH, "physics.attachment.phi": 2.0e-4})
+    assert springs.ok and _shift(springs, alone) < 1e-10
+    assert _shift(m.solve(TRUTH), base) < 1e-10
 
 
 def test_a_base_state_warm_starts_the_permeable_biofilm(tmp_path):

@@ -51,6 +51,7 @@ from bayescalib.models.fsi.physics import (
     check_physics,
     physics_parameters,
     springs_active,
+    unsupported_combination,
 )
 from bayescalib.models.fsi.problem import FSIProblem
 from bayescalib.models.fsi.solver import MonolithicSolver, SolverControls
@@ -386,6 +387,7 @@ class FSIModel:
         rate = float(cfg["inflow"]["rate"])
         for _, nu in materials.values():
             reason = reason or check_poisson(nu)
+        reason = reason or unsupported_combination(cfg["physics"])
         base_stats: dict[str, Any] = {
             "ndof": solver.ndof,
             "nfree": solver.nfree,
