@@ -138,9 +138,13 @@ reference volume, ``chi`` an indicator function, ``H`` the channel height.
 
    Switching the candidate on adds the pore-pressure space (a structural change: new
    state layout, 3 % more unknowns; a base state is embedded into it for a warm start,
-   the pore pressure starting at zero). Cost per solve, ``bench_physics.py``: 1.04 to
-   1.17 times the base model, cold or warm, coarse or paper mesh; Newton needs as many
-   iterations as the base model (8-9 from rest at the ground truth).
+   the pore pressure starting at zero). Cost per solve, ``bench_physics.py`` (noisy,
+   loaded 2-core machine): 1.04 to 1.31 times the base model, cold or warm, coarse or
+   paper mesh; timed phase by phase, +9 % at ``phi = 0`` on the coarse mesh. Newton
+   needs as many iterations as the base model (7-9 from rest at the ground truth, up
+   to 3000 um^2 on the paper mesh). Not combined with
+   the attachment springs: ``permeability.phi > 0`` on their sliding base is a failed
+   solve (:func:`unsupported_combination`).
 
 Gravity and growth act at full value at every load step: the load continuation scales
 the inflow only.
