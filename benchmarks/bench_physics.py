@@ -7,6 +7,10 @@ For each candidate of :mod:`bayescalib.models.fsi.physics`, on the chosen mesh p
   (E = 400 Pa, nu = 0.3, +-5 %) of the time ratio of the two solves, timed back to
   back (the target is at most ~1.1);
 * the same at the candidate's typical ``phi`` (:data:`CANDIDATES`);
+* warm-started solves at the typical ``phi`` (from the model's own state at the
+  ground truth, the factorization kept), paired in the same way with warm-started
+  base solves: the cost of a candidate inside a calibration, where most solves are
+  warm (the permeable biofilm adds a pore-pressure block: more unknowns);
 * the largest change of the interface at the typical ``phi`` and the ground truth, mm
   (compare with the mesh error, ~1e-4 mm on the paper mesh: NOTES-fsi.md);
 * nestedness: the largest interface difference between ``phi = 0`` and the base, mm.
@@ -17,6 +21,7 @@ against one loading, cold and warm-started from a state at the prior centre.
 Usage::
 
     OPENBLAS_NUM_THREADS=1 python benchmarks/bench_physics.py [--preset paper] [--repeats 5]
+        [--candidates permeability,growth] [--no-loadings]
 
 Prints a table and a final one-line JSON summary. No assertions.
 """
@@ -71,6 +76,27 @@ def _paired_ratios(base, model, points, extra) -> dict:
     return {"ratio": statistics.median(ratios), "t": statistics.median(times), "ok": ok}
 
 
+def _paired_warm_ratios(base, model, points, extra) -> dict:
+    """As :func:`_paired_ratios` for warm-started solves: each model first solves the
+    ground truth (untimed), then the point from that state (``warm_start="last"``)."""
+    ratios, times, base_times, ok = [], [], [], True
+    for p in points:
+        base.solve(TRUTH)
+        t0 = time.perf_counter()
+        base.solve(p, warm_start="last")
+        t1 = time.perf_counter()
+        model.solve({**TRUTH, **extra})
+        t2 = time.perf_counter()
+        res = model.solve({**p, **extra}, warm_start="last")
+        t3 = time.perf_counter()
+        ratios.append((t3 - t2) / (t1 - t0))
+        times.append(t3 - t2)
+        base_times.append(t1 - t0)
+        ok &= res.ok
+    return {"ratio": statistics.median(ratios), "t": statistics.median(times),
+            "t_base": statistics.median(base_times), "ok": ok}
+
+
 def _shift(a, b) -> float:
     return float(np.max(np.hypot(*(a.interface_current - b.interface_current).T)))
 
@@ -79,11 +105,19 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--preset", default="paper", choices=["paper", "coarse", "fine"])
     ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--candidates", default="",
+                    help="comma-separated candidate names (default: all)")
+    ap.add_argument("--no-loadings", action="store_true",
+                    help="skip the series-of-loadings benchmark")
     args = ap.parse_args()
 
     from bayescalib.models.fsi.model import FSIModel
     from bayescalib.models.fsi.physics import CANDIDATES
 
+    names = [n.strip() for n in args.candidates.split(",") if n.strip()] or list(CANDIDATES)
+    unknown = sorted(set(names) - set(CANDIDATES))
+    if unknown:
+        ap.error(f"--candidates: unknown {unknown}; expected some of {sorted(CANDIDATES)}")
     mesh = {"mesh": {"preset": args.preset}}
     points = _near_truth(args.repeats)
     base = FSIModel(mesh)
@@ -92,10 +126,12 @@ def main() -> None:
     ref = base.solve(TRUTH)
     rows = []
     print(f"mesh preset {args.preset}: base cold solve median {t_base:.3f} s "
-          f"over {args.repeats} solves")
+          f"over {args.repeats} solves ({ref.stats['nfree']} free unknowns)")
     print(f"{'candidate':12s} {'phi':>9s} {'t(phi=0)/base':>14s} {'t(phi)/base':>12s} "
-          f"{'|shift| mm':>11s} {'nested mm':>10s} {'ok':>3s}")
-    for name, cand in CANDIDATES.items():
+          f"{'t(phi) s':>9s} {'warm/base':>10s} {'warm s':>7s} {'base warm s':>12s} "
+          f"{'nfree':>6s} {'|shift| mm':>11s} {'nested mm':>10s} {'ok':>3s}")
+    for name in names:
+        cand = CANDIDATES[name]
         model = FSIModel({**mesh, "physics": {name: {"enabled": True}}})
         model.solve(TRUTH)
         key = cand.key
@@ -104,14 +140,24 @@ def main() -> None:
         # attachment: phi > 0 switches the clamp to springs (new spaces): build first
         model.solve({**TRUTH, key: cand.typical})
         r1 = _paired_ratios(base, model, points, {key: cand.typical})
+        rw = _paired_warm_ratios(base, model, points, {key: cand.typical})
         at_truth = model.solve({**TRUTH, key: cand.typical})
-        ok = r1["ok"] and at_truth.ok
+        ok = r1["ok"] and rw["ok"] and at_truth.ok
         shift = _shift(at_truth, ref) if at_truth.ok else float("nan")
+        nfree = int(at_truth.stats["nfree"])
         rows.append({"candidate": name, "phi": cand.typical, "unit": cand.unit,
                      "ratio_phi0": r0["ratio"], "ratio_phi": r1["ratio"],
-                     "t_phi": r1["t"], "shift_mm": shift, "nested_mm": nested, "ok": ok})
+                     "t_phi": r1["t"], "ratio_warm": rw["ratio"], "t_warm": rw["t"],
+                     "t_base_warm": rw["t_base"], "nfree": nfree,
+                     "newton_phi": at_truth.newton_iterations,
+                     "shift_mm": shift, "nested_mm": nested, "ok": ok})
         print(f"{name:12s} {cand.typical:9.3g} {r0['ratio']:14.3f} {r1['ratio']:12.3f} "
-              f"{shift:11.2e} {nested:10.1e} {'yes' if ok else 'NO':>3s}")
+              f"{r1['t']:9.3f} {rw['ratio']:10.3f} {rw['t']:7.3f} {rw['t_base']:12.3f} "
+              f"{nfree:6d} {shift:11.2e} {nested:10.1e} {'yes' if ok else 'NO':>3s}")
+    if args.no_loadings:
+        print(json.dumps({"preset": args.preset, "repeats": args.repeats, "t_base": t_base,
+                          "candidates": rows}))
+        return
 
     # series of loadings
     factors = [0.0, 0.5, 1.0]

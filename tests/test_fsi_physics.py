@@ -163,6 +163,144 @@ def test_stiffening_reduces_the_displacement_more_at_higher_load():
     assert ratios[1] < ratios[0] < 1.0
 
 
+# ----------------------------------------------------------------- permeable biofilm
+# Drained reference: a permeability so small that the flow through the biofilm is
+# negligible (interface velocities ~1e-4 mm/s against 100 mm/s in the channel) but the
+# pore pressure already loads the skeleton: the k -> 0+ limit of the steady model.
+K_DRAINED = 1.0e-3
+
+
+def test_permeable_biofilm_at_phi_zero_decouples_the_pore_pressure(base, tmp_path):
+    # the pore-pressure block is solved (the harmonic extension of the interface
+    # pressure, finite) but feeds back into nothing: no flow, the base interface
+    import vtk
+    from vtk.util.numpy_support import vtk_to_numpy
+
+    m = _model("permeability")
+    res = m.solve(TRUTH)
+    assert res.ok, res.reason
+    assert _shift(res, base) < 1e-10
+    assert res.stats["ndof"] > base.stats["ndof"]  # the extra block is there
+    assert res.stats["max_interface_velocity"] < 1e-6  # as the base: u = 0 on the interface
+    pore = m.solver.block(m.solver.i_pore)
+    assert np.all(np.isfinite(pore)) and np.max(np.abs(pore)) > 0.0
+    # the VTU shows it as the pressure inside the biofilm (0 there for the base model)
+    m.write_vtu(tmp_path / "f.vtu")
+    reader = vtk.vtkXMLUnstructuredGridReader()
+    reader.SetFileName(str(tmp_path / "f.vtu"))
+    reader.Update()
+    grid = reader.GetOutput()
+    pres = vtk_to_numpy(grid.GetPointData().GetArray("pressure"))
+    region = vtk_to_numpy(grid.GetCellData().GetArray("region"))
+    cells = vtk_to_numpy(grid.GetCells().GetConnectivityArray()).reshape(-1, 3)
+    inside = np.unique(cells[region != 0])
+    assert np.max(np.abs(pres[inside])) > 0.0
+
+
+def test_the_drained_limit_is_continuous_from_above_and_differs_from_the_base(base):
+    # any k > 0 is drained in a steady state; the step at k = 0+ is physics (the
+    # skeleton no longer carries the ambient pressure), the model is smooth above it
+    m = _model("permeability")
+    small = m.solve({**TRUTH, "physics.permeability.phi": K_DRAINED})
+    smaller = m.solve({**TRUTH, "physics.permeability.phi": 0.1 * K_DRAINED})
+    assert small.ok and smaller.ok
+    assert _shift(small, smaller) < 1e-7
+    assert _shift(small, base) > 10 * MESH_ERROR_MM
+
+
+def test_flow_through_the_biofilm_lowers_the_drag_driven_displacement():
+    # more permeable -> more water through the patch instead of around it: larger
+    # velocities on the interface, less load, a smaller displacement (monotone from
+    # the drained, no-through-flow limit over the range where the flow through is
+    # large; up to ~100 um^2 the through-flow changes the displacement by 2 % at most)
+    m = _model("permeability")
+    runs = [m.solve({**TRUTH, "physics.permeability.phi": k})
+            for k in (K_DRAINED, 1000.0, 3000.0)]
+    assert all(r.ok for r in runs)
+    disp = [r.max_displacement for r in runs]
+    vel = [r.stats["max_interface_velocity"] for r in runs]
+    assert disp[0] > disp[1] > disp[2]
+    assert vel[0] < 1e-3 < vel[1] < vel[2]
+
+
+def _darcy_block(k_um2: float, inflow: float):
+    """Uniform flow ``inflow`` (mm/s) through a channel of height 0.5 mm with slip walls,
+    filled over 1 <= x <= 1.5 mm by a rigid porous block (E = 1e9 Pa, held by stiff
+    tangential springs on its walls, so that it neither moves nor deforms: 1e-8 mm).
+    Exact solution: u = inflow everywhere, the pore pressure linear in the block,
+    the pressure constant on either side; do-nothing outflow: p = 0 downstream."""
+    import ngsolve as ng
+    from netgen.occ import Glue, OCCGeometry, WorkPlane, X
+
+    from bayescalib.config import validate
+    from bayescalib.models.fsi.physics import SolidPhysics
+    from bayescalib.models.fsi.problem import FSIProblem
+    from bayescalib.models.fsi.solver import MonolithicSolver, SolverControls
+
+    H, x0, L, h = 0.5, 1.0, 0.5, 0.1
+    block = WorkPlane().MoveTo(x0, 0.0).Rectangle(L, H).Face()
+    block.edges.name = "block_wall"
+    block.edges.Min(X).name = "interface"
+    block.edges.Max(X).name = "interface"
+    block.faces.name = "block"
+    channel = WorkPlane().Rectangle(2.5, H).Face()
+    channel.edges.name = "wall"
+    channel.edges.Min(X).name = "inlet"
+    channel.edges.Max(X).name = "outlet"
+    fluid = channel - block
+    fluid.faces.name = "fluid"
+    mesh = ng.Mesh(OCCGeometry(Glue([fluid, block]), dim=2).GenerateMesh(maxh=h))
+    physics = validate({"physics": {"permeability": {"enabled": True, "phi": k_um2}}},
+                       "fsi")["physics"]
+    sp = SolidPhysics(physics, H)
+    problem = FSIProblem(
+        mesh=mesh, fluid="fluid", solids={"block": "svk"},
+        velocity_dirichlet="inlet|wall|block_wall",
+        velocity_dirichlet_xy=("inlet", "inlet|wall|block_wall"),   # slip walls
+        displacement_dirichlet="inlet|outlet|wall|block_wall",
+        displacement_dirichlet_xy=("inlet|outlet", "inlet|outlet|wall|block_wall"),
+        spring_boundary="block_wall",
+        inflow="inlet", inflow_profile=lambda: ng.CoefficientFunction((inflow, 0.0)),
+        interface="interface", length_scale=h, physics=sp)
+    solver = MonolithicSolver(problem)
+    solver.set_materials({"block": (1.0e12, 0.3)})  # 1e9 Pa in solver units (mPa)
+    sp.set_values(physics, 1.0, viscosity=1.0)        # water: mu = 1 mg/(mm s)
+    sp.spring_stiffness.Set(1.0e12)
+    out = solver.solve(SolverControls())
+    assert out.ok, out.reason
+    u = solver.gfu.components[0]
+    p = solver.gfu.components[solver.i_p]
+    pore = solver.gfu.components[solver.i_pore]
+    faces = mesh.Boundaries("interface")
+    up = ng.IfPos(x0 + 0.5 * L - ng.x, 1.0, 0.0)  # the upstream face x = 1
+    flux = ng.Integrate(u[0] * up, mesh, ng.BND, definedon=faces)
+    p_up = ng.Integrate(p * up, mesh, ng.BND, definedon=faces) / H
+    p_down = ng.Integrate(p * (1.0 - up), mesh, ng.BND, definedon=faces) / H
+    mismatch = ng.Integrate((pore - p) ** 2, mesh, ng.BND, definedon=faces) ** 0.5
+    return flux, p_up - p_down, mismatch, H, L
+
+
+@pytest.mark.parametrize("k_um2", [10.0, 100.0])
+def test_flux_through_a_porous_block_follows_darcys_law(k_um2):
+    # flux through the interface = (k/mu) dp/L H, with dp the drop of the fluid
+    # pressure across the block. The exact solution (constant velocity, linear pore
+    # pressure, constant pressures) lies in the discrete spaces, so the only errors are
+    # the interface penalty pi = p, which shifts the pore pressure by (h/beta) dpi/dn
+    # on each face: pi - p = -(h/beta) dpi/dn, so the pore pressure drops by
+    # dp / (1 + 2 h/(beta L)) (4e-5 less than dp, beta = PORE_PENALTY = 1e4), and
+    # the block's residual deformation (1e-8 relative). Darcy's law with the fluid's
+    # dp to 1e-4; with the penalty's correction, to 1e-7
+    from bayescalib.models.fsi.physics import PORE_PENALTY
+
+    flux, dp, mismatch, H, L = _darcy_block(k_um2, inflow=1.0)
+    k_mm2, mu, h = k_um2 * 1.0e-6, 1.0, 0.1
+    assert flux == pytest.approx(1.0 * H, rel=1e-9)  # mass conservation: the inflow
+    assert flux == pytest.approx(k_mm2 / mu * dp / L * H, rel=1e-4)
+    dpi = dp / (1.0 + 2.0 * h / (PORE_PENALTY * L))
+    assert flux == pytest.approx(k_mm2 / mu * dpi / L * H, rel=1e-7)
+    assert mismatch < 1e-4 * dp  # pore pressure = fluid pressure on the interface
+
+
 def test_neo_hooke_with_growth_and_stiffening_is_nested():
     cfg = {**COARSE, "material": {"law": "neo_hooke"},
            "physics": {"growth": {"enabled": True}, "stiffening": {"enabled": True}}}
@@ -202,6 +340,37 @@ def test_series_from_a_warm_start_goes_down_and_up(tmp_path):
         assert a.ok and b.ok
         assert _shift(a, b) < 1e-8
     assert series[0].max_displacement > series[2].max_displacement > series[1].max_displacement
+
+
+def test_permeable_biofilm_with_attachment_springs_fails_naming_both_keys(base):
+    m = FSIModel({**COARSE, "physics": {"permeability": {"enabled": True},
+                                        "attachment": {"enabled": True}}})
+    res = m.solve({**TRUTH, "physics.permeability.phi": 100.0,
+                   "physics.attachment.phi": 2.0e-4})
+    assert not res.ok
+    assert "physics.permeability.phi" in res.reason and "physics.attachment.phi" in res.reason
+    # either one at phi = 0 is fine: springs alone, or the base with the pore pressure
+    springs = m.solve({**TRUTH, "physics.attachment.phi": 2.0e-4})
+    alone = _model("attachment").solve({**TRUTH, "physics.attachment.phi": 2.0e-4})
+    assert springs.ok and _shift(springs, alone) < 1e-10
+    assert _shift(m.solve(TRUTH), base) < 1e-10
+
+
+def test_a_base_state_warm_starts_the_permeable_biofilm(tmp_path):
+    # the permeable model has an extra block (the pore pressure): a base state is
+    # embedded with the pore pressure at zero and converges to the cold solution
+    b = FSIModel(COARSE)
+    b.solve(TRUTH)
+    b.save_state(tmp_path / "base.npz")
+    m = _model("permeability")
+    cold = m.solve({**TRUTH, "physics.permeability.phi": 100.0})
+    warm = _model("permeability").solve({**TRUTH, "physics.permeability.phi": 100.0},
+                                        warm_start=tmp_path / "base.npz")
+    assert cold.ok and warm.ok and warm.stats["warm_start"] == 1
+    assert _shift(warm, cold) < 1e-6
+    vector = _model("permeability").solve({**TRUTH, "physics.permeability.phi": 100.0},
+                                          warm_start=b.last_state)
+    assert vector.ok and _shift(vector, cold) < 1e-6
 
 
 def test_a_base_state_warm_starts_a_model_with_candidate_physics(tmp_path, base):

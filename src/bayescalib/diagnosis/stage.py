@@ -69,6 +69,7 @@ ABSORBED = "mismatch absorbed by the base parameters; calibration off, no physic
 DEFAULT_FSI_PRIORS = {
     "layer": (-2.0, 2.0), "growth": (-0.06, 0.06), "attachment": (0.0, 8.0e-4),
     "inflow_skew": (-0.8, 0.8), "stiffening": (0.0, 80.0), "gravity": (-200.0, 200.0),
+    "permeability": (0.0, 2000.0),
 }
 
 MISREGISTERED = ("mismatch explained by a misregistration of the observed interfaces "

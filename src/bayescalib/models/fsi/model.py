@@ -51,6 +51,7 @@ from bayescalib.models.fsi.physics import (
     check_physics,
     physics_parameters,
     springs_active,
+    unsupported_combination,
 )
 from bayescalib.models.fsi.problem import FSIProblem
 from bayescalib.models.fsi.solver import MonolithicSolver, SolverControls
@@ -77,7 +78,7 @@ MESH_PRESETS = {
 _STRUCTURAL = ("geometry", "mesh", "fluid", "material.law", "solver.order", "solver.ale_weight",
                "physics.layer.enabled", "physics.layer.where", "physics.layer.thickness",
                "physics.growth.enabled", "physics.stiffening.enabled",
-               "physics.gravity.enabled")
+               "physics.gravity.enabled", "physics.permeability.enabled")
 
 
 def fsi_section(config: Mapping[str, Any]) -> dict[str, Any]:
@@ -98,11 +99,15 @@ def _get(cfg: Mapping[str, Any], dotted: str) -> Any:
     return node
 
 
-def _space_key(cfg: Mapping[str, Any]) -> str:
+def _space_key(cfg: Mapping[str, Any], *, base: bool = False) -> str:
     """Key of what fixes the layout of a state vector (mesh and spaces): a state saved
     with one key is a valid initial guess for any model with the same key, whatever
-    its material law or candidate physics."""
+    its material law or candidate physics. A permeable biofilm (candidate
+    ``permeability``) adds the pore-pressure block; ``base=True`` gives the key of the
+    same model without it (whose states are embedded for a warm start)."""
     data = {k: _get(cfg, k) for k in ("geometry", "mesh", "solver.order")}
+    if not base and cfg["physics"]["permeability"]["enabled"]:
+        data["pore_pressure"] = True
     return hashlib.sha256(json.dumps(data, sort_keys=True).encode()).hexdigest()[:16]
 
 
@@ -150,6 +155,7 @@ class FSIModel:
         self.physics: SolidPhysics | None = None
         self._key: str | None = None
         self._space: str | None = None
+        self._base_space: str | None = None
         self.geometry: BiofilmMesh | None = None
         self.solver: MonolithicSolver | None = None
         self._last_state: np.ndarray | None = None
@@ -214,6 +220,7 @@ class FSIModel:
         self.geometry = geo
         self._key = key
         self._space = _space_key(cfg)
+        self._base_space = _space_key(cfg, base=True)
         self._last_state = None
         self.build_time = time.perf_counter() - t0
 
@@ -274,12 +281,29 @@ class FSIModel:
         except (OSError, KeyError, ValueError) as exc:
             raise ValueError(f"warm-start file '{path}' is not a saved FSI state: {exc}") from None
         assert self.solver is not None
+        if key == self._base_space and key != self._space:
+            embedded = self._embed(state)
+            if embedded is not None:
+                return embedded
         if key != self._space or state.shape[0] != self.solver.ndof:
             raise ValueError(
                 f"warm-start file '{path}' was saved for another geometry/mesh/order "
                 f"({state.shape[0]} unknowns, this model has {self.solver.ndof})"
             )
         return state
+
+    def _embed(self, state: np.ndarray) -> np.ndarray | None:
+        """A state of the same model without the pore pressure (an impermeable
+        biofilm) as a state of this permeable one: the pore-pressure block, the last
+        one, starts at zero. ``None`` when the sizes do not fit."""
+        assert self.solver is not None
+        s = self.solver
+        if s.i_pore is None:
+            return None
+        start, stop = s._ranges[s.i_pore]
+        if stop != s.ndof or state.shape[0] != start:
+            return None
+        return np.concatenate([state, np.zeros(stop - start)])
 
     @property
     def last_state(self) -> np.ndarray | None:
@@ -345,6 +369,9 @@ class FSIModel:
         if warm_start is not None:
             if isinstance(warm_start, np.ndarray):
                 initial = np.asarray(warm_start, dtype=float)
+                if initial.ndim == 1 and initial.shape[0] != solver.ndof:
+                    embedded = self._embed(initial)  # a state of the impermeable model
+                    initial = initial if embedded is None else embedded
                 if initial.shape != (solver.ndof,):
                     raise ValueError(f"warm-start state has shape {initial.shape}, expected ({solver.ndof},)")
             elif isinstance(warm_start, str) and warm_start == "last":
@@ -360,6 +387,7 @@ class FSIModel:
         rate = float(cfg["inflow"]["rate"])
         for _, nu in materials.values():
             reason = reason or check_poisson(nu)
+        reason = reason or unsupported_combination(cfg["physics"])
         base_stats: dict[str, Any] = {
             "ndof": solver.ndof,
             "nfree": solver.nfree,
@@ -377,7 +405,8 @@ class FSIModel:
 
         solver.set_materials({n: (E * PA, nu) for n, (E, nu) in materials.items()})
         assert self.physics is not None
-        self.physics.set_values(cfg["physics"], PA)
+        self.physics.set_values(cfg["physics"], PA,
+                                viscosity=float(cfg["fluid"]["viscosity"]) * PA_S)
         unit = self._unit_inflow
         if cfg["physics"]["inflow_skew"]["enabled"]:
             unit = unit + float(cfg["physics"]["inflow_skew"]["phi"]) * self._unit_skew

@@ -55,6 +55,97 @@ reference volume, ``chi`` an indicator function, ``H`` the channel height.
    buoyancy of the water's own density cancel). A physically small effect: a useful
    negative control for the diagnosis.
 
+7. ``permeability`` — permeable (poroelastic) biofilm, ``phi = k`` the intrinsic
+   permeability of the biofilm in um^2 (1 um^2 = 1e-12 m^2 = 1e-6 mm^2). The biofilm is
+   a saturated porous skeleton; water flows through it by Darcy's law. Steady state:
+   the skeleton is at rest, so the Darcy (filtration) velocity relative to it is the
+   fluid flux itself, and the one velocity unknown ``u`` of the solver is, in the
+   biofilm, this filtration velocity (in the fluid it is the fluid velocity, and it is
+   continuous across the interface). With a pore pressure ``pi`` (P1 on the biofilm,
+   its own space) and ``F^-T grad pi`` the spatial gradient, the equations in the
+   biofilm are, on the reference domain,
+
+   * Darcy, tested with the displacement test function ``w`` (the rows that hold
+     ``u = 0`` in the base model)::
+
+         int_s  u . w + (k/mu) (F^-T grad pi) . w  dX = 0
+
+     so that ``k = 0`` is exactly the base model's kinematic form ``u = 0``;
+   * mass balance of the incompressible pore water, ``div_x u = 0``; with uniform k
+     and Darcy's law this is ``div_x grad_x pi = 0``, written in the *k-free* form::
+
+         int_s  J (F^-T grad pi) . (F^-T grad r) dX
+               + (beta / h) int_interface (pi - p) r dS = 0
+
+     (``r`` the test function of ``pi``), with the natural condition ``grad pi . n = 0``
+     on the clamped base (impermeable substratum) and continuity of pressure
+     ``pi = p`` on the interface, imposed by the penalty of weight ``beta / h``
+     (``beta`` = :data:`PORE_PENALTY`, ``h`` the interface mesh size: ``pi - p`` is
+     ``(h / beta)`` times the normal derivative: 4e-5 relative in the porous-block
+     test). The discrete ``u`` is Darcy's velocity of the discrete ``pi`` projected
+     on P2 by the ``w`` rows, so its divergence vanishes up to the discretization
+     error (exactly for a linear ``pi``).
+     Because the form does not contain k, the pore pressure is determined at ``k = 0``
+     too (the harmonic extension of the interface pressure); it only ever feeds back
+     through the two terms that vanish at ``phi = 0``. The fluid's own mass rows are
+     not touched: ``div u = 0`` holds in the fluid by itself;
+   * momentum of the mixture (total stress, Terzaghi, Biot coefficient 1:
+     incompressible grains and water), tested with ``v``::
+
+         int_s  P(F) : grad v - c pi J tr(grad v F^-1)  dX
+
+     with ``c = 1`` for ``k > 0`` and ``c = 0`` at ``k = 0``. The fluid's pressure
+     term ``- p J tr(grad v F^-1)`` has the same form, so with ``pi = p`` on the
+     interface the skeleton carries the viscous traction of the flow on its surface
+     and the pore-pressure gradient (the Darcy drag ``(mu/k) u = - grad pi``) in its
+     volume.
+
+   Interface conditions (Stokes–Darcy): the velocity is continuous (normal flux
+   continuity, and the tangential velocity equal to the Darcy velocity: the
+   Beavers–Joseph slip length ``sqrt(k)/alpha_BJ``, with ``alpha_BJ`` of order 1, is
+   10 um at k = 100 um^2, below the interface mesh size (17-35 um), so slip is
+   neither resolved nor modelled); the pressure is continuous
+   (the viscous normal stress of the flow at a nearly no-slip wall is left out of the
+   normal-stress balance, as is usual for a Darcy block); the total traction is
+   continuous (automatic, as in the base model). k is a constant of the skeleton (no
+   Kozeny–Carman dependence on the deformation).
+
+   Why ``c`` is a switch. In a *steady* state any permeable skeleton is drained: the
+   pore pressure has equilibrated with the flow whatever the value of k > 0 (the
+   consolidation time ``L^2 mu / (k E)``, 0.2 s for L = 0.3 mm, k = 1 um^2 and
+   E = 400 Pa, minutes for 1e-3 um^2, is over);
+   only the flux through the biofilm scales with k. As ``k -> 0+`` the model tends
+   to a drained biofilm without through-flow, whose skeleton takes the pressure of
+   the flow as a body force in its volume (the pore-pressure gradient) instead of as a
+   traction on its surface, and no longer feels the ambient (mean) pressure that
+   compresses the base model's compressible solid; the base model is the
+   impermeable solid. The candidate is therefore nested as the
+   attachment is: ``phi = 0`` is the base model to round-off (same spaces as any other
+   ``phi``; the pore pressure is solved and decoupled), and ``phi > 0`` adds the pore
+   pressure's load at full strength. The step at ``phi -> 0+`` is physics of the
+   steady state, not a numerical artefact: 5.8 um of interface shift at the ground
+   truth. Flow through the biofilm then takes load off it once it is a sizeable part
+   of the flow past the patch: less water is forced around it. Measured on the coarse
+   mesh (E = 400 Pa, nu = 0.3, 100 mm^2/s), largest interface displacement: base
+   27.5 um; k = 1e-3 um^2 (drained, no through-flow) 31.5 um; 1 um^2 31.5; 10 um^2
+   31.6; 100 um^2 32.1 (largest interface velocity 9 mm/s); 1000 um^2 27.7 (53 mm/s);
+   1e4 um^2 13.0 (102 mm/s); the paper mesh agrees to 0.2 um up to 3000 um^2 (the
+   base model: 0.12 um). Up to ~100 um^2 the through-flow changes the displacement by
+   2 % at most, and upwards; above, it decreases it fast. For permeabilities well
+   below 100 um^2 the drained step is thus the larger part of the effect. Darcy's law
+   is no longer valid when ``sqrt(k)`` nears the size of the patch (a Brinkman term
+   would be needed): keep ``k`` well below 1e4 um^2 (``sqrt(k)`` = 0.1 mm).
+
+   Switching the candidate on adds the pore-pressure space (a structural change: new
+   state layout, 3 % more unknowns; a base state is embedded into it for a warm start,
+   the pore pressure starting at zero). Cost per solve, ``bench_physics.py`` (noisy,
+   loaded 2-core machine): 1.04 to 1.31 times the base model, cold or warm, coarse or
+   paper mesh; timed phase by phase, +9 % at ``phi = 0`` on the coarse mesh. Newton
+   needs as many iterations as the base model (7-9 from rest at the ground truth, up
+   to 3000 um^2 on the paper mesh). Not combined with
+   the attachment springs: ``permeability.phi > 0`` on their sliding base is a failed
+   solve (:func:`unsupported_combination`).
+
 Loads and the continuation. The load factor of the solver's continuation scales the
 inflow; the two candidates that deform the biofilm without any flow, growth (a
 prestrain) and gravity (a body force), are loads too. A continuation that starts at
@@ -65,10 +156,6 @@ the whole prestrain, and the step halving could not help (at zero inflow it woul
 retry the same problem). A continuation from a converged state at another inflow rate
 keeps them at full value, as that state was solved with them. The factor is 1 at the
 end of every converged solve, so the solution is the same.
-
-Not implemented: a poroelastic biofilm (Darcy/Brinkman flow through the solid with
-effective stress) — it needs a pore-pressure field in the solid and a different
-coupling at the interface; see the project notes.
 """
 
 from __future__ import annotations
@@ -80,16 +167,31 @@ from typing import Any
 __all__ = [
     "CANDIDATES",
     "G_MM_S2",
+    "PORE_PENALTY",
+    "UM2",
     "Candidate",
     "SolidPhysics",
     "check_physics",
     "enabled_candidates",
     "physics_parameters",
     "springs_active",
+    "unsupported_combination",
 ]
 
 #: standard gravity in mm/s^2
 G_MM_S2 = 9810.0
+#: um^2 -> mm^2 (the unit of the permeability phi)
+UM2 = 1.0e-6
+#: dimensionless weight of the interface penalty ``pi = p`` of the pore pressure
+#: (weight ``PORE_PENALTY / h`` against the O(1) Laplace form of ``pi``): the pore
+#: pressure misses the fluid's by ``(h / PORE_PENALTY) dpi/dn`` (1e-5 relative in the
+#: flow cell). Not larger: the range of the Jacobian's entries (down to the ALE
+#: weight, ~1e-10) costs the LU factorization its accuracy. At 1e8 the first Newton
+#: increment on the paper mesh was 1e6 times too large (24 instead of 9 iterations at
+#: k = 0); at 1e6 the attachment springs with the candidate on at k = 0 failed
+PORE_PENALTY = 1.0e4
+#: a moderate permeability, um^2 (typical step of the candidate)
+TYPICAL_K = 100.0
 
 
 @dataclass(frozen=True)
@@ -135,6 +237,8 @@ CANDIDATES: dict[str, Candidate] = {c.name: c for c in (
     Candidate("stiffening", "-", "Fung-type exponential strain stiffening", 20.0, 0.0, None),
     Candidate("gravity", "kg/m^3", "density mismatch biofilm - water (body force)", 50.0,
               None, None),
+    Candidate("permeability", "um^2", "permeable (poroelastic) biofilm: Darcy flow through it "
+              "with permeability phi, skeleton loaded by the pore pressure", TYPICAL_K, 0.0, None),
 )}
 
 
@@ -164,6 +268,23 @@ def springs_active(physics: Mapping[str, Any]) -> bool:
     return bool(sec.get("enabled", False)) and float(sec.get("phi", 0.0)) > 0.0
 
 
+def unsupported_combination(physics: Mapping[str, Any]) -> str:
+    """A failure reason for candidate values the solver cannot combine, else ``""``.
+
+    A permeable biofilm (``permeability.phi > 0``) on the sliding base of the
+    attachment springs (``attachment.phi > 0``): Newton's first step from rest
+    inverts elements at every load step (the linearization is near-singular: the
+    base's tangential velocity is free for the springs and also Darcy's). Each of the
+    two works with the other switched on at ``phi = 0``.
+    """
+    perm = physics.get("permeability", {})
+    if springs_active(physics) and perm.get("enabled", False) and float(perm.get("phi", 0.0)) > 0:
+        return (f"physics.permeability.phi = {perm['phi']} together with the attachment springs "
+                f"(physics.attachment.phi = {physics['attachment']['phi']}) is not supported: "
+                "the Darcy flow along the sliding base makes Newton's linearization singular")
+    return ""
+
+
 class SolidPhysics:
     """NGSolve parameters and coefficient functions of the switched-on candidates.
 
@@ -189,6 +310,10 @@ class SolidPhysics:
         self.spring_stiffness = ng.Parameter(0.0)
         #: full values of the phi of growth and gravity (scaled by set_load_factor)
         self._loads: tuple[float, float] = (0.0, 0.0)
+        #: Darcy mobility k/mu of the biofilm, mm^2/(mPa s) in solver units
+        self.darcy_mobility = ng.Parameter(0.0)
+        #: 1 when the pore pressure loads the skeleton (k > 0), 0 at k = 0
+        self.pore_coupling = ng.Parameter(0.0)
         self.springs = springs_active(physics)
         self._layer_indicator = None
         if "layer" in self.enabled:
@@ -200,6 +325,11 @@ class SolidPhysics:
                 self._layer_indicator = ng.IfPos(ng.y - (patch_height - t), 1.0, 0.0)
 
     # ------------------------------------------------------------------ forms
+    @property
+    def permeable(self) -> bool:
+        """True when the biofilm has a pore pressure (candidate ``permeability`` on)."""
+        return "permeability" in self.enabled
+
     def stress_factor(self) -> Any:
         """Scalar factor on ``P`` from the stiffness layer (``None`` when off)."""
         import ngsolve as ng
@@ -225,11 +355,19 @@ class SolidPhysics:
         return ng.CoefficientFunction((0.0, -G_MM_S2 * 1.0e-3 * self.gravity_phi))
 
     # ------------------------------------------------------------------ values
-    def set_values(self, physics: Mapping[str, Any], stress_unit: float) -> None:
+    def set_values(self, physics: Mapping[str, Any], stress_unit: float,
+                   viscosity: float = 1.0) -> None:
         """Set the parameters from the ``phi`` values of ``physics`` (user units).
 
-        ``stress_unit`` converts Pa to solver stress units (spring stiffness Pa/mm).
+        ``stress_unit`` converts Pa to solver stress units (spring stiffness Pa/mm);
+        ``viscosity`` is the fluid's dynamic viscosity in solver units (mg/(mm s)), for
+        the Darcy mobility ``k/mu``.
         """
+        k = float(physics["permeability"]["phi"])
+        if k < 0.0:
+            raise ValueError(f"physics.permeability.phi = {k}: a permeability must be >= 0 um^2")
+        self.darcy_mobility.Set(k * UM2 / float(viscosity))
+        self.pore_coupling.Set(1.0 if k > 0.0 else 0.0)
         self.layer_phi.Set(float(physics["layer"]["phi"]))
         self.stiffening_phi.Set(float(physics["stiffening"]["phi"]))
         self._loads = (float(physics["growth"]["phi"]), float(physics["gravity"]["phi"]))

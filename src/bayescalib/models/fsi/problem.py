@@ -63,7 +63,8 @@ class FSIProblem:
         or ``"symmetric"`` (``2 mu eps(u) : eps(v)``; natural condition: zero traction).
     physics
         Candidate physics of the solid (:class:`bayescalib.models.fsi.physics.SolidPhysics`):
-        stress factor, growth, stiffening, body force, base springs; ``None`` for none.
+        stress factor, growth, stiffening, body force, base springs, a permeable solid
+        with a pore pressure (needs ``fluid`` and ``interface``); ``None`` for none.
     velocity_dirichlet_xy, displacement_dirichlet_xy
         Component-wise Dirichlet boundaries ``(x regex, y regex)``; when given they
         replace ``velocity_dirichlet`` / ``displacement_dirichlet`` (e.g. a base that

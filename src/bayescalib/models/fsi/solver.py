@@ -27,6 +27,14 @@ displacement ``d`` (P2, over both; in the fluid it is the ALE mesh displacement)
 * ALE mesh: harmonic extension of the solid displacement into the fluid,
   ``alpha int_f grad d : grad w dX``, with a tiny weight ``alpha`` (it shares the
   interface rows with the ``u = 0`` form; a large weight lets the interface slip).
+* permeable solid (candidate physics ``permeability``, derivation in
+  :mod:`bayescalib.models.fsi.physics`): a fourth block, the pore pressure ``pi`` (P1 on
+  the solid regions), appended after the displacement. In the solid, ``u`` is then the
+  Darcy velocity: ``int_s u . w + (k/mu) (F^-T grad pi) . w dX`` on the rows of
+  ``u = 0``; ``pi`` solves ``int_s J (F^-T grad pi) . (F^-T grad r) dX = 0`` with
+  ``pi = p`` on the interface (penalty); the solid momentum gets the pore pressure
+  ``- c pi J tr(grad v F^-1)``. At ``k = 0`` (``c = 0``) the blocks of the base model
+  do not see ``pi``: their solution is the base solution to round-off.
 
 Nonlinear solution
 ------------------
@@ -58,6 +66,7 @@ from typing import Any
 import numpy as np
 
 from bayescalib.models.fsi.materials import piola1
+from bayescalib.models.fsi.physics import PORE_PENALTY
 from bayescalib.models.fsi.problem import FSIProblem
 
 
@@ -183,14 +192,22 @@ class MonolithicSolver:
         if self.has_solid:
             D = _vector_space(mesh, order, pb.displacement_dirichlet, pb.displacement_dirichlet_xy)
             spaces.append(D)
+        self.i_u = 0
+        self.i_p = 1 if self.has_fluid else None
+        self.i_d = (len(spaces) - 1) if self.has_solid else None
+        # pore pressure of a permeable biofilm (candidate physics), last block
+        self.permeable = bool(getattr(pb.physics, "permeable", False))
+        self.i_pore = None
+        if self.permeable:
+            if not (self.has_fluid and self.has_solid and pb.interface is not None):
+                raise ValueError("a permeable solid needs a fluid, solid regions and an interface")
+            spaces.append(ng.H1(mesh, order=order - 1, definedon="|".join(pb.solids)))
+            self.i_pore = len(spaces) - 1
         X = ng.FESpace(spaces)
         self.X = X
         self.gfu = ng.GridFunction(X)
         self._inv = None
         self.ncomp = len(spaces)
-        self.i_u = 0
-        self.i_p = 1 if self.has_fluid else None
-        self.i_d = (self.ncomp - 1) if self.has_solid else None
 
         self.load = ng.Parameter(0.0)
         self.E = {name: ng.Parameter(1.0) for name in pb.solids}
@@ -286,10 +303,35 @@ class MonolithicSolver:
                 if bf is not None:
                     a += -ng.InnerProduct(bf, v) * dxs
                 a += ng.InnerProduct(u, w) * dxs
+                if self.permeable:
+                    a += self._pore_forms(F, v, w, trials[self.i_pore], tests[self.i_pore], dxs)
+            if self.permeable:
+                # pore pressure = fluid pressure on the interface (penalty, reference length)
+                pi, r = trials[self.i_pore], tests[self.i_pore]
+                p = trials[self.i_p]
+                beta = PORE_PENALTY / pb.length_scale
+                a += beta * (pi - p) * r * ng.ds(definedon=mesh.Boundaries(pb.interface))
             if pb.spring_boundary is not None:
                 dsb = ng.ds(definedon=mesh.Boundaries(pb.spring_boundary))
                 a += pb.physics.spring_stiffness * d[0] * v[0] * dsb
         return a, fluid_form
+
+    def _pore_forms(self, F, v, w, pi, r, dxs):
+        """Poroelastic terms of one solid region (candidate ``permeability``, see
+        :mod:`bayescalib.models.fsi.physics`): Darcy's law on the ``u = 0`` rows, the
+        k-free pore-pressure equation, and the pore pressure in the total stress."""
+        import ngsolve as ng
+
+        ph = self.problem.physics
+        J = ng.Det(F)
+        Finv = ng.Inv(F)
+        grad_pi = Finv.trans * ng.Grad(pi)
+        compile_mode = self.problem.compile
+        form = ph.darcy_mobility * ng.InnerProduct(grad_pi, w) * dxs
+        form += _compiled(J * ng.InnerProduct(grad_pi, Finv.trans * ng.Grad(r)), compile_mode) * dxs
+        form += -ph.pore_coupling * _compiled(J * ng.Trace(ng.Grad(v) * Finv) * pi,
+                                              compile_mode) * dxs
+        return form
 
     # ------------------------------------------------------------------ state access
     @property

@@ -9,7 +9,8 @@ edge midpoints, and every field is evaluated element by element at the six nodes
 P2 field at all its nodes. Nodes shared by neighbouring triangles are merged; on the
 fluid-biofilm interface the pressure is the fluid's (it is defined on the fluid only).
 
-Point data ``velocity`` (mm/s), ``pressure`` (Pa; 0 in the solid), ``displacement``
+Point data ``velocity`` (mm/s; in a permeable solid the Darcy velocity), ``pressure``
+(Pa; in the solid the pore pressure of a permeable biofilm, else 0), ``displacement``
 (mm); cell data ``region`` (0 fluid, 1.. solid regions); points moved by the
 displacement. The file is written atomically.
 """
@@ -46,6 +47,9 @@ def write_fields_vtu(path: str | Path, solver: Any, pressure_scale: float = _PRE
     pres = np.zeros(xy.shape[0])
     if solver.i_p is not None:
         pres = np.asarray(solver.gfu.components[solver.i_p](mips), dtype=float).ravel()
+        if solver.i_pore is not None:  # pore pressure, zero outside the solid regions
+            pres = pres + np.asarray(solver.gfu.components[solver.i_pore](mips),
+                                     dtype=float).ravel()
         pres = pres * pressure_scale
     regions = {name: i for i, name in enumerate(mesh.GetMaterials())}
     reg = np.array([regions[el.mat] for el in mesh.Elements(ng.VOL)], dtype=np.int32)
