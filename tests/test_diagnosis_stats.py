@@ -468,3 +468,39 @@ def test_a_failed_signature_is_retried_and_an_untestable_candidate_is_named(
         g = sig["prestrain"]
         assert np.max(np.abs(ref)) > 0.1  # mm per unit prestrain: a visible effect
         assert np.max(np.abs(g - ref)) <= 0.02 * np.max(np.abs(ref))
+
+
+def test_an_extension_with_a_step_at_zero_is_not_trained_on_base_solves(tmp_path, monkeypatch):
+    """The permeable biofilm's phi -> 0+ is the drained biofilm, not the base model:
+    base solves would put a jump on the edge of the extended surrogate's box, so they
+    are not reused; a continuous candidate reuses them at phi = 0."""
+    from bayescalib.diagnosis.extended import CandidateSpec, extended_calibration
+    from bayescalib.diagnosis.stage import resolve_candidates
+    from bayescalib.stages import chain
+
+    perm = next(c for c in resolve_candidates({"type": "fsi"}, {}) if c.name == "permeability")
+    growth = next(c for c in resolve_candidates({"type": "fsi"}, {}) if c.name == "growth")
+    assert perm.continuous is False and growth.continuous is True
+    seen = {}
+
+    def fake_rounds(**kw):
+        seen["reused"], seen["budget"] = kw["reused"], kw["active"]["max_solves"]
+        return {}
+
+    monkeypatch.setattr(chain, "calibrate_rounds", fake_rounds)
+    base = {"X": np.ones((5, 2)), "loglik": np.zeros(5), "D": np.zeros(5),
+            "status": np.ones(5, bool), "bound": np.zeros(5), "n_measurements": np.ones(5),
+            "reason": [""] * 5}
+    monkeypatch.setattr(chain, "training_rows", lambda _: base)
+    params = [{"name": "E", "target": "material.E", "prior": {"type": "uniform", "lo": 1.0,
+                                                              "hi": 2.0}, "bounds": [1.0, 2.0]},
+              {"name": "nu", "target": "material.nu", "prior": {"type": "uniform", "lo": 0.0,
+                                                                "hi": 0.4}, "bounds": [0.0, 0.4]}]
+    kw = {"fm": {}, "parameters": params, "base_training": "t.h5", "n_new": 4,
+          "max_new": 8, "seed": 0, "active": {"max_solves": 99}, "workdir": tmp_path}
+    extended_calibration(growth, **kw)
+    assert seen["reused"]["X"].shape == (5, 3) and seen["budget"] == 5 + 8
+    assert np.all(seen["reused"]["X"][:, 2] == 0.0)
+    extended_calibration([growth, perm], **kw)
+    assert seen["reused"]["X"].shape == (0, 4) and seen["budget"] == 8
+    assert isinstance(CandidateSpec("a", "b", 1.0, (0, 1)).continuous, bool)

@@ -5,7 +5,8 @@ parameters plus each candidate's ``phi`` with a uniform prior on its range (one
 candidate, or two found together by the attribution, which are then modelled
 together). Because every candidate is nested (``phi = 0`` is the base model exactly),
 every base design point is a valid training point of the extended model at
-``phi = 0``: the base training table is reused as is,
+``phi = 0``: the base training table is reused as is (unless the model has a step at
+``phi = 0+``, as the permeable biofilm has: then it is trained on its own solves),
 and round 0 adds ``n_new`` scrambled Sobol points over the extended box. From there the
 extended model is calibrated exactly as the study was: active-design rounds with the
 study's ``design.active`` settings (surrogate, SMC, trust check, stop rule, next batch),
@@ -53,6 +54,9 @@ class CandidateSpec:
         ``{"physics.growth.enabled": True}``).
     summary
         Plain-words description.
+    continuous
+        Whether the model is continuous in ``phi`` at ``phi = 0``; when not (the
+        permeable biofilm's drained step), the base design is not reused at ``phi = 0``.
     """
 
     name: str
@@ -62,6 +66,7 @@ class CandidateSpec:
     unit: str = "-"
     switches: dict[str, Any] = field(default_factory=dict)
     summary: str = ""
+    continuous: bool = True
 
 
 def _as_list(cands: CandidateSpec | Sequence[CandidateSpec]) -> list[CandidateSpec]:
@@ -136,7 +141,11 @@ def extended_calibration(
     base = training_rows(base_training)
     reused = {**base, "X": np.hstack([base["X"],
                                       np.zeros((len(base["loglik"]), len(group)))])}
-    budget = {**dict(active), "max_solves": len(base["loglik"]) + int(max_new)}
+    if not all(c.continuous for c in group):
+        # a model with a step at phi = 0+: the base solves would put a jump on the edge
+        # of the surrogate's box, so the extended model is trained on its own solves
+        reused = {k: v[:0] for k, v in reused.items()}
+    budget = {**dict(active), "max_solves": len(reused["loglik"]) + int(max_new)}
     switches = {k: v for c in group for k, v in c.switches.items()}
     cal = calibrate_rounds(fm=fm, parameters=params_ext, initial=X0, switches=switches,
                            reused=reused, active=budget, workdir=workdir, **chain)

@@ -111,7 +111,8 @@ def resolve_candidates(fm: Mapping[str, Any], diagnose: Mapping[str, Any]) -> li
             continue  # already part of the model being diagnosed
         out.append(CandidateSpec(name=name, target=c.key, step=c.typical,
                                  prior=DEFAULT_FSI_PRIORS[name], unit=c.unit,
-                                 switches={f"physics.{name}.enabled": True}, summary=c.summary))
+                                 switches={f"physics.{name}.enabled": True}, summary=c.summary,
+                                 continuous=c.continuous))
     return out
 
 

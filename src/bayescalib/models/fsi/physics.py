@@ -210,6 +210,11 @@ class Candidate:
         A moderate value of ``phi`` (used for benchmarks and finite-difference steps).
     lo, hi
         Admissible range of ``phi`` (the schema's bounds; ``None`` = unbounded).
+    continuous
+        Whether the model is continuous in ``phi`` at ``phi = 0`` (the base model). The
+        permeable biofilm is not: ``phi -> 0+`` is the drained biofilm, a step away from
+        the impermeable base model, so base solves are no training points of its
+        extended model near ``phi = 0+``.
     """
 
     name: str
@@ -218,6 +223,7 @@ class Candidate:
     typical: float
     lo: float | None
     hi: float | None
+    continuous: bool = True
 
     @property
     def key(self) -> str:
@@ -238,7 +244,8 @@ CANDIDATES: dict[str, Candidate] = {c.name: c for c in (
     Candidate("gravity", "kg/m^3", "density mismatch biofilm - water (body force)", 50.0,
               None, None),
     Candidate("permeability", "um^2", "permeable (poroelastic) biofilm: Darcy flow through it "
-              "with permeability phi, skeleton loaded by the pore pressure", TYPICAL_K, 0.0, None),
+              "with permeability phi, skeleton loaded by the pore pressure", TYPICAL_K, 0.0, None,
+              continuous=False),
 )}
 
 
