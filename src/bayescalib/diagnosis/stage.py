@@ -43,7 +43,8 @@ from bayescalib.diagnosis.extended import CandidateSpec, extended_calibration
 from bayescalib.inference.posterior import equal_weight_draws
 from bayescalib.stages import model_interfaces
 
-__all__ = ["DEFAULT_FSI_PRIORS", "decide_verdict", "plain_words", "resolve_candidates", "run_diagnosis"]
+__all__ = ["DEFAULT_FSI_PRIORS", "IMAGE_NOISE_LAG_PIXELS", "decide_verdict", "noise_lag", "plain_words",
+           "resolve_candidates", "run_diagnosis"]
 
 log = logging.getLogger(__name__)
 
@@ -89,6 +90,27 @@ def resolve_candidates(fm: Mapping[str, Any], diagnose: Mapping[str, Any]) -> li
 
 
 # ------------------------------------------------------------------------- helpers
+#: lag of the noise estimate for interfaces traced from images, in pixel sizes (see
+#: :func:`bayescalib.diagnosis.residuals.estimate_noise`)
+IMAGE_NOISE_LAG_PIXELS = 5.0
+
+
+def noise_lag(diagnose: Mapping[str, Any], observations: Mapping[str, Any]) -> float:
+    """Arc length (mm) over which the noise estimate differences the residual:
+    ``diagnose.noise_lag`` if set, else :data:`IMAGE_NOISE_LAG_PIXELS` times the largest
+    pixel size of the image files among the observations, else 0 (adjacent nodes)."""
+    from bayescalib.io.observations import IMAGE_SUFFIXES, UNITS
+
+    if diagnose.get("noise_lag") is not None:
+        return float(diagnose["noise_lag"])
+    if observations.get("source") != "files":
+        return 0.0
+    sizes = [float(e["pixel_size"]) * UNITS[e.get("units") or "mm"]
+             for e in observations.get("files") or []
+             if Path(e["path"]).suffix.lower() in IMAGE_SUFFIXES and e.get("pixel_size")]
+    return IMAGE_NOISE_LAG_PIXELS * max(sizes) if sizes else 0.0
+
+
 def _check_from_particles(tag: str, particles: str | Path, targets: Sequence[str],
                           switches: Mapping[str, Any], obs, fm, cfg, work: Path,
                           workers: int, warm_start, sigma):
@@ -109,6 +131,7 @@ def _check_from_particles(tag: str, particles: str | Path, targets: Sequence[str
     check = predictive_check(obs.snapshots, [model_interfaces(r, n_snap) for r in good],
                              labels=obs.labels, sigma=sigma, noise_floor=cfg["noise_floor"],
                              ell=cfg["smoothing"], alpha=cfg["alpha"], n_noise=cfg["n_noise"],
+                             noise_lag=cfg["noise_lag_mm"],
                              rng=np.random.default_rng(int(cfg["seed"]) + 1))
     return check, len(runs) - len(good)
 
@@ -190,6 +213,7 @@ def run_diagnosis(
     base_evidence = float(read_particles_h5(particles_path).log_evidence)
     base_summary = json.loads(Path(posterior_path).read_text())
     base_design = {k: design.get(k) for k in ("strategy", "n_solves", "converged", "reason")}
+    cfg["noise_lag_mm"] = noise_lag(cfg, observations)
     sigma = cfg["noise_sigma"]
     if sigma is None and observations["source"] == "synthetic" \
             and float(observations["noise_sigma"]) > 0:
