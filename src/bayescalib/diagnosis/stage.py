@@ -44,7 +44,7 @@ from bayescalib.inference.posterior import equal_weight_draws
 from bayescalib.stages import model_interfaces
 
 __all__ = ["DEFAULT_FSI_PRIORS", "IMAGE_NOISE_LAG_PIXELS", "decide_verdict", "noise_lag", "plain_words",
-           "resolve_candidates", "run_diagnosis"]
+           "resolve_candidates", "run_diagnosis", "thinned_observations"]
 
 log = logging.getLogger(__name__)
 
@@ -109,6 +109,26 @@ def noise_lag(diagnose: Mapping[str, Any], observations: Mapping[str, Any]) -> f
              for e in observations.get("files") or []
              if Path(e["path"]).suffix.lower() in IMAGE_SUFFIXES and e.get("pixel_size")]
     return IMAGE_NOISE_LAG_PIXELS * max(sizes) if sizes else 0.0
+
+
+def thinned_observations(obs, spacing: float):
+    """The observation set with every snapshot thinned to one node per ``spacing`` mm of
+    arc length (:func:`bayescalib.diagnosis.residuals.thin_nodes`; 0 = unchanged): the
+    nodes the diagnosis uses when the noise is correlated along the interface (images)."""
+    import dataclasses
+
+    from bayescalib.diagnosis.residuals import thin_nodes
+    from bayescalib.geometry.interface import Interface
+
+    if spacing <= 0:
+        return obs
+    snaps = []
+    for s in obs.snapshots:
+        pts = np.asarray(s.points)
+        idx = thin_nodes(pts, spacing)
+        snaps.append(Interface.polyline(pts[idx], closed=s.n_cells == s.n_points and idx.size >= 3,
+                                        name=s.name))
+    return dataclasses.replace(obs, snapshots=snaps)
 
 
 def _check_from_particles(tag: str, particles: str | Path, targets: Sequence[str],
@@ -214,6 +234,8 @@ def run_diagnosis(
     base_summary = json.loads(Path(posterior_path).read_text())
     base_design = {k: design.get(k) for k in ("strategy", "n_solves", "converged", "reason")}
     cfg["noise_lag_mm"] = noise_lag(cfg, observations)
+    n_observed = [len(s.points) for s in obs.snapshots]
+    obs = thinned_observations(obs, cfg["noise_lag_mm"])
     sigma = cfg["noise_sigma"]
     if sigma is None and observations["source"] == "synthetic" \
             and float(observations["noise_sigma"]) > 0:
@@ -355,6 +377,8 @@ def run_diagnosis(
         "bias_before": _bias(base_summary, parameters),
         "base_calibration": base_design,
         "hidden_truth": obs.meta.get("hidden") or None,
+        "observed_nodes": {"n_observed": n_observed, "n_used": [len(s.points) for s in obs.snapshots],
+                           "spacing_mm": float(cfg["noise_lag_mm"])},
         "units": "lengths mm; phi in the candidate's unit",
     }
     out["plain_words"] = plain_words(out)
