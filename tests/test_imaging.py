@@ -237,3 +237,58 @@ def test_thinning_keeps_one_node_per_spacing():
     assert len(idx) == 41
     with pytest.raises(ValueError, match="spacing"):
         thin_nodes(pts, -1.0)
+
+
+# ------------------------------------------------------------------- the workflow
+IMAGE_STUDY = {
+    "study": "analytic_images",
+    "forward_model": {"type": "python", "time_limit_s": 60,
+                      "python": {"function": "bayescalib.models.analytic:interface"},
+                      "loadings": {"parameter": "V", "nominal": 100.0, "factors": [0.5, 1.0]}},
+    "parameters": [
+        {"name": "E", "unit": "Pa", "target": "E", "prior": {"type": "uniform", "lo": 100.0, "hi": 800.0},
+         "bounds": [100.0, 800.0], "ground_truth": 400.0},
+        {"name": "nu", "unit": "-", "target": "nu", "prior": {"type": "uniform", "lo": -0.8, "hi": 0.45},
+         "bounds": [-0.8, 0.45], "ground_truth": 0.3}],
+    "measures": ["cpp"],
+    # sigma_N = 2 um: the masks' segmentation error is 1.5-2.2 um RMS (0.3-0.45 pixel)
+    "likelihood": {"sigma_n2": 4.0e-6},
+    "design": {"strategy": "fixed", "n_train": 32, "seed": 1},
+    "surrogate": {"restarts": 1},
+    "smc": {"n_particles": 500, "n_rej": 3, "zeta": 0.9, "seed": 0},
+    "plots": {"n_interface_samples": 2, "formats": ["png"], "dpi": 60, "grid": 20, "fields": False},
+    "diagnose": {"enabled": True, "n_draws": 8, "n_extend": 0,
+                 "candidates": [{"name": "base_slip", "target": "base_slip", "step": 0.005,
+                                 "prior": [0.0, 0.03], "unit": "mm",
+                                 "summary": "base slides downstream"}]},
+}
+
+
+@pytest.mark.workflow
+@pytest.mark.extended
+def test_the_diagnosis_of_a_study_observed_as_masks_estimates_the_noise(tmp_path):
+    """Masks of the analytic model's truth at two loadings, read by a files-sourced study
+    (pixel_size, origin): the diagnosis must estimate the noise from them (not take a
+    generator's value), at the segmentation error's size, on nodes one lag apart."""
+    from _workflow_helpers import setup_study, smk
+
+    truth = _analytic({"E": 400.0, "nu": 0.3})
+    section, obs = _observe_masks(tmp_path, truth)
+    err = np.concatenate([offsets(np.asarray(s.points), c, [])[0]
+                          for s, c in zip(obs.snapshots, truth, strict=True)])
+    rms = float(np.sqrt(np.mean(err**2)))
+    setup_study(tmp_path, {**IMAGE_STUDY, "observations": section})
+    smk(tmp_path)
+    root = tmp_path / "results" / "analytic_images"
+    d = json.loads((root / "diagnosis" / "diagnosis.json").read_text())
+    assert d["check"]["sigma_source"] == "estimated"
+    assert d["check"]["noise_lag_mm"] == pytest.approx(IMAGE_NOISE_LAG_PIXELS * S)
+    assert d["check"]["sigma_mm"] == pytest.approx(rms, rel=0.35)
+    nodes = d["observed_nodes"]
+    assert nodes["spacing_mm"] == pytest.approx(IMAGE_NOISE_LAG_PIXELS * S)
+    assert nodes["n_observed"] == [len(s.points) for s in obs.snapshots]
+    assert all(u < n / 5 for u, n in zip(nodes["n_used"], nodes["n_observed"], strict=True))
+    assert d["check"]["statistics"]["n_nodes"] == sum(nodes["n_used"])
+    # nothing is hidden in the masks: no candidate physics may be claimed
+    assert d["attribution"]["selected"] == [] and d["chosen_model"] == "base"
+    assert not d["verdict"].startswith("mismatch explained")

@@ -217,7 +217,7 @@ def pixel_grid(
     y_hi = b[1, 1] + margin
     w = int(np.ceil((x_hi - x_lo) / s))
     h = int(np.ceil((y_hi - y_lo) / s))
-    return (max(h, 2), max(w, 2)), (x_lo + 0.5 * s, y_lo + 0.5 * s)
+    return (max(h, 2), max(w, 2)), (float(x_lo + 0.5 * s), float(y_lo + 0.5 * s))
 
 
 def _occupancy(points: np.ndarray, shape: tuple[int, int],
