@@ -253,7 +253,7 @@ def main() -> None:
     from bayescalib.study import Study
 
     def snakemake(files: list[Path], *targets: str) -> subprocess.CompletedProcess:
-        cmd = [sys.executable, "-m", "snakemake", "--cores", str(args.cores), "-q",
+        cmd = [sys.executable, "-m", "snakemake", "--cores", str(args.cores), "-q", "--rerun-incomplete",
                "--configfile", *map(str, files), *(["--", *targets] if targets else [])]
         print(f"== {' '.join(cmd[2:])}", flush=True)
         return subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, check=False)
