@@ -16,10 +16,24 @@ log Bayes factor of the best extended model, the study's own calibration (solves
 converged or not) and the relative error of E and nu: in the study's calibration (what
 summary.json reports, which the diagnosis starts from) and in the chosen model.
 
+Observation modes (``--observations``): ``synthetic`` (the studies as written: the
+ground-truth interface plus 1 um Gaussian coordinate noise) and ``images`` (study name
+suffix ``_images``): the noise-free ground-truth interface of every loading (the
+synthetic study's ``observations/ground_truth_run.h5``) is rendered as an OCT-like scan
+at 5 um pixels (Gaussian PSF of 1 pixel, 4-look speckle, additive noise) and segmented
+into a mask (Gaussian pre-smoothing of 1 pixel, threshold at half the contrast, specks
+and holes under 16 pixels removed), see :func:`bayescalib.geometry.imaging.render_mask`;
+the study then reads one PNG per loading (``observations.source: files`` with
+``pixel_size`` and ``origin``), and the diagnosis estimates the noise from the data
+(``diagnose.noise_sigma: null``). Masks, their sidecars and the scans are written to
+``<out>/images/<study>/``. The localization overlap maps the effect region from the
+ground-truth nodes to the observed (traced) nodes the diagnosis used (thinned to one per
+5 pixels of arc length, the segmentation error's correlation length) by nearest node.
+
 Usage::
 
     python benchmarks/concealed.py [--studies growth,null] [--variants several,one]
-        [--cores 2] [--out results/concealed]
+        [--observations synthetic,images] [--cores 2] [--out results/concealed]
 
 Each study is a Snakemake run (``--configfile config/concealed/common.yaml
 config/concealed/<name>.yaml``); finished runs are reused, so the command resumes.
@@ -62,8 +76,87 @@ def _variant_config(study_file: Path, variant: str, out: Path) -> tuple[list[Pat
     return files, name
 
 
+#: image mode: pixel size (mm), OCT-like rendering and segmentation (see the docstring)
+PIXEL_SIZE = 0.005
+RENDER = {"psf_sigma": 1.0, "looks": 4.0, "noise": 0.05, "smooth": 1.0, "threshold": 0.5,
+          "min_size": 16}
+#: image mode: margin of the field of view around the interface, mm (none below the floor)
+MARGIN = 0.05
+#: image mode: likelihood noise sigma_N^2, mm^2. The segmentation error of these masks is
+#: 1.5-2.2 um RMS (0.3-0.45 pixel; tests/test_imaging.py), so sigma_N = 2 um, the value
+#: of the synthetic studies, still describes the data: the same likelihood in both modes
+SIGMA_N2_IMAGES = 4.0e-6
+
+
+def _image_config(files: list[Path], name: str, gt_path: Path, out: Path, seed: int) -> Path:
+    """Render the ground truth of every loading to masks and write a study config that
+    reads them (``observations.source: files``); returns the config's path."""
+    from bayescalib.config import deep_merge
+    from bayescalib.geometry.imaging import pixel_grid, render_scan, segment_scan
+    from bayescalib.geometry.interface import Interface
+    from bayescalib.io.observations import write_mask_png
+    from bayescalib.io.runrecord import read_run
+
+    cfg: dict = {}
+    for f in files:
+        cfg = deep_merge(cfg, yaml.safe_load(Path(f).read_text()))
+    gt = read_run(gt_path)
+    if not gt.ok:
+        raise RuntimeError(f"{gt_path}: the ground-truth solve failed ({gt.reason})")
+    lds = gt.loadings or []
+    curves = [ld.current for ld in lds] or [gt.interface_current]
+    labels = [ld.label for ld in lds] or ["ground_truth"]
+    loads = [ld.value for ld in lds] or [gt.parameters.get("inflow.rate")]
+    folder = out / "images" / f"{name}_images"
+    folder.mkdir(parents=True, exist_ok=True)
+    rng = np.random.default_rng(seed)
+    entries = []
+    for pts, label, load in zip(curves, labels, loads, strict=True):
+        curve = Interface.polyline(pts, gt.segments)
+        if not curve.is_chain():
+            raise RuntimeError(f"{gt_path}: the interface of {label} is not an ordered chain")
+        shape, origin = pixel_grid(curve.bounds, PIXEL_SIZE, margin=MARGIN, floor=0.0)
+        scan = render_scan(curve.points, pixel_size=PIXEL_SIZE, origin=origin, shape=shape,
+                           rng=rng, psf_sigma=RENDER["psf_sigma"], looks=RENDER["looks"],
+                           noise=RENDER["noise"])
+        mask = segment_scan(scan, smooth=RENDER["smooth"], threshold=RENDER["threshold"],
+                            min_size=RENDER["min_size"])
+        path = folder / f"{label}.png"
+        write_mask_png(path, mask, pixel_size=PIXEL_SIZE, origin=origin, units="mm",
+                       metadata={"rendered_from": str(gt_path), "loading": label, "load": load,
+                                 "seed": seed, **RENDER})
+        from skimage import io  # the scan itself, 8-bit, to look at
+
+        io.imsave(folder / f"{label}_scan.png",
+                  (255 * np.clip(scan / 1.5, 0, 1)).astype(np.uint8), check_contrast=False)
+        entries.append({"path": str(path), "label": label, "load": load, "units": "mm",
+                        "pixel_size": PIXEL_SIZE, "origin": [float(v) for v in origin]})
+    obs = {"source": "files", "files": entries,
+           "domain": [[0.0, float(cfg["forward_model"].get("fsi", {}).get("geometry", {})
+                                  .get("length", 2.0))], [0.0, 1.0]]}
+    cfg["observations"] = obs
+    cfg["study"] = f"{name}_images"
+    cfg["likelihood"] = {"sigma_n2": SIGMA_N2_IMAGES}
+    diag = dict(cfg.get("diagnose") or {})
+    diag["noise_sigma"] = None  # estimated from the residual (the data), not the generator
+    cfg["diagnose"] = diag
+    cfg["description"] = (f"{cfg.get('description', '')} Observed as segmented images "
+                          f"({1e3 * PIXEL_SIZE:g} um pixels), benchmarks/concealed.py.").strip()
+    path = out / "configs" / f"{name}_images.yaml"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(yaml.safe_dump(cfg, sort_keys=False))
+    return path
+
+
+def _nearest(points: np.ndarray, nodes: np.ndarray) -> np.ndarray:
+    """Index of the nearest of ``nodes`` (m, 2) for each of ``points`` (n, 2)."""
+    d2 = np.sum((points[:, None, :] - nodes[None, :, :]) ** 2, axis=2)
+    return np.argmin(d2, axis=1)
+
+
 def _effect_region(root: Path, fm: dict, truth: dict, bounds: dict,
-                   fd_step: float = 0.01) -> dict[str, list[np.ndarray]] | None:
+                   fd_step: float = 0.01, gt_path: Path | None = None,
+                   observed: list | None = None) -> dict | None:
     """Per snapshot, the observed nodes where the hidden effect shows.
 
     ``raw``: where the effect moves the interface by more than half its maximum on that
@@ -72,13 +165,17 @@ def _effect_region(root: Path, fm: dict, truth: dict, bounds: dict,
     parameters can mimic projected out (least squares on their finite-difference
     Jacobian at the truth, all snapshots together, threshold half the maximum over all
     snapshots): where a calibrated base model can still show it.
+
+    ``gt_path``: the ground-truth run (default: the study's own); ``observed``: observed
+    interfaces whose nodes are not the ground truth's (images): each takes the value of
+    its nearest ground-truth node.
     """
     from bayescalib.diagnosis.residuals import offsets
     from bayescalib.geometry.interface import Interface
     from bayescalib.io.runrecord import read_run
     from bayescalib.models.forward import solve_points
 
-    gt = read_run(root / "observations" / "ground_truth_run.h5")
+    gt = read_run(gt_path or root / "observations" / "ground_truth_run.h5")
     if not gt.ok:
         return None
     pts = [truth]
@@ -114,6 +211,10 @@ def _effect_region(root: Path, fm: dict, truth: dict, bounds: dict,
     splits = np.cumsum([len(y) for y in ys])[:-1]
     unabs = [np.abs(part) >= cut if cut > 0 else np.zeros(len(part), dtype=bool)
              for part in np.split(u, splits)]
+    if observed is not None:
+        raw, unabs = ([r[_nearest(np.asarray(o.points), np.asarray(g))]
+                       for r, o, g in zip(regions, observed, gts, strict=True)]
+                      for regions in (raw, unabs))
     return {"raw": raw, "unabsorbable": unabs,
             "unabsorbable_fraction": float(np.linalg.norm(u) / np.linalg.norm(y_all))
             if np.linalg.norm(y_all) > 0 else None}
@@ -132,7 +233,8 @@ def _overlap(diag: dict, regions: list[np.ndarray] | None, labels: list[str]) ->
     return float(np.sum(loc_all & reg_all) / union) if union else None
 
 
-def _row(study_file: Path, variant: str, root: Path, regions: dict | None, labels) -> dict:
+def _row(study_file: Path, variant: str, root: Path, regions: dict | None, labels,
+         mode: str = "synthetic", hidden: dict | None = None) -> dict:
     diag = json.loads((root / "diagnosis" / "diagnosis.json").read_text())
     chk = diag["check"]
     ext = diag["extended"]
@@ -143,10 +245,11 @@ def _row(study_file: Path, variant: str, root: Path, regions: dict | None, label
     before = diag.get("bias_before") or {}
     design = diag.get("base_calibration") or {}
     after = (chosen or {}).get("bias_after") or {}
-    hidden = diag.get("hidden_truth") or {}
+    hidden = hidden if hidden is not None else (diag.get("hidden_truth") or {})
     effect = ", ".join(f"{k}={v}" for k, v in hidden.items() if not isinstance(v, bool)) or "none"
     return {
-        "study": study_file.stem, "hidden": effect, "loadings": variant,
+        "study": study_file.stem, "hidden": effect, "loadings": variant, "observations": mode,
+        "sigma_um": 1e3 * chk["sigma_mm"], "sigma_source": chk["sigma_source"],
         "verdict": diag["verdict"],
         "top1": diag["attribution"]["ranking"][0]["candidate"] if diag["attribution"]["ranking"] else None,
         "identifiable_top1": diag["attribution"]["ranking"][0]["identifiable_fraction"]
@@ -175,51 +278,84 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--studies", default="", help="comma-separated study names (default: all)")
     ap.add_argument("--variants", default="several,one")
+    ap.add_argument("--observations", default="synthetic",
+                    help="comma-separated observation modes: synthetic, images")
     ap.add_argument("--cores", type=int, default=2)
     ap.add_argument("--out", default=str(REPO / "results" / "concealed"))
     args = ap.parse_args()
     out = Path(args.out)
     rows = []
     from bayescalib.config import deep_merge
+    from bayescalib.diagnosis.stage import thinned_observations
     from bayescalib.io.observation_store import read_observations
     from bayescalib.study import Study
 
+    def snakemake(files: list[Path], *targets: str) -> subprocess.CompletedProcess:
+        cmd = [sys.executable, "-m", "snakemake", "--cores", str(args.cores), "-q", "--rerun-incomplete",
+               "--configfile", *map(str, files), *(["--", *targets] if targets else [])]
+        print(f"== {' '.join(cmd[2:])}", flush=True)
+        return subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, check=False)
+
+    def merged(files: list[Path]) -> dict:
+        cfg = {}
+        for f in [REPO / "config" / "config.yaml", *files]:
+            cfg = deep_merge(cfg, yaml.safe_load(Path(f).read_text()))
+        return cfg
+
+    modes = [m for m in args.observations.split(",") if m]
+    if set(modes) - {"synthetic", "images"}:
+        ap.error(f"--observations: unknown mode(s) {sorted(set(modes) - {'synthetic', 'images'})}")
     for sf in _study_files([s for s in args.studies.split(",") if s] or None):
         for variant in args.variants.split(","):
             files, name = _variant_config(sf, variant, out)
-            cmd = [sys.executable, "-m", "snakemake", "--cores", str(args.cores), "-q",
-                   "--configfile", *map(str, files)]
-            print(f"== {name}: {' '.join(cmd[2:])}", flush=True)
-            proc = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, check=False)
-            if proc.returncode != 0:
-                print(proc.stderr[-3000:])
-                rows.append({"study": sf.stem, "loadings": variant, "verdict": "RUN FAILED"})
-                continue
-            cfg = {}
-            for f in [REPO / "config" / "config.yaml", *files]:
-                cfg = deep_merge(cfg, yaml.safe_load(Path(f).read_text()))
-            study = Study(cfg)
-            root = REPO / study.root
-            obs = read_observations(root / "observations" / "observations.h5")
-            bounds = dict(zip(study.targets(), map(tuple, study.space.bounds), strict=True))
-            regions = _effect_region(root, study.forward_section(), study.ground_truth(),
-                                     bounds) \
-                if (cfg["observations"].get("hidden") or {}) else None
-            rows.append(_row(sf, variant, root, regions, obs.labels))
-    head = ("| hidden effect | loadings | verdict | top-1 (identifiable) | re-fit p | chosen | "
-            "overlap raw/unabsorbable | resid/noise | RMS before/after [um] | ln BF (best) | base solves (converged) | "
-            "E err study/chosen | nu err study/chosen |")
-    lines = [head, "|" + "---|" * 13]
+            syn = merged(files)
+            syn_root = REPO / Study(syn).root
+            gt_path = syn_root / "observations" / "ground_truth_run.h5"
+            hidden = dict(syn["observations"].get("hidden") or {})
+            for mode in modes:
+                run_files = files
+                if mode == "images":
+                    proc = snakemake(files, str(gt_path.relative_to(REPO)))
+                    if proc.returncode == 0:
+                        run_files = [_image_config(files, name, gt_path, out,
+                                                   int(syn["observations"]["seed"]))]
+                if mode == "synthetic" or proc.returncode == 0:
+                    proc = snakemake(run_files)
+                if proc.returncode != 0:
+                    print(proc.stderr[-3000:])
+                    rows.append({"study": sf.stem, "loadings": variant, "observations": mode,
+                                 "verdict": "RUN FAILED"})
+                    continue
+                cfg = merged(run_files)
+                study = Study(cfg)
+                root = REPO / study.root
+                obs = read_observations(root / "observations" / "observations.h5")
+                # the nodes the diagnosis used (images: thinned to the noise's correlation length)
+                diag = json.loads((root / "diagnosis" / "diagnosis.json").read_text())
+                spacing = (diag.get("observed_nodes") or {}).get("spacing_mm") or 0.0
+                used = thinned_observations(obs, spacing)
+                bounds = dict(zip(study.targets(), map(tuple, study.space.bounds), strict=True))
+                regions = _effect_region(
+                    root, study.forward_section(), study.ground_truth(), bounds,
+                    gt_path=gt_path,
+                    observed=used.snapshots if mode == "images" else None) if hidden else None
+                rows.append(_row(sf, variant, root, regions, obs.labels, mode, hidden))
+    head = ("| hidden effect | loadings | observations | verdict | top-1 (identifiable) | re-fit p | "
+            "chosen | overlap raw/unabsorbable | resid/noise | noise sd [um] (source) | RMS before/after [um] | "
+            "ln BF (best) | base solves (converged) | E err study/chosen | nu err study/chosen |")
+    lines = [head, "|" + "---|" * 15]
     for r in rows:
         if r.get("verdict") == "RUN FAILED":
-            lines.append(f"| {r['study']} | {r['loadings']} | RUN FAILED |" + " |" * 10)
+            lines.append(f"| {r['study']} | {r['loadings']} | {r['observations']} | RUN FAILED |"
+                         + " |" * 11)
             continue
         eb, ea = r["err_before"], r["err_after"]
         lines.append(
-            f"| {r['hidden']} | {r['loadings']} | {r['verdict']} | {r['top1']} "
+            f"| {r['hidden']} | {r['loadings']} | {r['observations']} | {r['verdict']} | {r['top1']} "
             f"({_fmt(r['identifiable_top1'])}) | {_fmt(r['refit_p'], '{:.2g}')} | {r['chosen']} | "
             f"{_fmt(r['overlap'])} / {_fmt(r['overlap_unabsorbable'])} | "
             f"{_fmt(r['residual_to_noise'], '{:.1f}')} | "
+            f"{_fmt(r['sigma_um'])} ({r['sigma_source']}) | "
             f"{_fmt(r['rms_before_um'])} / {_fmt(r['rms_after_um'])} | "
             f"{_fmt(r['log_bf'], '{:.1f}')} ({r['best_extended'] or '-'}) | "
             f"{r['base_solves']} ({r['base_converged']}) | "

@@ -58,8 +58,9 @@ from bayescalib.diagnosis.extended import CandidateSpec, extended_calibration, j
 from bayescalib.inference.posterior import equal_weight_draws
 from bayescalib.stages import model_interfaces
 
-__all__ = ["DEFAULT_FSI_PRIORS", "decide_verdict", "explains_mismatch", "plain_words",
-           "resolve_candidates", "retry_steps", "run_diagnosis"]
+__all__ = ["DEFAULT_FSI_PRIORS", "IMAGE_NOISE_LAG_PIXELS", "decide_verdict", "explains_mismatch",
+           "noise_lag", "plain_words", "resolve_candidates", "retry_steps", "run_diagnosis",
+           "thinned_observations"]
 
 log = logging.getLogger(__name__)
 
@@ -117,6 +118,47 @@ def resolve_candidates(fm: Mapping[str, Any], diagnose: Mapping[str, Any]) -> li
 
 
 # ------------------------------------------------------------------------- helpers
+#: lag of the noise estimate for interfaces traced from images, in pixel sizes (see
+#: :func:`bayescalib.diagnosis.residuals.estimate_noise`)
+IMAGE_NOISE_LAG_PIXELS = 5.0
+
+
+def noise_lag(diagnose: Mapping[str, Any], observations: Mapping[str, Any]) -> float:
+    """Arc length (mm) over which the noise estimate differences the residual:
+    ``diagnose.noise_lag`` if set, else :data:`IMAGE_NOISE_LAG_PIXELS` times the largest
+    pixel size of the image files among the observations, else 0 (adjacent nodes)."""
+    from bayescalib.io.observations import IMAGE_SUFFIXES, UNITS
+
+    if diagnose.get("noise_lag") is not None:
+        return float(diagnose["noise_lag"])
+    if observations.get("source") != "files":
+        return 0.0
+    sizes = [float(e["pixel_size"]) * UNITS[e.get("units") or "mm"]
+             for e in observations.get("files") or []
+             if Path(e["path"]).suffix.lower() in IMAGE_SUFFIXES and e.get("pixel_size")]
+    return IMAGE_NOISE_LAG_PIXELS * max(sizes) if sizes else 0.0
+
+
+def thinned_observations(obs, spacing: float):
+    """The observation set with every snapshot thinned to one node per ``spacing`` mm of
+    arc length (:func:`bayescalib.diagnosis.residuals.thin_nodes`; 0 = unchanged): the
+    nodes the diagnosis uses when the noise is correlated along the interface (images)."""
+    import dataclasses
+
+    from bayescalib.diagnosis.residuals import thin_nodes
+    from bayescalib.geometry.interface import Interface
+
+    if spacing <= 0:
+        return obs
+    snaps = []
+    for s in obs.snapshots:
+        pts = np.asarray(s.points)
+        idx = thin_nodes(pts, spacing)
+        snaps.append(Interface.polyline(pts[idx], closed=s.n_cells == s.n_points and idx.size >= 3,
+                                        name=s.name))
+    return dataclasses.replace(obs, snapshots=snaps)
+
+
 def _check_from_particles(tag: str, particles: str | Path, targets: Sequence[str],
                           switches: Mapping[str, Any], obs, fm, cfg, work: Path,
                           workers: int, warm_start, sigma):
@@ -143,6 +185,7 @@ def _check_from_particles(tag: str, particles: str | Path, targets: Sequence[str
     check = predictive_check(obs.snapshots, curves,
                              labels=obs.labels, sigma=sigma, noise_floor=cfg["noise_floor"],
                              ell=cfg["smoothing"], alpha=cfg["alpha"], n_noise=cfg["n_noise"],
+                             noise_lag=cfg["noise_lag_mm"],
                              rng=np.random.default_rng(int(cfg["seed"]) + 1))
     draws = {"X": X, "ok": np.array([r.ok for r in runs]), "curves": curves}
     return check, len(runs) - len(good), draws
@@ -415,6 +458,9 @@ def run_diagnosis(
     base_evidence = float(read_particles_h5(particles_path).log_evidence)
     base_summary = json.loads(Path(posterior_path).read_text())
     base_design = {k: design.get(k) for k in ("strategy", "n_solves", "converged", "reason")}
+    cfg["noise_lag_mm"] = noise_lag(cfg, observations)
+    n_observed = [len(s.points) for s in obs.snapshots]
+    obs = thinned_observations(obs, cfg["noise_lag_mm"])
     sigma = cfg["noise_sigma"]
     if sigma is None and observations["source"] == "synthetic" \
             and float(observations["noise_sigma"]) > 0:
@@ -593,6 +639,8 @@ def run_diagnosis(
         "base_calibration": base_design,
         "hidden_truth": obs.meta.get("hidden") or None,
         "hidden_misregistration": obs.meta.get("misregistration") or None,
+        "observed_nodes": {"n_observed": n_observed, "n_used": [len(s.points) for s in obs.snapshots],
+                           "spacing_mm": float(cfg["noise_lag_mm"])},
         "units": "lengths mm; phi in the candidate's unit; registration shifts mm, "
                  "rotation rad, scale relative",
     }

@@ -30,6 +30,15 @@ If several contours exist (specks, holes), the longest is used.
 Orientation follows :mod:`bayescalib.geometry.interface`: the curve is ordered so that
 the foreground lies on its right, i.e. normals point into the background
 (the fluid); it is checked by sampling the mask on both sides.
+
+Synthetic scans
+---------------
+:func:`render_scan` and :func:`segment_scan` go the other way, for benchmarks with
+image data: an interface is drawn into an OCT-like intensity image (area-fraction
+occupancy, Gaussian point-spread function, multiplicative speckle, additive noise)
+which is then segmented into a mask as an analysis pipeline would (Gaussian
+pre-smoothing, threshold, removal of small specks and holes); :func:`render_mask`
+does both. The pixel grid uses the convention above.
 """
 
 from __future__ import annotations
@@ -40,7 +49,8 @@ import numpy as np
 
 from bayescalib.geometry.interface import Interface
 
-__all__ = ["load_mask", "mask_contour"]
+__all__ = ["load_mask", "mask_contour", "pixel_grid", "render_mask", "render_scan",
+           "segment_scan"]
 
 
 class _MaskError(ValueError):
@@ -167,3 +177,247 @@ def _drop_floor(pts: np.ndarray, closed: bool, y_cut: float, name: str) -> tuple
     if run.shape[0] < 2:
         raise _MaskError(f"{name}: less than 2 contour points above the floor y = {y_cut:g} mm")
     return run, False
+
+
+# ------------------------------------------------------------------ synthetic scans
+def pixel_grid(
+    bounds: np.ndarray, pixel_size: float, margin: float = 0.0, floor: float | None = None
+) -> tuple[tuple[int, int], tuple[float, float]]:
+    """Image shape and origin covering a box with a margin.
+
+    Parameters
+    ----------
+    bounds : array_like, shape (2, 2)
+        ``[[xmin, ymin], [xmax, ymax]]`` in mm (e.g. :attr:`Interface.bounds`).
+    pixel_size : float
+        Pixel size ``s`` in mm (> 0).
+    margin : float
+        Extra space on every side, mm (>= 0); none below ``floor``.
+    floor : float, optional
+        y of the floor in mm: the bottom edge of the image is put on it, so the
+        bottom row of pixels lies just above it (centres at ``floor + s/2``).
+
+    Returns
+    -------
+    shape : (int, int)
+        ``(H, W)`` pixels.
+    origin : (float, float)
+        Position (mm) of the centre of the bottom-left pixel.
+    """
+    b = np.asarray(bounds, dtype=float)
+    s = float(pixel_size)
+    if b.shape != (2, 2) or not np.isfinite(b).all() or np.any(b[1] < b[0]):
+        raise ValueError(f"bounds must be [[xmin, ymin], [xmax, ymax]] in mm, got {b.tolist()}")
+    if not (np.isfinite(s) and s > 0):
+        raise ValueError(f"pixel size must be > 0 mm, got {pixel_size}")
+    if not (np.isfinite(margin) and margin >= 0):
+        raise ValueError(f"margin must be >= 0 mm, got {margin}")
+    x_lo, x_hi = b[0, 0] - margin, b[1, 0] + margin
+    y_lo = b[0, 1] - margin if floor is None else float(floor)
+    y_hi = b[1, 1] + margin
+    w = int(np.ceil((x_hi - x_lo) / s))
+    h = int(np.ceil((y_hi - y_lo) / s))
+    return (max(h, 2), max(w, 2)), (float(x_lo + 0.5 * s), float(y_lo + 0.5 * s))
+
+
+def _occupancy(points: np.ndarray, shape: tuple[int, int],
+               pixel_size: float, origin: tuple[float, float], supersample: int) -> np.ndarray:
+    """Area fraction of every pixel covered by the foreground (see :func:`render_scan`)."""
+    from skimage.draw import polygon
+
+    h, w = shape
+    k = int(supersample)
+    s = float(pixel_size)
+    x0, y0 = float(origin[0]), float(origin[1])
+    # (x, y) -> fractional indices of the k-times finer grid whose cell centres are integers
+    cols = ((points[:, 0] - x0) / s + 0.5) * k - 0.5
+    rows = ((h - 1 - (points[:, 1] - y0) / s) + 0.5) * k - 0.5
+    fine = np.zeros((h * k, w * k), dtype=bool)
+    rr, cc = polygon(rows, cols, shape=fine.shape)
+    fine[rr, cc] = True
+    # the polygon closes the curve by the chord from its last to its first point; with the
+    # foreground on the right of the curve that polygon is traversed clockwise (in x, y);
+    # a counter-clockwise one bounds background (e.g. a fluid-filled hole)
+    x, y = points[:, 0], points[:, 1]
+    signed_area = 0.5 * float(np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y))
+    if signed_area > 0:
+        fine = ~fine
+    return fine.reshape(h, k, w, k).mean(axis=(1, 3))
+
+
+def render_scan(
+    points: np.ndarray,
+    *,
+    pixel_size: float,
+    origin: tuple[float, float],
+    shape: tuple[int, int],
+    rng: np.random.Generator,
+    psf_sigma: float = 1.0,
+    looks: float | None = 4.0,
+    noise: float = 0.05,
+    supersample: int = 8,
+) -> np.ndarray:
+    """OCT-like intensity image of a 2D interface (biofilm bright, fluid dark).
+
+    The foreground is the region on the right of the curve (the convention of
+    :mod:`bayescalib.geometry.interface`: normals point into the fluid); an open
+    curve is closed by the chord from its last to its first point, which for a
+    biofilm patch whose ends sit on the floor is the floor (a closed curve is given
+    without repeating its first point). The image is
+
+    ``I = (G_psf * a) * S + noise * N``,
+
+    where ``a`` is the area fraction of each pixel inside the foreground (from a
+    ``supersample``-times finer grid), ``G_psf`` a Gaussian of standard deviation
+    ``psf_sigma`` pixels, ``S`` speckle: independent gamma-distributed intensity per
+    pixel with mean 1 and ``looks`` looks (standard deviation ``1/sqrt(looks)``;
+    ``looks = 1`` is fully developed speckle, exponential intensity), and ``N``
+    standard normal noise per pixel. The fluid therefore has mean intensity 0 and
+    the biofilm 1.
+
+    Parameters
+    ----------
+    points : array_like, shape (n, 2)
+        The curve, ordered, in mm, foreground on its right.
+    pixel_size : float
+        Pixel size ``s`` in mm (> 0), e.g. 0.005 for 5 um.
+    origin : (float, float)
+        Position (mm) of the centre of the bottom-left pixel.
+    shape : (int, int)
+        ``(H, W)`` pixels (see :func:`pixel_grid`).
+    rng : numpy.random.Generator
+        Source of the speckle and the noise (seed it for a reproducible image).
+    psf_sigma : float
+        Standard deviation of the Gaussian point-spread function, pixels (>= 0).
+    looks : float or None
+        Speckle looks (> 0); None: no speckle.
+    noise : float
+        Standard deviation of the additive Gaussian noise, in units of the
+        biofilm-fluid contrast (>= 0).
+    supersample : int
+        Sub-samples per pixel and axis for the area fraction (>= 1).
+
+    Returns
+    -------
+    ndarray of float, shape (H, W)
+        Intensity; row 0 is the top of the image.
+    """
+    pts = np.asarray(points, dtype=float)
+    if pts.ndim != 2 or pts.shape[1] != 2 or pts.shape[0] < 3:
+        raise ValueError(f"points must be an (n >= 3, 2) array in mm, got shape {pts.shape}")
+    if not np.isfinite(pts).all():
+        raise ValueError("points contain NaN/inf")
+    h, w = (int(v) for v in shape)
+    if h < 2 or w < 2:
+        raise ValueError(f"shape must be at least (2, 2) pixels, got {shape}")
+    if not (np.isfinite(pixel_size) and pixel_size > 0):
+        raise ValueError(f"pixel_size must be > 0 mm, got {pixel_size}")
+    if not (np.isfinite(psf_sigma) and psf_sigma >= 0):
+        raise ValueError(f"psf_sigma must be >= 0 pixels, got {psf_sigma}")
+    if looks is not None and not (np.isfinite(looks) and looks > 0):
+        raise ValueError(f"looks must be > 0 (or None for no speckle), got {looks}")
+    if not (np.isfinite(noise) and noise >= 0):
+        raise ValueError(f"noise must be >= 0, got {noise}")
+    if int(supersample) < 1:
+        raise ValueError(f"supersample must be >= 1, got {supersample}")
+    if not isinstance(rng, np.random.Generator):
+        raise TypeError("rng must be a numpy.random.Generator")
+    from scipy.ndimage import gaussian_filter
+
+    img = _occupancy(pts, (h, w), float(pixel_size), origin, int(supersample))
+    if psf_sigma > 0:
+        img = gaussian_filter(img, float(psf_sigma), mode="nearest")
+    if looks is not None:
+        img = img * rng.gamma(float(looks), 1.0 / float(looks), size=img.shape)
+    if noise > 0:
+        img = img + float(noise) * rng.standard_normal(img.shape)
+    return img
+
+
+def segment_scan(
+    image: np.ndarray,
+    *,
+    smooth: float = 1.0,
+    threshold: float | str = 0.5,
+    min_size: int = 16,
+) -> np.ndarray:
+    """Segment an intensity image into a biofilm mask.
+
+    Parameters
+    ----------
+    image : ndarray of float, shape (H, W)
+        Intensity (e.g. from :func:`render_scan`).
+    smooth : float
+        Standard deviation of a Gaussian pre-filter, pixels (>= 0; 0 = none): it
+        averages the speckle so the threshold does not riddle the biofilm with holes.
+    threshold : float or "otsu"
+        Intensity threshold (0.5 is half the contrast of :func:`render_scan`), or
+        Otsu's threshold of the smoothed image.
+    min_size : int
+        Connected foreground specks and background holes smaller than this many
+        pixels are removed (0 = keep all).
+
+    Returns
+    -------
+    ndarray of bool, shape (H, W)
+        Foreground (biofilm) True.
+    """
+    from scipy.ndimage import gaussian_filter, label
+
+    img = np.asarray(image, dtype=float)
+    if img.ndim != 2:
+        raise ValueError(f"image must be 2D, got shape {img.shape}")
+    if not np.isfinite(img).all():
+        raise ValueError("image contains NaN/inf")
+    if not (np.isfinite(smooth) and smooth >= 0):
+        raise ValueError(f"smooth must be >= 0 pixels, got {smooth}")
+    if int(min_size) < 0:
+        raise ValueError(f"min_size must be >= 0 pixels, got {min_size}")
+    if smooth > 0:
+        img = gaussian_filter(img, float(smooth), mode="nearest")
+    if isinstance(threshold, str):
+        if threshold != "otsu":
+            raise ValueError(f"threshold must be a number or 'otsu', got {threshold!r}")
+        from skimage.filters import threshold_otsu
+
+        t = float(threshold_otsu(img))
+    else:
+        t = float(threshold)
+    mask = img > t
+    if min_size > 0:
+        for value in (True, False):  # specks of foreground, then holes in it
+            lab, n = label(mask == value)
+            if n > 1:
+                sizes = np.bincount(lab.ravel())
+                small = np.flatnonzero(sizes < int(min_size))
+                small = small[small > 0]
+                mask[np.isin(lab, small)] = not value
+    return mask
+
+
+def render_mask(
+    points: np.ndarray,
+    *,
+    pixel_size: float,
+    origin: tuple[float, float],
+    shape: tuple[int, int],
+    rng: np.random.Generator,
+    psf_sigma: float = 1.0,
+    looks: float | None = 4.0,
+    noise: float = 0.05,
+    smooth: float = 1.0,
+    threshold: float | str = 0.5,
+    min_size: int = 16,
+    supersample: int = 8,
+) -> np.ndarray:
+    """Segmented mask of a 2D interface: :func:`render_scan` then :func:`segment_scan`.
+
+    Parameters are those of the two functions (pixel size and origin in mm, the
+    point-spread function and the smoothing in pixels). Returns a boolean array of
+    shape ``shape``, foreground (biofilm) True, which :func:`mask_contour` with the
+    same ``pixel_size`` and ``origin`` turns back into the interface.
+    """
+    img = render_scan(points, pixel_size=pixel_size, origin=origin, shape=shape, rng=rng,
+                      psf_sigma=psf_sigma, looks=looks, noise=noise,
+                      supersample=supersample)
+    return segment_scan(img, smooth=smooth, threshold=threshold, min_size=min_size)

@@ -49,6 +49,7 @@ __all__ = [
     "read_points",
     "write_interface_csv",
     "write_interface_vtk",
+    "write_mask_png",
 ]
 
 #: length unit -> factor to mm
@@ -533,6 +534,55 @@ def write_interface_vtk(path: str | Path, interface: Interface) -> None:
     writer.SetInputData(poly)
     if not writer.Write():
         raise OSError(f"{p}: writing the VTK file failed")
+
+
+def write_mask_png(
+    path: str | Path,
+    mask: np.ndarray,
+    *,
+    pixel_size: float,
+    origin: Sequence[float],
+    units: str = "mm",
+    metadata: dict | None = None,
+) -> Path:
+    """Write a segmented image (8-bit PNG, biofilm 255, fluid 0) and its sidecar.
+
+    The sidecar ``<path>.json`` (e.g. ``mask.png.json``) holds what is needed to read
+    the mask back (``pixel_size``, ``origin`` of the centre of the bottom-left pixel,
+    ``units``; the convention of :mod:`bayescalib.geometry.imaging`) plus free
+    ``metadata`` (e.g. how it was rendered). The reader takes ``pixel_size`` and
+    ``origin`` from the observation config, not from the sidecar.
+
+    Returns
+    -------
+    Path
+        The sidecar's path.
+    """
+    import json
+
+    from skimage import io
+
+    p = Path(path)
+    m = np.asarray(mask, dtype=bool)
+    if p.suffix.lower() != ".png":
+        raise ObservationError(f"{p}: a mask is written as .png")
+    if m.ndim != 2:
+        raise ObservationError(f"{p}: a mask must be 2D, got shape {m.shape}")
+    f = _unit_factor(units, str(p))
+    if not (np.isfinite(pixel_size) and pixel_size > 0):
+        raise ObservationError(f"{p}: pixel_size must be > 0 {units}, got {pixel_size}")
+    if len(origin) != 2:
+        raise ObservationError(f"{p}: origin must be two numbers (x, y), got {origin}")
+    with atomic_path(p, suffix=".png") as tmp:
+        io.imsave(tmp, (m * 255).astype(np.uint8), check_contrast=False)
+    side = p.with_name(p.name + ".json")
+    info = {"pixel_size": float(pixel_size), "origin": [float(v) for v in origin], "units": units,
+            "shape": list(m.shape), "foreground": "biofilm = 255",
+            "convention": "pixel (row, col) centre at x = x0 + col*s, y = y0 + (H-1-row)*s",
+            "pixel_size_mm": float(pixel_size) * f, **(metadata or {})}
+    with atomic_path(side, suffix=".json") as tmp:
+        tmp.write_text(json.dumps(info, indent=2) + "\n")
+    return side
 
 
 def add_noise(interface: Interface, sigma_obs: float, rng: np.random.Generator) -> Interface:
