@@ -367,7 +367,8 @@ def _registration(modes, r, J, v, C0, obs, obs_pts, check, draws, theta, h, fd, 
         moved, rcurves, labels=obs.labels,
         sigma=check.sigma if check.sigma_source == "given" else sigma,
         noise_floor=cfg["noise_floor"], ell=cfg["smoothing"], alpha=cfg["alpha"],
-        n_noise=cfg["n_noise"], rng=np.random.default_rng(int(cfg["seed"]) + 1))
+        n_noise=cfg["n_noise"], noise_lag=cfg["noise_lag_mm"],
+        rng=np.random.default_rng(int(cfg["seed"]) + 1))
     out["check_after"] = after.to_json()
     out["explains"] = bool(out["explained_fraction"] >= float(cfg["r2_min"])
                            and explains_mismatch(out["check_after"], check))
