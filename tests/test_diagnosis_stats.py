@@ -503,4 +503,4 @@ def test_an_extension_with_a_step_at_zero_is_not_trained_on_base_solves(tmp_path
     assert np.all(seen["reused"]["X"][:, 2] == 0.0)
     extended_calibration([growth, perm], **kw)
     assert seen["reused"]["X"].shape == (0, 4) and seen["budget"] == 8
-    assert isinstance(CandidateSpec("a", "b", 1.0, (0, 1)).continuous, bool)
+    assert CandidateSpec("a", "b", 1.0, (0, 1)).continuous is True  # the default: reuse

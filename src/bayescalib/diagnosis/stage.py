@@ -816,8 +816,8 @@ def plain_words(d: Mapping[str, Any]) -> list[str]:
         lines.append("Linearized attribution: " + d["attribution_verdict"] + ".")
     for name, why in (d.get("failed_signatures") or {}).items():
         lines.append(
-            f"Not testable: {name}. Its signature solves failed at every step tried, at "
-            f"the posterior mean and at the feasible posterior draw nearest to it ({why}); "
+            f"Not testable: {name}. Its signature solves failed at every step and place "
+            f"tried (diagnosis.json: signature_attempts; {why}); "
             "it can neither be blamed nor ruled out.")
     for e in d["extended"]:
         ca = e["check_after"]
