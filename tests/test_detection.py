@@ -16,6 +16,7 @@ import pytest
 
 from bayescalib.diagnosis.detection import (
     detection_limit,
+    detection_range,
     detection_trials,
     linear_detectable_magnitude,
     linearize,
@@ -121,6 +122,19 @@ def test_detection_limit_interpolates_in_log_magnitude():
     assert kind == "interpolated" and lim == pytest.approx(1e-3, rel=1e-12)
     with pytest.raises(ValueError, match="increasing"):
         detection_limit([1e-3, 1e-4], [0.1, 0.9])
+
+
+def test_detection_range_says_where_a_nonlinear_effect_is_lost_again():
+    m = [1.0, 10.0, 100.0, 1000.0]
+    rng_ = detection_range(m, [0.2, 0.9, 0.6, 0.1])
+    # reached half-way in log between 1 and 10 (0.2 -> 0.9 passes 0.8 at 6/7 of the way)
+    assert rng_["limit"] == pytest.approx(10 ** (6 / 7), rel=1e-12)
+    # lost again between 10 and 100: 0.9 -> 0.6 passes 0.8 at 1/3 of the way
+    assert rng_["lost_above"] == pytest.approx(10 ** (4 / 3), rel=1e-12)
+    assert (rng_["max_rate"], rng_["at"]) == (0.9, 10.0)
+    assert detection_range(m, [0.2, 0.9, 1.0, 1.0])["lost_above"] is None
+    never = detection_range(m, [0.2, 0.7, 0.5, 0.1])
+    assert never["kind"] == "> max tested" and (never["max_rate"], never["at"]) == (0.7, 10.0)
 
 
 def test_linear_detectable_magnitude_ignores_what_the_base_absorbs():

@@ -7,5 +7,7 @@ located intervals), :mod:`~bayescalib.diagnosis.attribution` (signatures, score
 tests, sparse selection), :mod:`~bayescalib.diagnosis.extended` (calibration of the
 extended model by the study's active-design chain, :mod:`bayescalib.stages.chain`, and Bayes
 factors), :mod:`~bayescalib.diagnosis.stage`
-(the pipeline stage writing ``diagnosis.json``).
+(the pipeline stage writing ``diagnosis.json``), :mod:`~bayescalib.diagnosis.detection`
+(detection limits: noise trials of the linearized diagnosis on real solves,
+``benchmarks/detection_limits.py``).
 """

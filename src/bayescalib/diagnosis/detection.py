@@ -57,7 +57,7 @@ import numpy as np
 from bayescalib.diagnosis.attribution import attribute, refit_test
 from bayescalib.diagnosis.residuals import offsets
 
-__all__ = ["detection_limit", "detection_trials", "linear_detectable_magnitude", "linearize",
+__all__ = ["detection_limit", "detection_range", "detection_trials", "linear_detectable_magnitude", "linearize",
            "noisy_nodes", "top1_rates"]
 
 
@@ -268,6 +268,46 @@ def detection_limit(magnitudes: Sequence[float], rates: Sequence[float],
         return float(m[0]), "<= min tested"
     t = (level - r[i - 1]) / (r[i] - r[i - 1])
     return float(np.exp(np.log(m[i - 1]) + t * (np.log(m[i]) - np.log(m[i - 1])))), "interpolated"
+
+
+def detection_range(magnitudes: Sequence[float], rates: Sequence[float],
+                    level: float = 0.8) -> dict[str, Any]:
+    """The detection limit and what happens above it.
+
+    A rate need not stay above ``level`` once reached: at large magnitudes a nonlinear
+    effect may look more like another candidate than like its own signature (taken at
+    the candidate's step), which is then ranked first.
+
+    Parameters
+    ----------
+    magnitudes, rates, level
+        As in :func:`detection_limit`.
+
+    Returns
+    -------
+    dict
+        ``limit`` and ``kind`` (:func:`detection_limit`); ``lost_above``: the magnitude
+        above the limit where the rate falls below ``level`` again (log-linear between
+        the bracketing grid points; None when it does not); ``max_rate`` and ``at``: the
+        largest rate and its magnitude.
+    """
+    m = np.asarray(magnitudes, dtype=float)
+    r = np.asarray(rates, dtype=float)
+    limit, kind = detection_limit(m, r, level)
+    ok = np.isfinite(r)
+    m, r = m[ok], r[ok]
+    k = int(np.argmax(r))
+    out = {"limit": limit, "kind": kind, "lost_above": None, "max_rate": float(r[k]),
+           "at": float(m[k])}
+    if kind == "> max tested":
+        return out
+    i = int(np.flatnonzero(r >= level)[0])
+    below = np.flatnonzero(r[i:] < level)
+    if below.size:
+        j = i + int(below[0])
+        t = (r[j - 1] - level) / (r[j - 1] - r[j])
+        out["lost_above"] = float(np.exp(np.log(m[j - 1]) + t * (np.log(m[j]) - np.log(m[j - 1]))))
+    return out
 
 
 def linear_detectable_magnitude(J: np.ndarray, g: np.ndarray, sigma: float,
