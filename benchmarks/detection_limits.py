@@ -37,8 +37,8 @@ Usage::
         [--full-seeds 5]
 
 Solves are kept under ``--out`` and reused (the command resumes). Writes
-``<docs>/detection_limits.md`` and ``.png`` (FSI) or ``<docs>/detection_analytic.md``
-(``--analytic``), and the raw rates as JSON under ``--out``.
+``<docs>/detection_limits.md``, ``.png`` and ``.json`` (the rates per magnitude; FSI) or
+``<docs>/detection_analytic.md`` (``--analytic``; per-seed records under ``--out``).
 """
 
 from __future__ import annotations
@@ -299,10 +299,11 @@ def run_fsi(args) -> None:
             "sigma_likelihood_mm": sigma_l, "settings": {k: v for k, v in settings.items()
                                                          if k != "ranges"},
             "continuation_check_mm": continuation, "n_nodes_per_snapshot": len(base[0].points)}
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "detection_limits.json").write_text(json.dumps({"meta": meta, "results": results},
-                                                          indent=1))
-    write_docs({"meta": meta, "results": results}, Path(args.docs))
+    docs = Path(args.docs)
+    docs.mkdir(parents=True, exist_ok=True)
+    (docs / "detection_limits.json").write_text(json.dumps({"meta": meta, "results": results},
+                                                           indent=1))
+    write_docs({"meta": meta, "results": results}, docs)
 
 
 def _table(results: dict, noises: list[float], meta: dict) -> str:
@@ -519,14 +520,14 @@ def main() -> None:
     ap.add_argument("--docs", default=str(REPO / "docs" / "diagnosis"))
     ap.add_argument("--analytic", action="store_true", help="validate on the analytic model")
     ap.add_argument("--replot", action="store_true",
-                    help="rewrite the table and figure from <out>/detection_limits.json")
+                    help="rewrite the table and figure from <docs>/detection_limits.json")
     ap.add_argument("--hidden", default="base_slip", help="(--analytic) hidden candidate")
     ap.add_argument("--magnitudes", default="0.0002,0.0005,0.001",
                     help="(--analytic) hidden magnitudes")
     ap.add_argument("--full-seeds", type=int, default=5, help="(--analytic) full diagnoses per magnitude")
     args = ap.parse_args()
     if args.replot:
-        write_docs(json.loads((Path(args.out) / "detection_limits.json").read_text()),
+        write_docs(json.loads((Path(args.docs) / "detection_limits.json").read_text()),
                    Path(args.docs))
     elif args.analytic:
         run_analytic(args)
