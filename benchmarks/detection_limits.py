@@ -388,7 +388,7 @@ def _table(results: dict, noises: list[float], meta: dict) -> str:
             f"{1e3 * cont:.2g} um)." if cont is not None else ".")),
         "",
         ("Reproduce: `OPENBLAS_NUM_THREADS=1 python benchmarks/detection_limits.py "
-         f"--seeds {meta['n_seeds']}` (about 25 min on one core; `--replot` rewrites this "
+         f"--seeds {meta['n_seeds']}` (about 20 min on one shared core; `--replot` rewrites this "
          "table and the figure from the stored rates)."),
         "",
     ]
@@ -454,7 +454,8 @@ def run_analytic(args) -> None:
                          "significant": row["p_value"] < d["attribution"]["threshold"],
                          "check_fails": not d["check"]["adequate"],
                          "statistic": row["score_statistic"], "verdict": d["verdict"]})
-        rows.append({"magnitude": m, "linearized_rate_many": float(np.mean(lin_many["top1"])),
+        rows.append({"magnitude": m, "n_seeds_linearized": args.seeds,
+                     "linearized_rate_many": float(np.mean(lin_many["top1"])),
                      "linearized_sig_rate_many": float(np.mean(lin_many["top1"] & lin_many["significant"])),
                      "per_seed": [{"seed": s, "lin_top1": bool(lin["top1"][i]),
                                    "lin_significant": bool(lin["significant"][i]),
@@ -466,6 +467,21 @@ def run_analytic(args) -> None:
     docs = Path(args.docs)
     docs.mkdir(parents=True, exist_ok=True)
     (docs / "detection_analytic.md").write_text(text)
+    print(text)
+
+
+def replot_analytic(args) -> None:
+    """Rewrite ``detection_analytic.md`` from ``<out>/analytic/analytic_validation.json``."""
+    from bayescalib.diagnosis.stage import resolve_candidates
+
+    study = _study([REPO / "tests" / "data" / "analytic_concealed.yaml"])
+    cand = next(c for c in resolve_candidates(study.forward_section(), study.config["diagnose"])
+                if c.name == args.hidden)
+    rows = json.loads((Path(args.out) / "analytic" / "analytic_validation.json").read_text())
+    n_many = rows[0].get("n_seeds_linearized", args.seeds)
+    text = _analytic_table(rows, args.hidden, cand, n_many, len(rows[0]["per_seed"]),
+                           float(study.config["observations"]["noise_sigma"]))
+    (Path(args.docs) / "detection_analytic.md").write_text(text)
     print(text)
 
 
@@ -501,6 +517,19 @@ def _analytic_table(rows, hidden, cand, n_many, n_full, sigma) -> str:
         lines.append(f"| {r['magnitude']:g} | {r['linearized_rate_many']:.2f} | "
                      f"{r['linearized_sig_rate_many']:.2f} | {ft}/{k} | {lt}/{k} | {agree}/{k} | "
                      f"{agree2}/{k} | {fails}/{k} | {sf:.3g} / {sl:.3g} |")
+    lines += ["", ("Per seed (S: score statistic of the hidden candidate; sig.: below alpha/m; "
+              "check: the full diagnosis's predictive check fails):"), "",
+              "| magnitude | seed | full: top-1, S, sig., check | linearized: top-1, S, sig. |",
+              "|---|---|---|---|"]
+    for r in rows:
+        for p in r["per_seed"]:
+            f = p["full"]
+            full = ("failed" if f is None else
+                    f"{'yes' if f['top1'] else 'no'}, {f['statistic']:.2f}, "
+                    f"{'yes' if f['significant'] else 'no'}, {'fails' if f['check_fails'] else 'passes'}")
+            lines.append(f"| {r['magnitude']:g} | {p['seed']} | {full} | "
+                         f"{'yes' if p['lin_top1'] else 'no'}, {p['lin_statistic']:.2f}, "
+                         f"{'yes' if p['lin_significant'] else 'no'} |")
     mag_list = ",".join(f"{r['magnitude']:g}" for r in rows)
     lines += ["", ("Reproduce: `OPENBLAS_NUM_THREADS=1 python benchmarks/detection_limits.py "
               f"--analytic --magnitudes {mag_list} "
@@ -526,7 +555,9 @@ def main() -> None:
                     help="(--analytic) hidden magnitudes")
     ap.add_argument("--full-seeds", type=int, default=5, help="(--analytic) full diagnoses per magnitude")
     args = ap.parse_args()
-    if args.replot:
+    if args.replot and args.analytic:
+        replot_analytic(args)
+    elif args.replot:
         write_docs(json.loads((Path(args.docs) / "detection_limits.json").read_text()),
                    Path(args.docs))
     elif args.analytic:
