@@ -251,6 +251,47 @@ def test_the_client_and_the_server_agree_on_the_round_stages():
     assert ROUND_STAGES <= set(STAGES)
 
 
+PROBE = """
+import json, sys
+from bayescalib.execution import jobserver as js
+js._import_all(js._PRELOAD)
+from bayescalib.config import load_schemas
+load_schemas()
+args = json.loads(sys.argv[1])
+new = {}
+for stage in ("solve", "discrepancy"):
+    before = set(sys.modules)
+    js.run_stage(stage, args[stage])
+    new[stage] = sorted(set(sys.modules) - before)
+print(json.dumps(new))
+"""
+
+
+def test_a_per_point_job_imports_nothing_the_point_server_has_not(done_run, base_study,
+                                                                  tmp_path):
+    """The point server's imports (its _PRELOAD) are every module a solve and a
+    discrepancy job import, so that no job pays for an import (or, where bytecode is
+    not cached, for compiling one); the python model's own module aside."""
+    study = Study(base_study)
+    root = done_run / STUDY
+    args = {"solve": _solve_args(study, 2, str(tmp_path / "s.h5")),
+            "discrepancy": {"log": str(tmp_path / "d.log"), "out": str(tmp_path / "d.json"),
+                            "run": str(root / "runs" / "2.h5"),
+                            "obs": str(root / "observations" / "observations.h5"),
+                            "measure_name": "rkhs",
+                            "measure": repr(study.config["measure"]["rkhs"]),
+                            "likelihood": repr(study.config["likelihood"])}}
+    args["solve"]["log"] = str(tmp_path / "s.log")
+    proc = subprocess.run([sys.executable, "-c", PROBE, json.dumps(args)], cwd=tmp_path,
+                          env={**os.environ, "PYTHONPATH": _path(tmp_path)},
+                          capture_output=True, text=True, timeout=300, check=False)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    new = json.loads(proc.stdout.strip().splitlines()[-1])
+    model = study.config["forward_model"]["python"]["function"].split(":")[0]
+    assert [m for m in new["solve"] if m != model] == []
+    assert new["discrepancy"] == []
+
+
 def test_job_arguments_with_lists_of_paths():
     """A value `[` opens a list closed by `]` (the gather and figure rules pass their
     runs and records so); an empty list and a last key without value are handled."""

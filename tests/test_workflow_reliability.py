@@ -31,7 +31,7 @@ import h5py
 import numpy as np
 import pytest
 import yaml
-from _workflow_helpers import REPO, SNAKEMAKE, setup_study, smk
+from _workflow_helpers import REPO, SNAKEMAKE, _env, setup_study, smk
 
 pytestmark = pytest.mark.workflow
 
@@ -60,7 +60,7 @@ def start(tmp: Path, *args: str, log: str = "snakemake.out") -> subprocess.Popen
     cmd = [*SNAKEMAKE, "-s", str(REPO / "Snakefile"), "--directory", str(tmp), *args]
     out = open(tmp / log, "w")  # noqa: SIM115 - closed with the process
     return subprocess.Popen(cmd, stdout=out, stderr=subprocess.STDOUT, start_new_session=True,
-                            env={**os.environ, "PYTHONPATH": str(tmp)})
+                            env=_env(tmp))
 
 
 def wait_for(path: Path, proc: subprocess.Popen | None = None, timeout: float = 300.0) -> None:

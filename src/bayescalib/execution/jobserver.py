@@ -291,7 +291,7 @@ _PRELOAD = ("numpy", "scipy.sparse", "scipy.spatial", "scipy.linalg", "h5py",
             "bayescalib.geometry.interface", "bayescalib.geometry.projection",
             "bayescalib.inference.likelihood", "bayescalib.io.observation_store",
             "bayescalib.io.runrecord", "bayescalib.io.training", "bayescalib.models.fsi.model",
-            "bayescalib.models.fsi.solver", "ngsolve", "netgen.occ")
+            "bayescalib.models.fsi.solver", "ngsolve", "netgen.occ", "multiprocessing.popen_fork")
 
 #: what the round server imports before it accepts jobs (torch only where a GPU may
 #: be used: :func:`bayescalib.inference.surrogate.gpu_possible`)
