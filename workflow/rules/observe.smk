@@ -20,8 +20,8 @@ rule ground_truth:
     resources:
         runtime=30,
         mem_mb=2000,
-    script:
-        "../../scripts/ground_truth.py"
+    shell:
+        GROUND_TRUTH_JOB
 
 
 rule observe:
@@ -38,5 +38,5 @@ rule observe:
     log:
         f"{R}/logs/observe.log",
     threads: 1
-    script:
-        "../../scripts/observe.py"
+    shell:
+        OBSERVE_JOB
