@@ -139,23 +139,6 @@ MARGINALIZE_JOB = (
     " particles {input.particles:q} surrogate {input.surrogate:q}"
     " posterior {params.posterior!r:q} parameters {params.parameters!r:q} seed {params.seed}"
 )
-# the solves and the observation set at the start of a run (once per study)
-GROUND_TRUTH_JOB = (
-    '"$BAYESCALIB_PYTHON" -I -S "$BAYESCALIB_JOB_CLIENT" ground_truth log {log:q}'
-    " out {output.run:q} forward_model {params.forward_model!r:q} point {params.point!r:q}"
-    + (" vtu {output.vtu:q}" if FIELDS else "")
-)
-BASE_STATE_JOB = (
-    '"$BAYESCALIB_PYTHON" -I -S "$BAYESCALIB_JOB_CLIENT" base_state log {log:q}'
-    " out {output.run:q} state {output.state:q} forward_model {params.forward_model!r:q}"
-    " point {params.point!r:q}"
-)
-OBSERVE_JOB = (
-    '"$BAYESCALIB_PYTHON" -I -S "$BAYESCALIB_JOB_CLIENT" observe log {log:q} out {output:q}'
-    " observations {params.observations!r:q}"
-    + (" run {input.run:q}"
-       if study.config["observations"].get("source", "synthetic") == "synthetic" else "")
-)
 # gather_round, gather: the runs and discrepancy records as lists (`[ ... ]`, read by
 # bayescalib.execution.jobserver.parse_args); set_aside is a rerun trigger only
 GATHER_JOB = (

@@ -20,8 +20,8 @@ rule ground_truth:
     resources:
         runtime=30,
         mem_mb=2000,
-    shell:
-        GROUND_TRUTH_JOB
+    script:
+        "../../scripts/ground_truth.py"
 
 
 rule observe:
@@ -38,5 +38,5 @@ rule observe:
     log:
         f"{R}/logs/observe.log",
     threads: 1
-    shell:
-        OBSERVE_JOB
+    script:
+        "../../scripts/observe.py"

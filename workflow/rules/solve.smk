@@ -23,8 +23,8 @@ rule base_state:
     resources:
         runtime=30,
         mem_mb=2000,
-    shell:
-        BASE_STATE_JOB
+    script:
+        "../../scripts/base_state.py"
 
 
 rule solve:

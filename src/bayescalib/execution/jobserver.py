@@ -183,33 +183,6 @@ def _marginalize(args: Mapping[str, str]) -> None:
                 _literal(args["parameters"]), int(args["seed"]), args["out"], args["netcdf"])
 
 
-def _ground_truth(args: Mapping[str, Any]) -> None:
-    from bayescalib.models.forward import solve_point
-    from bayescalib.stages import setup_logging
-
-    setup_logging(args["log"])
-    vtu = args.get("vtu") or None
-    solve_point(_literal(args["forward_model"]), _literal(args["point"]), args["out"],
-                extra_outputs={"vtu": vtu} if vtu else None)
-
-
-def _base_state(args: Mapping[str, Any]) -> None:
-    from bayescalib.models.forward import solve_base_state
-    from bayescalib.stages import setup_logging
-
-    setup_logging(args["log"])
-    solve_base_state(_literal(args["forward_model"]), _literal(args["point"]), args["out"],
-                     args["state"])
-
-
-def _observe(args: Mapping[str, Any]) -> None:
-    from bayescalib.stages import observe, setup_logging
-
-    setup_logging(args["log"])
-    observe(_literal(args["observations"]), args["out"],
-            ground_truth_run=args.get("run") or None)
-
-
 def _gather(args: Mapping[str, Any]) -> None:
     from bayescalib.stages import gather, setup_logging
 
@@ -284,12 +257,9 @@ def _fig_rounds(args: Mapping[str, Any]) -> None:
 
 #: stage name -> function of the job's arguments (strings, or lists of paths, as
 #: formatted by the rule's shell command and read by :func:`parse_args`). Per point:
-#: ground_truth, base_state, observe, solve, discrepancy, predictive_solve; per round (active design) and per measure:
+#: solve, discrepancy, predictive_solve; per round (active design) and per measure:
 #: gather, train_surrogate, smc, acquire, marginalize; the figures.
 STAGES: dict[str, Callable[[Mapping[str, Any]], None]] = {
-    "ground_truth": _ground_truth,
-    "base_state": _base_state,
-    "observe": _observe,
     "solve": _solve,
     "discrepancy": _discrepancy,
     "predictive_solve": _predictive_solve,

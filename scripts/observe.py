@@ -1,0 +1,9 @@
+"""Rule `observe`: the observation set (synthetic or from files)."""
+from bayescalib.stages import observe, setup_logging
+
+setup_logging(snakemake.log[0])  # noqa: F821
+observe(
+    snakemake.params.observations,  # noqa: F821
+    snakemake.output[0],  # noqa: F821
+    ground_truth_run=snakemake.input.get("run"),  # noqa: F821
+)
