@@ -10,21 +10,26 @@ repository, once per execution mode, side by side in one run of this script:
 * ``before``: with ``--before REV``, the repository at git revision REV (e.g. the
   commit before the job server), run the same way.
 
-Studies: ``default`` (config/config.yaml: FSI, active design) and ``python64`` (the
+Studies: ``default`` (config/config.yaml: FSI, active design), ``python64`` (the
 analytic stand-in model as a ``python`` forward model, a fixed design of 64 points,
-no fields figure): its physics costs about a millisecond a point, so its run time is
-nearly all overhead.
+no fields figure: its physics costs about a millisecond a point, so its run time is
+nearly all overhead) and ``smoke`` (config/smoke.yaml: the default study on the
+coarse mesh, active design of at most 40 solves).
 
 Figures per study and mode: wall time of the whole run; the physics summed over the
 run (solves: each run record's own ``wall_time``; discrepancies: every point's
 discrepancy recomputed in this process after a warm-up, i.e. the in-process cost);
-per stage (solve, discrepancy, and the per-round stages): the median job wall time
-from Snakemake's ``benchmark:`` files, the median in-process work, their ratio and
-the overhead per job (median job wall minus median in-process work).
+per stage: the median job wall time from Snakemake's ``benchmark:`` files, the
+median in-process work, their ratio and the overhead per job (median job wall minus
+median in-process work). In-process work of the per-round stages (gather,
+train_surrogate, smc, acquire; and marginalize): the stage function rerun here, warm,
+on the run's own files for up to three rounds (first, middle, last) and the final
+measure. With two or more modes, a last table sets each mode's figures beside the
+first mode's (ratios).
 
 Usage::
 
-    python benchmarks/bench_pipeline.py [--studies default,python64]
+    python benchmarks/bench_pipeline.py [--studies default,python64,smoke]
         [--modes server,fresh] [--before REV] [--keep DIR]
 
 Prints a table per study and a final one-line JSON summary. No assertions. Run it on
@@ -42,6 +47,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from functools import partial
 from pathlib import Path
 
 import yaml
@@ -82,6 +88,8 @@ def _run_study(tree: Path, study: str, env_extra: dict[str, str]) -> dict:
     if study == "python64":
         (tree / "config" / "python64.yaml").write_text(yaml.safe_dump(PYTHON64))
         args = ["--configfile", "config/python64.yaml"]
+    elif study == "smoke":
+        args = ["--configfile", "config/smoke.yaml"]
     env = {**os.environ, "PYTHONPATH": str(tree / "src"), **env_extra}
     t0 = time.perf_counter()
     proc = subprocess.run([sys.executable, "-m", "snakemake", "--cores", "2", *args],
@@ -132,12 +140,69 @@ def _study_config(tree: Path, study: str) -> dict:
     layers = [load_yaml(tree / "config" / "config.yaml")]
     if study == "python64":
         layers.append(PYTHON64)
+    elif study == "smoke":
+        layers.append(load_yaml(tree / "config" / "smoke.yaml"))
     return Study(merge_layers(layers)).config
+
+
+def _timed(fn) -> float:
+    t0 = time.perf_counter()
+    fn()
+    return time.perf_counter() - t0
+
+
+def _round_stages(root: Path, cfg: dict) -> dict[str, list[float]]:
+    """In-process cost of the per-round and per-measure stages, rerun here on the run's
+    files (into a scratch folder; warm: the imports are paid by a first call)."""
+    from bayescalib import stages
+
+    out: dict[str, list[float]] = {}
+    m = cfg["measures"][0]
+    with tempfile.TemporaryDirectory() as tmp:
+        t = Path(tmp)
+        active = sorted((root / "active").glob("[0-9]*"), key=lambda p: int(p.name))
+        rounds = sorted({0, len(active) // 2, len(active) - 1}) if active else []
+        jobs = [(root / "active" / str(r), r) for r in rounds] + [(root / m, None)]
+        first = True
+        for folder, r in jobs:
+            n = (len(list((root / "runs").glob("[0-9]*.h5"))) if r is None else
+                 int(stages.read_json(folder / "acquire.json")["n_solves"]))
+            runs = [root / "runs" / f"{i}.h5" for i in range(n)]
+            disc = [root / "discrepancy" / m / f"{i}.json" for i in range(n)]
+            names = [p["name"] for p in cfg["parameters"]]
+            targets = [p.get("target") or p["name"] for p in cfg["parameters"]]
+            calls = {
+                "gather": partial(stages.gather, runs, disc, names, targets, None,
+                                  t / "training.h5"),
+                "train_surrogate": partial(stages.train_surrogate, folder / "training.h5",
+                                           cfg["surrogate"], cfg["parameters"],
+                                           t / "surrogate.h5"),
+                "smc": partial(stages.smc, folder / "surrogate.h5", cfg["smc"],
+                               cfg["parameters"], t / "particles.h5"),
+            }
+            if r is not None:
+                prev = root / "active" / str(r - 1) / "acquire.json" if r > 0 else None
+                calls["acquire"] = partial(
+                    stages.acquire, r, folder / "training.h5", folder / "surrogate.h5",
+                    folder / "particles.h5", prev, cfg["design"]["active"], cfg["parameters"],
+                    t / "acquire.json")
+            else:
+                calls["marginalize"] = partial(
+                    stages.marginalize, folder / "particles.h5", folder / "surrogate.h5",
+                    cfg["posterior"], cfg["parameters"], cfg["smc"]["seed"],
+                    t / "posterior.json", t / "posterior.nc")
+            if first:  # imports (GPy, ArviZ, ...) paid once, outside the figures
+                for fn in calls.values():
+                    fn()
+                first = False
+            for stage, fn in calls.items():
+                out.setdefault(stage, []).append(_timed(fn))
+    return out
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--studies", default="default,python64")
+    ap.add_argument("--studies", default="default,python64,smoke")
     ap.add_argument("--modes", default="server,fresh")
     ap.add_argument("--before", default=None, help="git revision to run as mode 'before'")
     ap.add_argument("--keep", default=None, help="keep the scratch trees in this folder")
@@ -155,6 +220,7 @@ def main() -> None:
             cfg = _study_config(tree, study)
             walls = _job_walls(res["root"])
             phys = _physics(res["root"], cfg)
+            phys.update(_round_stages(res["root"], cfg))
             row = {"wall_s": round(res["wall_s"], 1),
                    "physics_s": round(sum(phys["solve"]) + sum(phys["discrepancy"]), 1),
                    "stages": {}}
@@ -177,7 +243,28 @@ def main() -> None:
                 print(f"  {stage:<16} {e['jobs']:>5} {e['job_median_s']:>10.3f}s {extra}")
             if not a.keep:
                 shutil.rmtree(tree, ignore_errors=True)
+        _compare(study, summary[study], modes)
     print("\n" + json.dumps(summary))
+
+
+def _compare(study: str, rows: dict, modes: list[str]) -> None:
+    """Each mode's figures beside the first mode's: value and ratio (mode / first)."""
+    if len(modes) < 2:
+        return
+    ref = rows[modes[0]]
+    print(f"\n{study}: side by side (ratio = mode / {modes[0]})")
+    for mode in modes[1:]:
+        row = rows[mode]
+        print(f"  whole run: {ref['wall_s']:.1f} s ({modes[0]}) vs {row['wall_s']:.1f} s "
+              f"({mode}), ratio {row['wall_s'] / ref['wall_s']:.2f}")
+        print(f"  {'stage':<16} {modes[0] + ' job':>12} {mode + ' job':>12} {'ratio':>6} "
+              f"{modes[0] + ' overhead':>17} {mode + ' overhead':>17}")
+        for stage in sorted(set(ref["stages"]) & set(row["stages"])):
+            a, b = ref["stages"][stage], row["stages"][stage]
+            oa = f"{a['overhead_s']:.3f}s" if "overhead_s" in a else "-"
+            ob = f"{b['overhead_s']:.3f}s" if "overhead_s" in b else "-"
+            print(f"  {stage:<16} {a['job_median_s']:>11.3f}s {b['job_median_s']:>11.3f}s "
+                  f"{b['job_median_s'] / max(a['job_median_s'], 1e-9):>6.2f} {oa:>17} {ob:>17}")
 
 
 if __name__ == "__main__":

@@ -26,6 +26,12 @@ CLIENT = [sys.executable, "-I", "-S", str(REPO / "scripts" / "job.py")]
 STUDY = "results/analytic"
 
 
+def _path(first: Path) -> str:
+    """``first`` (for python models written there), then the caller's PYTHONPATH (a run
+    with PYTHONPATH=<checkout>/src tests that checkout's bayescalib)."""
+    return os.pathsep.join(p for p in (str(first), os.environ.get("PYTHONPATH", "")) if p)
+
+
 def _alive(pid: int) -> bool:
     try:
         os.kill(pid, 0)
@@ -51,7 +57,7 @@ def _wait_gone(pid: int, timeout: float = 10.0) -> bool:
 def server(tmp_path):
     """A job server on a socket in tmp_path (python models importable from tmp_path)."""
     sock = str(tmp_path / "s.sock")
-    env = {**os.environ, "PYTHONPATH": str(tmp_path), "OPENBLAS_NUM_THREADS": "1"}
+    env = {**os.environ, "PYTHONPATH": _path(tmp_path), "OPENBLAS_NUM_THREADS": "1"}
     proc = subprocess.Popen([sys.executable, "-m", "bayescalib.execution.jobserver", "--serve", sock],
                             cwd=tmp_path, env=env, stdout=subprocess.PIPE,
                             stderr=subprocess.STDOUT, text=True)
@@ -67,7 +73,7 @@ def server(tmp_path):
 
 def _job(sock: str | None, cwd: Path, stage: str, **args: str) -> subprocess.CompletedProcess:
     env = {k: v for k, v in os.environ.items() if k != "BAYESCALIB_JOBSERVER"}
-    env["PYTHONPATH"] = str(cwd)
+    env["PYTHONPATH"] = _path(cwd)
     if sock is not None:
         env["BAYESCALIB_JOBSERVER"] = sock
     argv = [x for kv in args.items() for x in kv]
@@ -160,7 +166,7 @@ def test_a_job_whose_client_goes_away_is_killed_with_its_solve(tmp_path, server,
     cfg["forward_model"]["python"] = {"function": "crashing:hang"}
     cfg["forward_model"]["time_limit_s"] = 300
     study = Study(cfg)
-    env = {**os.environ, "BAYESCALIB_JOBSERVER": server, "PYTHONPATH": str(tmp_path)}
+    env = {**os.environ, "BAYESCALIB_JOBSERVER": server, "PYTHONPATH": _path(tmp_path)}
     args = _solve_args(study, 0, "run.h5")
     client = subprocess.Popen([*CLIENT, "solve", *[x for kv in args.items() for x in kv]],
                               cwd=tmp_path, env=env)
@@ -185,14 +191,14 @@ def test_the_server_and_its_jobs_end_when_the_run_is_killed(tmp_path, base_study
             "print(start_server(sys.argv[1]), flush=True)\ntime.sleep(600)\n")
     run = subprocess.Popen(
         [sys.executable, "-c", code, str(tmp_path / "root")],
-        cwd=tmp_path, env={**os.environ, "PYTHONPATH": str(tmp_path)}, stdout=subprocess.PIPE,
+        cwd=tmp_path, env={**os.environ, "PYTHONPATH": _path(tmp_path)}, stdout=subprocess.PIPE,
         text=True)
     sock = run.stdout.readline().strip()
     assert sock and os.path.exists(sock), sock
     args = _solve_args(study, 0, "run.h5")
     client = subprocess.Popen([*CLIENT, "solve", *[x for kv in args.items() for x in kv]],
                               cwd=tmp_path, env={**os.environ, "BAYESCALIB_JOBSERVER": sock,
-                                                 "PYTHONPATH": str(tmp_path)})
+                                                 "PYTHONPATH": _path(tmp_path)})
     solver = _solver_pid(tmp_path, client)
     run.send_signal(signal.SIGKILL)
     run.wait()
@@ -202,13 +208,124 @@ def test_the_server_and_its_jobs_end_when_the_run_is_killed(tmp_path, base_study
     while os.path.exists(sock) and time.monotonic() < deadline:
         time.sleep(0.05)
     assert not os.path.exists(sock)
+    # the round server too (it notices once its imports are done, then exits)
+    import psutil
+
+    from bayescalib.execution.jobserver import socket_path
+
+    round_sock = socket_path(tmp_path / "root", "round")
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline:
+        left = [p for p in psutil.process_iter(["cmdline"])
+                if round_sock in (p.info["cmdline"] or [])]
+        if not left:
+            break
+        time.sleep(0.2)
+    assert not left, "the round server outlives its killed run"
+    assert not os.path.exists(round_sock)
+
+
+def _jobs_run(log: str, kind: str) -> int:
+    return int(log.split(f"jobserver ({kind}): ")[-1].split(" jobs run")[0])
 
 
 @pytest.mark.workflow
 def test_a_local_run_hands_its_per_point_jobs_to_the_server(done_run):
     log = (done_run / STUDY / "logs" / "jobserver.log").read_text()
-    n = int(log.split("jobserver: ")[-1].split(" jobs run")[0])
-    assert n >= 19, log  # 8 solves, 8 discrepancies, train_surrogate, smc, marginalize
+    # point server: 8 solves, 8 discrepancies, gather; round server: train_surrogate,
+    # smc, marginalize and the figures (a per-round job that came before the round
+    # server was up ran on the point server, so the sum is what is certain)
+    assert _jobs_run(log, "point") >= 17, log
+    assert _jobs_run(log, "point") + _jobs_run(log, "round") >= 17 + 3 + 4, log
+
+
+def test_the_client_and_the_server_agree_on_the_round_stages():
+    """scripts/job.py imports nothing of the package: its copy of the set of stages for
+    the round server must be the server's."""
+    import runpy
+
+    from bayescalib.execution.jobserver import ROUND_STAGES, STAGES
+
+    client = runpy.run_path(str(REPO / "scripts" / "job.py"), run_name="not_main")
+    assert client["ROUND_STAGES"] == ROUND_STAGES
+    assert ROUND_STAGES <= set(STAGES)
+
+
+PROBE = """
+import json, sys
+from bayescalib.execution import jobserver as js
+js._import_all(js._PRELOAD)
+from bayescalib.config import load_schemas
+load_schemas()
+args = json.loads(sys.argv[1])
+new = {}
+for stage in ("solve", "discrepancy"):
+    before = set(sys.modules)
+    js.run_stage(stage, args[stage])
+    new[stage] = sorted(set(sys.modules) - before)
+print(json.dumps(new))
+"""
+
+
+def test_a_per_point_job_imports_nothing_the_point_server_has_not(done_run, base_study,
+                                                                  tmp_path):
+    """The point server's imports (its _PRELOAD) are every module a solve and a
+    discrepancy job import, so that no job pays for an import (or, where bytecode is
+    not cached, for compiling one); the python model's own module aside."""
+    study = Study(base_study)
+    root = done_run / STUDY
+    args = {"solve": _solve_args(study, 2, str(tmp_path / "s.h5")),
+            "discrepancy": {"log": str(tmp_path / "d.log"), "out": str(tmp_path / "d.json"),
+                            "run": str(root / "runs" / "2.h5"),
+                            "obs": str(root / "observations" / "observations.h5"),
+                            "measure_name": "rkhs",
+                            "measure": repr(study.config["measure"]["rkhs"]),
+                            "likelihood": repr(study.config["likelihood"])}}
+    args["solve"]["log"] = str(tmp_path / "s.log")
+    proc = subprocess.run([sys.executable, "-c", PROBE, json.dumps(args)], cwd=tmp_path,
+                          env={**os.environ, "PYTHONPATH": _path(tmp_path)},
+                          capture_output=True, text=True, timeout=300, check=False)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    new = json.loads(proc.stdout.strip().splitlines()[-1])
+    model = study.config["forward_model"]["python"]["function"].split(":")[0]
+    assert [m for m in new["solve"] if m != model] == []
+    assert new["discrepancy"] == []
+
+
+def test_job_arguments_with_lists_of_paths():
+    """A value `[` opens a list closed by `]` (the gather and figure rules pass their
+    runs and records so); an empty list and a last key without value are handled."""
+    from bayescalib.execution.jobserver import parse_args
+
+    assert parse_args(["out", "t.h5", "runs", "[", "r/0.h5", "r 1.h5", "]", "disc", "[", "]",
+                       "n", "3", "previous"]) == \
+        {"out": "t.h5", "runs": ["r/0.h5", "r 1.h5"], "disc": [], "n": "3"}
+    assert parse_args([]) == {}
+
+
+def test_a_per_round_job_goes_to_the_point_server_while_the_round_server_is_not_up(
+        done_run, tmp_path, server):
+    """BAYESCALIB_JOBSERVER_ROUND naming no live socket: the client hands a per-round
+    job (train_surrogate) to the point server, whose child imports GPy itself; the
+    surrogate is the one of the run (bitwise: same training table, same seeds)."""
+    import h5py
+    import yaml
+
+    study = Study(yaml.safe_load((done_run / "config" / "config.yaml").read_text()))
+    env = {**os.environ, "PYTHONPATH": _path(tmp_path), "BAYESCALIB_JOBSERVER": server,
+           "BAYESCALIB_JOBSERVER_ROUND": str(tmp_path / "absent.sock")}
+    root = done_run / STUDY
+    out = tmp_path / "surrogate.h5"
+    proc = subprocess.run(
+        [*CLIENT, "train_surrogate", "log", str(tmp_path / "t.log"), "out", str(out),
+         "training", str(root / "rkhs" / "training.h5"),
+         "surrogate", repr(study.config["surrogate"]),
+         "parameters", repr(study.config["parameters"])],
+        cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300, check=False)
+    assert proc.returncode == 0, proc.stderr
+    with h5py.File(out) as mine, h5py.File(root / "rkhs" / "surrogate.h5") as ref:
+        for key in ("alpha", "chol", "X_train", "y_train"):
+            assert (mine[key][()] == ref[key][()]).all(), key
 
 
 @pytest.mark.workflow
@@ -233,6 +350,6 @@ def test_a_moved_checkout_reruns_nothing(done_run, tmp_path):
         python = str(link / Path(sys.executable).relative_to(sys.prefix))
     proc = sp.run([python, "-m", "snakemake", "-s", str(moved / "Snakefile"), "--directory",
                    str(tmp), "--cores", "2", "-n"], check=False, capture_output=True, text=True,
-                  env={**os.environ, "PYTHONPATH": str(tmp)}, timeout=300)
+                  env={**os.environ, "PYTHONPATH": _path(tmp)}, timeout=300)
     assert proc.returncode == 0, proc.stderr[-3000:]
     assert "Nothing to be done" in proc.stdout + proc.stderr, (proc.stdout + proc.stderr)[-3000:]

@@ -197,3 +197,48 @@ def test_every_kernel_predicts_as_gpy_does(kernel, device):
         assert np.max(np.abs(mu - ref_mu[:, 0])) <= 1e-6 * np.max(np.abs(ref_mu))
         assert np.max(np.abs(var - ref_var[:, 0])) <= 1e-6 * gp.variance
         assert gp.predict(Z).max() <= (np.inf if bound is None else bound)
+
+
+def test_threaded_prediction_is_bitwise_the_single_threaded_one(gp64):
+    """threads > 1 (the SMC of an active round, granted 2 threads) computes the same
+    chunks of points, each alone: the predictions, hence the SMC particles, are bitwise
+    those of one thread (summary.json must not depend on the job's threads)."""
+    rng = np.random.default_rng(3)
+    X = BOX[:, 0] + rng.uniform(0.0, 1.0, (9000, 2)) * (BOX[:, 1] - BOX[:, 0])
+    single = gp64.predict(X, return_var=True)
+    gp64.threads = 2
+    try:
+        threaded = gp64.predict(X, return_var=True)
+    finally:
+        gp64.threads = 1
+    chunk_rows = gp64.cpu_chunk_entries // gp64.n_train
+    assert X.shape[0] > 2 * chunk_rows  # several chunks, so the pool is used
+    for a, b in zip(single, threaded, strict=True):
+        assert np.array_equal(a, b)
+
+
+GPU_PROBE = """
+import sys
+import numpy as np
+from bayescalib.inference import surrogate
+surrogate._GPU_MARKERS = ("/nonexistent/gpu-marker",)
+assert not surrogate.gpu_possible()
+gp = surrogate.fit_gp(np.array([[0.1, 0.2], [0.5, 0.9], [0.8, 0.3], [0.3, 0.6]]),
+                      np.array([-1.0, -2.0, -0.5, -1.5]), restarts=1)
+print(gp.device, "torch" in sys.modules)
+"""
+
+
+def test_a_machine_without_gpu_devices_does_not_import_torch():
+    """device "auto" on a Linux machine with no GPU device nodes or driver files is the
+    NumPy path, decided without importing torch (5-7 s per process that loads a
+    surrogate); where torch is imported already, it decides as before."""
+    import subprocess
+    import sys
+
+    if not sys.platform.startswith("linux"):
+        pytest.skip("the device-file check is Linux only")
+    proc = subprocess.run([sys.executable, "-c", GPU_PROBE], capture_output=True, text=True,
+                          timeout=300, check=False)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert proc.stdout.split() == ["cpu", "False"]

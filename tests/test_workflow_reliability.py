@@ -31,7 +31,7 @@ import h5py
 import numpy as np
 import pytest
 import yaml
-from _workflow_helpers import REPO, SNAKEMAKE, setup_study, smk
+from _workflow_helpers import REPO, SNAKEMAKE, _env, setup_study, smk
 
 pytestmark = pytest.mark.workflow
 
@@ -60,7 +60,7 @@ def start(tmp: Path, *args: str, log: str = "snakemake.out") -> subprocess.Popen
     cmd = [*SNAKEMAKE, "-s", str(REPO / "Snakefile"), "--directory", str(tmp), *args]
     out = open(tmp / log, "w")  # noqa: SIM115 - closed with the process
     return subprocess.Popen(cmd, stdout=out, stderr=subprocess.STDOUT, start_new_session=True,
-                            env={**os.environ, "PYTHONPATH": str(tmp)})
+                            env=_env(tmp))
 
 
 def wait_for(path: Path, proc: subprocess.Popen | None = None, timeout: float = 300.0) -> None:
@@ -292,3 +292,27 @@ def test_a_resume_waits_for_the_orphaned_jobs_of_a_killed_run(done_run, tmp_path
         orphan.kill()
         orphan.wait()
     assert smk(tmp, timeout=300).returncode == 0
+
+
+# extended suite: the whole analytic study once more, every job in its own interpreter
+@pytest.mark.extended
+def test_jobs_in_fresh_interpreters_give_the_servers_summary_bitwise(base_study, done_run,
+                                                                      tmp_path):
+    """BAYESCALIB_JOBSERVER=off runs every job (solves, discrepancies, training tables,
+    GP, SMC, acquisition, figures) in its own interpreter, the path without the warm
+    servers: summary.json and the training table are bitwise those of done_run, whose
+    jobs went through the point and round servers. And the results of either path are
+    the other's cache: a dry run of the server path on them has nothing to do."""
+    tmp = setup_study(tmp_path / "fresh", base_study)
+    env = {**_env(tmp), "BAYESCALIB_JOBSERVER": "off"}
+    proc = subprocess.run([*SNAKEMAKE, "-s", str(REPO / "Snakefile"), "--directory", str(tmp),
+                           "--cores", "2"], check=False, capture_output=True, text=True,
+                          env=env, timeout=900)
+    assert proc.returncode == 0, proc.stderr[-4000:]
+    assert not (tmp / STUDY / "logs" / "jobserver.log").exists()
+    a, ref = results(tmp), results(done_run)
+    assert json.dumps(a["summary"], sort_keys=True) == json.dumps(ref["summary"], sort_keys=True)
+    for k, v in ref["table"].items():
+        assert a["table"][k].tobytes() == v.tobytes(), k
+    dry = smk(tmp, "-n")
+    assert "Nothing to be done" in dry.stdout + dry.stderr, (dry.stdout + dry.stderr)[-3000:]

@@ -23,8 +23,8 @@ rule gather_round:
         f"{R}/benchmarks/gather/round_{{r}}.tsv"
     log:
         f"{R}/logs/active/{{r}}/gather.log",
-    script:
-        "../../scripts/gather.py"
+    shell:
+        GATHER_JOB
 
 
 rule train_round:
@@ -60,7 +60,7 @@ rule smc_round:
         f"{R}/benchmarks/smc/round_{{r}}.tsv"
     log:
         f"{R}/logs/active/{{r}}/smc.log",
-    threads: 1
+    threads: 2  # alone in its round: the surrogate's chunks on both cores (same particles)
     shell:
         SMC_JOB
 

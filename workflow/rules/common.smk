@@ -139,6 +139,51 @@ MARGINALIZE_JOB = (
     " particles {input.particles:q} surrogate {input.surrogate:q}"
     " posterior {params.posterior!r:q} parameters {params.parameters!r:q} seed {params.seed}"
 )
+# gather_round, gather: the runs and discrepancy records as lists (`[ ... ]`, read by
+# bayescalib.execution.jobserver.parse_args); set_aside is a rerun trigger only
+GATHER_JOB = (
+    '"$BAYESCALIB_PYTHON" -I -S "$BAYESCALIB_JOB_CLIENT" gather log {log:q} out {output:q}'
+    " names {params.names!r:q} targets {params.targets!r:q} n_train {params.n_train!r:q}"
+    " runs [ {input.runs:q} ] disc [ {input.disc:q} ]"
+)
+PREDICTIVE_JOB = (
+    '"$BAYESCALIB_PYTHON" -I -S "$BAYESCALIB_JOB_CLIENT" predictive_solve log {log:q}'
+    " out {output:q} particles {input.particles:q} parameters {params.parameters!r:q}"
+    " k {wildcards.k} n {params.n} seed {params.seed}"
+    " forward_model {params.forward_model!r:q}"
+)
+# figures (the round server: Matplotlib imported once per run)
+FIG_RESPONSE_JOB = (
+    '"$BAYESCALIB_PYTHON" -I -S "$BAYESCALIB_JOB_CLIENT" fig_response log {log:q}'
+    " training {input.training:q} surrogate {input.surrogate:q}"
+    " parameters {params.parameters!r:q} plots {params.plots!r:q} stem {params.stem:q}"
+)
+FIG_CONVERGENCE_JOB = (
+    '"$BAYESCALIB_PYTHON" -I -S "$BAYESCALIB_JOB_CLIENT" fig_convergence log {log:q}'
+    " convergence {input:q} plots {params.plots!r:q} stem {params.stem:q}"
+)
+FIG_POSTERIOR_JOB = (
+    '"$BAYESCALIB_PYTHON" -I -S "$BAYESCALIB_JOB_CLIENT" fig_posterior log {log:q}'
+    " particles {input.particles:q} posterior {input.posterior:q}"
+    " parameters {params.parameters!r:q} plots {params.plots!r:q} stems {params.stems!r:q}"
+)
+FIG_INTERFACES_JOB = (
+    '"$BAYESCALIB_PYTHON" -I -S "$BAYESCALIB_JOB_CLIENT" fig_interfaces log {log:q}'
+    " obs {input.obs:q} plots {params.plots!r:q} stem {params.stem:q}"
+    + (" truth {input.truth:q}"
+       if study.config["observations"].get("source", "synthetic") == "synthetic" else "")
+    + " samples [ {input.samples:q} ]"
+)
+FIG_FIELDS_JOB = (
+    '"$BAYESCALIB_PYTHON" -I -S "$BAYESCALIB_JOB_CLIENT" fig_fields log {log:q}'
+    " vtu {input.vtu:q} run {input.run:q} plots {params.plots!r:q} stem {params.stem:q}"
+)
+FIG_ROUNDS_JOB = (
+    '"$BAYESCALIB_PYTHON" -I -S "$BAYESCALIB_JOB_CLIENT" fig_rounds log {log:q}'
+    " training {input.training:q} parameters {params.parameters!r:q}"
+    " active {params.active!r:q} plots {params.plots!r:q} stem {params.stem:q}"
+    " records [ {input.records:q} ] particles [ {input.particles:q} ]"
+)
 DISCREPANCY_JOB = (
     '"$BAYESCALIB_PYTHON" -I -S "$BAYESCALIB_JOB_CLIENT" discrepancy log {log:q}'
     " out {output:q} run {input.run:q} obs {input.obs:q}"

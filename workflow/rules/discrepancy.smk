@@ -44,5 +44,5 @@ rule gather:
         f"{R}/benchmarks/gather/{{measure}}.tsv"
     log:
         f"{R}/logs/{{measure}}/gather.log",
-    script:
-        "../../scripts/gather.py"
+    shell:
+        GATHER_JOB

@@ -23,8 +23,8 @@ rule fig_response:
         f"{R}/logs/{{measure}}/fig_response.log",
     benchmark:
         f"{R}/benchmarks/figures/{{measure}}/response.tsv"
-    script:
-        "../../scripts/fig_response.py"
+    shell:
+        FIG_RESPONSE_JOB
 
 
 rule fig_convergence:
@@ -47,8 +47,8 @@ rule fig_convergence:
         f"{R}/logs/{{measure}}/fig_convergence.log",
     benchmark:
         f"{R}/benchmarks/figures/{{measure}}/convergence.tsv"
-    script:
-        "../../scripts/fig_convergence.py"
+    shell:
+        FIG_CONVERGENCE_JOB
 
 
 
@@ -84,8 +84,8 @@ rule fig_posterior:
         f"{R}/logs/{{measure}}/fig_posterior.log",
     benchmark:
         f"{R}/benchmarks/figures/{{measure}}/posterior.tsv"
-    script:
-        "../../scripts/fig_posterior.py"
+    shell:
+        FIG_POSTERIOR_JOB
 
 
 rule predictive_solve:
@@ -105,8 +105,8 @@ rule predictive_solve:
     benchmark:
         f"{R}/benchmarks/predictive/{{k}}.tsv"
     threads: 1
-    script:
-        "../../scripts/predictive_solve.py"
+    shell:
+        PREDICTIVE_JOB
 
 
 rule fig_interfaces:
@@ -134,8 +134,8 @@ rule fig_interfaces:
         f"{R}/logs/fig_interfaces.log",
     benchmark:
         f"{R}/benchmarks/figures/interfaces.tsv"
-    script:
-        "../../scripts/fig_interfaces.py"
+    shell:
+        FIG_INTERFACES_JOB
 
 
 rule fig_fields:
@@ -158,8 +158,8 @@ rule fig_fields:
         f"{R}/logs/fig_fields.log",
     benchmark:
         f"{R}/benchmarks/figures/fields.tsv"
-    script:
-        "../../scripts/fig_fields.py"
+    shell:
+        FIG_FIELDS_JOB
 
 
 rule fig_rounds:
@@ -185,5 +185,5 @@ rule fig_rounds:
         f"{R}/logs/fig_rounds.log",
     benchmark:
         f"{R}/benchmarks/figures/rounds.tsv"
-    script:
-        "../../scripts/fig_rounds.py"
+    shell:
+        FIG_ROUNDS_JOB

@@ -9,8 +9,8 @@ imports numpy, scipy, h5py and NGSolve before any physics: about a second a job,
 several times the cost of a solve on the default mesh, and nearly all of a
 discrepancy job; GPy, torch and ArviZ add about two seconds to every surrogate, SMC
 and acquisition job of every active-design round. Here the imports are paid once per
-run: the workflow's ``onstart`` starts this server, which imports the per-point stage
-code, opens a Unix socket, imports the per-round stage code and then serves. A job is
+run: the workflow's ``onstart`` starts the servers (below), which import the stage
+code, open a Unix socket each and then serve. A job is
 a tiny client (``scripts/job.py``, standard library only, started with
 ``python -I -S``) that hands the server its arguments, its working directory, its
 environment and its stdout/stderr (file descriptors passed over the socket); the
@@ -31,16 +31,33 @@ What a job keeps
   start): the client runs the same stage in-process (``python -m
   bayescalib.execution.jobserver --run``), with the full imports: slower, same result.
 
+Two servers
+-----------
+A run starts two servers side by side (:func:`start_server`): the *point* server
+(``BAYESCALIB_JOBSERVER``) imports only what the per-point jobs need (NumPy, h5py,
+NGSolve, the measures: about 2 s) and serves at once; the *round* server
+(``BAYESCALIB_JOBSERVER_ROUND``) imports GPy, ArviZ, Matplotlib (and torch where a GPU
+can exist) for the per-round, per-measure and figure stages (:data:`ROUND_STAGES`).
+Measured on the smoke study: with one server, the solves that arrived during its
+12 s of GPy/torch/ArviZ imports waited for them, and every per-point job forked from
+a 460 MB process instead of a 160 MB one (fork, copy-on-write and exit about 0.1 s
+more per job). A per-round job that arrives before the round server is up goes to
+the point server (its child imports what it needs): slower, same result. Both
+servers freeze their imported objects (:func:`gc.freeze`) before they fork jobs, so a
+child's garbage collections do not touch (and copy) the server's pages.
+
 Protocol (``AF_UNIX``, ``SOCK_SEQPACKET``, one request per connection): the client
-sends one JSON message ``{"stage", "args", "cwd", "env"}`` with two file
+sends one JSON message ``{"stage", "argv", "cwd", "env"}`` with two file
 descriptors (its stdout and stderr); the server answers ``{"exit": code}`` when the
-job has ended.
+job has ended. ``argv`` is the job's ``KEY VALUE ...`` words (:func:`parse_args`: a
+value ``[`` opens a list of paths closed by ``]``, for the stages that read many files).
 """
 
 from __future__ import annotations
 
 import array
 import ast
+import gc
 import hashlib
 import json
 import os
@@ -57,14 +74,16 @@ from typing import Any
 
 from bayescalib._process import die_with_parent
 
-__all__ = ["STAGES", "export_job_command", "run_stage", "serve", "socket_path", "start_server",
-           "stop_server"]
+__all__ = ["ROUND_STAGES", "STAGES", "export_job_command", "parse_args", "run_stage", "serve",
+           "socket_path", "start_server", "stop_server"]
 
-#: environment variable through which the jobs of a run find its server
+#: environment variable through which the jobs of a run find its point server
 SOCKET_ENV = "BAYESCALIB_JOBSERVER"
+#: ... and its round server (the stages of :data:`ROUND_STAGES`)
+ROUND_SOCKET_ENV = "BAYESCALIB_JOBSERVER_ROUND"
 _MAX_MESSAGE = 1 << 20
-#: the server this process started (start_server), stopped by stop_server
-_SERVER: subprocess.Popen | None = None
+#: the servers this process started (start_server), stopped by stop_server
+_SERVERS: list[subprocess.Popen] = []
 
 
 class _Stop(Exception):
@@ -72,6 +91,29 @@ class _Stop(Exception):
 
 
 # ----------------------------------------------------------------------------- stages
+
+
+def parse_args(words: list[str]) -> dict[str, Any]:
+    """A job's ``KEY VALUE ...`` words as a mapping: each value is a string, or a list of
+    strings where the value is the word ``[`` (the list ends at the word ``]``: the
+    rule's command writes ``runs [ {input.runs:q} ]``). A last key without a value (an
+    empty input formatted by Snakemake) is left out.
+
+    >>> parse_args(["out", "a.h5", "runs", "[", "r/0.h5", "r/1.h5", "]", "n", "3"])
+    {'out': 'a.h5', 'runs': ['r/0.h5', 'r/1.h5'], 'n': '3'}
+    """
+    out: dict[str, Any] = {}
+    k = 0
+    while k + 1 < len(words):
+        key, value = words[k], words[k + 1]
+        k += 2
+        if value == "[":
+            end = words.index("]", k) if "]" in words[k:] else len(words)
+            out[key] = list(words[k:end])
+            k = end + 1
+        else:
+            out[key] = value
+    return out
 
 
 def _literal(text: str) -> Any:
@@ -107,11 +149,21 @@ def _train_surrogate(args: Mapping[str, str]) -> None:
           args["out"])
 
 
+def _granted_threads() -> int:
+    """The threads Snakemake granted the job (its ``threads:``), which its shell command
+    receives as ``OMP_NUM_THREADS``; 1 where unset."""
+    try:
+        return max(1, int(os.environ.get("OMP_NUM_THREADS", "1")))
+    except ValueError:
+        return 1
+
+
 def _smc(args: Mapping[str, str]) -> None:
     from bayescalib.stages import setup_logging, smc
 
     setup_logging(args["log"])
-    smc(args["surrogate"], _literal(args["smc"]), _literal(args["parameters"]), args["out"])
+    smc(args["surrogate"], _literal(args["smc"]), _literal(args["parameters"]), args["out"],
+        threads=_granted_threads())
 
 
 def _acquire(args: Mapping[str, str]) -> None:
@@ -131,29 +183,124 @@ def _marginalize(args: Mapping[str, str]) -> None:
                 _literal(args["parameters"]), int(args["seed"]), args["out"], args["netcdf"])
 
 
-#: stage name -> function of the job's arguments (strings, as formatted by the rule's
-#: shell command). Per point: solve, discrepancy; per round (active design) and per
-#: measure: train_surrogate, smc, acquire, marginalize.
-STAGES: dict[str, Callable[[Mapping[str, str]], None]] = {
+def _gather(args: Mapping[str, Any]) -> None:
+    from bayescalib.stages import gather, setup_logging
+
+    setup_logging(args["log"])
+    gather(args["runs"], args["disc"], _literal(args["names"]), _literal(args["targets"]),
+           _literal(args["n_train"]), args["out"])
+
+
+def _predictive_solve(args: Mapping[str, Any]) -> None:
+    from bayescalib.models.forward import solve_point
+    from bayescalib.stages import setup_logging
+    from bayescalib.stages.figures import posterior_draws
+
+    setup_logging(args["log"])
+    point = posterior_draws(args["particles"], _literal(args["parameters"]), int(args["k"]),
+                            int(args["n"]), int(args["seed"]))
+    solve_point(_literal(args["forward_model"]), point, args["out"])
+
+
+def _fig_response(args: Mapping[str, Any]) -> None:
+    from bayescalib.stages import setup_logging
+    from bayescalib.stages.figures import response_figures
+
+    setup_logging(args["log"])
+    response_figures(args["training"], args["surrogate"], _literal(args["parameters"]),
+                     _literal(args["plots"]), args["stem"])
+
+
+def _fig_convergence(args: Mapping[str, Any]) -> None:
+    from bayescalib.stages import setup_logging
+    from bayescalib.stages.figures import convergence_figure
+
+    setup_logging(args["log"])
+    convergence_figure(args["convergence"], _literal(args["plots"]), args["stem"])
+
+
+def _fig_posterior(args: Mapping[str, Any]) -> None:
+    from bayescalib.stages import setup_logging
+    from bayescalib.stages.figures import posterior_figures
+
+    setup_logging(args["log"])
+    posterior_figures(args["particles"], args["posterior"], _literal(args["parameters"]),
+                      _literal(args["plots"]), _literal(args["stems"]))
+
+
+def _fig_interfaces(args: Mapping[str, Any]) -> None:
+    from bayescalib.stages import setup_logging
+    from bayescalib.stages.figures import interface_figure
+
+    setup_logging(args["log"])
+    interface_figure(args["obs"], args["samples"], _literal(args["plots"]), args["stem"],
+                     ground_truth_run=args.get("truth") or None)
+
+
+def _fig_fields(args: Mapping[str, Any]) -> None:
+    from bayescalib.stages import setup_logging
+    from bayescalib.stages.figures import field_figure
+
+    setup_logging(args["log"])
+    field_figure(args["vtu"], args["run"], _literal(args["plots"]), args["stem"])
+
+
+def _fig_rounds(args: Mapping[str, Any]) -> None:
+    from bayescalib.stages import setup_logging
+    from bayescalib.stages.figures import rounds_figure
+
+    setup_logging(args["log"])
+    rounds_figure(args["records"], args["particles"], args["training"],
+                  _literal(args["parameters"]), _literal(args["active"]),
+                  _literal(args["plots"]), args["stem"])
+
+
+#: stage name -> function of the job's arguments (strings, or lists of paths, as
+#: formatted by the rule's shell command and read by :func:`parse_args`). Per point:
+#: solve, discrepancy, predictive_solve; per round (active design) and per measure:
+#: gather, train_surrogate, smc, acquire, marginalize; the figures.
+STAGES: dict[str, Callable[[Mapping[str, Any]], None]] = {
     "solve": _solve,
     "discrepancy": _discrepancy,
+    "predictive_solve": _predictive_solve,
+    "gather": _gather,
     "train_surrogate": _train_surrogate,
     "smc": _smc,
     "acquire": _acquire,
     "marginalize": _marginalize,
+    "fig_response": _fig_response,
+    "fig_convergence": _fig_convergence,
+    "fig_posterior": _fig_posterior,
+    "fig_interfaces": _fig_interfaces,
+    "fig_fields": _fig_fields,
+    "fig_rounds": _fig_rounds,
 }
 
-#: what the server imports before it accepts jobs (the heavy part of every per-point job)
-_PRELOAD = ("numpy", "scipy.sparse", "scipy.spatial", "h5py", "bayescalib.models.forward",
-            "bayescalib.stages", "bayescalib.study", "bayescalib.measures",
-            "bayescalib.inference.likelihood", "bayescalib.io.observation_store", "bayescalib.models.fsi.model",
-            "bayescalib.models.fsi.solver", "ngsolve", "netgen.occ")
+#: the stages the round server runs (GPy, ArviZ, Matplotlib); the others go to the point
+#: server. ``scripts/job.py`` holds the same set (it imports nothing of this package).
+ROUND_STAGES = frozenset({"train_surrogate", "smc", "acquire", "marginalize", "fig_response",
+                          "fig_convergence", "fig_posterior", "fig_interfaces", "fig_fields",
+                          "fig_rounds"})
 
+#: what the point server imports before it accepts jobs (the heavy part of every
+#: per-point job; also the modules a solve or discrepancy imports on its way, so that
+#: no job compiles or loads one of its own)
+_PRELOAD = ("numpy", "scipy.sparse", "scipy.spatial", "scipy.linalg", "h5py",
+            "bayescalib.models.forward", "bayescalib.stages", "bayescalib.study",
+            "bayescalib.measures", "bayescalib.measures.currents",
+            "bayescalib.geometry.interface", "bayescalib.geometry.projection",
+            "bayescalib.inference.likelihood", "bayescalib.io.observation_store",
+            "bayescalib.io.runrecord", "bayescalib.io.training", "bayescalib.models.fsi.model",
+            "bayescalib.models.fsi.solver", "ngsolve", "netgen.occ", "multiprocessing.popen_fork")
 
-#: imported once it accepts jobs (the per-round stages: GPy, torch, ArviZ); a job that
-#: arrives meanwhile waits in the socket's queue
-_PRELOAD_LATER = ("GPy", "torch", "arviz", "bayescalib.inference.surrogate", "bayescalib.inference.smc",
-                  "bayescalib.inference.active", "bayescalib.inference.posterior")
+#: what the round server imports before it accepts jobs (torch only where a GPU may
+#: be used: :func:`bayescalib.inference.surrogate.gpu_possible`)
+_PRELOAD_ROUND = ("numpy", "scipy.linalg", "scipy.optimize", "scipy.stats", "h5py", "GPy",
+                  "arviz", "matplotlib", "matplotlib.pyplot", "bayescalib.stages",
+                  "bayescalib.stages.figures", "bayescalib.study", "bayescalib.inference.surrogate",
+                  "bayescalib.inference.smc", "bayescalib.inference.active",
+                  "bayescalib.inference.posterior", "bayescalib.inference.weights",
+                  "bayescalib.plotting")
 
 
 def run_stage(stage: str, args: Mapping[str, str]) -> None:
@@ -168,11 +315,12 @@ def run_stage(stage: str, args: Mapping[str, str]) -> None:
 # ----------------------------------------------------------------------------- server
 
 
-def socket_path(root: str | Path) -> str:
-    """The socket of the server of a run of the study under ``root`` (short: Unix
-    socket paths are limited to about 100 characters)."""
+def socket_path(root: str | Path, kind: str = "point") -> str:
+    """The socket of the ``kind`` ("point" or "round") server of a run of the study
+    under ``root`` (short: Unix socket paths are limited to about 100 characters)."""
     key = hashlib.sha1(str(Path(root).resolve()).encode()).hexdigest()[:16]
-    return os.path.join(tempfile.gettempdir(), f"bayescalib-{key}.sock")
+    tail = "" if kind == "point" else f"-{kind}"
+    return os.path.join(tempfile.gettempdir(), f"bayescalib-{key}{tail}.sock")
 
 
 def export_job_command(basedir: str | Path, *, conda: bool = False) -> None:
@@ -186,59 +334,67 @@ def export_job_command(basedir: str | Path, *, conda: bool = False) -> None:
 
 
 def start_server(root: str | Path, *, wait_s: float = 20.0) -> str | None:
-    """Start the server of this run (called by the workflow's ``onstart``) and point
-    the jobs to it (``BAYESCALIB_JOBSERVER``, inherited by the jobs).
+    """Start the servers of this run (called by the workflow's ``onstart``) and point
+    the jobs to them (``BAYESCALIB_JOBSERVER``, ``BAYESCALIB_JOBSERVER_ROUND``,
+    inherited by the jobs).
 
-    Returns the socket path once the server accepts jobs, or None if it did not come
-    up within ``wait_s`` (jobs then run in-process; nothing is lost), or if
-    ``BAYESCALIB_JOBSERVER=off`` asks for every job in a fresh interpreter. The server
-    exits when this process does.
+    Returns the point server's socket path once it accepts jobs, or None if it did not
+    come up within ``wait_s`` (jobs then run in-process; nothing is lost), or if
+    ``BAYESCALIB_JOBSERVER=off`` asks for every job in a fresh interpreter. The round
+    server is not waited for (its imports take longer; until it is up, its jobs go to
+    the point server). Both exit when this process does. Their output goes to
+    ``<root>/logs/jobserver.log``.
     """
     if os.environ.get(SOCKET_ENV) == "off":
         return None
-    path = socket_path(root)
-    # a socket left by a killed run of this study (this run holds the study's run
-    # lock, so no live server owns it): gone, so that only the new one counts as ready
-    try:
-        os.unlink(path)
-    except FileNotFoundError:
-        pass
+    paths = {kind: socket_path(root, kind) for kind in ("point", "round")}
+    # sockets left by a killed run of this study (this run holds the study's run
+    # lock, so no live server owns them): gone, so that only new ones count as ready
+    for path in paths.values():
+        try:
+            os.unlink(path)
+        except FileNotFoundError:
+            pass
     log = Path(root) / "logs" / "jobserver.log"
     log.parent.mkdir(parents=True, exist_ok=True)
     env = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1",
            "MKL_NUM_THREADS": "1"}
-    with open(log, "w") as fh:
-        proc = subprocess.Popen(
-            [sys.executable, "-m", "bayescalib.execution.jobserver", "--serve", path,
-             "--parent", str(os.getpid())],
-            stdin=subprocess.DEVNULL, stdout=fh, stderr=subprocess.STDOUT, env=env)
-    global _SERVER
-    _SERVER = proc
+    log.write_text("")
+    procs = {}
+    for kind, path in paths.items():
+        with open(log, "a") as fh:
+            procs[kind] = subprocess.Popen(
+                [sys.executable, "-m", "bayescalib.execution.jobserver", "--serve", path,
+                 "--parent", str(os.getpid()), "--kind", kind],
+                stdin=subprocess.DEVNULL, stdout=fh, stderr=subprocess.STDOUT, env=env)
+        _SERVERS.append(procs[kind])
     deadline = time.monotonic() + wait_s
     while time.monotonic() < deadline:
-        if proc.poll() is not None:
+        if procs["point"].poll() is not None:
             return None
-        if os.path.exists(path):
-            os.environ[SOCKET_ENV] = path
-            return path
+        if os.path.exists(paths["point"]):
+            os.environ[SOCKET_ENV] = paths["point"]
+            os.environ[ROUND_SOCKET_ENV] = paths["round"]
+            return paths["point"]
         time.sleep(0.02)
     return None
 
 
 def stop_server(timeout: float = 10.0) -> None:
-    """Stop the server :func:`start_server` started in this process (the workflow's
-    ``onsuccess``/``onerror``), so that its log is complete when the run returns. It
-    would stop by itself within a second of this process's end anyway."""
-    global _SERVER
-    proc, _SERVER = _SERVER, None
-    if proc is None or proc.poll() is not None:
-        return
-    proc.terminate()
-    try:
-        proc.wait(timeout=timeout)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        proc.wait()
+    """Stop the servers :func:`start_server` started in this process (the workflow's
+    ``onsuccess``/``onerror``), so that their log is complete when the run returns.
+    They would stop by themselves within a second of this process's end anyway."""
+    procs = list(_SERVERS)
+    _SERVERS.clear()
+    for proc in procs:
+        if proc.poll() is None:
+            proc.terminate()
+    for proc in procs:
+        try:
+            proc.wait(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
 
 
 class _Job:
@@ -279,7 +435,8 @@ def _run_child(request: Mapping[str, Any], fds: list[int], close: list[int]) -> 
         os.chdir(request["cwd"])
         os.environ.clear()
         os.environ.update(request["env"])
-        run_stage(request["stage"], request["args"])
+        args = parse_args(request["argv"]) if "argv" in request else request["args"]
+        run_stage(request["stage"], args)
         code = 0
     except SystemExit as exc:
         code = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
@@ -308,14 +465,14 @@ def _import_all(modules: tuple[str, ...]) -> None:
 
 
 def serve(path: str, parent: int | None = None, preload: tuple[str, ...] = _PRELOAD,
-          preload_later: tuple[str, ...] = _PRELOAD_LATER) -> None:
-    """Run the server: import ``preload``, listen on ``path``, import ``preload_later``,
-    fork a child per job.
+          kind: str = "point") -> None:
+    """Run the server: import ``preload``, listen on ``path``, fork a child per job.
 
     Ends when ``parent`` (the Snakemake process) is gone or on SIGTERM, killing the
     jobs it still runs and removing the socket.
     """
     t0 = time.monotonic()
+    name = f"jobserver ({kind})"
     _import_all(preload)
     try:  # the config schemas, validated by every solve (fsi model) and job
         from bayescalib.config import load_schemas
@@ -323,7 +480,22 @@ def serve(path: str, parent: int | None = None, preload: tuple[str, ...] = _PREL
         load_schemas()
     except ImportError:
         pass
-    print(f"jobserver: preloaded in {time.monotonic() - t0:.2f} s", flush=True)
+    if kind == "round":
+        try:
+            import matplotlib
+
+            matplotlib.use("Agg")  # the figure stages' backend, chosen once here
+        except ImportError:
+            pass
+        from bayescalib.inference.surrogate import gpu_possible
+
+        if gpu_possible():  # a surrogate on device "auto" may use it
+            _import_all(("torch",))
+    # the imported objects are never collected: a child's collections skip them and
+    # leave their pages shared with this process
+    gc.collect()
+    gc.freeze()
+    print(f"{name}: preloaded in {time.monotonic() - t0:.2f} s", flush=True)
     try:
         os.unlink(path)
     except FileNotFoundError:
@@ -339,9 +511,6 @@ def serve(path: str, parent: int | None = None, preload: tuple[str, ...] = _PREL
     listener.listen(64)
     os.rename(tmp, path)  # the socket appears only when it accepts jobs
     inode = os.stat(path).st_ino
-    t0 = time.monotonic()
-    _import_all(preload_later)
-    print(f"jobserver: per-round stages preloaded in {time.monotonic() - t0:.2f} s", flush=True)
     sel = selectors.DefaultSelector()
     sel.register(listener, selectors.EVENT_READ, "listen")
     jobs: dict[int, _Job] = {}  # by pidfd
@@ -428,7 +597,7 @@ def serve(path: str, parent: int | None = None, preload: tuple[str, ...] = _PREL
                 os.unlink(path)
         except FileNotFoundError:
             pass
-        print(f"jobserver: {n_done} jobs run; stopped", flush=True)
+        print(f"{name}: {n_done} jobs run; stopped", flush=True)
 
 
 def _alive(pid: int) -> bool:
@@ -442,20 +611,23 @@ def _alive(pid: int) -> bool:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """``--serve PATH [--parent PID]`` runs the server; ``--run STAGE KEY VALUE ...``
-    runs one job in this process (the client's fallback)."""
+    """``--serve PATH [--parent PID] [--kind point|round]`` runs a server; ``--run STAGE
+    KEY VALUE ...`` runs one job in this process (the client's fallback)."""
     argv = sys.argv[1:] if argv is None else argv
-    if argv[:1] == ["--serve"]:
-        parent = int(argv[3]) if len(argv) >= 4 and argv[2] == "--parent" else None
-        serve(argv[1], parent)
+    if argv[:1] == ["--serve"] and len(argv) >= 2:
+        opts = dict(zip(argv[2::2], argv[3::2]))
+        kind = opts.get("--kind", "point")
+        if kind not in ("point", "round"):
+            sys.stderr.write(f"jobserver: unknown server kind {kind!r}\n")
+            return 2
+        parent = int(opts["--parent"]) if "--parent" in opts else None
+        serve(argv[1], parent, _PRELOAD_ROUND if kind == "round" else _PRELOAD, kind)
         return 0
     if argv[:1] == ["--run"] and len(argv) >= 2:
-        # a last key without value (an empty list formatted by Snakemake) is left out
-        stage, rest = argv[1], argv[2:]
-        run_stage(stage, dict(zip(rest[::2], rest[1::2])))
+        run_stage(argv[1], parse_args(argv[2:]))
         return 0
-    sys.stderr.write("usage: python -m bayescalib.execution.jobserver --serve PATH [--parent PID] | "
-                     "--run STAGE [KEY VALUE ...]\n")
+    sys.stderr.write("usage: python -m bayescalib.execution.jobserver --serve PATH [--parent PID] "
+                     "[--kind point|round] | --run STAGE [KEY VALUE ...]\n")
     return 2
 
 

@@ -72,6 +72,8 @@ from __future__ import annotations
 
 import logging
 import math
+import os
+import sys
 import warnings
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
@@ -144,14 +146,33 @@ def _torch():
     return torch
 
 
+#: device nodes and driver files of which a Linux machine with a GPU that torch can use
+#: has at least one (NVIDIA: /dev/nvidia*, /proc/driver/nvidia; ROCm: /dev/kfd; WSL: /dev/dxg)
+_GPU_MARKERS = ("/dev/nvidiactl", "/dev/nvidia0", "/proc/driver/nvidia", "/dev/kfd", "/dev/dxg")
+
+
+def gpu_possible() -> bool:
+    """False only where torch certainly sees no GPU: a Linux machine with none of the
+    GPU device nodes or driver files of :data:`_GPU_MARKERS` (checked without importing
+    torch, whose import costs 5-7 s: measured on the smoke study's figure and per-round
+    jobs). True elsewhere, and where torch is already imported."""
+    if "torch" in sys.modules or not sys.platform.startswith("linux"):
+        return True
+    return any(os.path.exists(p) for p in _GPU_MARKERS)
+
+
 def _resolve_device(device: str) -> str:
     """"auto" -> "cuda" when torch sees a GPU, else "cpu" (the NumPy path).
 
     "cpu" selects the NumPy implementation; any other value is a torch device
     ("cuda", "cuda:1"; "torch:cpu" runs the torch implementation on the CPU).
+    Where no GPU can exist (:func:`gpu_possible`), "auto" is "cpu" without importing
+    torch.
     """
     if device != "auto":
         return device
+    if not gpu_possible():
+        return "cpu"
     try:
         torch = _torch()
     except ImportError:  # pragma: no cover - torch is a dependency

@@ -557,13 +557,20 @@ def convergence(training_path: str | Path, surrogate: Mapping[str, Any],
 
 # ------------------------------------------------------------------------------ smc
 def smc(surrogate_path: str | Path, smc_cfg: Mapping[str, Any],
-        parameters: Sequence[Mapping[str, Any]], out_path: str | Path) -> None:
-    """Run SMC with adaptive tempering on the GP mean of the log-likelihood."""
+        parameters: Sequence[Mapping[str, Any]], out_path: str | Path, *,
+        threads: int = 1) -> None:
+    """Run SMC with adaptive tempering on the GP mean of the log-likelihood.
+
+    ``threads`` > 1 evaluates the surrogate's chunks of particles on that many threads
+    (:attr:`GPSurrogate.threads`): the same chunks, each computed alone, so the
+    particles are bitwise those of one thread.
+    """
     from bayescalib.inference.posterior import write_particles_h5
     from bayescalib.inference.smc import smc_from_config
     from bayescalib.inference.surrogate import GPSurrogate
 
     gp = _read_checked(surrogate_path, GPSurrogate.load, "GP surrogate")
+    gp.threads = max(1, int(threads))
     space = _space(parameters)
 
     result = smc_from_config(gp.predict, space, smc_cfg)
