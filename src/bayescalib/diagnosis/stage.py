@@ -149,11 +149,13 @@ def resolve_noise_model(diagnose: Mapping[str, Any], observations: Mapping[str, 
     """Noise model of the predictive check's replicates
     (:data:`bayescalib.diagnosis.residuals.NOISE_MODELS`): ``diagnose.noise_model`` if
     set, else ``bootstrap`` for interfaces traced from images (their segmentation error
-    is heavy-tailed and its level is estimated from ~100 nodes) and ``gaussian``
-    otherwise (synthetic coordinate noise, exactly i.i.d. Gaussian)."""
+    is heavy-tailed and its level is estimated from ~100 nodes) when the check smooths
+    (``diagnose.smoothing`` > 0: the bootstrap takes the smooth part out) and
+    ``gaussian`` otherwise (synthetic coordinate noise, exactly i.i.d. Gaussian)."""
     if diagnose.get("noise_model") is not None:
         return str(diagnose["noise_model"])
-    return "bootstrap" if _image_pixel_sizes(observations) else "gaussian"
+    images = bool(_image_pixel_sizes(observations))
+    return "bootstrap" if images and float(diagnose.get("smoothing", 0.05)) > 0 else "gaussian"
 
 
 def thinned_observations(obs, spacing: float):
