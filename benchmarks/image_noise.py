@@ -71,8 +71,9 @@ SYNTHETIC_NOISE = 0.001
 #: default cases: ``<hidden effect>@<observation mode>``, ``null`` = nothing hidden; the
 #: test magnitudes (tests/test_diagnosis_workflow.py: base_slip 0.01 mm, prestrain 0.02)
 #: and smaller ones, where detection is not certain
-CASES = ("null@images,base_slip=0.01@images,base_slip=0.004@images,base_slip=0.002@images,"
-         "prestrain=0.02@images,prestrain=0.005@images,null@synthetic,base_slip=0.002@synthetic")
+CASES = ("null@images,base_slip=0.01@images,base_slip=0.004@images,base_slip=0.003@images,"
+         "base_slip=0.002@images,prestrain=0.02@images,prestrain=0.01@images,"
+         "prestrain=0.005@images,null@synthetic,base_slip=0.002@synthetic")
 
 
 def parse_case(case: str) -> tuple[dict, str]:
