@@ -43,14 +43,16 @@ Noise model of the replicates (``noise_model``):
   ``(r_j - (S r)_j) / (1 - S_jj)`` (``r_j`` minus the smoother's prediction of it from
   the other nodes: a single speckle dent keeps its full size) of all snapshots,
   centred. Every replicate's noise is drawn from the pool with replacement, node by
-  node, plus Gaussian jitter of Silverman's bandwidth (a smoothed bootstrap: the largest of ~100 pooled values is below what a
-  replicate should sometimes reach). The replicates so carry the data's own marginal,
-  heavy tails included, and its own level: with a Gaussian of a plug-in ``sigma``
-  estimated from ~100 nodes (a MAD: +-20 %), a low estimate alone makes ``chi2``
-  fire. ``sigma`` is the pool's RMS (when given, the pool is rescaled to it). For white
-  noise a pooled value has a variance a little above ``sigma^2`` (by
-  ``sum_(k!=j) S_jk^2 / (1 - S_jj)^2``, ~0.16 at two node spacings per ``ell``) and the
-  jitter adds ~0.1 ``sigma^2``: the bootstrap check is a little conservative. A real
+  node, plus Gaussian jitter of Silverman's bandwidth (a smoothed bootstrap: the
+  largest of ~100 pooled values is below what a replicate should sometimes reach).
+  The replicates so carry the data's own marginal, heavy tails included, and its own
+  level: a Gaussian of a plug-in ``sigma`` (a MAD of ~50 second differences per
+  snapshot, 0.6-1.6 x the segmentation error's RMS on null renders) makes ``chi2``
+  fire whenever the estimate is low. ``sigma`` is the pool's RMS (when given, the
+  pool is rescaled to it). For white noise a pooled value has a variance a little
+  above ``sigma^2`` (by ``sum_(k!=j) S_jk^2 / (1 - S_jj)^2``, ~0.16 at two node
+  spacings per ``ell``) and the jitter adds ~0.13 ``sigma^2`` (100 values): the
+  bootstrap check is a little conservative. A real
   effect is not resampled into the replicates: its smooth part is taken out first, so
   the observed statistics carry it and the replicates do not. Limitation: an effect
   whose scale along the interface is below ``ell`` is partly taken for noise (it
@@ -89,6 +91,7 @@ __all__ = [
     "estimate_noise",
     "fluid_side_sign",
     "intervals",
+    "kernel_bandwidth",
     "noise_pool",
     "offsets",
     "predictive_check",
@@ -476,7 +479,7 @@ def predictive_check(
         interfaces traced from images (used by the ``gaussian`` noise model).
     noise_model
         ``gaussian`` (i.i.d. normal noise of sd ``sigma`` per node) or ``bootstrap``
-        (resampled leverage-corrected rough residuals, :func:`noise_pool`; needs
+        (resampled leave-one-out rough residuals, :func:`noise_pool`; needs
         ``ell > 0``); see the module docstring.
     rng
         Random generator (replicates).
@@ -509,6 +512,7 @@ def predictive_check(
             sig, source = float(max(rms, noise_floor)), "estimated"
         else:
             sig, source = float(max(sigma, noise_floor)), "given"
+        # (a residual without a rough part, e.g. noise-free data: Gaussian at the floor)
         pool = pool * (sig / rms) if rms > 0 else rng.standard_normal(pool.size) * sig
         pool_info = {"n": int(pool.size), "rms_mm": float(np.sqrt(np.mean(pool**2))),
                      "kurtosis": float(np.mean(pool**4) / np.mean(pool**2) ** 2)}
