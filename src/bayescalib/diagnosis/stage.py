@@ -155,7 +155,7 @@ def resolve_noise_model(diagnose: Mapping[str, Any], observations: Mapping[str, 
     if diagnose.get("noise_model") is not None:
         return str(diagnose["noise_model"])
     images = bool(_image_pixel_sizes(observations))
-    return "bootstrap" if images and float(diagnose.get("smoothing", 0.05)) > 0 else "gaussian"
+    return "bootstrap" if images and float(diagnose["smoothing"]) > 0 else "gaussian"
 
 
 def thinned_observations(obs, spacing: float):
