@@ -25,7 +25,8 @@ into a mask (Gaussian pre-smoothing of 1 pixel, threshold at half the contrast, 
 and holes under 16 pixels removed), see :func:`bayescalib.geometry.imaging.render_mask`;
 the study then reads one PNG per loading (``observations.source: files`` with
 ``pixel_size`` and ``origin``), and the diagnosis estimates the noise from the data
-(``diagnose.noise_sigma: null``). Masks, their sidecars and the scans are written to
+(``diagnose.noise_sigma: null``) and resamples it for the predictive check
+(``diagnose.noise_model``: ``bootstrap``, the default for images). Masks, their sidecars and the scans are written to
 ``<out>/images/<study>/``. The localization overlap maps the effect region from the
 ground-truth nodes to the observed (traced) nodes the diagnosis used (thinned to one per
 5 pixels of arc length, the segmentation error's correlation length) by nearest node.
@@ -250,6 +251,7 @@ def _row(study_file: Path, variant: str, root: Path, regions: dict | None, label
     return {
         "study": study_file.stem, "hidden": effect, "loadings": variant, "observations": mode,
         "sigma_um": 1e3 * chk["sigma_mm"], "sigma_source": chk["sigma_source"],
+        "noise_model": (chk.get("noise_model") or {}).get("name", "gaussian"),
         "verdict": diag["verdict"],
         "top1": diag["attribution"]["ranking"][0]["candidate"] if diag["attribution"]["ranking"] else None,
         "identifiable_top1": diag["attribution"]["ranking"][0]["identifiable_fraction"]
@@ -341,7 +343,7 @@ def main() -> None:
                     observed=used.snapshots if mode == "images" else None) if hidden else None
                 rows.append(_row(sf, variant, root, regions, obs.labels, mode, hidden))
     head = ("| hidden effect | loadings | observations | verdict | top-1 (identifiable) | re-fit p | "
-            "chosen | overlap raw/unabsorbable | resid/noise | noise sd [um] (source) | RMS before/after [um] | "
+            "chosen | overlap raw/unabsorbable | resid/noise | noise sd [um] (source, model) | RMS before/after [um] | "
             "ln BF (best) | base solves (converged) | E err study/chosen | nu err study/chosen |")
     lines = [head, "|" + "---|" * 15]
     for r in rows:
@@ -355,7 +357,7 @@ def main() -> None:
             f"({_fmt(r['identifiable_top1'])}) | {_fmt(r['refit_p'], '{:.2g}')} | {r['chosen']} | "
             f"{_fmt(r['overlap'])} / {_fmt(r['overlap_unabsorbable'])} | "
             f"{_fmt(r['residual_to_noise'], '{:.1f}')} | "
-            f"{_fmt(r['sigma_um'])} ({r['sigma_source']}) | "
+            f"{_fmt(r['sigma_um'])} ({r['sigma_source']}, {r['noise_model']}) | "
             f"{_fmt(r['rms_before_um'])} / {_fmt(r['rms_after_um'])} | "
             f"{_fmt(r['log_bf'], '{:.1f}')} ({r['best_extended'] or '-'}) | "
             f"{r['base_solves']} ({r['base_converged']}) | "

@@ -85,6 +85,102 @@ def test_estimated_noise_is_used_when_not_given():
     assert chk.sigma == pytest.approx(0.003, rel=0.3)
 
 
+# ------------------------------------------------- noise resampled from the data
+# Image-like noise: along a fine curve (one node per 5 um "pixel") a segmentation error
+# correlated over a few nodes (a moving average of 3) with a heavy-tailed marginal
+# (Student t, 3 degrees of freedom) plus rare one-pixel dents; the check uses one node
+# per correlation length, as the diagnosis thins image-traced nodes (thin_nodes).
+T_FINE = np.linspace(0.0, np.pi, 241)
+REF_FINE = np.column_stack([1.0 - 0.3 * np.cos(T_FINE), 0.4 * np.sin(T_FINE)])
+NORMAL_FINE = np.column_stack([-0.4 * np.cos(T_FINE), 0.3 * np.sin(T_FINE)])
+NORMAL_FINE /= np.linalg.norm(NORMAL_FINE, axis=1, keepdims=True)
+SHAPE_FINE = np.sin(T_FINE)[:, None] * NORMAL_FINE
+
+
+def _image_like_noise(rng, sd=0.002):
+    """Correlated heavy-tailed normal offsets at the fine nodes, mm."""
+    e = rng.standard_t(3, T_FINE.size + 2) / np.sqrt(3.0)  # unit variance
+    x = np.convolve(e, np.ones(3) / np.sqrt(3.0), mode="valid")
+    dents = rng.random(T_FINE.size) < 0.01  # ~2 dents of 3 pixels' depth per curve
+    return sd * x - 3.0 * sd * dents
+
+
+def _image_like_check(seed, noise_model, effect=None):
+    from bayescalib.diagnosis.residuals import thin_nodes
+
+    rng = np.random.default_rng(seed)
+    draws = [[_curve(REF_FINE + rng.normal(0.0, 0.0005) * SHAPE_FINE)] for _ in range(8)]
+    offset = _image_like_noise(rng) + (0.0 if effect is None else effect)
+    pts = REF_FINE + offset[:, None] * NORMAL_FINE
+    keep = thin_nodes(pts, 0.015)  # 3 fine nodes: one correlation length
+    chk = predictive_check([_curve(pts[keep])], draws, noise_model=noise_model,
+                           rng=np.random.default_rng(seed + 10_000))
+    return chk, T_FINE[keep]
+
+
+def test_the_bootstrap_check_is_calibrated_on_correlated_heavy_tailed_noise():
+    """Null: the data are a posterior draw plus image-like noise. The Gaussian noise
+    model with its noise level estimated (a MAD) fires on most such curves; the
+    bootstrap's replicates, resampled from the residual's rough part, must give about
+    the nominal rate. Measured 7 / 150 (the Gaussian plug-in: 33 / 40); allowed:
+    alpha + 3 binomial sd over 150 runs, 0.05 + 3 * 0.018 = 0.103 (15 of 150)."""
+    n = 150
+    boot = sum(not _image_like_check(seed, "bootstrap")[0].adequate for seed in range(n))
+    assert boot <= 15, f"bootstrap: {boot} / {n} false alarms"
+    gauss = sum(not _image_like_check(seed, "gaussian")[0].adequate for seed in range(40))
+    assert gauss >= 12, f"the Gaussian plug-in fired on {gauss} / 40 only: the null is too easy"
+
+
+def test_the_bootstrap_check_still_flags_and_locates_a_smooth_effect():
+    """A smooth bump (3 noise sd high, 0.15 rad wide in t: ~0.1 mm, twice ell) on the
+    same noise: the smooth part is not resampled into the replicates, so the check must
+    still fire (measured 30 / 30; required 27 / 30) and locate the bump."""
+    bump = 0.006 * np.exp(-0.5 * ((T_FINE - 2.3) / 0.15) ** 2)
+    hits = located = 0
+    for seed in range(30):
+        chk, t = _image_like_check(seed, "bootstrap", effect=bump)
+        hits += not chk.adequate
+        if chk.located:
+            main = max(chk.located, key=lambda d: abs(d["peak_z"]))
+            i0, i1 = main["nodes"]
+            located += bool(t[i0] < 2.3 < t[i1] and main["peak_z"] > 0)
+    assert hits >= 27 and located >= 27, (hits, located)
+
+
+def test_the_noise_pool_keeps_a_dent_and_drops_a_smooth_mismatch():
+    from bayescalib.diagnosis.residuals import arc_length, noise_pool, resample_noise
+
+    s = arc_length(REF)
+    smooth = 0.01 * np.sin(T)  # 10 um over the whole curve, scale >> ell
+    dent = np.zeros(T.size)
+    dent[40] = -0.008
+    pool = noise_pool([smooth + dent], [s], 0.05)
+    # leave-one-out: the dent keeps its size (its neighbours predict 0 there) ...
+    assert pool[40] == pytest.approx(-0.008, abs=3e-4)  # centring: -0.008 / 81 = -1e-4
+    # ... and the smooth mismatch is gone (to < 3 % of its size, away from the dent
+    # and the curve's ends, where a one-sided smoother lags a curved profile)
+    far = (np.abs(np.arange(T.size) - 40) > 8) & (s > 0.1) & (s < s[-1] - 0.1)
+    assert np.max(np.abs(pool[far])) < 3e-4
+    # the smoothed bootstrap reaches past the pool's largest value, with its variance
+    rep = resample_noise(pool, (20_000,), np.random.default_rng(0))
+    assert np.max(np.abs(rep)) > np.max(np.abs(pool))
+    assert np.var(rep) == pytest.approx(np.var(pool), rel=0.25)
+    with pytest.raises(ValueError, match="ell"):
+        noise_pool([dent], [s], 0.0)
+
+
+def test_the_check_says_which_noise_model_it_used():
+    rng = np.random.default_rng(3)
+    obs = _curve(REF + rng.normal(0, 0.003, REF.shape))
+    for model in ("gaussian", "bootstrap"):
+        chk = predictive_check([obs], _draws(rng, K=4), noise_model=model, rng=rng).to_json()
+        assert chk["noise_model"]["name"] == model
+    assert chk["noise_model"]["pool"]["n"] == REF.shape[0]
+    assert chk["sigma_mm"] == pytest.approx(chk["noise_model"]["pool"]["rms_mm"])
+    with pytest.raises(ValueError, match="noise_model"):
+        predictive_check([obs], _draws(rng, K=4), noise_model="student", rng=rng)
+
+
 # ----------------------------------------------------------------- attribution
 N = 120
 S_ = np.linspace(0.0, 1.0, N)

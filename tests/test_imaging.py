@@ -12,7 +12,12 @@ import numpy as np
 import pytest
 
 from bayescalib.diagnosis.residuals import estimate_noise, offsets, predictive_check
-from bayescalib.diagnosis.stage import IMAGE_NOISE_LAG_PIXELS, noise_lag, thinned_observations
+from bayescalib.diagnosis.stage import (
+    IMAGE_NOISE_LAG_PIXELS,
+    noise_lag,
+    resolve_noise_model,
+    thinned_observations,
+)
 from bayescalib.geometry.imaging import mask_contour, pixel_grid, render_mask, render_scan
 from bayescalib.geometry.interface import Interface
 from bayescalib.geometry.projection import closest_points
@@ -213,6 +218,11 @@ def test_the_noise_level_is_estimated_from_the_masks(tmp_path):
         {**e, "units": "um", "pixel_size": 5.0} for e in section["files"]]}) == pytest.approx(lag)
     assert noise_lag({"noise_lag": 0.01}, section) == 0.01
     assert noise_lag({"noise_lag": None}, {"source": "synthetic"}) == 0.0
+    # and resamples its noise from the data (the segmentation error is not Gaussian)
+    assert resolve_noise_model({"noise_model": None, "smoothing": 0.05}, section) == "bootstrap"
+    assert resolve_noise_model({"noise_model": None, "smoothing": 0.0}, section) == "gaussian"
+    assert resolve_noise_model({"noise_model": None}, {"source": "synthetic"}) == "gaussian"
+    assert resolve_noise_model({"noise_model": "gaussian"}, section) == "gaussian"
     # the diagnosis uses nodes one lag apart (the error's correlation length)
     used = thinned_observations(obs, lag)
     for full, thin in zip(obs.snapshots, used.snapshots, strict=True):
@@ -282,7 +292,9 @@ IMAGE_STUDY = {
 def test_the_diagnosis_of_a_study_observed_as_masks_estimates_the_noise(tmp_path):
     """Masks of the analytic model's truth at two loadings, read by a files-sourced study
     (pixel_size, origin): the diagnosis must estimate the noise from them (not take a
-    generator's value), at the segmentation error's size, on nodes one lag apart."""
+    generator's value), at the segmentation error's size, on nodes one lag apart, with
+    replicates resampled from the residual (the bootstrap noise model), and claim
+    nothing."""
     from _workflow_helpers import setup_study, smk
 
     truth = _analytic({"E": 400.0, "nu": 0.3})
@@ -295,6 +307,8 @@ def test_the_diagnosis_of_a_study_observed_as_masks_estimates_the_noise(tmp_path
     root = tmp_path / "results" / "analytic_images"
     d = json.loads((root / "diagnosis" / "diagnosis.json").read_text())
     assert d["check"]["sigma_source"] == "estimated"
+    assert d["check"]["noise_model"]["name"] == "bootstrap"
+    assert d["check"]["noise_model"]["pool"]["n"] == d["check"]["statistics"]["n_nodes"]
     assert d["check"]["noise_lag_mm"] == pytest.approx(IMAGE_NOISE_LAG_PIXELS * S)
     assert d["check"]["sigma_mm"] == pytest.approx(rms, rel=0.35)
     nodes = d["observed_nodes"]

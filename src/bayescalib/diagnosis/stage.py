@@ -59,7 +59,8 @@ from bayescalib.inference.posterior import equal_weight_draws
 from bayescalib.stages import model_interfaces
 
 __all__ = ["DEFAULT_FSI_PRIORS", "IMAGE_NOISE_LAG_PIXELS", "decide_verdict", "explains_mismatch",
-           "noise_lag", "plain_words", "resolve_candidates", "retry_steps", "run_diagnosis",
+           "noise_lag", "plain_words", "resolve_candidates", "resolve_noise_model",
+           "retry_steps", "run_diagnosis",
            "thinned_observations"]
 
 log = logging.getLogger(__name__)
@@ -123,20 +124,38 @@ def resolve_candidates(fm: Mapping[str, Any], diagnose: Mapping[str, Any]) -> li
 IMAGE_NOISE_LAG_PIXELS = 5.0
 
 
+def _image_pixel_sizes(observations: Mapping[str, Any]) -> list[float]:
+    """Pixel sizes (mm) of the image files among the observations (none: not images)."""
+    from bayescalib.io.observations import IMAGE_SUFFIXES, UNITS
+
+    if observations.get("source") != "files":
+        return []
+    return [float(e["pixel_size"]) * UNITS[e.get("units") or "mm"]
+            for e in observations.get("files") or []
+            if Path(e["path"]).suffix.lower() in IMAGE_SUFFIXES and e.get("pixel_size")]
+
+
 def noise_lag(diagnose: Mapping[str, Any], observations: Mapping[str, Any]) -> float:
     """Arc length (mm) over which the noise estimate differences the residual:
     ``diagnose.noise_lag`` if set, else :data:`IMAGE_NOISE_LAG_PIXELS` times the largest
     pixel size of the image files among the observations, else 0 (adjacent nodes)."""
-    from bayescalib.io.observations import IMAGE_SUFFIXES, UNITS
-
     if diagnose.get("noise_lag") is not None:
         return float(diagnose["noise_lag"])
-    if observations.get("source") != "files":
-        return 0.0
-    sizes = [float(e["pixel_size"]) * UNITS[e.get("units") or "mm"]
-             for e in observations.get("files") or []
-             if Path(e["path"]).suffix.lower() in IMAGE_SUFFIXES and e.get("pixel_size")]
+    sizes = _image_pixel_sizes(observations)
     return IMAGE_NOISE_LAG_PIXELS * max(sizes) if sizes else 0.0
+
+
+def resolve_noise_model(diagnose: Mapping[str, Any], observations: Mapping[str, Any]) -> str:
+    """Noise model of the predictive check's replicates
+    (:data:`bayescalib.diagnosis.residuals.NOISE_MODELS`): ``diagnose.noise_model`` if
+    set, else ``bootstrap`` for interfaces traced from images (their segmentation error
+    is heavy-tailed and its level is estimated from ~100 nodes) when the check smooths
+    (``diagnose.smoothing`` > 0: the bootstrap takes the smooth part out) and
+    ``gaussian`` otherwise (synthetic coordinate noise, exactly i.i.d. Gaussian)."""
+    if diagnose.get("noise_model") is not None:
+        return str(diagnose["noise_model"])
+    images = bool(_image_pixel_sizes(observations))
+    return "bootstrap" if images and float(diagnose["smoothing"]) > 0 else "gaussian"
 
 
 def thinned_observations(obs, spacing: float):
@@ -186,6 +205,7 @@ def _check_from_particles(tag: str, particles: str | Path, targets: Sequence[str
                              labels=obs.labels, sigma=sigma, noise_floor=cfg["noise_floor"],
                              ell=cfg["smoothing"], alpha=cfg["alpha"], n_noise=cfg["n_noise"],
                              noise_lag=cfg["noise_lag_mm"],
+                             noise_model=cfg["noise_model_name"],
                              rng=np.random.default_rng(int(cfg["seed"]) + 1))
     draws = {"X": X, "ok": np.array([r.ok for r in runs]), "curves": curves}
     return check, len(runs) - len(good), draws
@@ -370,6 +390,7 @@ def _registration(modes, r, J, v, C0, obs, obs_pts, check, draws, theta, h, fd, 
         sigma=check.sigma if check.sigma_source == "given" else sigma,
         noise_floor=cfg["noise_floor"], ell=cfg["smoothing"], alpha=cfg["alpha"],
         n_noise=cfg["n_noise"], noise_lag=cfg["noise_lag_mm"],
+        noise_model=cfg["noise_model_name"],
         rng=np.random.default_rng(int(cfg["seed"]) + 1))
     out["check_after"] = after.to_json()
     out["explains"] = bool(out["first_order"] and explains_mismatch(out["check_after"], check))
@@ -461,6 +482,7 @@ def run_diagnosis(
     base_summary = json.loads(Path(posterior_path).read_text())
     base_design = {k: design.get(k) for k in ("strategy", "n_solves", "converged", "reason")}
     cfg["noise_lag_mm"] = noise_lag(cfg, observations)
+    cfg["noise_model_name"] = resolve_noise_model(cfg, observations)
     n_observed = [len(s.points) for s in obs.snapshots]
     obs = thinned_observations(obs, cfg["noise_lag_mm"])
     sigma = cfg["noise_sigma"]
@@ -733,6 +755,14 @@ def _registration_words(reg: Mapping[str, Any]) -> str:
     return ", ".join(parts)
 
 
+def _noise_words(chk: Mapping[str, Any]) -> str:
+    """How the check's replicates drew their noise, in words."""
+    nm = (chk.get("noise_model") or {}).get("name", "gaussian")
+    if nm == "bootstrap":
+        return "noise resampled from the residual's rough part"
+    return "independent Gaussian noise per node"
+
+
 def plain_words(d: Mapping[str, Any]) -> list[str]:
     """The diagnosis in a few sentences for a mechanician."""
     chk = d["check"]
@@ -759,7 +789,8 @@ def plain_words(d: Mapping[str, Any]) -> list[str]:
     lines.append(
         f"The calibrated model misses the data (smallest posterior predictive p-value "
         f"{pmin:.3g}; residual RMS {1e3 * chk['residual_rms_mm']:.2f} um against a noise "
-        f"level of {1e3 * chk['sigma_mm']:.2f} um, {chk.get('sigma_source', 'given')}).")
+        f"level of {1e3 * chk['sigma_mm']:.2f} um, {chk.get('sigma_source', 'given')}; "
+        f"{_noise_words(chk)}).")
     for loc in chk["located"]:
         a, b = loc["arc_length_mm"]
         lines.append(
