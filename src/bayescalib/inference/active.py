@@ -72,6 +72,7 @@ __all__ = [
     "acquire_round",
     "calibrate",
     "candidate_pool",
+    "check_points",
     "posterior_change",
     "posterior_moments",
     "round_sizes",
@@ -446,6 +447,9 @@ def acquire_round(r: int, X: np.ndarray, L: np.ndarray, gp, particles: np.ndarra
                             L[n - q_prev:], best, d, stop_cfg["gp_tol"])
         rec["trust"] = {k: (v.tolist() if isinstance(v, np.ndarray) else v)
                         for k, v in trust.items()}
+        kinds = np.asarray(nxt.get("kind", ["acquired"] * q_prev))
+        err = np.asarray(trust["errors"], float)[kinds == "check"]
+        rec["trust"]["check_errors"] = err.tolist()
         prev_post = {k: np.asarray(v, float) for k, v in previous["posterior"].items()
                      if k in ("mean", "sd", "cov")}
         rec["change"] = posterior_change(prev_post, moments)
@@ -483,16 +487,65 @@ def acquire_round(r: int, X: np.ndarray, L: np.ndarray, gp, particles: np.ndarra
         rng = _round_seed(active["seed"], r)
         pool = candidate_pool(particles, weights, space.bounds, int(active["pool_size"]), rng)
         q = min(int(active["batch_size"]), budget_left)
-        n_explore = math.floor(q * float(active["explore_fraction"]) + 0.5)
+        n_check = min(int(active["check_points"]), q - 1)
+        n_explore = math.floor((q - n_check) * float(active["explore_fraction"]) + 0.5)
         exploring = np.arange(len(pool)) >= len(pool) - round(len(pool) * POOL_UNIFORM)
         from scipy.stats import chi2
 
         threshold = best - 0.5 * float(chi2.ppf(REGION_LEVEL, d))
-        batch = select_batch(gp, pool, space.logprior(pool), q, failed=X[~finite],
+        batch = select_batch(gp, pool, space.logprior(pool), q - n_check, failed=X[~finite],
                              n_explore=n_explore, threshold=threshold, explore_mask=exploring)
-        rec["next"] = {"points": batch["points"].tolist(), "mean": batch["mean"].tolist(),
-                       "sd": batch["sd"].tolist(), "score": batch["score"].tolist()}
+        points, mean, sd = batch["points"], batch["mean"], batch["sd"]
+        kind = ["acquired"] * len(points)
+        if n_check:
+            C = check_points(particles, weights, space.bounds, n_check,
+                             np.random.default_rng([int(active["seed"]), int(r), 0xC4EC]))
+            c_mean, c_sd = _predict_loglik(gp, C)
+            points, mean, sd = np.vstack([points, C]), np.concatenate([mean, c_mean]), \
+                np.concatenate([sd, c_sd])
+            kind += ["check"] * n_check
+        rec["next"] = {"points": points.tolist(), "mean": mean.tolist(), "sd": sd.tolist(),
+                       "score": batch["score"].tolist(), "kind": kind}
     return rec
+
+
+def check_points(particles: np.ndarray, weights: np.ndarray, bounds: np.ndarray, n: int,
+                 rng: np.random.Generator) -> np.ndarray:
+    """Points of the trust check that the surrogate does not choose, (n, d) in user units.
+
+    Each is a resampled particle plus a Gaussian step with the posterior covariance
+    (the posterior convolved with itself: its spread times sqrt 2 in every direction),
+    reflected into the box. They are drawn at random, not by the GP's variance: a GP
+    that is confident without evidence (a surrogate posterior too narrow, its rim
+    predicted far below the truth with a small variance) is never where an
+    uncertainty-driven acquisition looks, and the trust check tests only where the
+    batch goes. For a correct posterior they lie mostly inside its 99 % region, where
+    the surrogate must be accurate anyway; for a Gaussian one that is k times too
+    narrow in d dimensions, they lie in the true posterior's core while the surrogate
+    predicts them d (1 - 1/k^2) nats too low on average (a drop of d nats from the
+    mode where the truth drops d/k^2), so the trust check fails once that exceeds
+    ``gp_tol``.
+    """
+    from bayescalib.inference.resampling import systematic_resample
+
+    b = np.asarray(bounds, float)
+    lo, width = b[:, 0], b[:, 1] - b[:, 0]
+    U = (np.atleast_2d(np.asarray(particles, float)) - lo) / width
+    W = np.asarray(weights, float)
+    W = W / W.sum()
+    m = W @ U
+    cov = (U - m).T @ ((U - m) * W[:, None])
+    d = U.shape[1]
+    Lc = np.linalg.cholesky(cov + 1e-12 * np.eye(d) + np.diag(np.full(d, 1e-10)))
+    base = U[systematic_resample(W, rng, int(n))]
+    return lo + _reflect(base + rng.standard_normal((int(n), d)) @ Lc.T) * width
+
+
+def _predict_loglik(gp, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The surrogate's log-likelihood mean and sd at X (delta method when warped), (M,)."""
+    g, var_g = gp.predict_latent(X, return_var=True)
+    scale2 = np.exp(2.0 * np.maximum(g, 0.0)) if gp.warped else np.ones_like(g)
+    return gp.loglik_from_latent(g), np.sqrt(scale2 * np.maximum(var_g, 0.0))
 
 
 def _why_not(rec: Mapping[str, Any], stop_cfg: Mapping[str, Any]) -> str:
