@@ -294,6 +294,11 @@ def test_random_check_points_catch_a_surrogate_that_is_confident_and_too_narrow(
         worst.append(float(np.max(np.abs(trust["errors"][5:]))))
         if narrow > 1:
             assert not trust["passed"]
+            # the next round says why, in words
+            L = np.concatenate([wrong(X), truth(P)])
+            rec1 = acquire_round(1, np.vstack([X, P]), L, gp, smc.particles, smc.weights,
+                                 smc.log_evidence, space, active, rec)
+            assert "likely too narrow" in rec1["reason"], rec1["reason"]
     if narrow > 1:
         assert min(worst) > 2.0 * active["stop"]["gp_tol"], worst
     else:

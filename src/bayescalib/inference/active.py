@@ -448,8 +448,14 @@ def acquire_round(r: int, X: np.ndarray, L: np.ndarray, gp, particles: np.ndarra
         rec["trust"] = {k: (v.tolist() if isinstance(v, np.ndarray) else v)
                         for k, v in trust.items()}
         kinds = np.asarray(nxt.get("kind", ["acquired"] * q_prev))
-        err = np.asarray(trust["errors"], float)[kinds == "check"]
-        rec["trust"]["check_errors"] = err.tolist()
+        err = np.asarray(trust["errors"], float)
+        L_new, mu_new = L[n - q_prev:], np.asarray(nxt["mean"], float)
+        region = np.isfinite(L_new) & (np.where(np.isfinite(L_new), np.maximum(L_new, mu_new), mu_new)
+                                       >= best - trust["delta_nats"])
+        is_check = kinds == "check"
+        rec["trust"]["check_errors"] = err[is_check].tolist()
+        rec["trust"]["check_max_underprediction"] = (
+            float(np.max(err[is_check & region])) if np.any(is_check & region) else None)
         prev_post = {k: np.asarray(v, float) for k, v in previous["posterior"].items()
                      if k in ("mean", "sd", "cov")}
         rec["change"] = posterior_change(prev_post, moments)
@@ -560,6 +566,11 @@ def _why_not(rec: Mapping[str, Any], stop_cfg: Mapping[str, Any]) -> str:
         else:
             parts.append(f"the surrogate missed new solves in the posterior region by up to "
                          f"{t['max_abs_error']:.3g} nats (tolerance {stop_cfg['gp_tol']:g})")
+            under = t.get("check_max_underprediction")
+            if under is not None and under > stop_cfg["gp_tol"]:
+                parts.append(f"a random check point in the posterior region has a log-likelihood "
+                             f"{under:.3g} nats above the surrogate's prediction: the surrogate "
+                             f"posterior is likely too narrow")
     if not rec["settled"]:
         parts.append(f"the posterior moved by {c['shift_sd']:.3g} sd (tolerance "
                      f"{stop_cfg['shift_tol']:g}) and its sd changed by {c['sd_change']:.3g} "
