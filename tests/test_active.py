@@ -167,8 +167,10 @@ def test_acquire_round_refuses_records_that_are_not_the_chosen_batch():
     a = _active(n_initial=16, batch_size=4, max_solves=40)
     W = np.full(len(X), 1.0 / len(X))
     rec0 = acquire_round(0, X, ll(X), gp, X, W, 0.0, space, a, None)
-    assert not rec0["stop"] and len(rec0["next"]["points"]) == 4
-    wrong = np.vstack([X, X[:4] + 0.01])
+    # the batch of 4 and the default single check point
+    assert not rec0["stop"] and len(rec0["next"]["points"]) == 5
+    assert rec0["next"]["kind"] == ["acquired"] * 4 + ["check"]
+    wrong = np.vstack([X, X[:5] + 0.01])
     with pytest.raises(ValueError, match="not the batch"):
         acquire_round(1, wrong, ll(wrong), gp, X, W, 0.0, space, a, rec0)
 
@@ -287,11 +289,11 @@ def test_random_check_points_catch_a_surrogate_that_is_confident_and_too_narrow(
         rec = acquire_round(0, X, wrong(X), gp, smc.particles, smc.weights, smc.log_evidence,
                             space, active, None)
         nxt = rec["next"]
-        assert nxt["kind"] == ["acquired"] * 5 + ["check"] * 3
+        assert nxt["kind"] == ["acquired"] * 8 + ["check"] * 3
         P = np.asarray(nxt["points"])
         trust = trust_check(np.asarray(nxt["mean"]), np.asarray(nxt["sd"]), truth(P),
                             float(np.max(truth(X))), d, active["stop"]["gp_tol"])
-        worst.append(float(np.max(np.abs(trust["errors"][5:]))))
+        worst.append(float(np.max(np.abs(trust["errors"][8:]))))
         if narrow > 1:
             assert not trust["passed"]
             # the next round says why, in words

@@ -18,7 +18,17 @@ points). Each round r then
 4. stops when both checks pass for ``patience`` consecutive rounds (converged)
    or when the next batch would exceed ``max_solves`` (budget spent: not
    converged, and said so); otherwise it picks the next batch of ``batch_size``
-   points (:func:`select_batch`), which run as ordinary parallel solve jobs.
+   points (:func:`select_batch`) and adds ``check_points`` random ones
+   (:func:`check_points`), all run as ordinary parallel solve jobs.
+
+Check points. The trust check can only test the surrogate where the batch goes,
+and an uncertainty-driven batch goes where the surrogate is unsure. A surrogate
+that is confident and wrong about the rim of its posterior (too narrow: between
+the training points a GP reverts to a mean placed above every observed misfit)
+is never tested there, and both checks then pass on a posterior that is too
+narrow. Each batch therefore carries a few points drawn at random from the
+posterior widened by its own spread, chosen without the surrogate; their
+predictions enter the trust check like the others.
 
 Acquisition (:func:`select_batch`). Candidates are drawn from the current
 posterior (resampled SMC particles, jittered by half a posterior sd per
@@ -98,8 +108,8 @@ EXPLORE_TEMPER = 0.3
 def round_sizes(n_initial: int, batch_size: int, max_solves: int, n_rounds: int) -> list[int]:
     """Cumulative number of design points after rounds 0..n_rounds-1.
 
-    Round 0 has ``n_initial`` points, each later round ``batch_size`` more, the last
-    one truncated to ``max_solves``. Point ``i >= n_initial`` belongs to round
+    Round 0 has ``n_initial`` points, each later round ``batch_size`` more (the
+    acquired batch plus its check points), the last one truncated to ``max_solves``. Point ``i >= n_initial`` belongs to round
     ``1 + (i - n_initial) // batch_size`` at position ``(i - n_initial) % batch_size``.
     """
     out, n = [], int(n_initial)
@@ -493,13 +503,13 @@ def acquire_round(r: int, X: np.ndarray, L: np.ndarray, gp, particles: np.ndarra
         rng = _round_seed(active["seed"], r)
         pool = candidate_pool(particles, weights, space.bounds, int(active["pool_size"]), rng)
         q = min(int(active["batch_size"]), budget_left)
-        n_check = min(int(active["check_points"]), q - 1)
-        n_explore = math.floor((q - n_check) * float(active["explore_fraction"]) + 0.5)
+        n_check = min(int(active["check_points"]), budget_left - q)
+        n_explore = math.floor(q * float(active["explore_fraction"]) + 0.5)
         exploring = np.arange(len(pool)) >= len(pool) - round(len(pool) * POOL_UNIFORM)
         from scipy.stats import chi2
 
         threshold = best - 0.5 * float(chi2.ppf(REGION_LEVEL, d))
-        batch = select_batch(gp, pool, space.logprior(pool), q - n_check, failed=X[~finite],
+        batch = select_batch(gp, pool, space.logprior(pool), q, failed=X[~finite],
                              n_explore=n_explore, threshold=threshold, explore_mask=exploring)
         points, mean, sd = batch["points"], batch["mean"], batch["sd"]
         kind = ["acquired"] * len(points)
