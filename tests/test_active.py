@@ -15,6 +15,7 @@ from bayescalib.inference.active import (
     acquire_round,
     calibrate,
     candidate_pool,
+    check_points,
     point_round,
     posterior_change,
     round_sizes,
@@ -166,8 +167,10 @@ def test_acquire_round_refuses_records_that_are_not_the_chosen_batch():
     a = _active(n_initial=16, batch_size=4, max_solves=40)
     W = np.full(len(X), 1.0 / len(X))
     rec0 = acquire_round(0, X, ll(X), gp, X, W, 0.0, space, a, None)
-    assert not rec0["stop"] and len(rec0["next"]["points"]) == 4
-    wrong = np.vstack([X, X[:4] + 0.01])
+    # the batch of 4 and the default single check point
+    assert not rec0["stop"] and len(rec0["next"]["points"]) == 5
+    assert rec0["next"]["kind"] == ["acquired"] * 4 + ["check"]
+    wrong = np.vstack([X, X[:5] + 0.01])
     with pytest.raises(ValueError, match="not the batch"):
         acquire_round(1, wrong, ll(wrong), gp, X, W, 0.0, space, a, rec0)
 
@@ -253,3 +256,64 @@ def test_the_exploring_candidates_include_lines_through_the_posterior_along_each
         redrawn = line[np.abs(line[:, k] - c[k]) > 1e-3, k]
         assert redrawn.size >= 15 and np.ptp(redrawn) > 0.8
     assert np.mean(np.all(np.abs(uniform - c) > 0.05, axis=1)) > 0.6
+
+
+@pytest.mark.parametrize("narrow", [4.0, 1.0])
+def test_random_check_points_catch_a_surrogate_that_is_confident_and_too_narrow(narrow):
+    """A 4D Gaussian likelihood (sd 0.05 in a unit box). The surrogate is trained on a
+    log-likelihood ``narrow`` times too narrow (sd 0.0125), densely enough to be
+    confident about it: its posterior is 4x too narrow, and an uncertainty-driven
+    acquisition has no reason to look at the rim it is sure of. The batch's random
+    check points (the posterior widened by its own spread) land in the true
+    posterior's core, where the surrogate predicts them about d (1 - 1/k^2) = 3.75 nats
+    too low on average (more for the farther ones): every seed's check must miss by
+    more than twice gp_tol (1 nat), so the round
+    cannot count towards convergence. Control (narrow = 1, the right surrogate): the
+    same check points are predicted within gp_tol, so they cost no convergence."""
+    d, mean, sd = 4, np.full(4, 0.5), 0.05
+    space = _space([(0, 1)] * d)
+    truth = _gaussian_misfit(mean, np.eye(d) * sd**2)
+    wrong = _gaussian_misfit(mean, np.eye(d) * (sd / narrow) ** 2)
+    rng = np.random.default_rng(0)
+    X = np.vstack([sobol_design(space.bounds, 32, 0),
+                   mean + (sd / narrow) * rng.standard_normal((96, d))])
+    X = np.clip(X, 0.0, 1.0)
+    gp = fit_gp(X, wrong(X), ard=True, bounds=space.bounds, bound=0.0, warp=False,
+                restarts=1, kernel="rbf")
+    smc = smc_from_config(gp.predict, space, validate(
+        {"smc": {"n_particles": 2000, "n_rej": 10, "zeta": 0.95}}, "inference")["smc"])
+    active = _active(n_initial=32, batch_size=8, check_points=3, max_solves=1000, seed=0)
+    worst = []
+    for seed in range(5):
+        active["seed"] = seed
+        rec = acquire_round(0, X, wrong(X), gp, smc.particles, smc.weights, smc.log_evidence,
+                            space, active, None)
+        nxt = rec["next"]
+        assert nxt["kind"] == ["acquired"] * 8 + ["check"] * 3
+        P = np.asarray(nxt["points"])
+        trust = trust_check(np.asarray(nxt["mean"]), np.asarray(nxt["sd"]), truth(P),
+                            float(np.max(truth(X))), d, active["stop"]["gp_tol"])
+        worst.append(float(np.max(np.abs(trust["errors"][8:]))))
+        if narrow > 1:
+            assert not trust["passed"]
+            # the next round says why, in words
+            L = np.concatenate([wrong(X), truth(P)])
+            rec1 = acquire_round(1, np.vstack([X, P]), L, gp, smc.particles, smc.weights,
+                                 smc.log_evidence, space, active, rec)
+            assert "likely too narrow" in rec1["reason"], rec1["reason"]
+    if narrow > 1:
+        assert min(worst) > 2.0 * active["stop"]["gp_tol"], worst
+    else:
+        assert max(worst) <= active["stop"]["gp_tol"], worst
+
+
+def test_check_points_are_the_posterior_widened_by_its_own_spread():
+    """Draws from N(m, C) convolved with N(0, C): mean m and covariance 2C (20 000 draws:
+    sampling error of the covariance entries about 1 %, tolerance 5 %)."""
+    rng = np.random.default_rng(3)
+    C = np.array([[0.004, 0.002], [0.002, 0.003]])
+    P = rng.multivariate_normal([0.5, 0.4], C, 20000)
+    D = check_points(P, np.ones(len(P)), np.array([[0.0, 1.0], [0.0, 1.0]]), 20000,
+                     np.random.default_rng(4))
+    np.testing.assert_allclose(D.mean(0), [0.5, 0.4], atol=0.003)
+    np.testing.assert_allclose(np.cov(D.T), 2 * C, rtol=0.05)

@@ -19,8 +19,11 @@ from _workflow_helpers import smk as _smk
 
 pytestmark = pytest.mark.workflow
 
+# rounds of 4 acquired points and 1 check point: 8, 13, 18, 23 solves. The budget lies
+# on that lattice, so raising it (28) adds a round and leaves every finished one as it
+# was (a round cut short by the budget is chosen again, larger, when the budget grows)
 ACTIVE = {"strategy": "active", "seed": 1,
-          "active": {"n_initial": 8, "batch_size": 4, "max_solves": 20}}
+          "active": {"n_initial": 8, "batch_size": 4, "max_solves": 23}}
 
 
 def _study(base: dict, **design) -> dict:
@@ -57,7 +60,7 @@ def test_summary_says_whether_the_active_design_converged(active_run):
     assert s["converged"] == d["converged"]
     assert d["n_rounds"] == len(d["rounds"]) >= 2
     assert next(r["n_solves"] for r in d["rounds"]) == 8
-    assert d["n_solves"] == s["n_train"] == len(_runs(tmp)) <= 20
+    assert d["n_solves"] == s["n_train"] == len(_runs(tmp)) <= 23
     if not d["converged"]:
         assert d["reason"].startswith("NOT converged")
     assert all((tmp / f).is_file() for f in s["figures"]["rounds"])
@@ -117,7 +120,7 @@ def test_killed_mid_round_resumes_without_redoing_solves(active_run, base_study,
     # killed inside round 1: its first solves are written
     run_and_kill(tmp, tmp / "results" / "analytic" / "runs", 10)
     finished = _runs(tmp)
-    assert 10 <= len(finished) < 20
+    assert 10 <= len(finished) < 23
     _smk(tmp, "--unlock")
     _smk(tmp, "--rerun-incomplete")
     after = _runs(tmp)

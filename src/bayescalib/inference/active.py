@@ -18,7 +18,17 @@ points). Each round r then
 4. stops when both checks pass for ``patience`` consecutive rounds (converged)
    or when the next batch would exceed ``max_solves`` (budget spent: not
    converged, and said so); otherwise it picks the next batch of ``batch_size``
-   points (:func:`select_batch`), which run as ordinary parallel solve jobs.
+   points (:func:`select_batch`) and adds ``check_points`` random ones
+   (:func:`check_points`), all run as ordinary parallel solve jobs.
+
+Check points. The trust check can only test the surrogate where the batch goes,
+and an uncertainty-driven batch goes where the surrogate is unsure. A surrogate
+that is confident and wrong about the rim of its posterior (too narrow: between
+the training points a GP reverts to a mean placed above every observed misfit)
+is never tested there, and both checks then pass on a posterior that is too
+narrow. Each batch therefore carries a few points drawn at random from the
+posterior widened by its own spread, chosen without the surrogate; their
+predictions enter the trust check like the others.
 
 Acquisition (:func:`select_batch`). Candidates are drawn from the current
 posterior (resampled SMC particles, jittered by half a posterior sd per
@@ -72,6 +82,7 @@ __all__ = [
     "acquire_round",
     "calibrate",
     "candidate_pool",
+    "check_points",
     "posterior_change",
     "posterior_moments",
     "round_sizes",
@@ -97,8 +108,8 @@ EXPLORE_TEMPER = 0.3
 def round_sizes(n_initial: int, batch_size: int, max_solves: int, n_rounds: int) -> list[int]:
     """Cumulative number of design points after rounds 0..n_rounds-1.
 
-    Round 0 has ``n_initial`` points, each later round ``batch_size`` more, the last
-    one truncated to ``max_solves``. Point ``i >= n_initial`` belongs to round
+    Round 0 has ``n_initial`` points, each later round ``batch_size`` more (the
+    acquired batch plus its check points), the last one truncated to ``max_solves``. Point ``i >= n_initial`` belongs to round
     ``1 + (i - n_initial) // batch_size`` at position ``(i - n_initial) % batch_size``.
     """
     out, n = [], int(n_initial)
@@ -446,6 +457,15 @@ def acquire_round(r: int, X: np.ndarray, L: np.ndarray, gp, particles: np.ndarra
                             L[n - q_prev:], best, d, stop_cfg["gp_tol"])
         rec["trust"] = {k: (v.tolist() if isinstance(v, np.ndarray) else v)
                         for k, v in trust.items()}
+        kinds = np.asarray(nxt.get("kind", ["acquired"] * q_prev))
+        err = np.asarray(trust["errors"], float)
+        L_new, mu_new = L[n - q_prev:], np.asarray(nxt["mean"], float)
+        region = np.isfinite(L_new) & (np.where(np.isfinite(L_new), np.maximum(L_new, mu_new), mu_new)
+                                       >= best - trust["delta_nats"])
+        is_check = kinds == "check"
+        rec["trust"]["check_errors"] = err[is_check].tolist()
+        rec["trust"]["check_max_underprediction"] = (
+            float(np.max(err[is_check & region])) if np.any(is_check & region) else None)
         prev_post = {k: np.asarray(v, float) for k, v in previous["posterior"].items()
                      if k in ("mean", "sd", "cov")}
         rec["change"] = posterior_change(prev_post, moments)
@@ -483,6 +503,7 @@ def acquire_round(r: int, X: np.ndarray, L: np.ndarray, gp, particles: np.ndarra
         rng = _round_seed(active["seed"], r)
         pool = candidate_pool(particles, weights, space.bounds, int(active["pool_size"]), rng)
         q = min(int(active["batch_size"]), budget_left)
+        n_check = min(int(active["check_points"]), budget_left - q)
         n_explore = math.floor(q * float(active["explore_fraction"]) + 0.5)
         exploring = np.arange(len(pool)) >= len(pool) - round(len(pool) * POOL_UNIFORM)
         from scipy.stats import chi2
@@ -490,9 +511,57 @@ def acquire_round(r: int, X: np.ndarray, L: np.ndarray, gp, particles: np.ndarra
         threshold = best - 0.5 * float(chi2.ppf(REGION_LEVEL, d))
         batch = select_batch(gp, pool, space.logprior(pool), q, failed=X[~finite],
                              n_explore=n_explore, threshold=threshold, explore_mask=exploring)
-        rec["next"] = {"points": batch["points"].tolist(), "mean": batch["mean"].tolist(),
-                       "sd": batch["sd"].tolist(), "score": batch["score"].tolist()}
+        points, mean, sd = batch["points"], batch["mean"], batch["sd"]
+        kind = ["acquired"] * len(points)
+        if n_check:
+            C = check_points(particles, weights, space.bounds, n_check,
+                             np.random.default_rng([int(active["seed"]), int(r), 0xC4EC]))
+            c_mean, c_sd = _predict_loglik(gp, C)
+            points, mean, sd = np.vstack([points, C]), np.concatenate([mean, c_mean]), \
+                np.concatenate([sd, c_sd])
+            kind += ["check"] * n_check
+        rec["next"] = {"points": points.tolist(), "mean": mean.tolist(), "sd": sd.tolist(),
+                       "score": batch["score"].tolist(), "kind": kind}
     return rec
+
+
+def check_points(particles: np.ndarray, weights: np.ndarray, bounds: np.ndarray, n: int,
+                 rng: np.random.Generator) -> np.ndarray:
+    """Points of the trust check that the surrogate does not choose, (n, d) in user units.
+
+    Each is a resampled particle plus a Gaussian step with the posterior covariance
+    (the posterior convolved with itself: its spread times sqrt 2 in every direction),
+    reflected into the box. They are drawn at random, not by the GP's variance: a GP
+    that is confident without evidence (a surrogate posterior too narrow, its rim
+    predicted far below the truth with a small variance) is never where an
+    uncertainty-driven acquisition looks, and the trust check tests only where the
+    batch goes. For a correct posterior they lie mostly inside its 99 % region, where
+    the surrogate must be accurate anyway; for a Gaussian one that is k times too
+    narrow in d dimensions, they lie in the true posterior's core while the surrogate
+    predicts them d (1 - 1/k^2) nats too low on average (a drop of d nats from the
+    mode where the truth drops d/k^2), so the trust check fails once that exceeds
+    ``gp_tol``.
+    """
+    from bayescalib.inference.resampling import systematic_resample
+
+    b = np.asarray(bounds, float)
+    lo, width = b[:, 0], b[:, 1] - b[:, 0]
+    U = (np.atleast_2d(np.asarray(particles, float)) - lo) / width
+    W = np.asarray(weights, float)
+    W = W / W.sum()
+    m = W @ U
+    cov = (U - m).T @ ((U - m) * W[:, None])
+    d = U.shape[1]
+    Lc = np.linalg.cholesky(cov + 1e-12 * np.eye(d) + np.diag(np.full(d, 1e-10)))
+    base = U[systematic_resample(W, rng, int(n))]
+    return lo + _reflect(base + rng.standard_normal((int(n), d)) @ Lc.T) * width
+
+
+def _predict_loglik(gp, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The surrogate's log-likelihood mean and sd at X (delta method when warped), (M,)."""
+    g, var_g = gp.predict_latent(X, return_var=True)
+    scale2 = np.exp(2.0 * np.maximum(g, 0.0)) if gp.warped else np.ones_like(g)
+    return gp.loglik_from_latent(g), np.sqrt(scale2 * np.maximum(var_g, 0.0))
 
 
 def _why_not(rec: Mapping[str, Any], stop_cfg: Mapping[str, Any]) -> str:
@@ -507,6 +576,11 @@ def _why_not(rec: Mapping[str, Any], stop_cfg: Mapping[str, Any]) -> str:
         else:
             parts.append(f"the surrogate missed new solves in the posterior region by up to "
                          f"{t['max_abs_error']:.3g} nats (tolerance {stop_cfg['gp_tol']:g})")
+            under = t.get("check_max_underprediction")
+            if under is not None and under > stop_cfg["gp_tol"]:
+                parts.append(f"a random check point in the posterior region has a log-likelihood "
+                             f"{under:.3g} nats above the surrogate's prediction: the surrogate "
+                             f"posterior is likely too narrow")
     if not rec["settled"]:
         parts.append(f"the posterior moved by {c['shift_sd']:.3g} sd (tolerance "
                      f"{stop_cfg['shift_tol']:g}) and its sd changed by {c['sd_change']:.3g} "
