@@ -349,11 +349,13 @@ def test_permeable_biofilm_with_attachment_springs_fails_naming_both_keys(base):
                    "physics.attachment.phi": 2.0e-4})
     assert not res.ok
     assert "physics.permeability.phi" in res.reason and "physics.attachment.phi" in res.reason
-    # either one at phi = 0 is fine: springs alone, or the base with the pore pressure
+    # either one at phi = 0 is fine: springs alone, or the base with the pore pressure.
+    # The systems differ (the pore-pressure block), so Newton takes other iterates and
+    # they agree to its tolerance, not bitwise: 1e-8 mm (1e-5 um; 7e-10 mm was seen)
     springs = m.solve({**TRUTH, "physics.attachment.phi": 2.0e-4})
     alone = _model("attachment").solve({**TRUTH, "physics.attachment.phi": 2.0e-4})
-    assert springs.ok and _shift(springs, alone) < 1e-10
-    assert _shift(m.solve(TRUTH), base) < 1e-10
+    assert springs.ok and _shift(springs, alone) < 1e-8
+    assert _shift(m.solve(TRUTH), base) < 1e-8
 
 
 def test_a_base_state_warm_starts_the_permeable_biofilm(tmp_path):
