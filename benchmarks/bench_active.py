@@ -466,6 +466,16 @@ def run_active(prob: Problem, budget: int, seed: int) -> dict[str, Any]:
     f = Counter(prob.loglik)
     space = make_space(prob)
     n0 = max(2 * prob.d + 2, budget // 4)
+    history: list[dict[str, Any]] = []
+
+    def per_round(rec: dict[str, Any]) -> None:  # what the stop rule saw, round by round
+        t = rec.get("trust") or {}
+        history.append({"round": rec["round"], "n_solves": rec["n_solves"],
+                        "trusted": rec["trusted"], "settled": rec["settled"],
+                        "max_abs_error": t.get("max_abs_error"),
+                        "check_max_underprediction": t.get("check_max_underprediction"),
+                        "mean": rec["posterior"]["mean"], "sd": rec["posterior"]["sd"]})
+
     res = calibrate(
         f, space, bound=prob.B,
         active={"n_initial": n0, "batch_size": 8, "max_solves": budget},
@@ -474,6 +484,7 @@ def run_active(prob: Problem, budget: int, seed: int) -> dict[str, Any]:
         seed=seed,
         # hetero7d is a least-squares likelihood of H7_K measurements: check the best fit
         n_measurements=H7_K if prob.name == "hetero7d" else None,
+        callback=per_round,
     )
     gp = res.surrogate
     if int(res.n_evaluations) != f.n:
@@ -491,6 +502,7 @@ def run_active(prob: Problem, budget: int, seed: int) -> dict[str, Any]:
             "n_evaluations_reported": int(res.n_evaluations),
             "fit": None if res.fit is None else res.fit["words"],
             "n_initial": n0,
+            "rounds": history,
         },
     }
 
