@@ -108,8 +108,9 @@ EXPLORE_TEMPER = 0.3
 def round_sizes(n_initial: int, batch_size: int, max_solves: int, n_rounds: int) -> list[int]:
     """Cumulative number of design points after rounds 0..n_rounds-1.
 
-    Round 0 has ``n_initial`` points, each later round ``batch_size`` more (the
-    acquired batch plus its check points), the last one truncated to ``max_solves``. Point ``i >= n_initial`` belongs to round
+    Round 0 has ``n_initial`` points, each later round ``batch_size`` more (in the
+    pipeline: the acquired batch plus its check points), the last one truncated to
+    ``max_solves``. Point ``i >= n_initial`` belongs to round
     ``1 + (i - n_initial) // batch_size`` at position ``(i - n_initial) % batch_size``.
     """
     out, n = [], int(n_initial)
@@ -216,7 +217,7 @@ def trust_check(pred_mean: np.ndarray, pred_sd: np.ndarray, loglik: np.ndarray,
         ``delta = chi2_{dim}(0.99) / 2`` of ``loglik_best`` (it holds 99 % of a
         Gaussian posterior's mass); a point the surrogate placed in the region but
         whose real value is far below (a spurious mode) counts with its full error.
-        Also ``n_region``, ``max_abs_error`` and ``rms_error`` there (nats),
+        Also ``in_region`` (q,) bool, ``n_region``, ``max_abs_error`` and ``rms_error`` there (nats),
         ``coverage_2sd`` (share of region points within 2 predicted sd) and
         ``n_failed`` (failed solves among the new points; a failure where the
         surrogate put posterior mass is counted in ``n_failed_in_region``).
@@ -241,6 +242,7 @@ def trust_check(pred_mean: np.ndarray, pred_sd: np.ndarray, loglik: np.ndarray,
         "n_region": int(in_region.sum()),
         "n_failed_in_region": int((region & ~ok).sum()),
         "errors": err,
+        "in_region": in_region,
         "max_abs_error": float(e.max()) if e.size else None,
         "rms_error": float(np.sqrt(np.mean(e**2))) if e.size else None,
         "coverage_2sd": float(np.mean(e <= 2.0 * np.maximum(sd[in_region], 1e-12)))
@@ -338,7 +340,7 @@ def select_batch(gp, pool: np.ndarray, logprior: np.ndarray, q: int, *,
     var_g = np.asarray(var_g, float).copy()
     V = gp.latent_cov_factor(S)  # (n, nf + M)
     mean_L = gp.loglik_from_latent(g)[nf:]
-    scale2 = np.exp(2.0 * np.maximum(g, 0.0)) if gp.warped else np.ones_like(g)
+    scale2 = _loglik_var_scale(gp, g)
     base = mean_L + np.asarray(logprior, float)
     cols: list[np.ndarray] = []
 
@@ -457,12 +459,8 @@ def acquire_round(r: int, X: np.ndarray, L: np.ndarray, gp, particles: np.ndarra
                             L[n - q_prev:], best, d, stop_cfg["gp_tol"])
         rec["trust"] = {k: (v.tolist() if isinstance(v, np.ndarray) else v)
                         for k, v in trust.items()}
-        kinds = np.asarray(nxt.get("kind", ["acquired"] * q_prev))
-        err = np.asarray(trust["errors"], float)
-        L_new, mu_new = L[n - q_prev:], np.asarray(nxt["mean"], float)
-        region = np.isfinite(L_new) & (np.where(np.isfinite(L_new), np.maximum(L_new, mu_new), mu_new)
-                                       >= best - trust["delta_nats"])
-        is_check = kinds == "check"
+        is_check = np.asarray(nxt.get("kind", ["acquired"] * q_prev)) == "check"
+        err, region = trust["errors"], trust["in_region"]
         rec["trust"]["check_errors"] = err[is_check].tolist()
         rec["trust"]["check_max_underprediction"] = (
             float(np.max(err[is_check & region])) if np.any(is_check & region) else None)
@@ -548,20 +546,24 @@ def check_points(particles: np.ndarray, weights: np.ndarray, bounds: np.ndarray,
     lo, width = b[:, 0], b[:, 1] - b[:, 0]
     U = (np.atleast_2d(np.asarray(particles, float)) - lo) / width
     W = np.asarray(weights, float)
-    W = W / W.sum()
-    m = W @ U
-    cov = (U - m).T @ ((U - m) * W[:, None])
+    cov = posterior_moments(U, W)["cov"]
     d = U.shape[1]
-    Lc = np.linalg.cholesky(cov + 1e-12 * np.eye(d) + np.diag(np.full(d, 1e-10)))
-    base = U[systematic_resample(W, rng, int(n))]
+    Lc = np.linalg.cholesky(cov + 1e-10 * np.eye(d))  # a degenerate cloud still draws
+    base = U[systematic_resample(W / W.sum(), rng, int(n))]
     return lo + _reflect(base + rng.standard_normal((int(n), d)) @ Lc.T) * width
 
 
+def _loglik_var_scale(gp, g: np.ndarray) -> np.ndarray:
+    """(dL/dg)^2 at latent values g: var(L) = this times var(g) (delta method when
+    warped, L = B - expm1(g); 1 otherwise)."""
+    return np.exp(2.0 * np.maximum(g, 0.0)) if gp.warped else np.ones_like(g)
+
+
 def _predict_loglik(gp, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The surrogate's log-likelihood mean and sd at X (delta method when warped), (M,)."""
+    """The surrogate's log-likelihood mean and sd at X (M,), as :func:`select_batch`
+    reports them for its picks."""
     g, var_g = gp.predict_latent(X, return_var=True)
-    scale2 = np.exp(2.0 * np.maximum(g, 0.0)) if gp.warped else np.ones_like(g)
-    return gp.loglik_from_latent(g), np.sqrt(scale2 * np.maximum(var_g, 0.0))
+    return gp.loglik_from_latent(g), np.sqrt(_loglik_var_scale(gp, g) * np.maximum(var_g, 0.0))
 
 
 def _why_not(rec: Mapping[str, Any], stop_cfg: Mapping[str, Any]) -> str:
