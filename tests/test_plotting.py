@@ -508,3 +508,32 @@ def test_the_joint_figure_draws_its_contours_at_the_summarys_credible_levels():
     post = {"intervals": {"E": {"0.8": [1, 2], "0.5": [1, 2], "0.95": [0, 3]},
                           "nu": {"0.8": [0, 1], "0.5": [0, 1], "0.95": [0, 1]}}}
     assert _levels(post) == (0.5, 0.8, 0.95)
+
+
+def test_the_rounds_figure_marks_the_random_check_points_apart_from_the_acquired_ones(tmp_path):
+    """A round's batch holds acquisition picks and random check points
+    (``next.kind``); the figure draws them with their own legend entries, so a reader
+    sees which solves tested the surrogate without its own choice."""
+    from bayescalib.plotting.rounds import plot_rounds
+
+    rng = np.random.default_rng(0)
+    draws = [rng.normal(size=(50, 2)) for _ in range(2)]
+    design = rng.uniform(-3, 3, size=(12, 2))
+    batch = rng.uniform(-3, 3, size=(4, 2))
+    args = (draws, design, [8, 12], [batch, None], [None, 0.1], [None, 0.5], NAMES, UNITS,
+            [tmp_path / "rounds.png"])
+    kw = {"bounds": [[-3, 3], [-3, 3]], "shift_tol": 0.2, "gp_tol": 1.0, "converged": False}
+    _, fig = plot_rounds(*args, **kw, batch_kinds=[["acquired"] * 3 + ["check"], None],
+                         return_figure=True)
+    labels = [t.get_text() for t in fig.axes[0].get_legend().get_texts()]
+    assert "chosen for next round" in labels
+    assert "random check point, next round" in labels
+    lines = {ln.get_label(): ln for ln in fig.axes[0].get_lines()}
+    assert len(lines["chosen for next round"].get_xdata()) == 3
+    np.testing.assert_array_equal(lines["random check point, next round"].get_xdata(),
+                                  batch[3:, 0])
+    _, fig = plot_rounds(*args, **kw, return_figure=True)   # no kinds: all acquired
+    labels = [t.get_text() for t in fig.axes[0].get_legend().get_texts()]
+    assert "random check point, next round" not in labels
+    with pytest.raises(ValueError, match="4 batch points but 3 kinds"):
+        plot_rounds(*args, **kw, batch_kinds=[["check"] * 3, None])

@@ -38,6 +38,7 @@ def plot_rounds(
     converged: bool,
     truth: Sequence[float] | None = None,
     failed: np.ndarray | None = None,
+    batch_kinds: Sequence[Sequence[str] | None] | None = None,
     max_panels: int = 6,
     dpi: float = 200,
     return_figure: bool = False,
@@ -65,6 +66,10 @@ def plot_rounds(
     converged : whether the last round met the stop rule (title).
     truth : (2,) ground truth, optional.
     failed : (F, 2) points whose solves failed, optional.
+    batch_kinds : sequence of (q,) sequences of str or None, optional
+        Per round, what each point of its batch is: ``"acquired"`` (chosen by the
+        acquisition) or ``"check"`` (a random check point, drawn without the
+        surrogate); absent = all acquired.
     max_panels : most rounds drawn as panels (first and last always).
     """
     names, units = as_names_units(names, units, 2)
@@ -93,8 +98,17 @@ def plot_rounds(
                     label="this round's solves")
             if batches[r] is not None and len(batches[r]):
                 nb = np.atleast_2d(np.asarray(batches[r], float))
-                ax.plot(*nb.T, ls="none", marker="x", ms=5, color=COLORS["map"],
+                kinds = batch_kinds[r] if batch_kinds is not None else None
+                check = (np.asarray(kinds) == "check" if kinds is not None
+                         else np.zeros(len(nb), bool))
+                if check.shape != (len(nb),):
+                    raise ValueError(f"plot_rounds: round {r} has {len(nb)} batch points "
+                                     f"but {check.size} kinds")
+                ax.plot(*nb[~check].T, ls="none", marker="x", ms=5, color=COLORS["map"],
                         label="chosen for next round")
+                if check.any():
+                    ax.plot(*nb[check].T, ls="none", marker="D", ms=4, mfc="none",
+                            mec=COLORS["map"], mew=0.8, label="random check point, next round")
             if failed is not None and len(failed):
                 f = np.atleast_2d(np.asarray(failed, float))
                 ax.plot(*f.T, ls="none", marker="x", ms=4, color="k", label="failed solves")

@@ -334,4 +334,5 @@ def rounds_figure(acquire_paths: Sequence[str | Path], particles_paths: Sequence
         bounds=space.bounds[ix], shift_tol=active["stop"]["shift_tol"],
         gp_tol=active["stop"]["gp_tol"], converged=bool(recs[-1]["converged"]),
         truth=truth, failed=failed, dpi=plots["dpi"],
+        batch_kinds=[r["next"].get("kind") if "next" in r else None for r in recs],
     )
