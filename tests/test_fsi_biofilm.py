@@ -339,3 +339,38 @@ def test_solver_controls_come_from_the_validated_solver_section():
         assert getattr(c, f.name) == expected, f.name
     assert (c.max_iterations, c.min_step) == (7, 0.125)
     assert SolverControls.from_config(section, time_limit=5.0).time_limit == 5.0
+
+
+def test_the_continuation_never_steps_past_a_load_known_to_fail():
+    """Near a limit point (or where elements invert) a step that failed marks a load
+    the continuation must approach by bisection: it ends halfway until it has come
+    twice as close to the failing load as the failed step started, in either
+    direction, and is untouched where nothing failed or the step stays short of it."""
+    from bayescalib.models.fsi.solver import _short_of_known_failure as nxt
+
+    assert nxt(0.5, 1.0, None) == 1.0                       # nothing failed yet
+    assert nxt(0.5, 0.6, (0.75, 0.5)) == 0.6                # short of the failing load
+    assert nxt(0.625, 1.0, (0.75, 0.5)) == 0.75             # twice as close: retry it
+    assert nxt(0.55, 1.0, (0.75, 0.5)) == 0.65              # not yet: halfway
+    assert nxt(0.55, 0.75, (0.75, 0.5)) == 0.65
+    assert nxt(1.5, 1.0, (1.2, 1.6)) == 1.35                # downwards from a higher load
+    assert nxt(1.3, 1.0, (1.2, 1.6)) == 1.2
+
+
+def test_a_limit_point_is_approached_with_one_failed_step_per_halving(coarse):
+    """A soft base layer at nu = 0.445 and E = 200 Pa inverts elements at about 72 %
+    of the inflow: the continuation ends there as a failed record ("stalled") within
+    the step budget, never re-trying a load beyond one that already failed."""
+    r = coarse.solve({"material.E": 200.0, "material.nu": 0.445,
+                      "physics.layer.enabled": True, "physics.layer.phi": -1.0})
+    assert r.status == "failed" and "stalled" in r.reason
+    assert 0.6 < r.load_fraction < 0.8
+    tried = [s.split(":") for s in r.stats["newton_per_step"].split()]
+    failed: list[float] = []
+    for load, it in tried:
+        assert not failed or float(load) <= min(failed)   # never past a known failure
+        if it == "failed":
+            failed.append(float(load))
+    # one failed step per halving of the distance, from step 1 down to min_step 1/64,
+    # plus one re-try of each failing load from twice as close
+    assert len(failed) <= 2 * 7

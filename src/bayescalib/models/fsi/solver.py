@@ -41,7 +41,9 @@ Nonlinear solution
 Newton's method with NGSolve's automatic linearization and UMFPACK, inside a load
 continuation in the load factor ``lambda`` (scales the inflow and the body force):
 start with ``initial_step``, halve the step on failure, grow it by ``growth`` on
-success, give up below ``min_step``. A continuation that starts at rest (the zero
+success, give up below ``min_step``; a step never goes past a load already known to
+fail unless the continuation has halved its distance to it since
+(:func:`_short_of_known_failure`). A continuation that starts at rest (the zero
 state) also scales the loads of the problem's candidate physics that act without flow
 (a growth prestrain, a body force: ``physics.set_load_factor``), as rest is the
 solution at zero load only with them at zero; one that starts from a converged state
@@ -589,10 +591,13 @@ class MonolithicSolver:
         self._apply_load(lam)
         saved = self._x.copy()
         step = float(controls.initial_step)
+        #: nearest load known to fail ahead, and the load it was tried from
+        failed_at: tuple[float, float] | None = None
         while lam != 1.0 and not reason:
             # towards the full load from below (from rest) or from above (a state at a
             # higher load, e.g. the previous snapshot of a series of loadings)
             new = min(1.0, lam + step) if lam < 1.0 else max(1.0, lam - step)
+            new = _short_of_known_failure(lam, new, failed_at)
             try:
                 self._apply_load(new)
                 self._newton(deadline, stats)
@@ -605,11 +610,14 @@ class MonolithicSolver:
                 if fail.fatal:
                     reason = str(fail)
                     break
-                step *= 0.5
+                failed_at = (new, lam)
+                step = 0.5 * abs(new - lam)
                 if step < controls.min_step:
                     reason = f"load continuation stalled: {fail} (step below {controls.min_step:g})"
                 continue
             steps += 1
+            if failed_at is not None and new == failed_at[0]:
+                failed_at = None
             lam = new
             saved[:] = self._x
             step = min(step * controls.growth, 1.0)
@@ -626,6 +634,28 @@ class MonolithicSolver:
             wall_time=wall,
             timings=timings,
         )
+
+
+def _short_of_known_failure(lam: float, new: float,
+                            failed_at: tuple[float, float] | None) -> float:
+    """The next load of the continuation, never past a load known to fail.
+
+    ``failed_at = (load, tried_from)``: the nearest load ahead whose step failed, and
+    the load that step started from. A step may end at that load again only once the
+    continuation has come at least twice as close to it; before that it ends halfway
+    (bisection towards the failure). Near a limit point or an element inversion the
+    continuation thus closes in on the failing load with one failed step per halving
+    of the distance, instead of re-trying loads beyond it after every success.
+    """
+    if failed_at is None:
+        return new
+    bad, start = failed_at
+    ahead = (new - bad) * (bad - lam) >= 0.0        # new at or past the failing load
+    if not ahead:
+        return new
+    if abs(bad - lam) <= 0.5 * abs(bad - start):
+        return bad
+    return 0.5 * (lam + bad)
 
 
 __all__ = ["MonolithicSolver", "SolveOutcome", "SolverControls"]
