@@ -760,6 +760,12 @@ def _overshoots(gp: GPSurrogate, bounds: np.ndarray, bound: float, n: int = 4096
     return bool(np.max(gp.predict_latent(Z)) > bound + OVERSHOOT_NATS)
 
 
+def resolve_ard(ard: bool | str, dim: int) -> bool:
+    """The ``surrogate.ard`` setting for a ``dim``-dimensional input: ``"auto"`` is
+    one length scale per input from three dimensions on."""
+    return dim > 2 if ard == "auto" else bool(ard)
+
+
 def fit_from_config(X: np.ndarray, y: np.ndarray, surrogate: dict[str, Any],
                     bounds: np.ndarray, *, bound: float | None = None) -> GPSurrogate:
     """:func:`fit_gp` with the settings of a validated ``surrogate`` config section.
@@ -778,7 +784,8 @@ def fit_from_config(X: np.ndarray, y: np.ndarray, surrogate: dict[str, Any],
     chosen: capping it would leave a plateau of spurious maximal likelihood.
     Without a bound the GP models L with the paper's kernel.
     """
-    kw = {"ard": surrogate["ard"], "optimizer": surrogate["optimizer"],
+    kw = {"ard": resolve_ard(surrogate["ard"], np.shape(X)[1]),
+          "optimizer": surrogate["optimizer"],
               "restarts": surrogate["restarts"], "seed": surrogate["seed"], "bounds": bounds,
               "mean_offset_factor": surrogate["mean_offset_factor"],
               "nugget_factor": surrogate["nugget_factor"], "bound": bound}

@@ -540,13 +540,15 @@ def convergence(training_path: str | Path, surrogate: Mapping[str, Any],
                 out_path: str | Path) -> dict[str, Any]:
     """GP convergence over n_train against the held-out Sobol points."""
     from bayescalib.inference.convergence import convergence_study
+    from bayescalib.inference.surrogate import resolve_ard
 
     tab = _read_checked(training_path, read_training, "training table")
     tr = tab["is_train"].astype(bool)
     space = _space(parameters)
     res = convergence_study(
         tab["X"][tr], tab["loglik"][tr], tab["X"][~tr], tab["loglik"][~tr],
-        n_train_list=list(n_train_list), bounds=space.bounds, ard=surrogate["ard"],
+        n_train_list=list(n_train_list), bounds=space.bounds,
+        ard=resolve_ard(surrogate["ard"], space.dim),
         optimizer=surrogate["optimizer"], restarts=surrogate["restarts"],
         seed=surrogate["seed"], mean_offset_factor=surrogate["mean_offset_factor"],
         nugget_factor=surrogate["nugget_factor"],
