@@ -19,12 +19,13 @@ coarse mesh, active design of at most 40 solves).
 Figures per study and mode: wall time of the whole run; the physics summed over the
 run (solves: each run record's own ``wall_time``; discrepancies: every point's
 discrepancy recomputed in this process after a warm-up, i.e. the in-process cost);
-per stage: the median job wall time from Snakemake's ``benchmark:`` files, the
-median in-process work, their ratio and the overhead per job (median job wall minus
-median in-process work). In-process work of the per-round stages (gather,
-train_surrogate, smc, acquire; and marginalize): the stage function rerun here, warm,
-on the run's own files for up to three rounds (first, middle, last) and the final
-measure. With two or more modes, a last table sets each mode's figures beside the
+per stage (each figure family its own row, ``fig_posterior`` etc.): the median job
+wall time from Snakemake's ``benchmark:`` files, the median in-process work, their
+ratio and the overhead per job (median job wall minus median in-process work).
+In-process work of the per-round stages (gather, train_surrogate, smc, acquire; and
+marginalize): the stage function rerun here, warm, on the run's own files for up to
+three rounds (first, middle, last) and the final measure (which, after an active
+design, reuses the last round's surrogate and particles as the workflow does). With two or more modes, a last table sets each mode's figures beside the
 first mode's (ratios).
 
 Usage::
@@ -105,7 +106,10 @@ def _job_walls(root: Path) -> dict[str, list[float]]:
     """Median-able job wall times per stage from Snakemake's benchmark files."""
     out: dict[str, list[float]] = {}
     for tsv in (root / "benchmarks").rglob("*.tsv"):
-        stage = tsv.relative_to(root / "benchmarks").parts[0].removesuffix(".tsv")
+        parts = tsv.relative_to(root / "benchmarks").parts
+        stage = parts[0].removesuffix(".tsv")
+        if stage == "figures":  # one row per figure family: fig_posterior, fig_rounds, ...
+            stage = "fig_" + parts[-1].removesuffix(".tsv")
         lines = tsv.read_text().splitlines()
         if len(lines) >= 2:
             out.setdefault(stage, []).append(float(lines[1].split("\t")[0]))
@@ -164,6 +168,7 @@ def _round_stages(root: Path, cfg: dict) -> dict[str, list[float]]:
         rounds = sorted({0, len(active) // 2, len(active) - 1}) if active else []
         jobs = [(root / "active" / str(r), r) for r in rounds] + [(root / m, None)]
         first = True
+        last = root / "active" / str(len(active) - 1) if active else None
         for folder, r in jobs:
             n = (len(list((root / "runs").glob("[0-9]*.h5"))) if r is None else
                  int(stages.read_json(folder / "acquire.json")["n_solves"]))
@@ -171,14 +176,18 @@ def _round_stages(root: Path, cfg: dict) -> dict[str, list[float]]:
             disc = [root / "discrepancy" / m / f"{i}.json" for i in range(n)]
             names = [p["name"] for p in cfg["parameters"]]
             targets = [p.get("target") or p["name"] for p in cfg["parameters"]]
+            final = r is None and last is not None  # the workflow passes the last round's
             calls = {
                 "gather": partial(stages.gather, runs, disc, names, targets, None,
                                   t / "training.h5"),
-                "train_surrogate": partial(stages.train_surrogate, folder / "training.h5",
-                                           cfg["surrogate"], cfg["parameters"],
-                                           t / "surrogate.h5"),
+                "train_surrogate": partial(
+                    stages.train_surrogate, folder / "training.h5", cfg["surrogate"],
+                    cfg["parameters"], t / "surrogate.h5",
+                    reuse=[last / "training.h5", last / "surrogate.h5"] if final else ()),
                 "smc": partial(stages.smc, folder / "surrogate.h5", cfg["smc"],
-                               cfg["parameters"], t / "particles.h5"),
+                               cfg["parameters"], t / "particles.h5",
+                               reuse=[last / "surrogate.h5", last / "particles.h5"] if final
+                               else ()),
             }
             if r is not None:
                 prev = root / "active" / str(r - 1) / "acquire.json" if r > 0 else None
