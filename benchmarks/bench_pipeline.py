@@ -23,10 +23,11 @@ per stage (each figure family its own row, ``fig_posterior`` etc.): the median j
 wall time from Snakemake's ``benchmark:`` files, the median in-process work, their
 ratio and the overhead per job (median job wall minus median in-process work).
 In-process work of the per-round stages (gather, train_surrogate, smc, acquire; and
-marginalize): the stage function rerun here, warm, on the run's own files for up to
-three rounds (first, middle, last) and the final measure (which, after an active
-design, reuses the last round's surrogate and particles as the workflow does). With two or more modes, a last table sets each mode's figures beside the
-first mode's (ratios).
+marginalize): the stage function of the mode's own code rerun, warm, in a subprocess,
+on the run's own files for up to three rounds (first, middle, last) and the final
+measure (which, after an active design, reuses the last round's surrogate and
+particles as the workflow does, where the mode's code can). With two or more modes, a
+last table sets each mode's figures beside the first mode's (ratios).
 
 Usage::
 
@@ -155,6 +156,22 @@ def _timed(fn) -> float:
     return time.perf_counter() - t0
 
 
+def _takes_reuse(stages) -> bool:
+    import inspect
+
+    return "reuse" in inspect.signature(stages.train_surrogate).parameters
+
+
+def _round_stages_of(tree: Path, root: Path, study: str) -> dict[str, list[float]]:
+    """:func:`_round_stages` run by the tree's own code: a subprocess that imports the
+    package from ``tree/src`` (so a ``before`` mode's in-process work is its own)."""
+    env = {**os.environ, "PYTHONPATH": str(tree / "src")}
+    proc = subprocess.run([sys.executable, str(Path(__file__).resolve()), "--round-stages",
+                           str(tree), str(root), study], check=True, env=env,
+                          capture_output=True, text=True)
+    return json.loads(proc.stdout.splitlines()[-1])
+
+
 def _round_stages(root: Path, cfg: dict) -> dict[str, list[float]]:
     """In-process cost of the per-round and per-measure stages, rerun here on the run's
     files (into a scratch folder; warm: the imports are paid by a first call)."""
@@ -176,7 +193,8 @@ def _round_stages(root: Path, cfg: dict) -> dict[str, list[float]]:
             disc = [root / "discrepancy" / m / f"{i}.json" for i in range(n)]
             names = [p["name"] for p in cfg["parameters"]]
             targets = [p.get("target") or p["name"] for p in cfg["parameters"]]
-            final = r is None and last is not None  # the workflow passes the last round's
+            # the workflow passes the last round's files (where the tree's code can reuse)
+            final = r is None and last is not None and _takes_reuse(stages)
             calls = {
                 "gather": partial(stages.gather, runs, disc, names, targets, None,
                                   t / "training.h5"),
@@ -215,7 +233,13 @@ def main() -> None:
     ap.add_argument("--modes", default="server,fresh")
     ap.add_argument("--before", default=None, help="git revision to run as mode 'before'")
     ap.add_argument("--keep", default=None, help="keep the scratch trees in this folder")
+    ap.add_argument("--round-stages", nargs=3, metavar=("TREE", "ROOT", "STUDY"),
+                    help=argparse.SUPPRESS)  # internal: see _round_stages_of
     a = ap.parse_args()
+    if a.round_stages:
+        tree, root, study = a.round_stages
+        print(json.dumps(_round_stages(Path(root), _study_config(Path(tree), study))))
+        return
     modes = [m for m in a.modes.split(",") if m] + (["before"] if a.before else [])
     base = Path(a.keep or tempfile.mkdtemp(prefix="bench_pipeline_"))
     base.mkdir(parents=True, exist_ok=True)
@@ -229,7 +253,7 @@ def main() -> None:
             cfg = _study_config(tree, study)
             walls = _job_walls(res["root"])
             phys = _physics(res["root"], cfg)
-            phys.update(_round_stages(res["root"], cfg))
+            phys.update(_round_stages_of(tree, res["root"], study))
             row = {"wall_s": round(res["wall_s"], 1),
                    "physics_s": round(sum(phys["solve"]) + sum(phys["discrepancy"]), 1),
                    "stages": {}}
