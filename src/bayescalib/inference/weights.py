@@ -197,9 +197,10 @@ def _truncated_kde_class():
             """:class:`scipy.stats.gaussian_kde` whose evaluation skips the points farther
             than :data:`KDE_RADIUS` (Mahalanobis, kernel metric) from every particle:
             their density, a sum of kernels each below e^-40 of the kernel's peak, is
-            returned as 0; every other point gets scipy's exact sum over all particles
-            (bitwise ``gaussian_kde.evaluate``). A k-d tree of the whitened particles
-            finds the near points."""
+            returned as 0; every other point gets ``gaussian_kde.evaluate``'s sum over
+            all particles (to round-off: scipy whitens the points as one matrix, whose
+            product rounds by its size). A k-d tree of the whitened particles finds the
+            near points."""
 
             def _whiten(self, points: np.ndarray) -> np.ndarray:
                 return solve_triangular(self.cho_cov, points, lower=True, check_finite=False)
