@@ -195,17 +195,16 @@ def _round_stages(root: Path, cfg: dict) -> dict[str, list[float]]:
             targets = [p.get("target") or p["name"] for p in cfg["parameters"]]
             # the workflow passes the last round's files (where the tree's code can reuse)
             final = r is None and last is not None and _takes_reuse(stages)
+            reuse_train = {"reuse": [last / "training.h5", last / "surrogate.h5"]} if final else {}
+            reuse_smc = {"reuse": [last / "surrogate.h5", last / "particles.h5"]} if final else {}
             calls = {
                 "gather": partial(stages.gather, runs, disc, names, targets, None,
                                   t / "training.h5"),
-                "train_surrogate": partial(
-                    stages.train_surrogate, folder / "training.h5", cfg["surrogate"],
-                    cfg["parameters"], t / "surrogate.h5",
-                    reuse=[last / "training.h5", last / "surrogate.h5"] if final else ()),
+                "train_surrogate": partial(stages.train_surrogate, folder / "training.h5",
+                                           cfg["surrogate"], cfg["parameters"],
+                                           t / "surrogate.h5", **reuse_train),
                 "smc": partial(stages.smc, folder / "surrogate.h5", cfg["smc"],
-                               cfg["parameters"], t / "particles.h5",
-                               reuse=[last / "surrogate.h5", last / "particles.h5"] if final
-                               else ()),
+                               cfg["parameters"], t / "particles.h5", **reuse_smc),
             }
             if r is not None:
                 prev = root / "active" / str(r - 1) / "acquire.json" if r > 0 else None
