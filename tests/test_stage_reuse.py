@@ -73,3 +73,19 @@ def test_a_different_input_is_computed_anew(tmp_path):
                reuse=[rnd / "surrogate.h5", rnd / "particles.h5"])
     assert not np.array_equal(_particles(meas / "particles.h5")[2],
                               _particles(rnd / "particles.h5")[2])
+
+
+def test_an_unreadable_earlier_output_is_not_copied(tmp_path):
+    """The same input, but the round's surrogate file is damaged: the measure's surrogate
+    is fitted anew (and is the one the round should have had), not copied."""
+    rnd, meas = tmp_path / "round", tmp_path / "measure"
+    rnd.mkdir()
+    meas.mkdir()
+    stages.train_surrogate(_table(rnd / "training.h5"), SURROGATE, PARAMETERS, rnd / "surrogate.h5")
+    good = rnd / "good.h5"
+    good.write_bytes((rnd / "surrogate.h5").read_bytes())
+    (rnd / "surrogate.h5").write_bytes((rnd / "surrogate.h5").read_bytes()[:200])
+    stages.train_surrogate(_table(meas / "training.h5"), SURROGATE, PARAMETERS,
+                           meas / "surrogate.h5",
+                           reuse=[rnd / "training.h5", rnd / "surrogate.h5"])
+    assert stages._same_h5_content(meas / "surrogate.h5", good)

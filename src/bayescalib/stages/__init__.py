@@ -504,7 +504,9 @@ def _reuse(input_path: str | Path, reuse: Sequence[str | Path], out_path: str | 
     if len(reuse) != 2:
         raise ValueError(f"reuse: expected (earlier input, earlier output), got {list(reuse)}")
     earlier_in, earlier_out = (Path(p) for p in reuse)
-    if not earlier_out.is_file() or not _same_h5_content(input_path, earlier_in):
+    if not _same_h5_content(earlier_out, earlier_out):  # missing or unreadable: compute
+        return False
+    if not _same_h5_content(input_path, earlier_in):
         return False
     with atomic_path(out_path, suffix=Path(out_path).suffix) as tmp:
         shutil.copyfile(earlier_out, tmp)
