@@ -19,13 +19,15 @@ coarse mesh, active design of at most 40 solves).
 Figures per study and mode: wall time of the whole run; the physics summed over the
 run (solves: each run record's own ``wall_time``; discrepancies: every point's
 discrepancy recomputed in this process after a warm-up, i.e. the in-process cost);
-per stage: the median job wall time from Snakemake's ``benchmark:`` files, the
-median in-process work, their ratio and the overhead per job (median job wall minus
-median in-process work). In-process work of the per-round stages (gather,
-train_surrogate, smc, acquire; and marginalize): the stage function rerun here, warm,
+per stage (each figure family its own row, ``fig_posterior`` etc.): the median job
+wall time from Snakemake's ``benchmark:`` files, the median in-process work, their
+ratio and the overhead per job (median job wall minus median in-process work).
+In-process work of the per-round stages (gather, train_surrogate, smc, acquire; and
+marginalize): the stage function of the mode's own code rerun, warm, in a subprocess,
 on the run's own files for up to three rounds (first, middle, last) and the final
-measure. With two or more modes, a last table sets each mode's figures beside the
-first mode's (ratios).
+measure (which, after an active design, reuses the last round's surrogate and
+particles as the workflow does, where the mode's code can). With two or more modes, a
+last table sets each mode's figures beside the first mode's (ratios).
 
 Usage::
 
@@ -105,7 +107,10 @@ def _job_walls(root: Path) -> dict[str, list[float]]:
     """Median-able job wall times per stage from Snakemake's benchmark files."""
     out: dict[str, list[float]] = {}
     for tsv in (root / "benchmarks").rglob("*.tsv"):
-        stage = tsv.relative_to(root / "benchmarks").parts[0].removesuffix(".tsv")
+        parts = tsv.relative_to(root / "benchmarks").parts
+        stage = parts[0].removesuffix(".tsv")
+        if stage == "figures":  # one row per figure family: fig_posterior, fig_rounds, ...
+            stage = "fig_" + parts[-1].removesuffix(".tsv")
         lines = tsv.read_text().splitlines()
         if len(lines) >= 2:
             out.setdefault(stage, []).append(float(lines[1].split("\t")[0]))
@@ -151,6 +156,22 @@ def _timed(fn) -> float:
     return time.perf_counter() - t0
 
 
+def _takes_reuse(stages) -> bool:
+    import inspect
+
+    return "reuse" in inspect.signature(stages.train_surrogate).parameters
+
+
+def _round_stages_of(tree: Path, root: Path, study: str) -> dict[str, list[float]]:
+    """:func:`_round_stages` run by the tree's own code: a subprocess that imports the
+    package from ``tree/src`` (so a ``before`` mode's in-process work is its own)."""
+    env = {**os.environ, "PYTHONPATH": str(tree / "src")}
+    proc = subprocess.run([sys.executable, str(Path(__file__).resolve()), "--round-stages",
+                           str(tree), str(root), study], check=True, env=env,
+                          capture_output=True, text=True)
+    return json.loads(proc.stdout.splitlines()[-1])
+
+
 def _round_stages(root: Path, cfg: dict) -> dict[str, list[float]]:
     """In-process cost of the per-round and per-measure stages, rerun here on the run's
     files (into a scratch folder; warm: the imports are paid by a first call)."""
@@ -164,6 +185,7 @@ def _round_stages(root: Path, cfg: dict) -> dict[str, list[float]]:
         rounds = sorted({0, len(active) // 2, len(active) - 1}) if active else []
         jobs = [(root / "active" / str(r), r) for r in rounds] + [(root / m, None)]
         first = True
+        last = root / "active" / str(len(active) - 1) if active else None
         for folder, r in jobs:
             n = (len(list((root / "runs").glob("[0-9]*.h5"))) if r is None else
                  int(stages.read_json(folder / "acquire.json")["n_solves"]))
@@ -171,14 +193,18 @@ def _round_stages(root: Path, cfg: dict) -> dict[str, list[float]]:
             disc = [root / "discrepancy" / m / f"{i}.json" for i in range(n)]
             names = [p["name"] for p in cfg["parameters"]]
             targets = [p.get("target") or p["name"] for p in cfg["parameters"]]
+            # the workflow passes the last round's files (where the tree's code can reuse)
+            final = r is None and last is not None and _takes_reuse(stages)
+            reuse_train = {"reuse": [last / "training.h5", last / "surrogate.h5"]} if final else {}
+            reuse_smc = {"reuse": [last / "surrogate.h5", last / "particles.h5"]} if final else {}
             calls = {
                 "gather": partial(stages.gather, runs, disc, names, targets, None,
                                   t / "training.h5"),
                 "train_surrogate": partial(stages.train_surrogate, folder / "training.h5",
                                            cfg["surrogate"], cfg["parameters"],
-                                           t / "surrogate.h5"),
+                                           t / "surrogate.h5", **reuse_train),
                 "smc": partial(stages.smc, folder / "surrogate.h5", cfg["smc"],
-                               cfg["parameters"], t / "particles.h5"),
+                               cfg["parameters"], t / "particles.h5", **reuse_smc),
             }
             if r is not None:
                 prev = root / "active" / str(r - 1) / "acquire.json" if r > 0 else None
@@ -206,7 +232,13 @@ def main() -> None:
     ap.add_argument("--modes", default="server,fresh")
     ap.add_argument("--before", default=None, help="git revision to run as mode 'before'")
     ap.add_argument("--keep", default=None, help="keep the scratch trees in this folder")
+    ap.add_argument("--round-stages", nargs=3, metavar=("TREE", "ROOT", "STUDY"),
+                    help=argparse.SUPPRESS)  # internal: see _round_stages_of
     a = ap.parse_args()
+    if a.round_stages:
+        tree, root, study = a.round_stages
+        print(json.dumps(_round_stages(Path(root), _study_config(Path(tree), study))))
+        return
     modes = [m for m in a.modes.split(",") if m] + (["before"] if a.before else [])
     base = Path(a.keep or tempfile.mkdtemp(prefix="bench_pipeline_"))
     base.mkdir(parents=True, exist_ok=True)
@@ -220,7 +252,7 @@ def main() -> None:
             cfg = _study_config(tree, study)
             walls = _job_walls(res["root"])
             phys = _physics(res["root"], cfg)
-            phys.update(_round_stages(res["root"], cfg))
+            phys.update(_round_stages_of(tree, res["root"], study))
             row = {"wall_s": round(res["wall_s"], 1),
                    "physics_s": round(sum(phys["solve"]) + sum(phys["discrepancy"]), 1),
                    "stages": {}}

@@ -242,3 +242,49 @@ def test_a_machine_without_gpu_devices_does_not_import_torch():
                           timeout=300, check=False)
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert proc.stdout.split() == ["cpu", "False"]
+
+
+@pytest.mark.parametrize("kernel", ["matern32", "matern52", "rbf"])
+@pytest.mark.parametrize("bound", [None, 0.0])
+def test_fast_mean_is_the_gp_formula_evaluated_directly(kernel, bound):
+    """The SMC's predictor (augmented distance product, kernel rows in preallocated
+    arrays) equals m + s^2 k(x*, X) alpha written out with scipy's cdist, in the GP's
+    latent units, to 1e-10 of the magnitudes summed, s^2 sum_j |k_j alpha_j| (same
+    alpha, so only the distance algebra's round-off differs; the terms of smooth
+    kernels' sums cancel by many orders of magnitude, hence that scale)."""
+    from scipy.spatial.distance import cdist
+
+    from bayescalib.inference.surrogate import KERNELS
+
+    rng = np.random.default_rng(7)
+    X = BOX[:, 0] + rng.uniform(0.0, 1.0, (50, 2)) * (BOX[:, 1] - BOX[:, 0])
+    gp = fit_gp(X, smooth_loglik(X), bounds=BOX, restarts=1, kernel=kernel, bound=bound,
+                device="cpu")
+    Z = BOX[:, 0] + rng.uniform(-0.1, 1.1, (3000, 2)) * (BOX[:, 1] - BOX[:, 0])
+    c = KERNELS[kernel][0]
+    t = c * cdist(gp.scale_inputs(Z) / gp.lengthscale, gp.scale_inputs(gp.X_train) / gp.lengthscale)
+    f = {"matern32": (1 + t) * np.exp(-t), "matern52": (1 + t + t**2 / 3) * np.exp(-t),
+         "rbf": np.exp(-(t**2))}[kernel]
+    ref = gp.mean_const + gp.variance * f @ gp.alpha
+    scale = gp.variance * np.abs(f) @ np.abs(gp.alpha)
+    assert np.all(np.abs(gp.predict_latent(Z) - ref) <= 1e-10 * scale)
+
+
+def test_predictions_do_not_depend_on_the_calls_before_them(gp64):
+    """The kernel rows live in arrays kept between calls (per thread, grown on demand):
+    a prediction is bitwise the same whatever was predicted before it (larger and
+    smaller batches, a single point, the variance's larger chunks, two threads). (The
+    same points in a batch of another size may differ in the last bit: BLAS picks its
+    kernel by the row count; so did the predictor before the arrays were kept.)"""
+    rng = np.random.default_rng(5)
+    X = BOX[:, 0] + rng.uniform(0.0, 1.0, (2500, 2)) * (BOX[:, 1] - BOX[:, 0])
+    first = gp64.predict(X)
+    for other in (5000, 1, 7, 20000):
+        gp64.predict(BOX[:, 0] + rng.uniform(0.0, 1.0, (other, 2)) * (BOX[:, 1] - BOX[:, 0]),
+                     return_var=other == 20000)
+        assert np.array_equal(gp64.predict(X), first)
+    gp64.threads = 2
+    try:
+        assert np.array_equal(gp64.predict(X), first)
+    finally:
+        gp64.threads = 1

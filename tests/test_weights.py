@@ -231,3 +231,52 @@ def test_kde_on_grid_falls_back_to_pointwise_below_two_grid_steps():
     assert _binned_kde_grid(kde, gx, gy) is None
     xx, yy = np.meshgrid(gx, gy)
     assert np.array_equal(dens, kde(np.vstack([xx.ravel(), yy.ravel()])).reshape(xx.shape))
+
+
+def test_kde_evaluation_is_scipys_sum_near_the_particles_and_zero_far_from_them():
+    """The KDE skips points farther than KDE_RADIUS kernel sds (Mahalanobis) from every
+    particle: there it returns 0 where scipy's full sum is below e^-40 of the kernel's
+    peak; at every other point it returns scipy's sum (to 1e-12 relative: scipy whitens
+    the points as one matrix, whose product rounds by its size). After a bandwidth
+    change the same holds with the new bandwidth."""
+    from bayescalib.inference.weights import KDE_RADIUS
+
+    rng = np.random.default_rng(2)
+    X = rng.multivariate_normal([400.0, 0.2], [[30.0**2, 0.5], [0.5, 0.03**2]], 3000)
+    w = rng.random(3000)
+    kde = weighted_kde(X, w)
+    ref = stats.gaussian_kde(X.T, weights=w / w.sum())
+    gx, gy = np.meshgrid(np.linspace(100, 800, 120), np.linspace(-0.8, 0.5, 120))
+    P = np.vstack([gx.ravel(), gy.ravel()])
+    peak = 1.0 / (2 * np.pi * np.sqrt(np.linalg.det(ref.covariance)))
+    for _ in range(2):
+        got, full = kde(P), ref(P)
+        far = got == 0.0
+        assert 0.5 < far.mean() < 1.0  # most of the box is far from this narrow cloud
+        assert np.all(full[far] <= np.exp(-0.5 * KDE_RADIUS**2) * peak)
+        assert np.allclose(got[~far], full[~far], rtol=1e-12, atol=0.0)
+        assert np.allclose(kde(X[:50].T), ref(X[:50].T), rtol=1e-12, atol=0.0)
+        kde.set_bandwidth(0.5 * kde.factor)
+        ref.set_bandwidth(0.5 * ref.factor)
+        peak = 1.0 / (2 * np.pi * np.sqrt(np.linalg.det(ref.covariance)))
+
+
+def test_reflected_kde_on_a_grid_agrees_with_the_untruncated_sum():
+    """A narrow cloud against the box's upper nu face, on a grid too coarse for the
+    binned path (the pointwise one with its mirror images): the figure's grid equals the
+    full reflected sum (every image, every grid point) to 1e-13 of its peak (round-off;
+    the kernels left out are below e^-40 of a kernel's peak)."""
+    from bayescalib.inference.weights import BoundedKDE, _binned_kde_grid
+
+    rng = np.random.default_rng(4)
+    X = rng.normal([400.0, 0.47], [5.0, 0.02], size=(4000, 2))
+    X = X[X[:, 1] <= 0.5]
+    box = [[100.0, 800.0], [-0.8, 0.5]]
+    kde = weighted_kde(X, None, support=box)
+    gx, gy, dens = kde_on_grid(kde, box[0], box[1], 100)
+    assert _binned_kde_grid(kde, gx, gy) is None  # bandwidth below two grid steps
+    full = BoundedKDE(stats.gaussian_kde(X.T), box)
+    xx, yy = np.meshgrid(gx, gy)
+    ref = full(np.vstack([xx.ravel(), yy.ravel()])).reshape(xx.shape)
+    assert ref.max() > 0
+    assert np.max(np.abs(dens - ref)) <= 1e-13 * ref.max()

@@ -75,6 +75,17 @@ def point_values(i):
         return study.point_values(_json.load(fh)["next"]["points"][j])
 
 
+def _round_reuse(wildcards, *names):
+    """The last active round's files that a stage of the primary measure reuses when its
+    input is the same as the round's (the measure's training table is the last round's
+    once the design stops, so its surrogate and particles would be too): [input,
+    output] of the round's job, or [] (other measures, a fixed design)."""
+    if not study.active or wildcards.measure != study.primary_measure:
+        return []
+    r = final_round()
+    return [f"{ACTIVE_DIR}/{r}/{n}.h5" for n in names]
+
+
 def _round_inputs(wildcards):
     n = study.round_size(int(wildcards.r))
     m = study.primary_measure
@@ -119,6 +130,18 @@ TRAIN_JOB = (
     '"$BAYESCALIB_PYTHON" -I -S "$BAYESCALIB_JOB_CLIENT"'
     " train_surrogate log {log:q} out {output:q} training {input:q}"
     " surrogate {params.surrogate!r:q} parameters {params.parameters!r:q}"
+)
+# the primary measure's train_surrogate and smc may reuse the last round's output
+TRAIN_MEASURE_JOB = (
+    '"$BAYESCALIB_PYTHON" -I -S "$BAYESCALIB_JOB_CLIENT"'
+    " train_surrogate log {log:q} out {output:q} training {input.training:q}"
+    " surrogate {params.surrogate!r:q} parameters {params.parameters!r:q}"
+    " reuse [ {input.reuse:q} ]"
+)
+SMC_MEASURE_JOB = (
+    '"$BAYESCALIB_PYTHON" -I -S "$BAYESCALIB_JOB_CLIENT"'
+    " smc log {log:q} out {output:q} surrogate {input.surrogate:q} smc {params.smc!r:q}"
+    " parameters {params.parameters!r:q} reuse [ {input.reuse:q} ]"
 )
 SMC_JOB = (
     '"$BAYESCALIB_PYTHON" -I -S "$BAYESCALIB_JOB_CLIENT"'

@@ -7,7 +7,8 @@ rule smc:
     conda:
         "../envs/bayescalib.yaml"
     input:
-        f"{R}/{{measure}}/surrogate.h5",
+        surrogate=f"{R}/{{measure}}/surrogate.h5",
+        reuse=lambda wc: _round_reuse(wc, "surrogate", "particles"),
     output:
         f"{R}/{{measure}}/particles.h5",
     params:
@@ -19,7 +20,7 @@ rule smc:
         f"{R}/logs/{{measure}}/smc.log",
     threads: 1
     shell:
-        SMC_JOB
+        SMC_MEASURE_JOB
 
 
 rule marginalize:

@@ -6,7 +6,8 @@ rule train_surrogate:
     conda:
         "../envs/bayescalib.yaml"
     input:
-        f"{R}/{{measure}}/training.h5",
+        training=f"{R}/{{measure}}/training.h5",
+        reuse=lambda wc: _round_reuse(wc, "training", "surrogate"),
     output:
         f"{R}/{{measure}}/surrogate.h5",
     params:
@@ -18,7 +19,7 @@ rule train_surrogate:
         f"{R}/logs/{{measure}}/train_surrogate.log",
     threads: 1
     shell:
-        TRAIN_JOB
+        TRAIN_MEASURE_JOB
 
 
 rule convergence:

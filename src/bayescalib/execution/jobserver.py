@@ -146,7 +146,7 @@ def _train_surrogate(args: Mapping[str, str]) -> None:
 
     setup_logging(args["log"])
     train_surrogate(args["training"], _literal(args["surrogate"]), _literal(args["parameters"]),
-          args["out"])
+          args["out"], reuse=args.get("reuse") or ())
 
 
 def _granted_threads() -> int:
@@ -163,7 +163,7 @@ def _smc(args: Mapping[str, str]) -> None:
 
     setup_logging(args["log"])
     smc(args["surrogate"], _literal(args["smc"]), _literal(args["parameters"]), args["out"],
-        threads=_granted_threads())
+        threads=_granted_threads(), reuse=args.get("reuse") or ())
 
 
 def _acquire(args: Mapping[str, str]) -> None:

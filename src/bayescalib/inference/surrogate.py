@@ -74,6 +74,7 @@ import logging
 import math
 import os
 import sys
+import threading
 import warnings
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
@@ -104,15 +105,20 @@ KERNELS: dict[str, tuple[float, str]] = {
 }
 
 
-def _unit_kernel_from_t2(T2: np.ndarray, kernel: str) -> np.ndarray:
-    """f(t) of :data:`KERNELS` from t^2 (any shape), overwriting ``T2``."""
+def _unit_kernel_from_t2(T2: np.ndarray, kernel: str,
+                         work: np.ndarray | None = None) -> np.ndarray:
+    """f(t) of :data:`KERNELS` from t^2 (any shape), overwriting ``T2``.
+
+    ``work`` (the shape of ``T2``, optional) holds e^-t, so that no temporary array is
+    allocated; the values are bitwise those without it."""
     np.maximum(T2, 0.0, out=T2)
     if kernel == "rbf":
         np.negative(T2, out=T2)
         return np.exp(T2, out=T2)
     t2 = T2.copy() if kernel == "matern52" else None
     np.sqrt(T2, out=T2)
-    E = np.exp(-T2)
+    E = np.negative(T2, out=work)
+    np.exp(E, out=E)
     T2 += 1.0
     if t2 is not None:
         T2 += t2 / 3.0
@@ -342,14 +348,32 @@ class GPSurrogate:
             self._cache["t_L"] = torch.as_tensor(self.chol, dtype=torch.float64, device=dev)
         return self._cache
 
+    def _row_buffers(self, rows: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """This thread's work arrays for a chunk of ``rows`` points: the augmented inputs
+        (rows, d + 2) (last column 1), the kernel block and e^-t (rows, n)."""
+        local = self._cache.setdefault("np_local", threading.local())
+        buf = getattr(local, "buf", None)
+        if buf is None or buf[0].shape[0] < rows:
+            aug = np.empty((rows, self.dim + 2))
+            aug[:, -1] = 1.0
+            buf = local.buf = (aug, np.empty((rows, self.n_train)),
+                               np.empty((rows, self.n_train)))
+        return buf[0][:rows], buf[1][:rows], buf[2][:rows]
+
     def _unit_kernel_rows(self, Xc: np.ndarray) -> np.ndarray:
-        """k(x*, X_train) / s^2 for a chunk of points (c, d) -> (c, n), computed in place."""
+        """k(x*, X_train) / s^2 for a chunk of points (c, d) -> (c, n).
+
+        Computed in this thread's preallocated arrays (:meth:`_row_buffers`; one
+        memory pass fewer per operation than fresh temporaries, about twice as fast in
+        the SMC, bitwise the same values): the result is valid until the thread's next
+        call."""
         c = self._numpy_cache()
         A = (Xc - self.shift) * c["np_in_scale"]
-        Aaug = np.column_stack([A, np.sum(A * A, 1), np.ones(A.shape[0])])
-        K = Aaug @ c["np_Baug"]  # t^2 = (c r)^2
-        K = _unit_kernel_from_t2(K, self.kernel)
-        return K
+        Aaug, K, E = self._row_buffers(A.shape[0])
+        Aaug[:, : self.dim] = A
+        np.sum(A * A, 1, out=Aaug[:, self.dim])
+        np.matmul(Aaug, c["np_Baug"], out=K)  # t^2 = (c r)^2
+        return _unit_kernel_from_t2(K, self.kernel, E)
 
     def _predict_numpy(self, X: np.ndarray, return_var: bool):
         from scipy.linalg import solve_triangular

@@ -457,6 +457,64 @@ def record_bound(rec: Mapping[str, Any]) -> float:
 
 
 
+# ---------------------------------------------------------------- reuse of a round
+def _same_bits(u: Any, v: Any) -> bool:
+    """Two stored values (datasets or attributes) are the same: equal shapes, dtypes
+    and bytes (numeric), or equal elements (strings)."""
+    a, b = np.asarray(u), np.asarray(v)
+    if a.shape != b.shape or a.dtype != b.dtype:
+        return False
+    if a.dtype.kind in "biufc":
+        return a.tobytes() == b.tobytes()
+    return bool(np.array_equal(a, b))
+
+
+def _same_h5_content(a: str | Path, b: str | Path) -> bool:
+    """True when two HDF5 files hold the same groups, datasets and attributes, each
+    value bitwise (the files' own bytes may differ: HDF5 lays them out freely)."""
+    import h5py
+
+    def same(x, y) -> bool:
+        if set(x.attrs) != set(y.attrs) or not all(_same_bits(x.attrs[k], y.attrs[k])
+                                                   for k in x.attrs):
+            return False
+        if isinstance(x, h5py.Dataset):
+            return isinstance(y, h5py.Dataset) and _same_bits(x[()], y[()])
+        return (isinstance(y, h5py.Group) and set(x) == set(y)
+                and all(same(x[k], y[k]) for k in x))
+
+    try:
+        with h5py.File(a, "r") as fa, h5py.File(b, "r") as fb:
+            return same(fa, fb)
+    except OSError:
+        return False
+
+
+def _reuse(input_path: str | Path, reuse: Sequence[str | Path], out_path: str | Path,
+           what: str) -> bool:
+    """``reuse`` = (an earlier job's input, that job's output), of the same stage with
+    the same settings (the rule passes them: the last active round's files for the
+    primary measure). When this job's input holds the same content as the earlier
+    input, its output would be the earlier output bit for bit (every stage is
+    deterministic): that file is copied to ``out_path`` and True returned."""
+    import shutil
+
+    if not reuse:
+        return False
+    if len(reuse) != 2:
+        raise ValueError(f"reuse: expected (earlier input, earlier output), got {list(reuse)}")
+    earlier_in, earlier_out = (Path(p) for p in reuse)
+    if not _same_h5_content(earlier_out, earlier_out):  # missing or unreadable: compute
+        return False
+    if not _same_h5_content(input_path, earlier_in):
+        return False
+    with atomic_path(out_path, suffix=Path(out_path).suffix) as tmp:
+        shutil.copyfile(earlier_out, tmp)
+    log.info("%s: input '%s' is the same as '%s': its output '%s' is reused", what,
+             input_path, earlier_in, earlier_out)
+    return True
+
+
 # ---------------------------------------------------------------------------- train
 def _space(parameters: Sequence[Mapping[str, Any]]):
     from bayescalib.inference.parameters import ParameterSpace
@@ -465,10 +523,17 @@ def _space(parameters: Sequence[Mapping[str, Any]]):
 
 
 def train_surrogate(training_path: str | Path, surrogate: Mapping[str, Any],
-          parameters: Sequence[Mapping[str, Any]], out_path: str | Path) -> None:
-    """Fit the GP surrogate on the training points (failed runs left out)."""
+          parameters: Sequence[Mapping[str, Any]], out_path: str | Path, *,
+          reuse: Sequence[str | Path] = ()) -> None:
+    """Fit the GP surrogate on the training points (failed runs left out).
+
+    ``reuse``: (training table, surrogate) of an earlier fit with the same settings
+    (the last active round's); when the training table holds the same content, that
+    surrogate is copied instead of fitted again (:func:`_reuse`)."""
     from bayescalib.inference.surrogate import fit_from_config
 
+    if _reuse(training_path, reuse, out_path, "train_surrogate"):
+        return
     tab = _read_checked(training_path, read_training, "training table")
     train_mask = tab["is_train"].astype(bool)
     X, L = tab["X"][train_mask], tab["loglik"][train_mask]
@@ -560,17 +625,22 @@ def convergence(training_path: str | Path, surrogate: Mapping[str, Any],
 # ------------------------------------------------------------------------------ smc
 def smc(surrogate_path: str | Path, smc_cfg: Mapping[str, Any],
         parameters: Sequence[Mapping[str, Any]], out_path: str | Path, *,
-        threads: int = 1) -> None:
+        threads: int = 1, reuse: Sequence[str | Path] = ()) -> None:
     """Run SMC with adaptive tempering on the GP mean of the log-likelihood.
 
     ``threads`` > 1 evaluates the surrogate's chunks of particles on that many threads
     (:attr:`GPSurrogate.threads`): the same chunks, each computed alone, so the
-    particles are bitwise those of one thread.
+    particles are bitwise those of one thread. ``reuse``: (surrogate, particles) of an
+    earlier SMC with the same settings (the last active round's); when the surrogate
+    holds the same content, those particles are copied instead of sampled again
+    (:func:`_reuse`; their history's ``time_s`` is the earlier run's).
     """
     from bayescalib.inference.posterior import write_particles_h5
     from bayescalib.inference.smc import smc_from_config
     from bayescalib.inference.surrogate import GPSurrogate
 
+    if _reuse(surrogate_path, reuse, out_path, "smc"):
+        return
     gp = _read_checked(surrogate_path, GPSurrogate.load, "GP surrogate")
     gp.threads = max(1, int(threads))
     space = _space(parameters)
