@@ -105,6 +105,8 @@ ALL_METHODS = ["sobol_gp", "active", "pyvbmc", "gpry"]
 
 #: surrogate.kernel of the active method (--kernel; "auto" fits every kernel each round)
 ACTIVE_KERNEL = "auto"
+#: surrogate.frame of the active method (--frame; "auto": axes and principal axes, each round)
+ACTIVE_FRAME = "auto"
 GRID_N = 400
 HIST_N = 30
 
@@ -479,7 +481,7 @@ def run_active(prob: Problem, budget: int, seed: int) -> dict[str, Any]:
     res = calibrate(
         f, space, bound=prob.B,
         active={"n_initial": n0, "batch_size": 8, "max_solves": budget},
-        surrogate={"ard": prob.d > 2, "kernel": ACTIVE_KERNEL},
+        surrogate={"ard": prob.d > 2, "kernel": ACTIVE_KERNEL, "frame": ACTIVE_FRAME},
         smc={"n_particles": 4000},
         seed=seed,
         # hetero7d is a least-squares likelihood of H7_K measurements: check the best fit
@@ -856,9 +858,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--refresh-reference", action="store_true", help="recompute the cached hetero7d reference")
     ap.add_argument("--kernel", default="auto", choices=["auto", "matern32", "matern52", "rbf"],
                     help="surrogate.kernel of the active method (default auto: all, each round)")
+    ap.add_argument("--frame", default="auto", choices=["auto", "axes", "principal"],
+                    help="surrogate.frame of the active method (default auto: ARD kernels in the "
+                         "parameter axes and in the principal axes, the larger evidence wins)")
     args = ap.parse_args(argv)
-    global ACTIVE_KERNEL
+    global ACTIVE_KERNEL, ACTIVE_FRAME
     ACTIVE_KERNEL = args.kernel
+    ACTIVE_FRAME = args.frame
     problems = [p.strip() for p in args.problems.split(",") if p.strip()]
     methods = [m.strip() for m in args.methods.split(",") if m.strip()]
     for p in problems:
@@ -873,6 +879,7 @@ def main(argv: list[str] | None = None) -> int:
     results: dict[str, Any] = {
         "config": {
             "problems": problems, "methods": methods, "budget_override": args.budget, "active_kernel": args.kernel,
+            "active_frame": args.frame,
             "repeats": args.repeats, "grid": GRID_N, "python": platform.python_version(),
             "machine": platform.platform(), "cpus": os.cpu_count(),
             "omp_num_threads": os.environ.get("OMP_NUM_THREADS"),
