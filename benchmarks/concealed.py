@@ -120,6 +120,12 @@ def _image_config(files: list[Path], name: str, gt_path: Path, out: Path, seed: 
     curves = [ld.current for ld in lds] or [gt.interface_current]
     labels = [ld.label for ld in lds] or ["ground_truth"]
     loads = [ld.value for ld in lds] or [gt.parameters.get("inflow.rate")]
+    misreg = (cfg.get("observations") or {}).get("misregistration")
+    if misreg:  # the images are misplaced as the synthetic observations are
+        from bayescalib.geometry.registration import misplace
+
+        centre = np.asarray(curves[0], dtype=float).mean(axis=0)
+        curves = [misplace(np.asarray(c, dtype=float), misreg, centre) for c in curves]
     folder = out / "images" / f"{name}_images"
     folder.mkdir(parents=True, exist_ok=True)
     rng = np.random.default_rng(seed)
@@ -169,7 +175,8 @@ def _nearest(points: np.ndarray, nodes: np.ndarray) -> np.ndarray:
 
 def _effect_region(root: Path, fm: dict, truth: dict, bounds: dict,
                    fd_step: float = 0.01, gt_path: Path | None = None,
-                   observed: list | None = None) -> dict | None:
+                   observed: list | None = None,
+                   misregistration: dict | None = None) -> dict | None:
     """Per snapshot, the observed nodes where the hidden effect shows.
 
     ``raw``: where the effect moves the interface by more than half its maximum on that
@@ -181,7 +188,10 @@ def _effect_region(root: Path, fm: dict, truth: dict, bounds: dict,
 
     ``gt_path``: the ground-truth run (default: the study's own); ``observed``: observed
     interfaces whose nodes are not the ground truth's (images): each takes the value of
-    its nearest ground-truth node.
+    its nearest ground-truth node. ``misregistration``: the hidden rigid misplacement of
+    the observations (``observations.misregistration``), applied to the ground truth as
+    the observation stage does (about the first snapshot's centroid), so that the
+    "effect" of a misregistered study is the misplacement itself.
     """
     from bayescalib.diagnosis.residuals import offsets
     from bayescalib.geometry.interface import Interface
@@ -207,6 +217,11 @@ def _effect_region(root: Path, fm: dict, truth: dict, bounds: dict,
         return [ld.current for ld in run.loadings] or [run.interface_current]
 
     gts, bs = curves(gt), curves(runs[0])
+    if misregistration:
+        from bayescalib.geometry.registration import misplace
+
+        centre = np.asarray(gts[0], dtype=float).mean(axis=0)
+        gts = [misplace(g, misregistration, centre) for g in gts]
     fd = [(k, h) for k, h in enumerate(steps.values(), start=1) if runs[k].ok]
     ys, cols = [], []
     for s, (g, b) in enumerate(zip(gts, bs, strict=True)):
@@ -691,7 +706,8 @@ def main() -> None:
                 regions = _effect_region(
                     root, study.forward_section(), study.ground_truth(), bounds,
                     gt_path=gt_path,
-                    observed=used.snapshots if mode == "images" else None) if hidden else None
+                    observed=used.snapshots if mode == "images" else None,
+                    misregistration=misreg or None) if hidden or misreg else None
                 rows.append(_row(sf, variant, root, regions, obs.labels, mode, hidden, misreg))
     table = table_markdown(rows)
     print(table)
