@@ -615,15 +615,18 @@ def write_doc(rows: list[dict], path: Path, *, command: str, figures: list[str],
             L += [f"**{r['name']}** ({r['hidden']}):", ""]
             L += [f"> {w}  " for w in r["plain_words"]] + [""]
     L += ["## Commands and wall time", "",
-          "```bash", ". .venv/bin/activate",
-          "python benchmarks/concealed.py --variants several,one --observations synthetic",
-          ("python benchmarks/concealed.py --studies null,growth,two_effects,stiffening,"
-          "out_of_library --variants one --observations images"),
-          command, "```", "",
-          ("Every study is a Snakemake run on 2 cores; finished runs are reused, so each "
-          "command resumes. The doc command runs nothing (`--only-finished`). Wall time "
-          "per study (the Snakemake run that did the work, on a 2-core machine shared with "
-          "other jobs) and the sum of its jobs' own times:"), "",
+          ("Every case of the benchmark, several loadings and one, from coordinates and from "
+          "images (each study a Snakemake run on 2 cores; finished runs are reused, so the "
+          "command resumes; `--studies a,b` runs a subset, as was done for this page: the "
+          "table lists what has been run):"), "",
+          "```bash",
+          "python benchmarks/concealed.py --variants several,one --observations synthetic,images",
+          "```", "",
+          "This page, from the finished studies under `results/` (runs nothing):", "",
+          "```bash", command, "```", "",
+          ("Wall time per study (the Snakemake run that did the work, or else the span from "
+           "its observations to its diagnosis.json; on a 2-core machine shared with other "
+           "jobs) and the sum of its jobs' own times (Snakemake benchmark files):"), "",
           "| study | wall [min] | jobs [min] |", "|---|---|---|"]
     for r in ok_rows:
         L.append(f"| {r['name']} | {_fmt(wall.get(r['name']) and wall[r['name']] / 60, '{:.1f}')}"
