@@ -488,7 +488,8 @@ def _err(r: dict, k: str) -> str:
 
 
 def _copy_figure(src: Path, dst: Path, width: int = 900) -> bool:
-    """Copy a PNG, scaled down to at most ``width`` pixels wide; False if absent."""
+    """Copy a PNG, scaled down to at most ``width`` pixels wide and stored with a small
+    palette (a figure for the docs, kept in git); False if absent."""
     if not src.is_file():
         return False
     dst.parent.mkdir(parents=True, exist_ok=True)
@@ -497,7 +498,8 @@ def _copy_figure(src: Path, dst: Path, width: int = 900) -> bool:
     with Image.open(src) as im:
         if im.width > width:
             im = im.resize((width, round(im.height * width / im.width)), Image.LANCZOS)
-        im.save(dst, optimize=True)
+        # a 64-colour palette: line plots stay legible at a fraction of the size
+        im.convert("RGB").quantize(colors=64).save(dst, optimize=True)
     return True
 
 
@@ -513,9 +515,11 @@ def write_doc(rows: list[dict], path: Path, *, command: str, figures: list[str],
          "## The method in short", "",
          ("Each case is a study of `config/concealed/` (with `common.yaml`): synthetic "
          "observations of the FSI model (coarse mesh) at three loadings (0, 0.5, 1 x the "
-         "nominal inflow; `one`: the nominal loading only) with one effect hidden in the "
-         "data that the calibrated model (E, nu) does not have, and Gaussian coordinate "
-         "noise. The study calibrates E and nu by its active design, then the diagnosis "
+         "nominal inflow; `one`: the nominal loading only) with something hidden in the "
+         "data that the calibrated model (E, nu) does not have (one library effect, two "
+         "at once, an effect outside the library, a misregistration of the observations, "
+         "or nothing: the null case), and Gaussian coordinate noise (1 um; 1.5 um for "
+         "two_effects). The study calibrates E and nu by its active design, then the diagnosis "
          "(`src/bayescalib/diagnosis/`) starts from that posterior: it solves posterior "
          "draws and checks the observed interface against the predictive bands (check), "
          "locates where the smoothed residual leaves its simultaneous band (locate), "
@@ -578,7 +582,8 @@ def write_doc(rows: list[dict], path: Path, *, command: str, figures: list[str],
             L.append(f"- {r['name']}: not testable: " + "; ".join(
                 f"{k} ({v})" for k, v in r["failed_signatures"].items()))
     L += ["", ("The full table with every column (re-fit p, residual-to-noise ratio, noise "
-          "source and model) is `results/concealed/table.md`."), "",
+          "source and model) is written by the same command to "
+          "`results/concealed/table.md`."), "",
           "## The aims (issue 15), row by row", "",
           ("The aims are stated for several loadings; the one-loading and image rows are "
           "checked against the same aims for information."), "",
@@ -605,8 +610,9 @@ def write_doc(rows: list[dict], path: Path, *, command: str, figures: list[str],
             if _copy_figure(src, dst):
                 L += [(f"**{r['name']}** ({r['hidden']}): residual of the calibrated model "
                       "along the interface per snapshot (pointwise and simultaneous bands, "
-                      "located intervals shaded), and of the chosen (or best) extension "
-                      "below."), "", f"![{r['name']} residuals]({figdir.name}/{dst.name})", ""]
+                      "located intervals shaded), and below it that of the chosen (or best) "
+                      "extension, where one was calibrated."), "",
+                      f"![{r['name']} residuals]({figdir.name}/{dst.name})", ""]
     words = [r for r in ok_rows if r["study"] in ("two_effects", "misregistration")
              and r["observations"] == "synthetic" and r["loadings"] == "several"]
     if words:
