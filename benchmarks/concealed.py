@@ -321,6 +321,9 @@ def _row(study_file: Path, variant: str, root: Path, regions: dict | None, label
         "hidden_misregistration": misregistration or None,
         "loadings": variant, "observations": mode,
         "sigma_um": 1e3 * chk["sigma_mm"], "sigma_source": chk["sigma_source"],
+        # the one noise level the re-checks are judged against (estimated noise: the
+        # smallest estimate; bayescalib.diagnosis.stage.reference_noise)
+        "noise_ref_um": 1e3 * diag.get("noise_reference_mm", chk["sigma_mm"]),
         "noise_model": (chk.get("noise_model") or {}).get("name", "gaussian"),
         "verdict": diag["verdict"],
         "top1": diag["attribution"]["ranking"][0]["candidate"] if diag["attribution"]["ranking"] else None,
@@ -396,7 +399,7 @@ def aims(r: dict) -> list[dict]:
     add("untestable candidates named", all(f"Not testable: {n}" in words for n in failed)
         if failed else None, ", ".join(failed) or "none untestable")
     hid = r.get("hidden_candidates") or []
-    sigma = r["sigma_um"]
+    sigma = r.get("noise_ref_um", r["sigma_um"])
     if not hid and r["hidden"] == "none":
         add("nothing claimed (null)", chosen == "base" and not r["selected"]
             and not verdict.startswith("mismatch attributed"),
