@@ -325,6 +325,30 @@ def test_a_smaller_residual_is_not_an_explanation():
     assert not explains_mismatch({**after, "residual_rms_mm": 1.0e-2, "adequate": True}, base)
 
 
+def test_estimated_noise_is_one_level_for_every_recheck():
+    """Two hidden effects seen once, from images (concealed_two_effects, one loading):
+    each check estimated the noise from its own residual, so the registered observations
+    (3.70 um residual) were judged against their own 2.99 um and "explained" the
+    mismatch, while the extension's residual gave 2.34 um. The data have one noise
+    level: the smallest estimate is the reference, and against it (1.5 x 2.34 = 3.51 um)
+    neither repair explains the mismatch. Given noise stays the base check's."""
+    from types import SimpleNamespace
+
+    from bayescalib.diagnosis.stage import explains_mismatch, reference_noise
+
+    base = SimpleNamespace(rms=5.23e-3, sigma=2.98e-3, sigma_source="estimated")
+    registered = {"residual_rms_mm": 3.70e-3, "sigma_mm": 2.99e-3, "adequate": False}
+    extended = {"residual_rms_mm": 4.25e-3, "sigma_mm": 2.34e-3, "adequate": False}
+    assert explains_mismatch(registered, base)  # against its own, inflated noise
+    ref = reference_noise(base, [registered, None, extended])
+    assert ref == pytest.approx(2.34e-3, rel=1e-12)
+    assert not explains_mismatch(registered, base, ref)
+    assert not explains_mismatch(extended, base, ref)
+    assert explains_mismatch({**registered, "residual_rms_mm": 3.4e-3}, base, ref)  # 1.45 x
+    given = SimpleNamespace(rms=5.23e-3, sigma=1.5e-3, sigma_source="given")
+    assert reference_noise(given, [extended]) == pytest.approx(1.5e-3, rel=1e-12)
+
+
 def test_retry_steps_stay_in_the_prior_range():
     from bayescalib.diagnosis.extended import CandidateSpec
     from bayescalib.diagnosis.stage import retry_steps
