@@ -490,6 +490,25 @@ def _same_h5_content(a: str | Path, b: str | Path) -> bool:
         return False
 
 
+def _h5_readable(path: str | Path) -> bool:
+    """True when ``path`` is an HDF5 file whose every dataset can be read."""
+    import h5py
+
+    def read_all(g) -> None:
+        for v in g.values():
+            if isinstance(v, h5py.Dataset):
+                v[()]
+            else:
+                read_all(v)
+
+    try:
+        with h5py.File(path, "r") as f:
+            read_all(f)
+        return True
+    except OSError:
+        return False
+
+
 def _reuse(input_path: str | Path, reuse: Sequence[str | Path], out_path: str | Path,
            what: str) -> bool:
     """``reuse`` = (an earlier job's input, that job's output), of the same stage with
@@ -504,7 +523,7 @@ def _reuse(input_path: str | Path, reuse: Sequence[str | Path], out_path: str | 
     if len(reuse) != 2:
         raise ValueError(f"reuse: expected (earlier input, earlier output), got {list(reuse)}")
     earlier_in, earlier_out = (Path(p) for p in reuse)
-    if not _same_h5_content(earlier_out, earlier_out):  # missing or unreadable: compute
+    if not _h5_readable(earlier_out):  # missing or damaged: compute
         return False
     if not _same_h5_content(input_path, earlier_in):
         return False
