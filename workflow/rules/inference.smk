@@ -18,7 +18,9 @@ rule smc:
         f"{R}/benchmarks/smc/{{measure}}.tsv"
     log:
         f"{R}/logs/{{measure}}/smc.log",
-    threads: 1
+    # the surrogate's chunks on both cores (the same particles, bitwise: tests/test_surrogate.py);
+    # Snakemake lowers it to --cores where fewer, and runs it when two cores are free
+    threads: 2
     shell:
         SMC_MEASURE_JOB
 
