@@ -20,8 +20,13 @@ Figures per study and mode: wall time of the whole run; the physics summed over 
 run (solves: each run record's own ``wall_time``; discrepancies: every point's
 discrepancy recomputed in this process after a warm-up, i.e. the in-process cost);
 per stage (each figure family its own row, ``fig_posterior`` etc.): the median job
-wall time from Snakemake's ``benchmark:`` files, the median in-process work, their
-ratio and the overhead per job (median job wall minus median in-process work).
+wall time from Snakemake's ``benchmark:`` files, the median wall time of the job inside
+its job server (fork to exit) and its median CPU time (the servers' job ledger,
+``logs/jobserver_jobs.tsv``), the median in-process work, the ratio of job wall to work
+and the overhead per job (median job wall minus median in-process work). The whole
+run's CPU time (Snakemake, the servers and every job) is given beside its wall time:
+on a shared machine wall times grow with the load, CPU times much less, so the CPU
+figures say what the run costs where the wall times cannot.
 In-process work of the per-round stages (gather, train_surrogate, smc, acquire; and
 marginalize): the stage function of the mode's own code rerun, warm, in a subprocess,
 on the run's own files for up to three rounds (first, middle, last) and the final
@@ -93,14 +98,45 @@ def _run_study(tree: Path, study: str, env_extra: dict[str, str]) -> dict:
     elif study == "smoke":
         args = ["--configfile", "config/smoke.yaml"]
     env = {**os.environ, "PYTHONPATH": str(tree / "src"), **env_extra}
-    t0 = time.perf_counter()
+    t0, cpu0 = time.perf_counter(), _children_cpu()
     proc = subprocess.run([sys.executable, "-m", "snakemake", "--cores", "2", *args],
                           check=False, cwd=tree, env=env, capture_output=True, text=True)
-    wall = time.perf_counter() - t0
+    wall, cpu = time.perf_counter() - t0, _children_cpu() - cpu0
     if proc.returncode != 0:
         raise RuntimeError(f"{study} failed in {tree}:\n{proc.stderr[-3000:]}")
     name = _study_config(tree, study)["study"]
-    return {"wall_s": wall, "root": tree / "results" / name}
+    return {"wall_s": wall, "cpu_s": cpu, "root": tree / "results" / name}
+
+
+def _children_cpu() -> float:
+    """User + system time of this process's waited-for descendants: for a Snakemake run,
+    Snakemake itself, its job servers (which wait for their jobs) and the jobs it ran."""
+    import resource
+
+    ru = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return ru.ru_utime + ru.ru_stime
+
+
+#: job-server stage names as the benchmark files name them (figures: fig_<family>)
+_LEDGER_STAGE = {"predictive_solve": "predictive"}
+
+
+def _ledger(root: Path) -> dict[str, dict[str, list[float]]]:
+    """Per stage, the wall (fork to exit) and CPU times of the jobs the run's job
+    servers ran (``logs/jobserver_jobs.tsv``; empty for a run without servers)."""
+    path = root / "logs" / "jobserver_jobs.tsv"
+    out: dict[str, dict[str, list[float]]] = {}
+    if not path.exists():
+        return out
+    lines = path.read_text().splitlines()
+    cols = lines[0].split("\t") if lines else []
+    for line in lines[1:]:
+        row = dict(zip(cols, line.split("\t")))
+        stage = _LEDGER_STAGE.get(row["stage"], row["stage"])
+        entry = out.setdefault(stage, {"wall": [], "cpu": []})
+        entry["wall"].append(float(row["wall_s"]))
+        entry["cpu"].append(float(row["cpu_s"]))
+    return out
 
 
 def _job_walls(root: Path) -> dict[str, list[float]]:
@@ -251,13 +287,18 @@ def main() -> None:
             res = _run_study(tree, study, env)
             cfg = _study_config(tree, study)
             walls = _job_walls(res["root"])
+            ledger = _ledger(res["root"])
             phys = _physics(res["root"], cfg)
             phys.update(_round_stages_of(tree, res["root"], study))
-            row = {"wall_s": round(res["wall_s"], 1),
+            row = {"wall_s": round(res["wall_s"], 1), "cpu_s": round(res["cpu_s"], 1),
                    "physics_s": round(sum(phys["solve"]) + sum(phys["discrepancy"]), 1),
                    "stages": {}}
             for stage, w in sorted(walls.items()):
                 entry = {"jobs": len(w), "job_median_s": round(statistics.median(w), 3)}
+                if ledger.get(stage):
+                    entry.update(
+                        server_wall_median_s=round(statistics.median(ledger[stage]["wall"]), 3),
+                        cpu_median_s=round(statistics.median(ledger[stage]["cpu"]), 3))
                 if phys.get(stage):
                     work = statistics.median(phys[stage])
                     entry.update(work_median_s=round(work, 3),
@@ -265,14 +306,17 @@ def main() -> None:
                                  overhead_s=round(statistics.median(w) - work, 3))
                 row["stages"][stage] = entry
             summary[study][mode] = row
-            print(f"\n{study} / {mode}: whole run {row['wall_s']:.1f} s, physics "
+            print(f"\n{study} / {mode}: whole run {row['wall_s']:.1f} s wall, "
+                  f"{row['cpu_s']:.1f} s CPU (Snakemake, servers and jobs), physics "
                   f"{row['physics_s']:.1f} s (solves + discrepancies, in-process)")
-            print(f"  {'stage':<16} {'jobs':>5} {'job median':>11} {'in-process':>11} "
-                  f"{'ratio':>6} {'overhead':>9}")
+            print(f"  {'stage':<16} {'jobs':>5} {'job median':>11} {'in server':>10} "
+                  f"{'job CPU':>8} {'in-process':>11} {'ratio':>6} {'overhead':>9}")
             for stage, e in row["stages"].items():
+                srv = (f"{e['server_wall_median_s']:>9.3f}s {e['cpu_median_s']:>7.3f}s"
+                       if "cpu_median_s" in e else f"{'-':>10} {'-':>8}")
                 extra = (f"{e['work_median_s']:>10.3f}s {e['ratio']:>6.2f} "
                          f"{e['overhead_s']:>8.3f}s") if "ratio" in e else ""
-                print(f"  {stage:<16} {e['jobs']:>5} {e['job_median_s']:>10.3f}s {extra}")
+                print(f"  {stage:<16} {e['jobs']:>5} {e['job_median_s']:>10.3f}s {srv} {extra}")
             if not a.keep:
                 shutil.rmtree(tree, ignore_errors=True)
         _compare(study, summary[study], modes)
@@ -288,7 +332,8 @@ def _compare(study: str, rows: dict, modes: list[str]) -> None:
     for mode in modes[1:]:
         row = rows[mode]
         print(f"  whole run: {ref['wall_s']:.1f} s ({modes[0]}) vs {row['wall_s']:.1f} s "
-              f"({mode}), ratio {row['wall_s'] / ref['wall_s']:.2f}")
+              f"({mode}), ratio {row['wall_s'] / ref['wall_s']:.2f}; CPU {ref['cpu_s']:.1f} s "
+              f"vs {row['cpu_s']:.1f} s, ratio {row['cpu_s'] / max(ref['cpu_s'], 1e-9):.2f}")
         print(f"  {'stage':<16} {modes[0] + ' job':>12} {mode + ' job':>12} {'ratio':>6} "
               f"{modes[0] + ' overhead':>17} {mode + ' overhead':>17}")
         for stage in sorted(set(ref["stages"]) & set(row["stages"])):

@@ -147,6 +147,52 @@ def hang(params, **kw):
 """
 
 
+BURNING = """
+import time
+from bayescalib.models.analytic import interface
+def burn(params, **kw):
+    t = time.process_time()
+    while time.process_time() - t < 0.4:
+        pass
+    return interface(params, **kw)
+"""
+
+
+def test_the_ledger_records_each_job_with_the_cpu_time_of_its_solve(tmp_path, base_study):
+    """Each job the server ran is one ledger line: its stage, its output, its exit status
+    and its CPU time, including that of the forked, time-limited process the model ran
+    in (0.4 s of CPU spent there; the ledger must not see only the job's own
+    bookkeeping)."""
+    from bayescalib.execution.jobserver import LEDGER_COLUMNS
+
+    (tmp_path / "burning.py").write_text(BURNING)
+    sock, ledger = str(tmp_path / "s.sock"), tmp_path / "jobs.tsv"
+    env = {**os.environ, "PYTHONPATH": _path(tmp_path), "OPENBLAS_NUM_THREADS": "1"}
+    proc = subprocess.Popen([sys.executable, "-m", "bayescalib.execution.jobserver", "--serve",
+                             sock, "--ledger", str(ledger)], cwd=tmp_path, env=env)
+    try:
+        deadline = time.monotonic() + 60
+        while not os.path.exists(sock):
+            assert proc.poll() is None and time.monotonic() < deadline
+            time.sleep(0.05)
+        cfg = json.loads(json.dumps(base_study))
+        cfg["forward_model"]["python"] = {"function": "burning:burn"}
+        ok = _job(sock, tmp_path, "solve", **_solve_args(Study(cfg), 0, "run.h5"))
+        assert ok.returncode == 0, ok.stderr
+        assert read_run(tmp_path / "run.h5").status == "ok"
+        bad = _job(sock, tmp_path, "no_such_stage", out="x.h5")
+        assert bad.returncode == 1
+    finally:
+        proc.terminate()
+        proc.wait(timeout=10)
+    rows = [dict(zip(LEDGER_COLUMNS, line.split("\t"))) for line in
+            ledger.read_text().splitlines()]
+    assert [(r["stage"], r["out"], r["exit"]) for r in rows] == \
+        [("solve", "run.h5", "0"), ("no_such_stage", "x.h5", "1")]
+    assert float(rows[0]["cpu_s"]) >= 0.4  # the model's 0.4 s in the forked solve
+    assert float(rows[0]["wall_s"]) >= 0.4 and float(rows[0]["max_rss_mb"]) > 0
+
+
 @pytest.mark.parametrize("function", ["segfault", "leave"])
 def test_a_crashing_model_is_a_failed_record_and_the_job_succeeds(tmp_path, server, base_study,
                                                                   function):
@@ -237,6 +283,12 @@ def test_a_local_run_hands_its_per_point_jobs_to_the_server(done_run):
     # server was up ran on the point server, so the sum is what is certain)
     assert _jobs_run(log, "point") >= 17, log
     assert _jobs_run(log, "point") + _jobs_run(log, "round") >= 17 + 3 + 4, log
+    # one ledger line per job the servers ran, under the run's header
+    ledger = (done_run / STUDY / "logs" / "jobserver_jobs.tsv").read_text().splitlines()
+    stages = [line.split("\t")[1] for line in ledger[1:]]
+    assert ledger[0].split("\t")[:2] == ["server", "stage"]
+    assert len(stages) == _jobs_run(log, "point") + _jobs_run(log, "round")
+    assert stages.count("solve") >= 8 and stages.count("discrepancy") >= 8
 
 
 def test_the_client_and_the_server_agree_on_the_round_stages():

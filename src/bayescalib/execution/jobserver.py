@@ -343,7 +343,8 @@ def start_server(root: str | Path, *, wait_s: float = 20.0) -> str | None:
     ``BAYESCALIB_JOBSERVER=off`` asks for every job in a fresh interpreter. The round
     server is not waited for (its imports take longer; until it is up, its jobs go to
     the point server). Both exit when this process does. Their output goes to
-    ``<root>/logs/jobserver.log``.
+    ``<root>/logs/jobserver.log``, one line per job they ran to
+    ``<root>/logs/jobserver_jobs.tsv`` (the job ledger, :func:`serve`).
     """
     if os.environ.get(SOCKET_ENV) == "off":
         return None
@@ -357,6 +358,8 @@ def start_server(root: str | Path, *, wait_s: float = 20.0) -> str | None:
             pass
     log = Path(root) / "logs" / "jobserver.log"
     log.parent.mkdir(parents=True, exist_ok=True)
+    ledger = log.with_name("jobserver_jobs.tsv")
+    ledger.write_text("\t".join(LEDGER_COLUMNS) + "\n")
     env = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1",
            "MKL_NUM_THREADS": "1"}
     log.write_text("")
@@ -365,7 +368,7 @@ def start_server(root: str | Path, *, wait_s: float = 20.0) -> str | None:
         with open(log, "a") as fh:
             procs[kind] = subprocess.Popen(
                 [sys.executable, "-m", "bayescalib.execution.jobserver", "--serve", path,
-                 "--parent", str(os.getpid()), "--kind", kind],
+                 "--parent", str(os.getpid()), "--kind", kind, "--ledger", str(ledger)],
                 stdin=subprocess.DEVNULL, stdout=fh, stderr=subprocess.STDOUT, env=env)
         _SERVERS.append(procs[kind])
     deadline = time.monotonic() + wait_s
@@ -398,10 +401,26 @@ def stop_server(timeout: float = 10.0) -> None:
 
 
 class _Job:
-    __slots__ = ("conn", "pid", "pidfd", "t0")
+    __slots__ = ("conn", "out", "pid", "pidfd", "stage", "t0")
 
-    def __init__(self, conn: socket.socket, pid: int, pidfd: int) -> None:
+    def __init__(self, conn: socket.socket, pid: int, pidfd: int, stage: str, out: str) -> None:
         self.conn, self.pid, self.pidfd, self.t0 = conn, pid, pidfd, time.monotonic()
+        self.stage, self.out = stage, out
+
+
+#: columns of the job ledger (:func:`serve`, ``<root>/logs/jobserver_jobs.tsv``)
+LEDGER_COLUMNS = ("server", "stage", "out", "wall_s", "cpu_s", "max_rss_mb", "exit")
+
+
+def _ledger_row(kind: str, job: _Job, wall: float, usage: Any, code: int) -> str:
+    """One line of the job ledger: what a job cost in the server, from its fork to its
+    exit. ``cpu_s`` is the job's own user + system time and that of the processes it
+    waited for (the time-limited solve): unlike a wall time, it does not grow with the
+    load of a shared machine."""
+    cpu = usage.ru_utime + usage.ru_stime
+    rss_mb = usage.ru_maxrss / 1024.0  # kilobytes on Linux
+    out = job.out.replace("\t", " ").replace("\n", " ")
+    return f"{kind}\t{job.stage}\t{out}\t{wall:.4f}\t{cpu:.4f}\t{rss_mb:.1f}\t{code}\n"
 
 
 def _receive(conn: socket.socket) -> tuple[dict[str, Any], list[int]]:
@@ -465,11 +484,14 @@ def _import_all(modules: tuple[str, ...]) -> None:
 
 
 def serve(path: str, parent: int | None = None, preload: tuple[str, ...] = _PRELOAD,
-          kind: str = "point") -> None:
+          kind: str = "point", ledger: str | None = None) -> None:
     """Run the server: import ``preload``, listen on ``path``, fork a child per job.
 
     Ends when ``parent`` (the Snakemake process) is gone or on SIGTERM, killing the
-    jobs it still runs and removing the socket.
+    jobs it still runs and removing the socket. With ``ledger``, each finished job
+    appends one tab-separated line (:data:`LEDGER_COLUMNS`) to that file: the server,
+    the stage, the job's output path, its wall time from fork to exit, its CPU time,
+    its peak memory and its exit status (read by ``benchmarks/bench_pipeline.py``).
     """
     t0 = time.monotonic()
     name = f"jobserver ({kind})"
@@ -567,7 +589,9 @@ def serve(path: str, parent: int | None = None, preload: tuple[str, ...] = _PREL
                     for f in fds:
                         os.close(f)
                     pidfd = os.pidfd_open(pid)
-                    job = _Job(conn, pid, pidfd)
+                    argv = request.get("argv") or []
+                    out = argv[argv.index("out") + 1] if "out" in argv[:-1] else ""
+                    job = _Job(conn, pid, pidfd, str(request.get("stage")), str(out))
                     jobs[pidfd] = job
                     by_conn[conn.fileno()] = job
                     sel.register(pidfd, selectors.EVENT_READ, "child")
@@ -575,9 +599,16 @@ def serve(path: str, parent: int | None = None, preload: tuple[str, ...] = _PREL
                     pidfd = key.fd
                     job = jobs.pop(pidfd)
                     sel.unregister(pidfd)
-                    _, status = os.waitpid(job.pid, 0)
+                    _, status, usage = os.wait4(job.pid, 0)
                     os.close(pidfd)
                     code = os.waitstatus_to_exitcode(status)
+                    if ledger is not None:
+                        row = _ledger_row(kind, job, time.monotonic() - job.t0, usage, code)
+                        try:
+                            with open(ledger, "a") as fh:  # one short append per job
+                                fh.write(row)
+                        except OSError:
+                            pass
                     if job.conn.fileno() in by_conn:
                         by_conn.pop(job.conn.fileno())
                         try:
@@ -611,7 +642,8 @@ def _alive(pid: int) -> bool:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """``--serve PATH [--parent PID] [--kind point|round]`` runs a server; ``--run STAGE
+    """``--serve PATH [--parent PID] [--kind point|round] [--ledger TSV]`` runs a server;
+    ``--run STAGE
     KEY VALUE ...`` runs one job in this process (the client's fallback)."""
     argv = sys.argv[1:] if argv is None else argv
     if argv[:1] == ["--serve"] and len(argv) >= 2:
@@ -621,13 +653,14 @@ def main(argv: list[str] | None = None) -> int:
             sys.stderr.write(f"jobserver: unknown server kind {kind!r}\n")
             return 2
         parent = int(opts["--parent"]) if "--parent" in opts else None
-        serve(argv[1], parent, _PRELOAD_ROUND if kind == "round" else _PRELOAD, kind)
+        serve(argv[1], parent, _PRELOAD_ROUND if kind == "round" else _PRELOAD, kind,
+              opts.get("--ledger"))
         return 0
     if argv[:1] == ["--run"] and len(argv) >= 2:
         run_stage(argv[1], parse_args(argv[2:]))
         return 0
     sys.stderr.write("usage: python -m bayescalib.execution.jobserver --serve PATH [--parent PID] "
-                     "[--kind point|round] | --run STAGE [KEY VALUE ...]\n")
+                     "[--kind point|round] [--ledger TSV] | --run STAGE [KEY VALUE ...]\n")
     return 2
 
 
