@@ -127,6 +127,19 @@ def test_log_inputs_fit_the_inflow_wedge_better_and_auto_chooses_them():
     assert rms["auto"] == pytest.approx(rms["log"])
 
 
+def test_auto_keeps_linear_inputs_with_a_single_length_scale_and_log_forces_them():
+    """With one length scale for all inputs (ard false: the 2-D studies) ``inputs: auto``
+    keeps the linear inputs (log inputs cost the 2-D default study 97 solves instead of
+    43 for the same posterior); ``inputs: log`` still gives them, and ``linear`` never."""
+    box = np.array([[100.0, 800.0], [-0.8, 0.5]])
+    X = sobol_design(box, 24, 0)
+    L = BOUND - 0.5 * ((np.log(X[:, 0] / 400) + 0.6 * (X[:, 1] - 0.3)) / 0.1) ** 2
+    for inputs, logged in (("auto", False), ("log", True), ("linear", False)):
+        gp = fit_from_config(X, L, _surrogate_cfg(ard=False, inputs=inputs, kernel="matern32",
+                                                  output="log_misfit"), box, bound=BOUND)
+        assert (gp.log_offset is not None) is logged, inputs
+
+
 # ------------------------------------------------------------- the study, end to end
 def test_the_uncertain_inflow_study_gets_the_schema_surrogate_choices():
     """config/uncertain_inflow.yaml extends the default study (2-D): it must not inherit
