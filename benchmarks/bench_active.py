@@ -746,6 +746,8 @@ def run_one(prob: Problem, method: str, budget: int, seed: int) -> dict[str, Any
     wall = time.perf_counter() - t0
     rec = {"status": "ok", "wall_s": wall, "n_evals": int(out["n_evals"]), "n_rounds": int(out["n_rounds"])}
     rec.update(out.get("extra", {}))
+    if out.get("design") is not None:
+        rec["design"] = out["design"]
     try:
         rec.update(evaluate(prob, out))
     except Exception as e:  # noqa: BLE001
