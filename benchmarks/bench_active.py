@@ -41,7 +41,7 @@ Methods
 * ``gpry``: GPry (``max_total`` = budget); its nested-sampling MC sample of the
   surrogate posterior; in 2D its surrogate log-posterior on the grid.
 
-Metrics (per problem and method; medians over ``--repeats`` seeds)
+Metrics (per problem and method; medians over the seeds, ``--seeds`` or ``--repeats``)
 -------------------------------------------------------------------
 * ``evals``: log-likelihood evaluations actually made (counted by a wrapper).
 * ``rounds``: sequential rounds of evaluations: 1 for ``sobol_gp`` (one batch);
@@ -66,6 +66,12 @@ Run (repository root as working directory)::
     python benchmarks/bench_active.py                       # all problems and methods
     python benchmarks/bench_active.py --problems ridge2d,lobe2d --methods sobol_gp,pyvbmc
     python benchmarks/bench_active.py --budget 128 --repeats 3 --out results/bench_active
+    python benchmarks/bench_active.py --methods active --seeds '2d=0-4;4d=0-2;7d=0-2'
+
+With several seeds the table gives the median and, in brackets, the range over the
+seeds; each ``active`` run's evaluated points are kept in
+``<out>/design_<problem>_active_seed<s>.npz`` (X, loglik, kind: initial, acquired,
+ascent or check).
 
 Writes ``<out>/table.md`` (the markdown table that is also printed) and
 ``<out>/results.json`` (all numbers, per repeat). On a shared machine,
@@ -506,7 +512,18 @@ def run_active(prob: Problem, budget: int, seed: int) -> dict[str, Any]:
             "n_initial": n0,
             "rounds": history,
         },
+        "design": {"X": res.X, "loglik": res.loglik,
+                   "kind": np.asarray(_point_kinds(res.rounds, res.n_evaluations))},
     }
+
+
+def _point_kinds(rounds: list[dict[str, Any]], n: int) -> list[str]:
+    """How each evaluated point was chosen: 'initial', then each batch's 'kind' labels."""
+    kinds = ["initial"] * (n - sum(len(r["next"]["points"]) for r in rounds if "next" in r))
+    for r in rounds:
+        if "next" in r:
+            kinds += list(r["next"].get("kind", ["acquired"] * len(r["next"]["points"])))
+    return kinds
 
 
 def run_pyvbmc(prob: Problem, budget: int, seed: int) -> dict[str, Any]:
@@ -729,6 +746,8 @@ def run_one(prob: Problem, method: str, budget: int, seed: int) -> dict[str, Any
     wall = time.perf_counter() - t0
     rec = {"status": "ok", "wall_s": wall, "n_evals": int(out["n_evals"]), "n_rounds": int(out["n_rounds"])}
     rec.update(out.get("extra", {}))
+    if out.get("design") is not None:
+        rec["design"] = out["design"]
     try:
         rec.update(evaluate(prob, out))
     except Exception as e:  # noqa: BLE001
@@ -749,6 +768,11 @@ def summarize(runs: list[dict[str, Any]]) -> dict[str, Any]:
         vals = [r[k] for r in ok if k in r and r[k] is not None and np.isfinite(r[k])]
         if vals:
             s[k] = float(statistics.median(vals))
+            if len(vals) > 1:  # the spread over seeds
+                s[k + "_range"] = [float(min(vals)), float(max(vals))]
+    conv = [bool(r["converged"]) for r in ok if "converged" in r]
+    if len(conv) > 1:
+        s["n_converged"] = f"{sum(conv)}/{len(conv)}"
     for k in ("converged", "reason", "fit", "hellinger_from", "success_flag", "gpry_config"):
         vals = [r[k] for r in ok if k in r]
         if vals:
@@ -780,7 +804,7 @@ def _fmt(v, nd=3) -> str:
 
 
 def table(
-    results: dict[str, Any], problems: list[str], methods: list[str], repeats: int, partial: bool = False
+    results: dict[str, Any], problems: list[str], methods: list[str], seeds: str, partial: bool = False
 ) -> str:
     head = (
         "| problem | d | budget | method | evals | rounds | wall s | Hellinger | mean err | sd err "
@@ -801,7 +825,9 @@ def table(
             notes = []
             if s["status"] != "ok":
                 notes.append(s["status"])
-            if "converged" in s and m == "active":
+            if "n_converged" in s:
+                notes.append(f"converged in {s['n_converged']} seeds")
+            elif "converged" in s and m == "active":
                 reason = _short(s.get("reason", ""))
                 for prefix in ("NOT converged: ", "not converged: "):
                     reason = reason.removeprefix(prefix)
@@ -816,14 +842,19 @@ def table(
                 notes.append(f"stable={s['success_flag']}")
             if s.get("hellinger_from", "").startswith("hist"):
                 notes.append(f"Hellinger from {s['hellinger_from']} histograms")
-            hel = _fmt(s.get("hellinger")) if pr["d"] == 2 else "-"
+            def cell(k: str, nd: int = 3, s: dict[str, Any] = s) -> str:
+                v = _fmt(s.get(k), nd)
+                rng = s.get(k + "_range")
+                return v if rng is None else f"{v} ({_fmt(rng[0], nd)}-{_fmt(rng[1], nd)})"
+
+            hel = cell("hellinger") if pr["d"] == 2 else "-"
             rows.append(
-                f"| {p} | {pr['d']} | {pr['budget']} | {m} | {_fmt(s.get('n_evals'))} | {_fmt(s.get('n_rounds'))} "
-                f"| {_fmt(s.get('wall_s'), 2)} | {hel} | {_fmt(s.get('mean_err'))} | {_fmt(s.get('sd_err'))} "
-                f"| {_fmt(s.get('kl_gauss'))} | {'; '.join(notes)} |"
+                f"| {p} | {pr['d']} | {pr['budget']} | {m} | {cell('n_evals')} | {cell('n_rounds')} "
+                f"| {_fmt(s.get('wall_s'), 2)} | {hel} | {cell('mean_err')} | {cell('sd_err')} "
+                f"| {cell('kl_gauss')} | {'; '.join(notes)} |"
             )
     legend = (
-        f"\nMedians over {repeats} repeat(s) (seeds 0..{repeats - 1}). Hellinger: 2D only, on a "
+        f"\nMedians over the seeds ({seeds}), with the range over seeds in brackets. Hellinger: 2D only, on a "
         f"{GRID_N}x{GRID_N} grid against the exact density. mean err / sd err: max over parameters of "
         "|error| / reference sd. KL gauss: KL(reference || method) between moment-matched Gaussians. "
         "rounds: sequential rounds of evaluations (sobol_gp 1; pyvbmc = evaluations; gpry: "
@@ -848,12 +879,41 @@ def _jsonable(o):
     return o
 
 
+def _parse_seeds(text: str | None, repeats: int) -> dict[int | None, list[int]]:
+    """Seeds per problem dimension ({None: default}); '0,1,2', '0-4' or '2d=0-4;7d=0,1'."""
+    def one(spec: str) -> list[int]:
+        out: list[int] = []
+        for part in spec.split(","):
+            part = part.strip()
+            if "-" in part:
+                a, b = part.split("-")
+                out += list(range(int(a), int(b) + 1))
+            elif part:
+                out.append(int(part))
+        return out
+
+    if not text:
+        return {None: list(range(repeats))}
+    res: dict[int | None, list[int]] = {}
+    for chunk in text.split(";"):
+        if "=" in chunk:
+            dim, spec = chunk.split("=")
+            res[int(dim.strip().rstrip("dD"))] = one(spec)
+        else:
+            res[None] = one(chunk)
+    res.setdefault(None, list(range(repeats)))
+    return res
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--problems", default=",".join(ALL_PROBLEMS))
     ap.add_argument("--methods", default=",".join(ALL_METHODS))
     ap.add_argument("--budget", type=int, default=None, help="evaluations per problem (default: 2D 64, 4D 100, 7D 200)")
-    ap.add_argument("--repeats", type=int, default=1)
+    ap.add_argument("--repeats", type=int, default=1, help="seeds 0..repeats-1 (unless --seeds)")
+    ap.add_argument("--seeds", default=None,
+                    help="comma-separated seeds per problem size, e.g. '0,1,2' (all problems) or "
+                         "'2d=0-4;4d=0-2;7d=0-2' (ranges allowed); overrides --repeats")
     ap.add_argument("--out", default="results/bench_active")
     ap.add_argument("--refresh-reference", action="store_true", help="recompute the cached hetero7d reference")
     ap.add_argument("--kernel", default="auto", choices=["auto", "matern32", "matern52", "rbf"],
@@ -865,6 +925,9 @@ def main(argv: list[str] | None = None) -> int:
     global ACTIVE_KERNEL, ACTIVE_FRAME
     ACTIVE_KERNEL = args.kernel
     ACTIVE_FRAME = args.frame
+    seeds_by_dim = _parse_seeds(args.seeds, args.repeats)
+    seeds_text = "; ".join(f"{'all' if k is None else f'{k}D'}: {','.join(map(str, v))}"
+                           for k, v in seeds_by_dim.items())
     problems = [p.strip() for p in args.problems.split(",") if p.strip()]
     methods = [m.strip() for m in args.methods.split(",") if m.strip()]
     for p in problems:
@@ -880,7 +943,7 @@ def main(argv: list[str] | None = None) -> int:
         "config": {
             "problems": problems, "methods": methods, "budget_override": args.budget, "active_kernel": args.kernel,
             "active_frame": args.frame,
-            "repeats": args.repeats, "grid": GRID_N, "python": platform.python_version(),
+            "repeats": args.repeats, "seeds": args.seeds, "grid": GRID_N, "python": platform.python_version(),
             "machine": platform.platform(), "cpus": os.cpu_count(),
             "omp_num_threads": os.environ.get("OMP_NUM_THREADS"),
             "started": time.strftime("%Y-%m-%d %H:%M:%S"),
@@ -895,12 +958,17 @@ def main(argv: list[str] | None = None) -> int:
             "B": prob.B, "reference": {**prob.ref_info, "mean": prob.ref_mean, "sd": prob.ref_sd},
             "methods": {},
         }
+        seeds = seeds_by_dim.get(prob.d, seeds_by_dim[None])
+        pr["seeds"] = seeds
         for mname in methods:
             runs = []
-            for r in range(args.repeats):
+            for r in seeds:
                 print(f"[{pname}] {mname} (budget {budget}, seed {r}) ...", flush=True)
                 rec = run_one(prob, mname, budget, seed=r)
                 rec["seed"] = r
+                design = rec.pop("design", None)
+                if design is not None:  # the evaluated points, for diagnosis
+                    np.savez_compressed(out / f"design_{pname}_{mname}_seed{r}.npz", **design)
                 runs.append(rec)
                 if rec["status"] == "ok":
                     print(
@@ -913,16 +981,16 @@ def main(argv: list[str] | None = None) -> int:
                     print(f"  {rec['status']}", flush=True)
                     if rec["status"].startswith("not "):
                         break  # not installed / not available: no point repeating
-            pr["methods"][mname] = {"summary": summarize(runs), "runs": runs}
-            results["problems"][pname] = pr
-            # partial results after every method, so that an interrupted run keeps them
-            (out / "results.json").write_text(json.dumps(_jsonable(results), indent=1))
-            done = [p for p in problems if p in results["problems"]]
-            (out / "table.md").write_text(
-                table(results, done, methods, args.repeats, partial=True)
-            )
+                # partial results after every run, so that an interrupted run keeps them
+                pr["methods"][mname] = {"summary": summarize(runs), "runs": runs}
+                results["problems"][pname] = pr
+                (out / "results.json").write_text(json.dumps(_jsonable(results), indent=1))
+                done = [p for p in problems if p in results["problems"]]
+                (out / "table.md").write_text(
+                    table(results, done, methods, seeds_text, partial=True)
+                )
 
-    md = table(results, problems, methods, args.repeats)
+    md = table(results, problems, methods, seeds_text)
     print()
     print(md)
     (out / "table.md").write_text(md)
