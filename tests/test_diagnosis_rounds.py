@@ -11,9 +11,9 @@ from types import SimpleNamespace
 
 import pytest
 
-from bayescalib.inference import posterior
 from bayescalib import stages
 from bayescalib.diagnosis import stage
+from bayescalib.inference import posterior
 
 
 def _cal(tmp_path, converged=False, n_rounds=3):
