@@ -753,14 +753,21 @@ def explains_mismatch(after: Mapping[str, Any], base: Any,
     explains the mismatch when it fits better than the base model *and* its check
     passes or its residual RMS is within :data:`EXPLAINED_RMS` times the noise sd: a
     smaller residual alone (e.g. 9.3 -> 8.8 um against 1.5 um noise) is an extension
-    absorbing a little of a mismatch it does not explain.
+    absorbing a little of a mismatch it does not explain. The RMS rule tells only where
+    the base model's own residual is beyond it: a small, local mismatch (the base at
+    1.48 um against 1 um noise, its check failed) is explained only by a repair whose
+    check passes, not by one that trims the RMS to 1.43 um and still fails its check.
 
     ``sigma`` (mm): the noise sd to judge against (:func:`reference_noise`); default
     the re-check's own, ``after["sigma_mm"]``.
     """
     rms = float(after["residual_rms_mm"])
     noise = float(after["sigma_mm"]) if sigma is None else float(sigma)
-    return rms < base.rms and (bool(after["adequate"]) or rms <= EXPLAINED_RMS * noise)
+    if not rms < base.rms:
+        return False
+    if bool(after["adequate"]):
+        return True
+    return rms <= EXPLAINED_RMS * noise < base.rms
 
 
 def reference_noise(base: Any, afters: Sequence[Mapping[str, Any] | None]) -> float:
