@@ -325,6 +325,25 @@ def test_a_smaller_residual_is_not_an_explanation():
     assert not explains_mismatch({**after, "residual_rms_mm": 1.0e-2, "adequate": True}, base)
 
 
+def test_a_small_local_mismatch_is_explained_only_by_a_passing_check():
+    """concealed_attachment (several loadings): the base model misses at the two feet of
+    the biofilm (check failed, p 0.001) with a residual RMS of 1.48 um against 1 um
+    noise, already within 1.5 x the noise. The registered observations (1.43 um, check
+    still failed at p 0.001) do not explain it; the attachment extension (0.77 um, check
+    passed) does."""
+    from types import SimpleNamespace
+
+    from bayescalib.diagnosis.stage import explains_mismatch
+
+    base = SimpleNamespace(rms=1.48e-3)
+    registered = {"residual_rms_mm": 1.43e-3, "sigma_mm": 1.0e-3, "adequate": False}
+    extended = {"residual_rms_mm": 0.77e-3, "sigma_mm": 1.0e-3, "adequate": True}
+    assert not explains_mismatch(registered, base)
+    assert explains_mismatch(extended, base)
+    # the RMS rule still applies where the base model is beyond it (1.6 um)
+    assert explains_mismatch(registered, SimpleNamespace(rms=1.6e-3))
+
+
 def test_estimated_noise_is_one_level_for_every_recheck():
     """Two hidden effects seen once, from images (concealed_two_effects, one loading):
     each check estimated the noise from its own residual, so the registered observations

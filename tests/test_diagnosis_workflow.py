@@ -83,6 +83,37 @@ def test_an_unconverged_calibration_is_judged_with_a_caution(tmp_path, concealed
     assert d["plain_words"][0].startswith("Caution: the study's calibration did NOT converge")
 
 
+@pytest.mark.extended
+def test_an_unconverged_extension_is_represented_by_its_better_confirmed_round(
+        tmp_path, concealed):
+    """An extended calibration stopped by its budget (8 Sobol points, 12 new solves: two
+    rounds) may end on a posterior that moved where no solve has checked the surrogate.
+    The diagnosis re-checks the last two rounds' posteriors with real solves and reports
+    the one they confirm better (smaller residual RMS): its check, posterior and SMC log
+    evidence, and says so in plain words when it is not the last."""
+    cfg = {**concealed, "study": "analytic_budget",
+           "diagnose": {**concealed["diagnose"], "n_train": 8, "max_solves": 12,
+                        "n_extend": 1}}
+    d, _ = _diagnosis(tmp_path, cfg)
+    slip = next(e for e in d["extended"] if e["candidate"] == "base_slip")
+    assert slip["converged"] is False
+    last = slip["rounds"][-1]["round"]
+    assert last >= 1
+    rms = {int(k): v for k, v in slip["rechecked_rounds"].items()}
+    assert sorted(rms) == [last - 1, last]
+    assert slip["check_after"]["residual_rms_mm"] == pytest.approx(min(rms.values()), rel=1e-12)
+    reported = slip["reported_round"]
+    if rms[last - 1] < rms[last]:
+        assert reported == last - 1
+        assert slip["log_evidence"] == pytest.approx(slip["rounds"][reported]["log_evidence"],
+                                                     abs=1e-9)
+        assert slip["particles"].endswith(f"active/{reported}/particles.h5")
+        assert any(f"round {reported}'s posterior is reported" in w for w in d["plain_words"])
+    else:
+        assert reported is None
+        assert slip["particles"].endswith(f"active/{last}/particles.h5")
+
+
 @pytest.mark.slow
 def test_concealed_growth_on_the_fsi_model(tmp_path):
     """End to end on the coarse FSI mesh (about 8 min on 2 cores): data with a hidden

@@ -1,0 +1,81 @@
+"""Which round represents an extended calibration that its budget stopped unconverged
+(:func:`bayescalib.diagnosis.stage._better_confirmed_round`): the last round's posterior
+may have moved where no solve has checked the surrogate, so the round before is
+re-checked with real solves too and the one they confirm better is reported. The
+re-check and the posterior summary are replaced by stand-ins here (the end-to-end path
+is tests/test_diagnosis_workflow.py)."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import pytest
+
+from bayescalib import stages
+from bayescalib.diagnosis import stage
+from bayescalib.inference import posterior
+
+
+def _cal(tmp_path, converged=False, n_rounds=3):
+    last = tmp_path / "active" / str(n_rounds - 1)
+    return {"converged": converged, "rounds": [{"round": r} for r in range(n_rounds)],
+            "particles": str(last / "particles.h5"), "surrogate": str(last / "surrogate.h5"),
+            "posterior": {"mean": {"phi_x": 9.0}}, "log_evidence": 50.0,
+            "parameters": [{"name": "phi_x"}]}
+
+
+@pytest.fixture
+def rechecks(monkeypatch):
+    """Stand-ins: the re-check of round r returns the RMS given in ``rms[r]``."""
+    rms: dict[int, float] = {}
+    calls: list[str] = []
+
+    def check(tag, particles, *args, **kwargs):
+        r = int(str(particles).split("/")[-2])
+        calls.append(tag)
+        return SimpleNamespace(rms=rms[r]), 0, None
+
+    monkeypatch.setattr(stage, "_check_from_particles", check)
+    monkeypatch.setattr(stages, "marginalize",
+                        lambda particles, *a, **k: {"mean": {"phi_x": 4.0}, "from": str(particles)})
+    monkeypatch.setattr(posterior, "read_particles_h5",
+                        lambda p: SimpleNamespace(log_evidence=42.0))
+    return rms, calls
+
+
+def _pick(cal, last_rms, tmp_path):
+    return stage._better_confirmed_round(
+        cal, SimpleNamespace(rms=last_rms), 0, "x", [], {}, None, None, {}, tmp_path, 1, None,
+        1e-3, {"posterior_cfg": {}, "smc_cfg": {"seed": 0}})
+
+
+def test_the_round_before_is_reported_when_real_solves_confirm_it_better(tmp_path, rechecks):
+    rms, calls = rechecks
+    rms[1] = 1.67e-3  # two_effects (concealed): round 26 at 1.67 um, its last round at 5.34 um
+    cal, after, _, rechecked = _pick(_cal(tmp_path), 5.34e-3, tmp_path)
+    assert rechecked == {2: 5.34e-3, 1: 1.67e-3}
+    assert after.rms == 1.67e-3 and calls == ["x/round_1"]
+    assert cal["reported_round"] == 1
+    assert cal["particles"].endswith("active/1/particles.h5")
+    assert cal["surrogate"].endswith("active/1/surrogate.h5")
+    assert cal["log_evidence"] == 42.0  # the SMC evidence of round 1, not of the last
+    assert cal["posterior"]["mean"] == {"phi_x": 4.0}
+    assert cal["posterior"]["from"].endswith("active/1/particles.h5")
+
+
+def test_the_last_round_stays_when_it_fits_as_well_or_better(tmp_path, rechecks):
+    rms, _ = rechecks
+    for prev in (2.0e-3, 1.0e-3):  # a tie keeps the last round
+        rms[1] = prev
+        given = _cal(tmp_path)
+        cal, after, _, rechecked = _pick(given, 1.0e-3, tmp_path)
+        assert cal is given and after.rms == 1.0e-3 and "reported_round" not in cal
+        assert rechecked == {2: 1.0e-3, 1: prev}
+
+
+def test_no_second_check_for_a_converged_or_single_round_calibration(tmp_path, rechecks):
+    _, calls = rechecks
+    for given in (_cal(tmp_path, converged=True), _cal(tmp_path, n_rounds=1)):
+        cal, _, _, rechecked = _pick(given, 3.0e-3, tmp_path)
+        assert cal is given and rechecked is None
+    assert calls == []
