@@ -10,6 +10,7 @@ from __future__ import annotations
 import importlib.util
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
@@ -119,3 +120,25 @@ def test_a_misregistration_is_called_registration_and_its_refit_is_checked(bench
     met = _met(bench, blamed)
     assert met["called registration, not physics"] is False
     assert met["no physics candidate chosen"] is False
+
+
+def test_the_localization_aim_is_judged_on_the_core_where_one_is_recorded(bench):
+    # a large mismatch: the band marks nearly everything (IoU 0.3), its half-maximum
+    # core the effect's region (IoU 0.7); a diagnosis from before cores: the intervals
+    core = _met(bench, _row(overlap_unabsorbable=0.3, core_overlap_unabsorbable=0.7))
+    assert core["IoU (unabsorbable) >= 0.5"] is True
+    old = _met(bench, _row(overlap_unabsorbable=0.3, core_overlap_unabsorbable=None))
+    assert old["IoU (unabsorbable) >= 0.5"] is False
+
+
+def test_the_core_overlap_counts_only_the_core_nodes(bench):
+    labels = ["load_0", "load_1"]
+    regions = [np.zeros(10, bool), np.zeros(10, bool)]
+    regions[1][4:7] = True  # the effect: nodes 4-6 of the second snapshot
+    diag = {"check": {"located": [
+        {"snapshot": "load_1", "nodes": [0, 9], "core_nodes": [[4, 6]]},
+        {"snapshot": "load_0", "nodes": [2, 3], "core_nodes": []}]}}
+    assert bench._overlap(diag, regions, labels) == pytest.approx(3 / 12)
+    assert bench._overlap(diag, regions, labels, core=True) == pytest.approx(1.0)
+    del diag["check"]["located"][0]["core_nodes"]
+    assert bench._overlap(diag, regions, labels, core=True) is None

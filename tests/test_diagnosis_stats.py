@@ -76,6 +76,32 @@ def test_localized_mismatch_is_detected_and_located():
     assert main["peak_z"] > 0  # the bump pushes the observed curve into the fluid
 
 
+def test_the_located_core_is_the_half_maximum_width_of_a_large_mismatch():
+    """A bump 17 noise sd high: the band test marks every node where the bump stands
+    out of the noise (a wide interval), the core where it is at least half its height.
+    For a Gaussian bump of sd w = 0.3 (in t), smoothed with ell = 0.05 mm (~0.14 in t
+    on this curve), the half-maximum width is 2.355 * sqrt(0.3^2 + 0.14^2) = 0.78;
+    allowed 0.6-1.0 (node spacing 0.04 in t, the smoother's width only approximate
+    in t); the core must lie inside the interval and be clearly narrower."""
+    rng = np.random.default_rng(3)
+    draws = _draws(rng)
+    bump = 0.05 * np.exp(-0.5 * ((T - 1.6) / 0.3) ** 2)
+    obs = _curve(REF + bump[:, None] * NORMAL + rng.normal(0, 0.003, REF.shape))
+    chk = predictive_check([obs], draws, sigma=0.003, rng=rng)
+    main = max(chk.located, key=lambda d: abs(d["peak_z"]))
+    (c0, c1), = main["core_nodes"]
+    i0, i1 = main["nodes"]
+    assert i0 <= c0 <= c1 <= i1
+    assert T[c0] < 1.6 < T[c1]
+    assert 0.6 <= T[c1] - T[c0] <= 1.0, T[c1] - T[c0]
+    assert T[c1] - T[c0] < 0.75 * (T[i1] - T[i0])
+    assert main["core_arc_length_mm"][0][0] >= main["arc_length_mm"][0]
+    # every other located interval's core is a subset of its interval as well
+    for loc in chk.located:
+        for a, b in loc["core_nodes"]:
+            assert loc["nodes"][0] <= a <= b <= loc["nodes"][1]
+
+
 def test_estimated_noise_is_used_when_not_given():
     rng = np.random.default_rng(2)
     draws = _draws(rng)

@@ -26,6 +26,8 @@ def _panels(check, located: Sequence[Mapping[str, Any]]) -> list[dict]:
             "c_sim": check.c_simultaneous, "c_smooth": check.c_smooth, "label": sn.label,
             "intervals": [loc["arc_length_mm"] for loc in located
                           if loc["snapshot"] == sn.label],
+            "cores": [c for loc in located if loc["snapshot"] == sn.label
+                      for c in loc.get("core_arc_length_mm", [])],
         })
     return out
 

@@ -893,11 +893,14 @@ def plain_words(d: Mapping[str, Any]) -> list[str]:
         f"{_noise_words(chk)}).")
     for loc in chk["located"]:
         a, b = loc["arc_length_mm"]
+        core = ", ".join(f"{c0:.3f}-{c1:.3f} mm" for c0, c1 in loc.get("core_arc_length_mm", []))
         lines.append(
             f"Mismatch on snapshot {loc['snapshot']}: arc length {a:.3f}-{b:.3f} mm "
             f"(x {loc['x_mm'][0]:.3f}-{loc['x_mm'][1]:.3f} mm, y {loc['y_mm'][0]:.3f}-"
             f"{loc['y_mm'][1]:.3f} mm), {loc['direction']}, by up to "
-            f"{1e3 * abs(loc['peak_residual_mm']):.2f} um.")
+            f"{1e3 * abs(loc['peak_residual_mm']):.2f} um"
+            + (f"; at least half of the largest mismatch at arc length {core}." if core
+               else "."))
     if not chk["located"]:
         lines.append("The mismatch is spread over the interface (no interval leaves the "
                      "simultaneous band of the smoothed residual).")

@@ -40,7 +40,8 @@ def plot_residual_bands(
         ``r`` (n,) residual minus predictive mean [mm], ``r_smooth`` (n,) smoothed,
         ``sd`` (n,) and ``sd_smooth`` (n,) predictive standard deviations [mm],
         ``c_pw``, ``c_sim``, ``c_smooth`` band half-widths in sd, ``label``
-        (snapshot), and optional ``intervals`` [[s0, s1], ...] located mismatch [mm].
+        (snapshot), and optional ``intervals`` [[s0, s1], ...] located mismatch [mm]
+        and ``cores`` [[s0, s1], ...] where it is largest (drawn darker) [mm].
     row_titles : sequence of str
         Title of each row (e.g. before / after).
     """
@@ -71,6 +72,8 @@ def plot_residual_bands(
                     label="smoothed residual")
             for a, b in pan.get("intervals", []):
                 ax.axvspan(a, b, color=COLORS["truth"], alpha=0.15, lw=0)
+            for a, b in pan.get("cores", []):
+                ax.axvspan(a, b, color=COLORS["truth"], alpha=0.25, lw=0)
             ax.axhline(0.0, color="k", lw=0.5)
             ax.set_title(f"{row_titles[k // cols]}: {pan['label']}", fontsize="medium")
             if k // cols == rows - 1:
