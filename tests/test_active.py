@@ -196,6 +196,38 @@ def test_active_calibration_converges_to_the_closed_form_posterior():
     assert np.all(np.abs(s / sd - 1) < 0.25), (s, sd)
 
 
+def test_lighter_round_smc_still_reports_the_posterior_with_the_full_settings():
+    """design.active.smc lightens the rounds' sampler only: the result is sampled once
+    more, with the study's settings, on the last round's surrogate. Same closed-form
+    Gaussian and tolerances as above (the rounds' 300 particles add about 0.06 sd of
+    noise to the stop rule's view of the mean, well inside its 0.2 sd)."""
+    mean, cov = np.array([0.4, -0.3]), np.array([[0.09, 0.06], [0.06, 0.16]])
+    space = _space([(-3, 3), (-3, 3)])
+    sizes = []
+    res = calibrate(_gaussian_misfit(mean, cov), space, bound=0.0,
+                    active={"n_initial": 16, "batch_size": 8, "max_solves": 96,
+                            "smc": {"n_particles": 300, "n_rej": 5}},
+                    surrogate={"restarts": 2}, smc={"n_particles": 2000, "zeta": 0.95,
+                                                    "n_rej": 10},
+                    callback=lambda rec: sizes.append(rec))
+    assert res.converged, res.reason
+    assert res.smc.particles.shape[0] == 2000
+    sd = np.sqrt(np.diag(cov))
+    W = res.smc.weights / res.smc.weights.sum()
+    m = W @ res.smc.particles
+    s = np.sqrt(W @ (res.smc.particles - m) ** 2)
+    assert np.all(np.abs(m - mean) / sd < 0.3), (m, mean)
+    assert np.all(np.abs(s / sd - 1) < 0.25), (s, sd)
+
+
+def test_round_smc_overrides_only_what_it_names():
+    from bayescalib.config import round_smc
+
+    smc = {"n_particles": 5000, "n_rej": 20, "zeta": 0.995, "seed": 3}
+    assert round_smc(smc, {"smc": {}}) == smc
+    assert round_smc(smc, {"smc": {"n_particles": 500}}) == {**smc, "n_particles": 500}
+
+
 def test_a_spuriously_confident_start_is_caught_and_repaired():
     """A likelihood 60x narrower than the box: 8 Sobol points miss it, and the round-0
     surrogate (the paper's Matérn 3/2 of L; a squared-exponential kernel would fit

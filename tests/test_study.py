@@ -58,6 +58,9 @@ def test_forward_section_keeps_only_the_chosen_model():
         # the cost of the work, known before any job: SMC memory
         ({"smc": {"n_particles": 1_000_000_000}},
          "smc.n_particles = 1000000000 needs about"),
+        ({"design": {"active": {"smc": {"n_particles": 1_000_000_000}}}},
+         "design.active.smc.n_particles = 1000000000 needs about"),
+        ({"design": {"active": {"smc": {"zeta": 1.5}}}}, "design.active.smc.zeta"),
         ({"forward_model": {"type": "command", "command": {
             "template": __file__, "command": ["x"], "output_name": "../../victim.txt"}}},
          "forward_model.command.output_name"),

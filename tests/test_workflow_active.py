@@ -76,6 +76,16 @@ def test_summary_says_whether_the_active_design_converged(active_run):
     assert "Nothing to be done" in _smk(tmp, "-n").stdout
 
 
+def _planned_jobs(dry_run: str) -> dict[str, int]:
+    """Job counts per rule of a dry run's job table ("rule  count" lines)."""
+    counts = {}
+    for line in dry_run.splitlines():
+        parts = line.split()
+        if len(parts) == 2 and parts[1].isdigit() and parts[0] not in ("total", "job"):
+            counts[parts[0]] = int(parts[1])
+    return counts
+
+
 def _copy(src: Path, dst: Path) -> Path:
     shutil.copytree(src, dst, symlinks=True)
     return dst
@@ -108,6 +118,27 @@ def test_a_larger_budget_solves_only_new_points(active_run, base_study, tmp_path
     after = _runs(tmp)
     assert all(after[n] == t for n, t in before.items()), "a finished solve was redone"
     assert len(after) == _summary(tmp)["design"]["n_solves"] > len(before)
+
+
+def test_lighter_round_smc_resamples_the_result_with_the_full_settings(active_run, base_study,
+                                                                         tmp_path):
+    """design.active.smc: the rounds are sampled again with it (their SMC settings
+    changed), and the study's posterior is not the last round's particles but a new
+    SMC with the study's settings; no solve is redone where the rounds choose the
+    same points (dry run: what would run)."""
+    tmp = _copy(active_run[0], tmp_path / "run")
+    _setup(tmp, _study(base_study, smc={"n_particles": 100, "n_rej": 2}))
+    plan = _planned_jobs(_smk(tmp, "-n").stdout)
+    assert plan.get("smc_round", 0) >= 1 and plan.get("smc") == 1, plan
+    assert "solve" not in plan, plan
+    _smk(tmp)
+    log = (tmp / "results/analytic/logs/rkhs/smc.log").read_text()
+    assert "is reused" not in log
+    import h5py
+    with h5py.File(tmp / "results/analytic/rkhs/particles.h5") as f:
+        assert f["particles"].shape[0] == base_study["smc"]["n_particles"] == 200
+    with h5py.File(tmp / "results/analytic/active/0/particles.h5") as f:
+        assert f["particles"].shape[0] == 100
 
 
 # extended suite (pytest -m extended, run by .ci/run): a longer variant of a check the

@@ -293,6 +293,14 @@ def deep_merge(base: Mapping[str, Any], update: Mapping[str, Any]) -> dict[str, 
 EXCLUSIVE_KEYS: dict[str, tuple[str, ...]] = {"likelihood": ("sigma_n", "sigma_n2")}
 
 
+def round_smc(smc: Mapping[str, Any], active: Mapping[str, Any]) -> dict[str, Any]:
+    """The SMC settings of an active-design round: the validated ``smc`` section with
+    the round overrides of ``design.active.smc`` (n_particles, n_rej, zeta) applied.
+    Equal to ``smc`` when there are none (the last round's particles are then the
+    study's posterior)."""
+    return {**dict(smc), **dict(active.get("smc") or {})}
+
+
 def merge_layers(layers: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
     """Merge config layers in order, later layers winning (:func:`deep_merge`).
 

@@ -21,7 +21,7 @@ from functools import cached_property
 from pathlib import Path
 from typing import Any
 
-from bayescalib.config import ConfigError, sorted_keys, validate
+from bayescalib.config import ConfigError, round_smc, sorted_keys, validate
 
 __all__ = ["ConfigError", "Study", "StudyBusyError", "hold_run_lock"]
 
@@ -226,10 +226,14 @@ class Study:
         smc_cfg = cfg["smc"]
         n_train = cfg["design"]["active"]["max_solves"] \
             if cfg["design"]["strategy"] == "active" else cfg["design"]["n_train"]
-        need = smc_cfg["n_particles"] * (6 * len(cfg["parameters"]) + n_train + 10) * 8 / 2**30
+        n_particles, key = smc_cfg["n_particles"], "smc.n_particles"
+        round_n = (cfg["design"]["active"].get("smc") or {}).get("n_particles", 0)
+        if cfg["design"]["strategy"] == "active" and round_n > n_particles:
+            n_particles, key = round_n, "design.active.smc.n_particles"
+        need = n_particles * (6 * len(cfg["parameters"]) + n_train + 10) * 8 / 2**30
         if need > smc_cfg["max_memory_gib"]:
             raise ConfigError(
-                f"{where}: smc.n_particles = {smc_cfg['n_particles']} needs about {need:.3g} GiB "
+                f"{where}: {key} = {n_particles} needs about {need:.3g} GiB "
                 f"with {len(cfg['parameters'])} parameters and up to {n_train} training points, "
                 f"above smc.max_memory_gib = {smc_cfg['max_memory_gib']:g}: use fewer particles "
                 "or raise the limit")
@@ -445,6 +449,11 @@ class Study:
         if self.active:
             return int(self.config["design"]["active"]["n_initial"])
         return self.n_points
+
+    @property
+    def round_smc(self) -> dict[str, Any]:
+        """SMC settings of the active rounds (:func:`bayescalib.config.round_smc`)."""
+        return round_smc(self.config["smc"], self.config["design"]["active"])
 
     def round_size(self, r: int) -> int:
         """Number of design points after active round ``r`` (0-based)."""

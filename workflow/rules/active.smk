@@ -54,7 +54,7 @@ rule smc_round:
     output:
         f"{ACTIVE_DIR}/{{r}}/particles.h5",
     params:
-        smc=study.config["smc"],
+        smc=study.round_smc,
         parameters=study.config["parameters"],
     benchmark:
         f"{R}/benchmarks/smc/round_{{r}}.tsv"

@@ -8,7 +8,10 @@ rule smc:
         "../envs/bayescalib.yaml"
     input:
         surrogate=f"{R}/{{measure}}/surrogate.h5",
-        reuse=lambda wc: _round_reuse(wc, "surrogate", "particles"),
+        # the rounds' particles are the result only when the rounds sampled with the
+        # study's settings (design.active.smc empty)
+        reuse=lambda wc: _round_reuse(wc, "surrogate", "particles")
+        if study.round_smc == study.config["smc"] else [],
     output:
         f"{R}/{{measure}}/particles.h5",
     params:

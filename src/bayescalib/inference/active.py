@@ -602,7 +602,8 @@ class ActiveResult:
     ----------
     X, loglik : all evaluated points (n, d) and their log-likelihoods (n,).
     surrogate : the last round's GP surrogate.
-    smc : the last round's :class:`~bayescalib.inference.smc.SMCResult`.
+    smc : the SMC result on the last round's surrogate (:class:`~bayescalib.inference.smc.SMCResult`;
+        with the study's settings, also where ``design.active.smc`` lightened the rounds).
     rounds : the per-round records of :func:`acquire_round`.
     fit : :func:`bayescalib.inference.likelihood.fit_check` of the best evaluation
         (None without ``bound`` and ``n_measurements``).
@@ -662,7 +663,7 @@ def calibrate(loglik: Callable[[np.ndarray], np.ndarray], space, *, bound: float
         Number of measurements behind the Gaussian log-likelihood: with ``bound``,
         the result's ``fit`` checks the best evaluation against the noise model.
     """
-    from bayescalib.config import validate
+    from bayescalib.config import round_smc, validate
     from bayescalib.inference.design import sobol_design
     from bayescalib.inference.smc import smc_from_config
     from bayescalib.inference.surrogate import fit_from_config
@@ -670,6 +671,7 @@ def calibrate(loglik: Callable[[np.ndarray], np.ndarray], space, *, bound: float
     cfg = validate({"design": {"active": dict(active or {})}, "surrogate": dict(surrogate or {}),
                     "smc": dict(smc or {})}, "inference", where="calibrate")
     a = cfg["design"]["active"]
+    smc_round = round_smc(cfg["smc"], a)
     X = sobol_design(space.bounds, int(a["n_initial"]), seed)
     L = np.asarray(loglik(X), float)
     rounds: list[dict[str, Any]] = []
@@ -677,7 +679,7 @@ def calibrate(loglik: Callable[[np.ndarray], np.ndarray], space, *, bound: float
     r = 0
     while True:
         gp = fit_from_config(X, L, cfg["surrogate"], space.bounds, bound=bound)
-        res = smc_from_config(gp.predict, space, cfg["smc"])
+        res = smc_from_config(gp.predict, space, smc_round)
         rec = acquire_round(r, X, L, gp, res.particles, res.weights, res.log_evidence, space,
                             a, previous)
         rounds.append(rec)
@@ -691,6 +693,8 @@ def calibrate(loglik: Callable[[np.ndarray], np.ndarray], space, *, bound: float
 
                 fit = fit_check(L, np.full(L.shape, float(bound)),
                                 np.full(L.shape, float(n_measurements)))
+            if smc_round != cfg["smc"]:  # the rounds sampled lighter: the result in full
+                res = smc_from_config(gp.predict, space, cfg["smc"])
             return ActiveResult(X, L, gp, res, rounds, fit)
         Xn = np.asarray(rec["next"]["points"], float)
         X = np.vstack([X, Xn])

@@ -18,6 +18,9 @@ rule, and the files of each round laid out as in the workflow's results::
     <workdir>/active/<r>/surrogate.h5      GP surrogate of round r
     <workdir>/active/<r>/particles.h5      SMC on it
     <workdir>/active/<r>/acquire.json      checks, stop rule and the batch of round r+1
+    <workdir>/particles.h5                 SMC on the last round's surrogate with the
+                                           study's settings, when the rounds used
+                                           lighter ones (``design.active.smc``)
     <workdir>/posterior.json, posterior.nc summaries of the last round
 
 Solves are reused when their run record exists with the same values; surrogates, SMC
@@ -106,6 +109,7 @@ def calibrate_rounds(
         ``rounds`` (the acquire records), ``n_new``, ``n_reused``, ``n_failed`` (of the
         new solves) and the paths ``training``, ``surrogate``, ``particles``.
     """
+    from bayescalib.config import round_smc
     from bayescalib.inference.posterior import read_particles_h5
     from bayescalib.io.training import write_training
     from bayescalib.models.forward import solve_points
@@ -154,7 +158,7 @@ def calibrate_rounds(
                        rows["reason"], names, len(rows["loglik"]), bound=rows["bound"],
                        n_measurements=rows["n_measurements"])
         train_surrogate(training, surrogate, parameters, rd / "surrogate.h5")
-        smc(rd / "surrogate.h5", smc_cfg, parameters, rd / "particles.h5")
+        smc(rd / "surrogate.h5", round_smc(smc_cfg, active), parameters, rd / "particles.h5")
         rec = acquire(r, training, rd / "surrogate.h5", rd / "particles.h5", previous, active,
                       parameters, rd / "acquire.json")
         rounds.append(rec)
@@ -163,9 +167,13 @@ def calibrate_rounds(
         solve(np.asarray(rec["next"]["points"], float))
         previous = rd / "acquire.json"
         r += 1
-    summary = marginalize(rd / "particles.h5", rd / "surrogate.h5", posterior_cfg, parameters,
+    particles = rd / "particles.h5"
+    if round_smc(smc_cfg, active) != dict(smc_cfg):  # the rounds sampled lighter
+        particles = work / "particles.h5"
+        smc(rd / "surrogate.h5", smc_cfg, parameters, particles)
+    summary = marginalize(particles, rd / "surrogate.h5", posterior_cfg, parameters,
                           int(smc_cfg["seed"]), work / "posterior.json", work / "posterior.nc")
-    res = read_particles_h5(rd / "particles.h5")
+    res = read_particles_h5(particles)
     n_new = len(run_paths)
     n_failed = int(n_new - np.asarray(rows["status"][n_reused:]).sum())
     log.info("calibration in %s: %d round(s), %d new solves (%d failed), %d reused; %s",
@@ -178,4 +186,4 @@ def calibrate_rounds(
             "fit": fit_check(rows["loglik"], rows["bound"], rows["n_measurements"]),
             "rounds": rounds, "n_new": n_new, "n_reused": n_reused, "n_failed": n_failed,
             "training": str(training), "surrogate": str(rd / "surrogate.h5"),
-            "particles": str(rd / "particles.h5")}
+            "particles": str(particles)}
