@@ -365,7 +365,12 @@ def _row(study_file: Path, variant: str, root: Path, regions: dict | None, label
         if reg else None,
         "extended": [{"candidate": e["candidate"], "log_bf": e["log_bayes_factor"],
                       "rms_after_um": 1e3 * e["check_after"]["residual_rms_mm"]
-                      if e["check_after"] else None, "explains": e["explains"],
+                      if e["check_after"] else None,
+                      # the spread of that RMS over its draws, and which draws (fresh:
+                      # solved for the report, not those that chose the round)
+                      "rms_spread": (e["check_after"] or {}).get("residual_rms_spread"),
+                      "rms_draws": (e.get("check_after_draws") or {}).get("draws"),
+                      "explains": e["explains"],
                       "converged": e["converged"], "phi": {k: v["mean"] for k, v in e["phi"].items()}}
                      for e in ext],
         "plain_words": diag.get("plain_words") or [],
@@ -375,6 +380,17 @@ def _row(study_file: Path, variant: str, root: Path, regions: dict | None, label
 
 def _fmt(v, f="{:.2f}") -> str:
     return "-" if v is None else f.format(v)
+
+
+def _spread_words(e: dict) -> str:
+    """The RMS after's draws and spread (diagnosis.json ``residual_rms_spread``), short."""
+    sp = e.get("rms_spread")
+    if not sp:
+        return ""
+    src = "fresh draws" if e.get("rms_draws") == "fresh" else "draws"
+    return (f" ({sp['n_draws']} {src}; bootstrap 16-84 % {1e3 * sp['bootstrap_q16_mm']:.2f}-"
+            f"{1e3 * sp['bootstrap_q84_mm']:.2f}, per draw {1e3 * sp['per_draw_q16_mm']:.2f}-"
+            f"{1e3 * sp['per_draw_q84_mm']:.2f} um)")
 
 
 #: verdict of a misregistration that explains the mismatch (bayescalib.diagnosis.stage)
@@ -565,7 +581,11 @@ def write_doc(rows: list[dict], path: Path, *, command: str, figures: list[str],
          "regions; the aim is judged on the core's unabs. IoU; `-`: the diagnosis was "
          "run before cores were recorded)."),
          ("- **RMS before/after**: residual RMS of the base model and of the chosen (else "
-         "best-evidence solved) extension at real solves of posterior draws; **noise**: "
+         "best-evidence solved) extension at real solves of 16 posterior draws (against "
+         "their mean prediction); for an extension whose round was chosen by real solves "
+         "(unconverged: the better confirmed of its last two rounds), at 16 fresh draws "
+         "solved for the report only. Its spread over the draws (bootstrap and per-draw "
+         "16-84 %) is listed under the table; **noise**: "
          "the noise sd the check used (given for synthetic, estimated for images)."),
          "- **ln B**: log Bayes factor of the best extended model against the base.",
          ("- **E / nu err**: relative error of the posterior mean against the truth, in the "
@@ -596,7 +616,8 @@ def write_doc(rows: list[dict], path: Path, *, command: str, figures: list[str],
     for r in ok_rows:
         if r["extended"]:
             L.append(f"- {r['name']}: " + "; ".join(
-                f"{e['candidate']}: ln B {e['log_bf']:.1f}, RMS {_fmt(e['rms_after_um'])} um, "
+                f"{e['candidate']}: ln B {e['log_bf']:.1f}, RMS {_fmt(e['rms_after_um'])} um"
+                f"{_spread_words(e)}, "
                 f"{'explains' if e['explains'] else 'does not explain'}"
                 f"{'' if e['converged'] else ' (not converged)'}, "
                 + ", ".join(f"phi_{k} = {v:.3g}" for k, v in e["phi"].items())

@@ -79,3 +79,68 @@ def test_no_second_check_for_a_converged_or_single_round_calibration(tmp_path, r
         cal, _, _, rechecked = _pick(given, 3.0e-3, tmp_path)
         assert cal is given and rechecked is None
     assert calls == []
+
+
+# --- the reported check: fresh draws of the kept round (stage._report_check) ----------
+
+@pytest.fixture
+def fresh_checks(monkeypatch):
+    """Stand-in re-check: records (tag, particles, seed) and returns an RMS of 2.0e-3."""
+    calls: list[tuple[str, str, int]] = []
+
+    def check(tag, particles, targets, switches, obs, fm, cfg, *args, **kwargs):
+        calls.append((tag, str(particles), int(cfg["seed"])))
+        return SimpleNamespace(rms=2.0e-3), 1, None
+
+    monkeypatch.setattr(stage, "_check_from_particles", check)
+    return calls
+
+
+def _report(cal, after, rechecked, tmp_path, seed=5):
+    return stage._report_check(cal, after, 0, rechecked, "x", [], {}, None, None,
+                               {"seed": seed, "n_draws": 16}, tmp_path, 1, None, 1e-3)
+
+
+def test_the_reported_rms_comes_from_fresh_draws_of_the_kept_round(tmp_path, fresh_checks):
+    """Two rounds compared: the kept round's check was chosen as the smaller of two
+    RMS, so the report solves 16 other draws of the kept posterior (seed + 1000)."""
+    kept = tmp_path / "active" / "1" / "particles.h5"
+    cal = {**_cal(tmp_path), "reported_round": 1, "particles": str(kept)}
+    selected = SimpleNamespace(rms=1.67e-3)  # two_effects: round 26 kept over 27 (5.34 um)
+    rechecked = {2: 5.34e-3, 1: 1.67e-3}
+    after, n_fail, src = _report(cal, selected, rechecked, tmp_path)
+    assert fresh_checks == [("x/report", str(kept), 5 + stage.REPORT_SEED_OFFSET)]
+    assert after is not selected and after.rms == 2.0e-3 and n_fail == 1
+    assert src == {"draws": "fresh", "seed": 1005, "n_draws": 16, "n_failed": 1,
+                   "selection_rms_mm": 1.67e-3}
+
+
+def test_fresh_draws_also_when_the_last_round_is_kept(tmp_path, fresh_checks):
+    """A kept last round was chosen too (its RMS was not larger than the other's)."""
+    cal = _cal(tmp_path)
+    after, _, src = _report(cal, SimpleNamespace(rms=1.0e-3), {2: 1.0e-3, 1: 2.0e-3},
+                            tmp_path)
+    assert [c[1] for c in fresh_checks] == [cal["particles"]]
+    assert after.rms == 2.0e-3 and src["selection_rms_mm"] == 1.0e-3
+
+
+def test_no_fresh_draws_where_nothing_was_chosen_on_the_draws(tmp_path, fresh_checks):
+    """Converged (no second check) or a round-before check that failed (one entry):
+    the check decided nothing and is reported as it is."""
+    given = SimpleNamespace(rms=3.0e-3)
+    for rechecked in (None, {2: 3.0e-3}):
+        after, n_fail, src = _report(_cal(tmp_path), given, rechecked, tmp_path)
+        assert after is given and n_fail == 0
+        assert src == {"draws": "check", "seed": 5, "n_draws": 16, "n_failed": 0}
+    assert fresh_checks == []
+
+
+def test_fresh_draws_that_do_not_solve_leave_the_extension_unconfirmed(tmp_path, monkeypatch):
+    def check(*args, **kwargs):
+        raise stage.PredictiveCheckError("only 1 of 16 posterior draws solved")
+
+    monkeypatch.setattr(stage, "_check_from_particles", check)
+    after, n_fail, src = _report(_cal(tmp_path), SimpleNamespace(rms=1.0e-3),
+                                 {2: 1.0e-3, 1: 2.0e-3}, tmp_path)
+    assert after is None and n_fail == 16
+    assert src["draws"] == "fresh" and "only 1 of 16" in src["failed"]

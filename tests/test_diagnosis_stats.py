@@ -669,3 +669,42 @@ def test_an_extension_with_a_step_at_zero_is_not_trained_on_base_solves(tmp_path
     extended_calibration([growth, perm], **kw)
     assert seen["reused"]["X"].shape == (0, 4) and seen["budget"] == 8
     assert CandidateSpec("a", "b", 1.0, (0, 1)).continuous is True  # the default: reuse
+
+
+def test_the_rms_spread_over_draws_is_per_draw_and_bootstrap():
+    """Per-draw RMS of each draw's own prediction, and a bootstrap interval of the RMS
+    against the draws' mean prediction: exact on a case solvable by hand, and a
+    single-valued spread when every draw predicts the same."""
+    from bayescalib.diagnosis.residuals import rms_spread
+
+    y = [np.array([1.0, -1.0]), np.array([1.0, -1.0])]  # mm, against the mean prediction
+    # two draws offset by +-a everywhere: their mean is 0 (the reference)
+    a = 0.5
+    o = [np.array([[a, a], [-a, -a]]), np.array([[a, a], [-a, -a]])]
+    sp = rms_spread(y, o, np.random.default_rng(0), n_boot=2000)
+    per = np.sqrt(((1 - a) ** 2 + (1 + a) ** 2) / 2)  # the same for both draws
+    assert sp["n_draws"] == 2
+    assert sp["per_draw_median_mm"] == pytest.approx(per, rel=1e-12)
+    assert sp["per_draw_q16_mm"] == pytest.approx(per) and sp["per_draw_q84_mm"] == pytest.approx(per)
+    # a resample of the two draws has mean 0 (RMS 1) or +-a (RMS sqrt(1 + a^2)), with
+    # probabilities 1/2 and 1/2: the 16 % quantile is 1, the 84 % one sqrt(1 + a^2)
+    assert sp["bootstrap_q16_mm"] == pytest.approx(1.0, rel=1e-12)
+    assert sp["bootstrap_q84_mm"] == pytest.approx(np.sqrt(1 + a**2), rel=1e-12)
+    same = rms_spread(y, [np.zeros((3, 2)), np.zeros((3, 2))], np.random.default_rng(1))
+    assert same["per_draw_q16_mm"] == same["per_draw_q84_mm"] == pytest.approx(1.0)
+    assert same["bootstrap_q16_mm"] == same["bootstrap_q84_mm"] == pytest.approx(1.0)
+
+
+def test_the_check_reports_the_spread_of_its_rms_over_its_draws():
+    """Data from the model (a draw plus 3 um noise): the bootstrap interval of the RMS
+    brackets it (68 %), and each draw's own prediction fits no better than the mean
+    prediction (mean over draws of their MSE = MSE of the mean + the draws' variance)."""
+    rng = np.random.default_rng(3)
+    draws = _draws(rng, K=16)
+    obs = _curve(REF + rng.normal(0.0, 0.002) * SHAPE + rng.normal(0, 0.003, REF.shape))
+    chk = predictive_check([obs], draws, sigma=0.003, rng=rng)
+    sp = chk.to_json()["residual_rms_spread"]
+    assert sp["n_draws"] == 16 and sp["n_bootstrap"] == 400
+    assert sp["bootstrap_q16_mm"] <= chk.rms <= sp["bootstrap_q84_mm"]
+    assert sp["per_draw_q16_mm"] <= sp["per_draw_median_mm"] <= sp["per_draw_q84_mm"]
+    assert sp["per_draw_median_mm"] >= chk.rms

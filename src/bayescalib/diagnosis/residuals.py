@@ -101,6 +101,7 @@ __all__ = [
     "predictive_check",
     "registration_signatures",
     "resample_noise",
+    "rms_spread",
     "smoother",
     "thin_nodes",
 ]
@@ -415,6 +416,11 @@ class PredictiveCheck:
     noise_pool
         ``bootstrap``: size, RMS (mm, after any rescaling to a given ``sigma``) and
         kurtosis of the resampled values (3 for Gaussian noise); ``None`` otherwise.
+    rms_spread
+        How ``rms`` varies with the posterior draws (:func:`rms_spread`): the number of
+        draws, the median and 16-84 % range of the per-draw RMS (each draw's own
+        prediction against the observations, mm) and the 16-84 % bootstrap interval of
+        ``rms`` over draws resampled with replacement (mm).
     """
 
     snapshots: list[SnapshotCheck]
@@ -433,6 +439,7 @@ class PredictiveCheck:
     noise_lag: float = 0.0
     noise_model: str = "gaussian"
     noise_pool: dict | None = None
+    rms_spread: dict | None = None
 
     def to_json(self) -> dict:
         """Plain-value summary (no per-node arrays)."""
@@ -445,9 +452,59 @@ class PredictiveCheck:
             "statistics": self.statistics, "p_values": self.p_values,
             "band_sd": {"pointwise": self.c_pointwise, "simultaneous": self.c_simultaneous,
                         "smoothed_simultaneous": self.c_smooth},
-            "residual_rms_mm": self.rms, "pointwise_band_coverage": self.coverage,
+            "residual_rms_mm": self.rms, "residual_rms_spread": self.rms_spread,
+            "pointwise_band_coverage": self.coverage,
             "located": self.located,
         }
+
+
+#: bootstrap resamples of the posterior draws for the interval of the residual RMS
+N_RMS_BOOTSTRAP = 400
+
+
+def rms_spread(y: Sequence[np.ndarray], o: Sequence[np.ndarray], rng: np.random.Generator,
+               n_boot: int = N_RMS_BOOTSTRAP) -> dict:
+    """Spread of the residual RMS over the posterior draws it was computed from.
+
+    The check's RMS is that of the observed residual against the draws' mean prediction
+    (``y - mean_k o_k`` over all nodes). With K draws it is itself an estimate: a
+    different set of draws of the same posterior gives another value. Two spreads:
+
+    * *per draw*: the RMS of each draw's own prediction against the observations,
+      ``sqrt(mean(y - o_k)^2)`` over all nodes; median and 16-84 % range over the K
+      draws (what a single posterior draw fits to);
+    * *bootstrap*: the RMS against the mean prediction of K draws resampled with
+      replacement, ``n_boot`` times; its 16-84 % range is a 68 % interval of the
+      reported RMS under the sampling of the draws (Efron's percentile interval).
+
+    Parameters
+    ----------
+    y
+        Per snapshot, (n_i,) observed residual against the mean prediction, mm.
+    o
+        Per snapshot, (K, n_i) offsets of the K draws from the mean prediction, mm.
+    rng
+        Random generator (bootstrap).
+    n_boot
+        Bootstrap resamples.
+
+    Returns
+    -------
+    dict
+        ``n_draws``, ``per_draw_median_mm``, ``per_draw_q16_mm``, ``per_draw_q84_mm``,
+        ``bootstrap_q16_mm``, ``bootstrap_q84_mm``, ``n_bootstrap``.
+    """
+    Y = np.concatenate([np.asarray(v, float) for v in y])
+    O = np.concatenate([np.asarray(v, float) for v in o], axis=1)  # (K, n)
+    K = O.shape[0]
+    per = np.sqrt(np.mean((Y[None, :] - O) ** 2, axis=1))
+    idx = rng.integers(0, K, size=(int(n_boot), K))
+    boot = np.array([np.sqrt(np.mean((Y - O[i].mean(axis=0)) ** 2)) for i in idx])
+    q = np.quantile
+    return {"n_draws": int(K), "per_draw_median_mm": float(np.median(per)),
+            "per_draw_q16_mm": float(q(per, 0.16)), "per_draw_q84_mm": float(q(per, 0.84)),
+            "bootstrap_q16_mm": float(q(boot, 0.16)), "bootstrap_q84_mm": float(q(boot, 0.84)),
+            "n_bootstrap": int(n_boot)}
 
 
 def predictive_check(
@@ -602,6 +659,8 @@ def predictive_check(
             })
     allr = np.concatenate([sn.y - sn.mu for sn in snaps])
     allz = np.concatenate([sn.z for sn in snaps])
+    # drawn after the replicates, so the p-values do not depend on it
+    spread = rms_spread([y for _, y, _ in per], [o for _, _, o in per], rng)
     return PredictiveCheck(
         snapshots=snaps, sigma=sig, sigma_source=source, alpha=alpha, c_pointwise=c_pw,
         c_simultaneous=c_sim, c_smooth=c_s,
@@ -610,5 +669,5 @@ def predictive_check(
         p_values=p, adequate=bool(adequate), located=located,
         rms=float(np.sqrt(np.mean(allr**2))),
         coverage=float(np.mean(np.abs(allz) <= c_pw)), noise_lag=float(noise_lag),
-        noise_model=noise_model, noise_pool=pool_info,
+        noise_model=noise_model, noise_pool=pool_info, rms_spread=spread,
     )
