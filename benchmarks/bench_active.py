@@ -38,15 +38,24 @@ Methods
 * ``pyvbmc``: PyVBMC (``max_fun_evals`` = budget; hard bounds = box, plausible
   bounds = the central 80 % of the box, start at the box centre); 1e5 samples
   of the variational posterior, ``vp.pdf`` on the grid in 2D.
-* ``gpry``: GPry (``max_total`` = budget); its nested-sampling MC sample of the
-  surrogate posterior; in 2D its surrogate log-posterior on the grid.
+* ``gpry``: GPry 4.1 (Gammal, Torrado, Lesgourgues 2023) with its defaults: ``Runner``
+  with the NORA acquisition (nested sampling of the surrogate, batches of d points),
+  an RBF GP with an SVM classifier of the region where the log-posterior is effectively
+  -inf, 3d initial points, and its own convergence criteria (CorrectCounter,
+  GaussianKL between successive surrogates, TrainAlignment); ``max_total`` = budget.
+  Seeded through ``seed`` and NumPy's global generator (its nested sampler, UltraNest
+  here, takes no seed). The metrics use 20 000 draws of the same SMC as the other
+  surrogate methods on its surrogate log-likelihood; the moments of GPry's own final
+  nested sample (50 live points per dimension) are kept in the results as
+  ``own_sample``; in 2D its surrogate log-posterior on the grid.
 
 Metrics (per problem and method; medians over the seeds, ``--seeds`` or ``--repeats``)
 -------------------------------------------------------------------
 * ``evals``: log-likelihood evaluations actually made (counted by a wrapper).
 * ``rounds``: sequential rounds of evaluations: 1 for ``sobol_gp`` (one batch);
   ``res.n_rounds`` for ``active``; evaluations for ``pyvbmc`` (sequential);
-  batches of truth evaluations for ``gpry`` (initial design included).
+  for ``gpry`` its batches: the blocks of 3d initial points it drew (it draws another
+  block while too few values count as finite) plus its acquisition batches of d points.
 * ``wall_s``: wall time of the method (design, fits, sampling), without the
   metric computation.
 * ``hellinger`` (2D): Hellinger distance between the reference grid masses and
@@ -114,6 +123,10 @@ ACTIVE_KERNEL = "auto"
 #: surrogate.frame of the active method (--frame; "auto": axes and principal axes, each round)
 ACTIVE_FRAME = "auto"
 GRID_N = 400
+#: particles of the SMC run on GPry's surrogate whose draws the metrics use (GPry's own final
+#: nested sample, 50 live points per dimension, has an effective size of a few hundred to a
+#: few thousand; its metrics are kept in the results as ``own_sample``)
+GPRY_SMC_PARTICLES = 20000
 HIST_N = 30
 
 
@@ -570,7 +583,20 @@ def run_pyvbmc(prob: Problem, budget: int, seed: int) -> dict[str, Any]:
     }
 
 
+def _gpry_rounds(progress: Any) -> tuple[int, int]:
+    """Batches of truth evaluations of a GPry run: (initial-design evaluations, acquisition batches).
+
+    GPry's progress table has one row for the initial design and one per iteration of its
+    loop; an iteration evaluates one batch of ``n_points_per_acq`` points (a row without
+    evaluations is an iteration whose acquisition found no candidate and was redone).
+    """
+    ev = progress.data["evals_truth"].astype(float).fillna(0).to_numpy()
+    return int(ev[0]), int(np.sum(ev[1:] > 0))
+
+
 def _gpry_once(prob: Problem, budget: int, seed: int, surrogate: Any, f: Counter) -> dict[str, Any]:
+    import warnings
+
     from gpry import Runner
 
     def loglike(x):  # one argument: GPry passes the point as one vector
@@ -582,6 +608,9 @@ def _gpry_once(prob: Problem, budget: int, seed: int, surrogate: Any, f: Counter
     # are found, up to max_initial: keep max_initial a multiple of n_initial so that
     # this phase cannot overshoot the budget.
     max_initial = n_initial * max(1, min(budget, round(30 * d**1.5)) // n_initial)
+    # GPry's nested sampler (UltraNest, in its acquisition NORA and in the final sample)
+    # takes no seed: it draws from NumPy's global generator, so seed that.
+    np.random.seed(seed)
     runner = Runner(
         loglike,
         bounds=prob.bounds.tolist(),
@@ -592,31 +621,69 @@ def _gpry_once(prob: Problem, budget: int, seed: int, surrogate: Any, f: Counter
         plots=False,
         verbose=1,
     )
-    runner.run()
-    n_run = f.n
-    try:  # batches of truth evaluations (initial design included), from GPry's progress table
-        n_batches = int((runner.progress.data["evals_truth"].fillna(0) > 0).sum())
-    except Exception:  # noqa: BLE001
-        n_batches = -1
-    runner.generate_mc_sample()  # output=None: nothing written (output=False is refused)
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message="Seeded runs are not supported for UltraNest")
+        runner.run()  # ends with GPry's own nested sample of its surrogate posterior
+        n_run = f.n
+        if runner.last_mc_samples() is None:  # (a run that stopped in its first iteration)
+            runner.generate_mc_sample()
     mc = runner.last_mc_samples()
-    w = mc.get("w")
+    w_own = mc.get("w")
+    X_own = np.asarray(mc["X"], float)
+    w_own = (np.full(len(X_own), 1.0 / len(X_own)) if w_own is None
+             else np.asarray(w_own, float) / np.sum(w_own))
+    # The draws for the metrics: the same SMC as sobol_gp and active, on GPry's surrogate
+    # log-likelihood (its mean; -inf where its classifier rules a point out). runner.logp is
+    # the surrogate log-posterior (vectorized); its uniform prior is -log(prior volume).
+    from bayescalib.inference.smc import run_smc
+
+    log_volume = float(runner.truth.log_prior_volume)
+    t0 = time.perf_counter()
+    smc = run_smc(
+        lambda Z: np.asarray(runner.logp(Z), float).reshape(-1) + log_volume, make_space(prob),
+        n_particles=GPRY_SMC_PARTICLES, n_rej=20, zeta=0.95, rng=np.random.default_rng(seed),
+    )
+    t_smc = time.perf_counter() - t0
+    n_init_evals, n_batches = _gpry_rounds(runner.progress)
+    # the initial design: blocks of n_initial drawn one after the other (each block a batch)
+    n_init_blocks = math.ceil(n_init_evals / n_initial)
+    crit = {
+        type(cc).__name__: {"value": float(cc.last_value), "limit": float(cc.limit),
+                            "policy": str(getattr(cc, "convergence_policy", ""))}
+        for cc in runner.convergence
+    }
 
     def grid_logpdf(G):
         return np.asarray(runner.logp(G), float).reshape(-1)
 
     return {
-        "samples": np.asarray(mc["X"]),
-        "weights": None if w is None else np.asarray(w, float),
+        "samples": smc.particles,
+        "weights": smc.weights,
         "grid_logpdf": grid_logpdf,
         "grid_kind": "surrogate",
         "n_evals": n_run,
-        "n_rounds": n_batches,
+        "n_rounds": n_init_blocks + n_batches,
         "extra": {
-            "converged": bool(getattr(runner, "has_converged", False)),
+            "converged": bool(runner.has_converged),
+            "criteria": crit,
+            "n_initial_evals": n_init_evals,
+            "n_initial_blocks": n_init_blocks,
+            "n_acquisition_batches": n_batches,
+            "n_points_per_acq": int(runner.n_points_per_acq),
+            "smc_particles": GPRY_SMC_PARTICLES,
+            "smc_wall_s": t_smc,
+            "own_sample": {"draws": len(w_own), "ess": float(1.0 / np.sum(w_own**2)),
+                           **moment_metrics(prob, X_own, w_own)},
             "mc_evals_after_run": f.n - n_run,
+            "gpry_version": _gpry_version(),
         },
     }
+
+
+def _gpry_version() -> str:
+    from importlib.metadata import version
+
+    return version("gpry")
 
 
 def run_gpry(prob: Problem, budget: int, seed: int) -> dict[str, Any]:
@@ -698,19 +765,24 @@ def ref_hist2d(prob: Problem) -> np.ndarray:
     return H / H.sum()
 
 
-def evaluate(prob: Problem, out: dict[str, Any]) -> dict[str, Any]:
-    X = np.asarray(out["samples"], float)
-    w = out.get("weights")
+def moment_metrics(prob: Problem, X: np.ndarray, w: np.ndarray | None) -> dict[str, Any]:
+    """mean_err, sd_err (in reference sd), kl_gauss, mean and sd of (weighted) draws X (n, d)."""
     m, C = weighted_moments(X, w)
     sd = np.sqrt(np.diag(C))
     rsd = prob.ref_sd
-    met = {
+    return {
         "mean_err": float(np.max(np.abs(m - prob.ref_mean) / rsd)),
         "sd_err": float(np.max(np.abs(sd - rsd) / rsd)),
         "kl_gauss": kl_gauss(prob.ref_mean, prob.ref_cov, m, C),
         "mean": m.tolist(),
         "sd": sd.tolist(),
     }
+
+
+def evaluate(prob: Problem, out: dict[str, Any]) -> dict[str, Any]:
+    X = np.asarray(out["samples"], float)
+    w = out.get("weights")
+    met = moment_metrics(prob, X, w)
     if prob.d == 2:
         kind = out.get("grid_kind", "")
         H = None
@@ -858,7 +930,7 @@ def table(
         f"{GRID_N}x{GRID_N} grid against the exact density. mean err / sd err: max over parameters of "
         "|error| / reference sd. KL gauss: KL(reference || method) between moment-matched Gaussians. "
         "rounds: sequential rounds of evaluations (sobol_gp 1; pyvbmc = evaluations; gpry: "
-        "batches of truth evaluations, its initial design included).\n"
+        "initial-design blocks of 3d + acquisition batches of d).\n"
     )
     return head + "\n".join(rows) + "\n" + legend
 
