@@ -887,6 +887,14 @@ class _QuadraticParams:
         return (-(g @ (Z @ R)) * self.c_span, np.diag(GR) * np.diag(R),
                 GR[self.iu] / self.extent[self.iu[1]], float(np.sum(g)))
 
+    def jacobian(self, U: np.ndarray, center: np.ndarray, R: np.ndarray) -> np.ndarray:
+        """d Phi_m(u_i) / d (s, rho, off, phi0), shape (n, 2 d + d (d - 1) / 2 + 1)."""
+        D = U - center
+        Z = D @ R.T
+        j, k = self.iu
+        return np.column_stack([-(Z @ R) * self.c_span, Z * D * np.diag(R),
+                                Z[:, j] * D[:, k] / self.extent[k], np.ones(U.shape[0])])
+
 
 @cache
 def _quadratic_mapping_class():
@@ -980,12 +988,19 @@ def _prefit_quadratic(U: np.ndarray, y: np.ndarray, c_lo: np.ndarray, c_hi: np.n
     x0 = np.clip(x0, np.where(np.isfinite(lb), lb + 1e-9, lb),
                  np.where(np.isfinite(ub), ub - 1e-9, ub))
 
+    def unpack(p):
+        return par.unpack(p[:d], p[d:2 * d], p[2 * d:2 * d + k], p[-1])
+
     def resid(p):
-        c, R, p0 = par.unpack(p[:d], p[d:2 * d], p[2 * d:2 * d + k], p[-1])
-        return quadratic_mean(U, c, R, p0, top, warped) - y
+        return quadratic_mean(U, *unpack(p), top, warped) - y
+
+    def jac(p):
+        c, R, p0 = unpack(p)
+        dm = 1.0 / (1.0 + quadratic_misfit(U, c, R, p0)) if warped else -np.ones(U.shape[0])
+        return dm[:, None] * par.jacobian(U, c, R)
 
     try:
-        p = least_squares(resid, x0, bounds=(lb, ub), method="trf", max_nfev=100 * (2 * d + k)).x
+        p = least_squares(resid, x0, jac=jac, bounds=(lb, ub), method="trf", max_nfev=200).x
     except (ValueError, np.linalg.LinAlgError):  # pragma: no cover - degenerate targets
         p = x0
     return par.unpack(p[:d], p[d:2 * d], p[2 * d:2 * d + k], p[-1])
