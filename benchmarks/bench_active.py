@@ -934,8 +934,8 @@ def main(argv: list[str] | None = None) -> int:
                     help="surrogate.frame of the active method (default auto: ARD kernels in the "
                          "parameter axes and in the principal axes, the larger evidence wins)")
     ap.add_argument("--mean", default=None, choices=["auto", "constant", "quadratic"],
-                    help="surrogate.mean of the active method (default: the schema's, auto: "
-                         "the misfit-shaped quadratic mean from 3 parameters on)")
+                    help="surrogate.mean of the active method (default: the schema's, constant; "
+                         "quadratic: the misfit-shaped mean; auto: quadratic from 3 parameters on)")
     args = ap.parse_args(argv)
     global ACTIVE_KERNEL, ACTIVE_FRAME, ACTIVE_MEAN
     ACTIVE_MEAN = args.mean
