@@ -122,6 +122,8 @@ ALL_METHODS = ["sobol_gp", "active", "pyvbmc", "gpry"]
 ACTIVE_KERNEL = "auto"
 #: surrogate.frame of the active method (--frame; "auto": axes and principal axes, each round)
 ACTIVE_FRAME = "auto"
+#: surrogate.mean of the active method (--mean; None: the schema's default)
+ACTIVE_MEAN: str | None = None
 GRID_N = 400
 #: particles of the SMC run on GPry's surrogate whose draws the metrics use (GPry's own final
 #: nested sample, 50 live points per dimension, has an effective size of a few hundred to a
@@ -420,12 +422,16 @@ class Counter:
 
     def __init__(self, f: Callable[[np.ndarray], np.ndarray]) -> None:
         self.f, self.n, self.calls = f, 0, 0
+        self.best = -math.inf  # the largest finite value seen
 
     def __call__(self, X: np.ndarray) -> np.ndarray:
         X = np.atleast_2d(np.asarray(X, float))
         self.n += X.shape[0]
         self.calls += 1
-        return np.asarray(self.f(X), float).reshape(-1)
+        y = np.asarray(self.f(X), float).reshape(-1)
+        if np.isfinite(y).any():
+            self.best = max(self.best, float(np.max(y[np.isfinite(y)])))
+        return y
 
     def scalar(self, x: np.ndarray) -> float:
         return float(self(np.asarray(x, float).reshape(1, -1))[0])
@@ -496,11 +502,17 @@ def run_active(prob: Problem, budget: int, seed: int) -> dict[str, Any]:
                         "max_abs_error": t.get("max_abs_error"),
                         "check_max_underprediction": t.get("check_max_underprediction"),
                         "mean": rec["posterior"]["mean"], "sd": rec["posterior"]["sd"]})
+        err = t.get("max_abs_error")
+        print(f"    round {rec['round']}: {rec['n_solves']} evals, best {f.best:.4g}, "
+              f"trust err {'-' if err is None else f'{err:.3g}'}, "
+              f"mean err {np.max(np.abs(np.asarray(rec['posterior']['mean']) - prob.ref_mean) / prob.ref_sd):.3g} ref sd",
+              flush=True)
 
     res = calibrate(
         f, space, bound=prob.B,
         active={"n_initial": n0, "batch_size": 8, "max_solves": budget},
-        surrogate={"ard": prob.d > 2, "kernel": ACTIVE_KERNEL, "frame": ACTIVE_FRAME},
+        surrogate={"ard": prob.d > 2, "kernel": ACTIVE_KERNEL, "frame": ACTIVE_FRAME,
+                   **({} if ACTIVE_MEAN is None else {"mean": ACTIVE_MEAN})},
         smc={"n_particles": 4000},
         seed=seed,
         # hetero7d is a least-squares likelihood of H7_K measurements: check the best fit
@@ -993,8 +1005,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--frame", default="auto", choices=["auto", "axes", "principal"],
                     help="surrogate.frame of the active method (default auto: ARD kernels in the "
                          "parameter axes and in the principal axes, the larger evidence wins)")
+    ap.add_argument("--mean", default=None, choices=["auto", "constant", "quadratic"],
+                    help="surrogate.mean of the active method (default: the schema's, constant; "
+                         "quadratic: the misfit-shaped mean; auto: quadratic from 3 parameters on)")
     args = ap.parse_args(argv)
-    global ACTIVE_KERNEL, ACTIVE_FRAME
+    global ACTIVE_KERNEL, ACTIVE_FRAME, ACTIVE_MEAN
+    ACTIVE_MEAN = args.mean
     ACTIVE_KERNEL = args.kernel
     ACTIVE_FRAME = args.frame
     seeds_by_dim = _parse_seeds(args.seeds, args.repeats)
@@ -1014,7 +1030,7 @@ def main(argv: list[str] | None = None) -> int:
     results: dict[str, Any] = {
         "config": {
             "problems": problems, "methods": methods, "budget_override": args.budget, "active_kernel": args.kernel,
-            "active_frame": args.frame,
+            "active_frame": args.frame, "active_mean": args.mean,
             "repeats": args.repeats, "seeds": args.seeds, "grid": GRID_N, "python": platform.python_version(),
             "machine": platform.platform(), "cpus": os.cpu_count(),
             "omp_num_threads": os.environ.get("OMP_NUM_THREADS"),

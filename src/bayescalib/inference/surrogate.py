@@ -49,10 +49,39 @@ Log inputs (``log_offset``; ``surrogate.inputs``)
     when the kernel has one length scale per input; with a single length scale (the
     2-D studies) ``auto`` keeps linear inputs (:data:`LOG_INPUTS_NOTE`).
 
-Constant prior mean (App. D remark)
+Constant prior mean (App. D remark; ``mean="constant"``)
     m = min(L) - f_m (max(L) - min(L)),   f_m = ``mean_offset_factor`` = 1.0,
     so far from the data the surrogate log-likelihood falls below every observed
     value (the likelihood tends to zero rather than to exp(0)).
+
+Misfit-shaped prior mean (``mean="quadratic"``; ``surrogate.mean``)
+    With the constant mean the surrogate reverts to a floor away from the solves, so
+    the SMC posterior sits where the best solves are and an active design crawls up a
+    likelihood's slope a few posterior sd per round (measured on the 7-D benchmark,
+    docs/bench_active.md). A Gaussian log-likelihood of a smooth forward model is close
+    to quadratic near its mode (L = B - Phi, Phi ~ phi0 + 1/2 (x - x0)^T H (x - x0) by
+    Gauss-Newton), so the mean is given that shape:
+
+        Phi_m(u) = phi0 + 1/2 | R (u - c) |^2,   R upper triangular, R^T R = H in u,
+
+    in the GP's input frame u (log inputs, box scaling and principal frame included),
+    carried through the output transform: m(u) = log(1 + Phi_m(u)) for the log-misfit
+    GP (the quadratic misfit, warped as the targets are), m(u) = top - Phi_m(u) for a GP
+    of L, top = B (so the mean never exceeds the bound) or max(L) + range(L) without
+    one. This is VBMC's negative-quadratic mean function (Acerbi 2018, 2020:
+    m(x) = m0 - 1/2 sum_i ((x_i - x0_i) / w_i)^2, fitted with the kernel) with two
+    changes: a full Cholesky factor instead of per-axis widths, because the posteriors
+    here have ridges (E_i along the inflow rate) that a diagonal quadratic in a
+    misplaced frame cannot follow (measured on ``sloppy4d``: the diagonal version
+    mispredicted the next batch by 10^2-10^3 nats, the full one by < 0.05), and the
+    mean built on the misfit, so that it lives in the log-misfit warping the pipeline
+    uses. c, R and phi0 are hyperparameters maximized with the kernel's by the
+    evidence (GPy, analytic gradients through a custom mapping), each start from a
+    bounded least-squares fit of the mean to the targets. Bounds: c within the box's
+    image in the frame widened by half its extent on each side; the diagonal widths
+    1 / R_jj between 1e-4 and 1e2 extents; phi0 >= 0. Far from the solves the
+    surrogate then keeps climbing toward the fitted mode (and falls off quadratically
+    beyond it) instead of reverting to a floor.
 
 Fixed nugget
     sigma_n^2 = f_n (max(L) - min(L)),  f_n = ``nugget_factor`` = 1e-5, fixed
@@ -259,6 +288,15 @@ class GPSurrogate:
     log_offset : (d,) or None: input k enters as log(x_k + log_offset_k) before the
         scaling (``shift`` and ``scale`` are then in those units); NaN entries (or
         None) keep x_k linear (:meth:`warp_inputs`).
+    mean_function : ``"constant"`` (the prior mean is ``mean_const``) or
+        ``"quadratic"`` (the misfit-shaped mean of :func:`quadratic_mean`;
+        ``mean_const`` is then NaN and unused).
+    mean_center, mean_factor : centre c (d,) and upper-triangular factor R (d, d) of the
+        quadratic mean's Hessian R^T R, in the GP's input frame (:meth:`scale_inputs`);
+        None for a constant mean.
+    mean_misfit_min : misfit phi0 (nats) of the quadratic mean at its centre.
+    mean_top : the value the quadratic mean of a GP of L falls from (the bound B, or
+        max(L) + range(L) without one); NaN for the log-misfit GP.
     """
 
     X_train: np.ndarray
@@ -285,6 +323,11 @@ class GPSurrogate:
     kernel: str = "matern32"
     rotation: np.ndarray | None = None
     log_offset: np.ndarray | None = None
+    mean_function: str = "constant"
+    mean_center: np.ndarray | None = None
+    mean_factor: np.ndarray | None = None
+    mean_misfit_min: float = float("nan")
+    mean_top: float = float("nan")
     _cache: dict[str, Any] = field(default_factory=dict, repr=False)
 
     def __post_init__(self) -> None:
@@ -299,6 +342,16 @@ class GPSurrogate:
             self.log_offset = np.asarray(self.log_offset, float).reshape(self.dim)
             if not np.isfinite(self.log_offset).any():
                 self.log_offset = None
+        if self.mean_function not in ("constant", "quadratic"):
+            raise ValueError(f"mean_function must be 'constant' or 'quadratic', got "
+                             f"{self.mean_function!r}")
+        if self.mean_function == "quadratic":
+            self.mean_center = np.asarray(self.mean_center, float).reshape(self.dim)
+            self.mean_factor = np.asarray(self.mean_factor, float).reshape(self.dim, self.dim)
+            self.mean_misfit_min = float(self.mean_misfit_min)
+            self.mean_top = float(self.mean_top)
+        else:
+            self.mean_center = self.mean_factor = None
         if self.chol is None or self.alpha is None:
             self._factorize()
         self.device = _resolve_device(self.device)
@@ -350,7 +403,13 @@ class GPSurrogate:
             "variance": float(self.variance),
             "lengthscale": [float(v) for v in self.lengthscale],
             "ard": bool(self.ard),
-            "mean": float(self.mean_const),
+            "mean": float(self.mean_const) if self.mean_function == "constant" else None,
+            "mean_function": self.mean_function,
+            "mean_center": None if self.mean_center is None else
+            [float(v) for v in self.mean_center],
+            "mean_factor": None if self.mean_factor is None else self.mean_factor.tolist(),
+            "mean_misfit_min": None if self.mean_function == "constant" else
+            float(self.mean_misfit_min),
             "nugget": float(self.nugget),
             "log_marginal_likelihood": float(self.log_marginal_likelihood),
             "input_shift": [float(v) for v in self.shift],
@@ -378,6 +437,20 @@ class GPSurrogate:
         R = np.eye(self.dim) if self.rotation is None else self.rotation
         return R / self.scale[:, None] / self.lengthscale[None, :]
 
+    def prior_mean_latent(self, U: np.ndarray) -> np.ndarray | float:
+        """The GP's prior mean at GP inputs U (M, d) (:meth:`scale_inputs`), in the units
+        of ``y_train``: (M,) for the quadratic mean, the scalar ``mean_const`` otherwise."""
+        if self.mean_function == "constant":
+            return self.mean_const
+        return quadratic_mean(U, self.mean_center, self.mean_factor, self.mean_misfit_min,
+                              self.mean_top, self.warped)
+
+    def prior_mean(self, X: np.ndarray) -> np.ndarray:
+        """The GP's prior mean at X (M, d) in user units, in the units of ``y_train``, (M,)."""
+        X = np.atleast_2d(np.asarray(X, float))
+        return np.broadcast_to(self.prior_mean_latent(self.scale_inputs(X)),
+                               (X.shape[0],)).copy()
+
     def _factorize(self) -> None:
         U = self.scale_inputs(self.X_train)
         K = kernel_matrix(U, U, self.variance, self.lengthscale, self.kernel)
@@ -385,7 +458,7 @@ class GPSurrogate:
         self.chol = np.linalg.cholesky(K)
         from scipy.linalg import cho_solve
 
-        self.alpha = cho_solve((self.chol, True), self.y_train - self.mean_const)
+        self.alpha = cho_solve((self.chol, True), self.y_train - self.prior_mean_latent(U))
 
     # ------------------------------------------------------------------
     def _numpy_cache(self) -> dict[str, Any]:
@@ -474,7 +547,9 @@ class GPSurrogate:
 
         def job(s: int) -> None:
             K = self._unit_kernel_rows(X[s : s + chunk])
-            mean[s : s + chunk] = K @ alpha_s2 + self.mean_const
+            mean[s : s + chunk] = K @ alpha_s2 + (
+                self.mean_const if self.mean_function == "constant"
+                else self.prior_mean(X[s : s + chunk]))
             if return_var:
                 V = solve_triangular(self.chol, K.T, lower=True, check_finite=False)
                 V *= self.variance
@@ -511,7 +586,9 @@ class GPSurrogate:
                     t = torch.sqrt(t2)
                     poly = 1.0 + t + (t2 / 3.0 if self.kernel == "matern52" else 0.0)
                     K = poly.mul_(torch.exp(t.neg())).mul_(self.variance)
-                mean[s : s + chunk] = (K @ c["t_alpha"] + self.mean_const).cpu().numpy()
+                mean[s : s + chunk] = (K @ c["t_alpha"]).cpu().numpy() + (
+                    self.mean_const if self.mean_function == "constant"
+                    else self.prior_mean(X[s : s + chunk]))
                 if return_var:
                     V = torch.linalg.solve_triangular(c["t_L"], K.T, upper=False)
                     v = torch.clamp_min(self.variance - (V * V).sum(0), 0.0)
@@ -587,6 +664,14 @@ class GPSurrogate:
 
         Use ``model.predict_noiseless(surrogate.scale_inputs(X))`` to compare.
         """
+        mapping = None
+        if self.mean_function == "quadratic":
+            lo, hi = frame_extent(self.rotation, self.dim)
+            ext = hi - lo
+            mapping = _quadratic_mapping_class()(
+                self.dim, lo - QUAD_CENTER_MARGIN * ext, hi + QUAD_CENTER_MARGIN * ext, ext,
+                self.mean_top, self.warped, self.mean_center, self.mean_factor,
+                self.mean_misfit_min, fixed=True)
         return _build_gpy(
             self.scale_inputs(self.X_train),
             self.y_train,
@@ -596,6 +681,7 @@ class GPSurrogate:
             self.nugget,
             self.ard,
             self.kernel,
+            mapping,
         )
 
     def gpy_predict(self, X: np.ndarray, return_var: bool = False, model=None):
@@ -634,6 +720,12 @@ class GPSurrogate:
                 f.create_dataset("input_rotation", data=self.rotation)
             if self.log_offset is not None:
                 f.create_dataset("input_log_offset", data=self.log_offset)
+            f.attrs["mean_function"] = self.mean_function
+            if self.mean_function == "quadratic":
+                f.create_dataset("mean_center", data=self.mean_center)
+                f.create_dataset("mean_factor", data=self.mean_factor)
+                f.attrs["mean_misfit_min"] = float(self.mean_misfit_min)
+                f.attrs["mean_top"] = float(self.mean_top)
 
     @classmethod
     def load(cls, path: str | Path, device: str = "auto") -> GPSurrogate:
@@ -664,6 +756,12 @@ class GPSurrogate:
                 kernel=_kernel_name(str(f.attrs.get("kernel", "Matern32"))),
                 rotation=f["input_rotation"][()] if "input_rotation" in f else None,
                 log_offset=f["input_log_offset"][()] if "input_log_offset" in f else None,
+                # format version 2 (before the quadratic mean): a constant mean
+                mean_function=_plain_str(f.attrs.get("mean_function", "constant")),
+                mean_center=f["mean_center"][()] if "mean_center" in f else None,
+                mean_factor=f["mean_factor"][()] if "mean_factor" in f else None,
+                mean_misfit_min=float(f.attrs.get("mean_misfit_min", float("nan"))),
+                mean_top=float(f.attrs.get("mean_top", float("nan"))),
             )
 
     def loo_residuals(self) -> np.ndarray:
@@ -715,11 +813,208 @@ def warp_inputs(X: np.ndarray, log_offset: np.ndarray | None) -> np.ndarray:
     return out
 
 
+# ---------------------------------------------------------------------------------------
+# misfit-shaped (negative-quadratic) prior mean
+
+#: smallest and largest width 1 / R_jj of the quadratic mean along input j, as shares of
+#: the input frame's extent (a width of the whole extent changes the misfit by 1/2 nat
+#: across the box: a direction the likelihood hardly sees)
+QUAD_WIDTH_SHARE = (1e-4, 1e2)
+#: how far outside the box (in the GP's input frame) the quadratic's centre may lie, as a
+#: share of the box's extent on each side
+QUAD_CENTER_MARGIN = 0.5
+
+
+def frame_extent(rotation: np.ndarray | None, d: int) -> tuple[np.ndarray, np.ndarray]:
+    """Lower and upper ends (d,) of the unit box [0, 1]^d in the GP's input frame u V:
+    coordinate j of u V ranges over [sum_i min(0, V_ij), sum_i max(0, V_ij)]."""
+    if rotation is None:
+        return np.zeros(d), np.ones(d)
+    V = np.asarray(rotation, float)
+    return np.minimum(V, 0.0).sum(0), np.maximum(V, 0.0).sum(0)
+
+
+def quadratic_misfit(U: np.ndarray, center: np.ndarray, factor: np.ndarray,
+                     misfit_min: float) -> np.ndarray:
+    """The prior mean's misfit Phi_m(u) = phi0 + 1/2 |R (u - c)|^2, (M,), for U (M, d) in
+    the GP's input frame (nats); R (d, d) upper triangular, R^T R the misfit's Hessian."""
+    Z = (np.asarray(U, float) - center) @ np.asarray(factor, float).T
+    return misfit_min + 0.5 * np.einsum("ij,ij->i", Z, Z)
+
+
+def quadratic_mean(U: np.ndarray, center: np.ndarray, factor: np.ndarray, misfit_min: float,
+                   top: float, warped: bool) -> np.ndarray:
+    """Misfit-shaped prior mean at U (M, d), in the GP's output units (M,).
+
+    The misfit Phi_m of :func:`quadratic_misfit` is carried through the GP's output
+    transform: log1p(Phi_m) for the log-misfit GP, top - Phi_m for a GP of L itself
+    (top = the likelihood's bound B when known, so the mean never exceeds it)."""
+    phi = quadratic_misfit(U, center, factor, misfit_min)
+    return np.log1p(phi) if warped else top - phi
+
+
+class _QuadraticParams:
+    """The map between the quadratic mean's unconstrained-ish parameter vector
+    p = [s (d), rho (d), off (d (d - 1) / 2), phi0] and (c, R, phi0):
+    c = c_lo + (c_hi - c_lo) s with s in [0, 1]; R_jj = exp(rho_j) / e_j with
+    rho_j in [-log 1e2, -log 1e-4] (:data:`QUAD_WIDTH_SHARE`); R_jk = off_jk / e_k above
+    the diagonal (free); phi0 >= 0 (e: the frame's extent)."""
+
+    def __init__(self, c_lo: np.ndarray, c_hi: np.ndarray, extent: np.ndarray):
+        self.c_lo, self.c_span = np.asarray(c_lo, float), np.asarray(c_hi - c_lo, float)
+        self.extent = np.asarray(extent, float)
+        self.d = d = self.extent.size
+        self.iu = np.triu_indices(d, 1)
+        self.rho_bounds = (-np.log(QUAD_WIDTH_SHARE[1]), -np.log(QUAD_WIDTH_SHARE[0]))
+
+    def unpack(self, s, rho, off, phi0) -> tuple[np.ndarray, np.ndarray, float]:
+        R = np.diag(np.exp(np.asarray(rho, float)) / self.extent)
+        R[self.iu] = np.asarray(off, float) / self.extent[self.iu[1]]
+        return self.c_lo + self.c_span * np.asarray(s, float), R, float(phi0)
+
+    def pack(self, center, factor, phi0) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+        R = np.asarray(factor, float)
+        s = np.clip((np.asarray(center, float) - self.c_lo) / self.c_span, 1e-9, 1 - 1e-9)
+        rho = np.clip(np.log(np.diag(R) * self.extent), self.rho_bounds[0] + 1e-9,
+                      self.rho_bounds[1] - 1e-9)
+        return s, rho, R[self.iu] * self.extent[self.iu[1]], max(float(phi0), 1e-12)
+
+    def gradients(self, U: np.ndarray, center: np.ndarray, R: np.ndarray, g: np.ndarray):
+        """Gradients of sum_i g_i Phi_m(u_i) with respect to (s, rho, off, phi0)."""
+        D = U - center
+        Z = D @ R.T
+        GR = (g[:, None] * Z).T @ D  # d/dR_jk = sum_i g_i z_ij d_ik
+        return (-(g @ (Z @ R)) * self.c_span, np.diag(GR) * np.diag(R),
+                GR[self.iu] / self.extent[self.iu[1]], float(np.sum(g)))
+
+    def jacobian(self, U: np.ndarray, center: np.ndarray, R: np.ndarray) -> np.ndarray:
+        """d Phi_m(u_i) / d (s, rho, off, phi0), shape (n, 2 d + d (d - 1) / 2 + 1)."""
+        D = U - center
+        Z = D @ R.T
+        j, k = self.iu
+        return np.column_stack([-(Z @ R) * self.c_span, Z * D * np.diag(R),
+                                Z[:, j] * D[:, k] / self.extent[k], np.ones(U.shape[0])])
+
+
+@cache
+def _quadratic_mapping_class():
+    """The GPy mapping of the misfit-shaped prior mean (built on first use: GPy is
+    imported lazily).
+
+    Parameters (:class:`_QuadraticParams`), in paramz transforms so that L-BFGS-B works
+    without constraints: ``s`` (d,) bounded in (0, 1), ``rho`` (d,) bounded, ``off``
+    free, ``phi0`` positive. The evidence's gradient reaches them through dL/dm (GPy's
+    exact inference passes it to ``update_gradients``)."""
+    from GPy.core import Mapping
+    from GPy.core.parameterization import Param
+
+    class MisfitQuadratic(Mapping):
+        def __init__(self, d: int, c_lo: np.ndarray, c_hi: np.ndarray, extent: np.ndarray,
+                     top: float, warped: bool, center: np.ndarray, factor: np.ndarray,
+                     misfit_min: float, fixed: bool = False):
+            super().__init__(input_dim=d, output_dim=1, name="misfit_quadratic")
+            self.par = _QuadraticParams(c_lo, c_hi, extent)
+            self.top, self.warped = float(top), bool(warped)
+            s, rho, off, phi0 = self.par.pack(center, factor, misfit_min)
+            self.s, self.rho = Param("s", s), Param("rho", rho)
+            self.off, self.phi0 = Param("off", off), Param("phi0", phi0)
+            self.link_parameters(self.s, self.rho, self.off, self.phi0)
+            if fixed:  # a stored surrogate: its exact values, no transform round trip
+                self.fix()
+                self._exact = (np.asarray(center, float), np.asarray(factor, float),
+                               float(misfit_min))
+            else:
+                self._exact = None
+                self.s.constrain_bounded(0.0, 1.0, warning=False)
+                self.rho.constrain_bounded(*self.par.rho_bounds, warning=False)
+                self.phi0.constrain_positive(warning=False)
+
+        def start(self) -> tuple[np.ndarray, ...]:
+            return tuple(np.array(p, float) for p in (self.s, self.rho, self.off, self.phi0))
+
+        def set(self, values: tuple[np.ndarray, ...]) -> None:
+            self.s[:], self.rho[:], self.off[:], self.phi0[:] = values
+
+        def values(self) -> tuple[np.ndarray, np.ndarray, float]:
+            """(centre (d,), factor R (d, d), misfit at the centre)."""
+            if self._exact is not None:
+                return self._exact
+            return self.par.unpack(self.s, self.rho, self.off, self.phi0[0])
+
+        def f(self, X):
+            c, R, p = self.values()
+            return quadratic_mean(X, c, R, p, self.top, self.warped)[:, None]
+
+        def _dm_dphi(self, X):
+            c, R, p = self.values()
+            phi = quadratic_misfit(X, c, R, p)
+            return c, R, (1.0 / (1.0 + phi) if self.warped else -np.ones_like(phi))
+
+        def update_gradients(self, dL_dF, X):
+            c, R, dm = self._dm_dphi(X)
+            gs, grho, goff, gphi = self.par.gradients(X, c, R, dL_dF[:, 0] * dm)
+            self.s.gradient, self.rho.gradient, self.off.gradient = gs, grho, goff
+            self.phi0.gradient = gphi
+
+        def gradients_X(self, dL_dF, X):
+            c, R, dm = self._dm_dphi(X)
+            return (dL_dF[:, 0] * dm)[:, None] * ((X - c) @ R.T @ R)
+
+    return MisfitQuadratic
+
+
+def _prefit_quadratic(U: np.ndarray, y: np.ndarray, c_lo: np.ndarray, c_hi: np.ndarray,
+                      extent: np.ndarray, top: float, warped: bool
+                      ) -> tuple[np.ndarray, np.ndarray, float]:
+    """Least-squares fit of the misfit-shaped mean to the targets: the start of the
+    evidence maximization. From the centre at the best training point, widths a third of
+    the frame's extent, no correlation and phi0 the smallest training misfit, bounded
+    least squares (scipy ``least_squares``, trust-region reflective) over the parameters
+    of :class:`_QuadraticParams`.
+
+    Returns (centre (d,), factor R (d, d), phi0)."""
+    from scipy.optimize import least_squares
+
+    par = _QuadraticParams(c_lo, c_hi, extent)
+    d, k = par.d, len(par.iu[0])
+    phi_train = np.expm1(y) if warped else top - y
+    best = int(np.argmin(phi_train))
+    c0 = np.clip(U[best], c_lo, c_hi)
+    s0, rho0, off0, phi00 = par.pack(c0, np.diag(3.0 / par.extent), float(phi_train.min()))
+    x0 = np.concatenate([s0, rho0, off0, [phi00]])
+    lb = np.concatenate([np.zeros(d), np.full(d, par.rho_bounds[0]), np.full(k, -np.inf), [0.0]])
+    ub = np.concatenate([np.ones(d), np.full(d, par.rho_bounds[1]), np.full(k, np.inf),
+                         [max(float(phi_train.max()), 1.0)]])
+    x0 = np.clip(x0, np.where(np.isfinite(lb), lb + 1e-9, lb),
+                 np.where(np.isfinite(ub), ub - 1e-9, ub))
+
+    def unpack(p):
+        return par.unpack(p[:d], p[d:2 * d], p[2 * d:2 * d + k], p[-1])
+
+    def resid(p):
+        return quadratic_mean(U, *unpack(p), top, warped) - y
+
+    def jac(p):
+        c, R, p0 = unpack(p)
+        dm = 1.0 / (1.0 + quadratic_misfit(U, c, R, p0)) if warped else -np.ones(U.shape[0])
+        return dm[:, None] * par.jacobian(U, c, R)
+
+    try:
+        p = least_squares(resid, x0, jac=jac, bounds=(lb, ub), method="trf", max_nfev=200).x
+    except (ValueError, np.linalg.LinAlgError):  # pragma: no cover - degenerate targets
+        p = x0
+    return par.unpack(p[:d], p[d:2 * d], p[2 * d:2 * d + k], p[-1])
+
+
 def _kernel_name(stored: str) -> str:
     for name, (_, gpy_name) in KERNELS.items():
         if gpy_name == stored:
             return name
     raise ValueError(f"unknown kernel {stored!r} in a surrogate file")
+
+
+def _plain_str(value: Any) -> str:
+    return value.decode() if isinstance(value, bytes) else str(value)
 
 
 def _bound_attr(value: Any) -> float | None:
@@ -729,7 +1024,10 @@ def _bound_attr(value: Any) -> float | None:
     return float(value)
 
 
-def _build_gpy(U, y, mean_const, variance, lengthscale, nugget, ard, kernel="matern32"):
+def _build_gpy(U, y, mean_const, variance, lengthscale, nugget, ard, kernel="matern32",
+               mapping=None):
+    """GPy ``GPRegression`` on the GP inputs U with a fixed nugget; the prior mean is
+    ``mapping`` (a GPy mapping, e.g. the quadratic one) or the fixed constant ``mean_const``."""
     import GPy
 
     d = U.shape[1]
@@ -739,8 +1037,11 @@ def _build_gpy(U, y, mean_const, variance, lengthscale, nugget, ard, kernel="mat
         lengthscale=np.array(lengthscale, float) if ard else float(np.ravel(lengthscale)[0]),
         ARD=ard,
     )
-    mf = GPy.mappings.Constant(d, 1, value=float(mean_const))
-    mf.fix()
+    if mapping is None:
+        mf = GPy.mappings.Constant(d, 1, value=float(mean_const))
+        mf.fix()
+    else:
+        mf = mapping
     model = GPy.models.GPRegression(
         np.asarray(U, float), np.asarray(y, float)[:, None], kernel=kern, mean_function=mf,
         noise_var=float(nugget),
@@ -767,6 +1068,7 @@ def fit_gp(
     kernel: str = "matern32",
     rotation: np.ndarray | None = None,
     log_offset: np.ndarray | None = None,
+    mean: str = "constant",
 ) -> GPSurrogate:
     """Train the GP surrogate of the log-likelihood (paper Sec. 3.2, App. D).
 
@@ -807,6 +1109,11 @@ def fit_gp(
     log_offset
         (d,) offsets of the log inputs (:func:`log_input_offsets`; NaN: linear), applied
         before the box scaling (the bounds are mapped alike); None: all linear.
+    mean
+        ``"constant"``: the fixed constant mean of ``mean_offset_factor``;
+        ``"quadratic"``: the misfit-shaped mean (module docstring), its centre, widths
+        and phi0 fitted by the evidence jointly with the kernel, starting from a
+        least-squares fit to the targets (:func:`_prefit_quadratic`).
 
     Returns
     -------
@@ -827,6 +1134,8 @@ def fit_gp(
         raise ValueError(f"restarts must be >= 1, got {restarts}")
     if kernel not in KERNELS:
         raise ValueError(f"kernel must be one of {sorted(KERNELS)}, got {kernel!r}")
+    if mean not in ("constant", "quadratic"):
+        raise ValueError(f"mean must be 'constant' or 'quadratic', got {mean!r}")
     ok = np.isfinite(y) & np.all(np.isfinite(X), axis=1)
     n_excluded = int((~ok).sum())
     X, y = X[ok], y[ok]
@@ -868,9 +1177,24 @@ def fit_gp(
         mean_const = float(y.max() + mean_offset_factor * y_range)
     nugget = float(nugget_factor * y_range)
 
-    v0 = float(np.mean((y - mean_const) ** 2))
+    mapping, quad0, top = None, None, float("nan")
+    if mean == "quadratic":
+        f_lo, f_hi = frame_extent(rotation, d)
+        ext = f_hi - f_lo
+        c_lo, c_hi = f_lo - QUAD_CENTER_MARGIN * ext, f_hi + QUAD_CENTER_MARGIN * ext
+        if not warp:  # the mean of L falls from the bound (or above every value)
+            top = bound if bound is not None else float(y.max() + y_range)
+        quad0 = _prefit_quadratic(U, y, c_lo, c_hi, ext, top, warp)
+        mapping = _quadratic_mapping_class()(d, c_lo, c_hi, ext, top, warp, *quad0)
+        start = mapping.start()
+        m_train = quadratic_mean(U, *quad0, top, warp)
+        mean_const = float("nan")
+    else:
+        m_train = mean_const
+    v0 = float(np.mean((y - m_train) ** 2))
+    v0 = v0 if v0 > 0 else y_range**2
     l0 = np.full(d if ard else 1, 0.3)
-    model = _build_gpy(U, y, mean_const, v0, l0, nugget, ard, kernel)
+    model = _build_gpy(U, y, mean_const, v0, l0, nugget, ard, kernel, mapping)
     rng = np.random.default_rng(seed)
     best = None
     for r in range(restarts):
@@ -881,6 +1205,8 @@ def fit_gp(
             ls = 10 ** rng.uniform(np.log10(0.05), np.log10(1.0), size=l0.shape)
         model.kern.variance[:] = v
         model.kern.lengthscale[:] = ls
+        if mapping is not None:  # every start from the least-squares mean
+            mapping.set(start)
         try:
             with np.errstate(over="ignore"), warnings.catch_warnings():
                 # paramz's log-exp transform overflows harmlessly on wild line-search steps
@@ -892,10 +1218,12 @@ def fit_gp(
             continue
         log.info("GP restart %d: log evidence %.6g", r, lml)
         if np.isfinite(lml) and (best is None or lml > best[0]):
-            best = (lml, float(model.kern.variance[0]), np.array(model.kern.lengthscale, float))
+            best = (lml, float(model.kern.variance[0]), np.array(model.kern.lengthscale, float),
+                    None if mapping is None else mapping.values())
     if best is None:
         raise RuntimeError("every GP hyperparameter optimization failed")
-    lml, var, ls = best
+    lml, var, ls, quad = best
+    quad = quad if quad is not None else (None, None, float("nan"))
     return GPSurrogate(
         X_train=X,
         y_train=y,
@@ -916,6 +1244,11 @@ def fit_gp(
         kernel=kernel,
         rotation=rotation,
         log_offset=log_offset,
+        mean_function=mean,
+        mean_center=quad[0],
+        mean_factor=quad[1],
+        mean_misfit_min=quad[2],
+        mean_top=top,
     )
 
 
@@ -1001,6 +1334,18 @@ def _overshoots(gp: GPSurrogate, bounds: np.ndarray, bound: float, n: int = 4096
     return bool(np.max(gp.predict_latent(Z)) > bound + OVERSHOOT_NATS)
 
 
+#: smallest number of parameters from which ``surrogate.mean: auto`` is the quadratic mean
+QUADRATIC_MEAN_FROM_DIM = 3
+
+
+def resolve_mean(mean: str, dim: int) -> str:
+    """The ``surrogate.mean`` setting for a ``dim``-dimensional input: ``"auto"`` is the
+    quadratic mean from :data:`QUADRATIC_MEAN_FROM_DIM` dimensions on, else constant."""
+    if mean == "auto":
+        return "quadratic" if dim >= QUADRATIC_MEAN_FROM_DIM else "constant"
+    return mean
+
+
 def resolve_ard(ard: bool | str, dim: int) -> bool:
     """The ``surrogate.ard`` setting for a ``dim``-dimensional input: ``"auto"`` is
     one length scale per input from three dimensions on."""
@@ -1042,7 +1387,8 @@ def fit_from_config(X: np.ndarray, y: np.ndarray, surrogate: dict[str, Any],
           "optimizer": surrogate["optimizer"],
           "restarts": surrogate["restarts"], "seed": surrogate["seed"], "bounds": bounds,
           "mean_offset_factor": surrogate["mean_offset_factor"],
-          "nugget_factor": surrogate["nugget_factor"], "bound": bound}
+          "nugget_factor": surrogate["nugget_factor"], "bound": bound,
+          "mean": resolve_mean(surrogate.get("mean", "auto"), np.shape(X)[1])}
     output = surrogate["output"]
     warps = [False] if bound is None or output == "loglik" else \
         [True] if output == "log_misfit" else [False, True]
