@@ -176,6 +176,16 @@ def test_acquire_round_refuses_records_that_are_not_the_chosen_batch():
 
 
 # ------------------------------------------------------------------ the whole loop
+def _assert_closed_form(res, mean, cov):
+    """The result's weighted moments: means within 0.3 sd, sds within 25 %."""
+    sd = np.sqrt(np.diag(cov))
+    W = res.smc.weights / res.smc.weights.sum()
+    m = W @ res.smc.particles
+    s = np.sqrt(W @ (res.smc.particles - m) ** 2)
+    assert np.all(np.abs(m - mean) / sd < 0.3), (m, mean)
+    assert np.all(np.abs(s / sd - 1) < 0.25), (s, sd)
+
+
 def test_active_calibration_converges_to_the_closed_form_posterior():
     """Correlated 2D Gaussian (closed form). The stop rule's own tolerances (0.2 sd in
     the mean, 20 % in the sd) plus SMC noise (N = 2000: about 0.05 sd) bound the
@@ -188,12 +198,7 @@ def test_active_calibration_converges_to_the_closed_form_posterior():
                                                     "n_rej": 10})
     assert res.converged, res.reason
     assert res.n_evaluations < 96
-    sd = np.sqrt(np.diag(cov))
-    W = res.smc.weights / res.smc.weights.sum()
-    m = W @ res.smc.particles
-    s = np.sqrt(W @ (res.smc.particles - m) ** 2)
-    assert np.all(np.abs(m - mean) / sd < 0.3), (m, mean)
-    assert np.all(np.abs(s / sd - 1) < 0.25), (s, sd)
+    _assert_closed_form(res, mean, cov)
 
 
 def test_lighter_round_smc_still_reports_the_posterior_with_the_full_settings():
@@ -203,21 +208,14 @@ def test_lighter_round_smc_still_reports_the_posterior_with_the_full_settings():
     noise to the stop rule's view of the mean, well inside its 0.2 sd)."""
     mean, cov = np.array([0.4, -0.3]), np.array([[0.09, 0.06], [0.06, 0.16]])
     space = _space([(-3, 3), (-3, 3)])
-    sizes = []
     res = calibrate(_gaussian_misfit(mean, cov), space, bound=0.0,
                     active={"n_initial": 16, "batch_size": 8, "max_solves": 96,
                             "smc": {"n_particles": 300, "n_rej": 5}},
                     surrogate={"restarts": 2}, smc={"n_particles": 2000, "zeta": 0.95,
-                                                    "n_rej": 10},
-                    callback=lambda rec: sizes.append(rec))
+                                                    "n_rej": 10})
     assert res.converged, res.reason
     assert res.smc.particles.shape[0] == 2000
-    sd = np.sqrt(np.diag(cov))
-    W = res.smc.weights / res.smc.weights.sum()
-    m = W @ res.smc.particles
-    s = np.sqrt(W @ (res.smc.particles - m) ** 2)
-    assert np.all(np.abs(m - mean) / sd < 0.3), (m, mean)
-    assert np.all(np.abs(s / sd - 1) < 0.25), (s, sd)
+    _assert_closed_form(res, mean, cov)
 
 
 def test_round_smc_overrides_only_what_it_names():
