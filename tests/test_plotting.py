@@ -537,3 +537,21 @@ def test_the_rounds_figure_marks_the_random_check_points_apart_from_the_acquired
     assert "random check point, next round" not in labels
     with pytest.raises(ValueError, match="4 batch points but 3 kinds"):
         plot_rounds(*args, **kw, batch_kinds=[["check"] * 3, None])
+
+
+def test_residual_bands_name_the_located_mismatch_and_its_core(tmp_path):
+    from bayescalib.plotting.diagnosis import plot_residual_bands
+
+    s = np.linspace(0.0, 1.0, 21)
+    pan = {"s": s, "r": 0.01 * np.sin(3 * s), "r_smooth": 0.01 * np.sin(3 * s),
+           "sd": np.full(21, 1e-3), "sd_smooth": np.full(21, 5e-4), "c_pw": 1.96,
+           "c_sim": 3.0, "c_smooth": 2.8, "label": "load_1"}
+    plain = dict(pan)  # the first panel has no located interval, the second has
+    shaded = {**pan, "intervals": [[0.2, 0.9]], "cores": [[0.4, 0.7]]}
+    _, fig = plot_residual_bands([plain, shaded], [tmp_path / "r.png"], row_titles=["model"],
+                              return_figure=True)
+    labels = [t.get_text() for t in fig.axes[0].get_legend().get_texts()]
+    assert "located mismatch" in labels and any(t.startswith("its core") for t in labels)
+    _, fig = plot_residual_bands([plain], [tmp_path / "q.png"], row_titles=["model"],
+                              return_figure=True)
+    assert "located mismatch" not in [t.get_text() for t in fig.axes[0].get_legend().get_texts()]

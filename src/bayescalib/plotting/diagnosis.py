@@ -16,6 +16,7 @@ from collections.abc import Sequence
 
 import numpy as np
 from matplotlib.figure import Figure
+from matplotlib.patches import Patch
 
 from ._checks import PathsLike, as_paths, finish
 from .style import COLORS, paper_style
@@ -53,6 +54,7 @@ def plot_residual_bands(
     with paper_style():
         fig = Figure(figsize=(3.6 * cols + 0.6, 2.6 * rows + 0.4), layout="constrained")
         axes = np.atleast_2d(fig.subplots(rows, cols, squeeze=False, sharey=True))
+        shaded = False
         for k, pan in enumerate(panels):
             ax = axes[k // cols, k % cols]
             s = np.asarray(pan["s"], dtype=float)
@@ -74,13 +76,19 @@ def plot_residual_bands(
                 ax.axvspan(a, b, color=COLORS["truth"], alpha=0.15, lw=0)
             for a, b in pan.get("cores", []):
                 ax.axvspan(a, b, color=COLORS["truth"], alpha=0.25, lw=0)
+            shaded |= bool(pan.get("intervals"))
             ax.axhline(0.0, color="k", lw=0.5)
             ax.set_title(f"{row_titles[k // cols]}: {pan['label']}", fontsize="medium")
             if k // cols == rows - 1:
                 ax.set_xlabel("arc length s [mm]")
             if k % cols == 0:
                 ax.set_ylabel("residual [µm]")
-        axes[0, 0].legend(loc="best", fontsize="x-small")
+        handles, labels = axes[0, 0].get_legend_handles_labels()
+        if shaded:  # the spans of any panel, named once
+            handles += [Patch(color=COLORS["truth"], alpha=0.15, lw=0),
+                        Patch(color=COLORS["truth"], alpha=0.15 + 0.25 * 0.85, lw=0)]
+            labels += ["located mismatch", "its core (>= half the largest)"]
+        axes[0, 0].legend(handles, labels, loc="best", fontsize="x-small")
         return finish(fig, out_paths, dpi, return_figure)
 
 
