@@ -639,12 +639,15 @@ def test_an_extension_with_a_step_at_zero_is_not_trained_on_base_solves(tmp_path
     """The permeable biofilm's phi -> 0+ is the drained biofilm, not the base model:
     base solves would put a jump on the edge of the extended surrogate's box, so they
     are not reused; a continuous candidate reuses them at phi = 0."""
+    from bayescalib.config import validate
     from bayescalib.diagnosis.extended import CandidateSpec, extended_calibration
     from bayescalib.diagnosis.stage import resolve_candidates
     from bayescalib.stages import chain
 
-    perm = next(c for c in resolve_candidates({"type": "fsi"}, {}) if c.name == "permeability")
-    growth = next(c for c in resolve_candidates({"type": "fsi"}, {}) if c.name == "growth")
+    diagnose = validate({"study": "s"}, "study")["diagnose"]
+    perm = next(c for c in resolve_candidates({"type": "fsi"}, diagnose)
+                if c.name == "permeability")
+    growth = next(c for c in resolve_candidates({"type": "fsi"}, diagnose) if c.name == "growth")
     assert perm.continuous is False and growth.continuous is True
     seen = {}
 

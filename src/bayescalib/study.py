@@ -334,6 +334,10 @@ class Study:
                 f"{where}: diagnose.candidates is required for a {cfg['forward_model']['type']} "
                 "forward model (the built-in candidate library is that of the fsi model)"
             )
+        for name, (lo, hi) in dg["priors"].items():
+            if not lo < hi:
+                raise ConfigError(f"{where}: diagnose.priors.{name}: lo must be < hi, "
+                                  f"got {[lo, hi]}")
         for i, c in enumerate(dg["candidates"] or []):
             if c["step"] == 0:
                 raise ConfigError(f"{where}: diagnose.candidates[{i}].step must not be 0")

@@ -69,7 +69,7 @@ from bayescalib.diagnosis.extended import CandidateSpec, extended_calibration, j
 from bayescalib.inference.posterior import equal_weight_draws
 from bayescalib.stages import model_interfaces
 
-__all__ = ["DEFAULT_FSI_PRIORS", "IMAGE_NOISE_LAG_PIXELS", "decide_verdict", "explains_mismatch",
+__all__ = ["IMAGE_NOISE_LAG_PIXELS", "decide_verdict", "explains_mismatch",
            "noise_lag", "plain_words", "reference_noise", "resolve_candidates", "resolve_noise_model",
            "retry_steps", "run_diagnosis",
            "thinned_observations"]
@@ -77,13 +77,6 @@ __all__ = ["DEFAULT_FSI_PRIORS", "IMAGE_NOISE_LAG_PIXELS", "decide_verdict", "ex
 log = logging.getLogger(__name__)
 
 ABSORBED = "mismatch absorbed by the base parameters; calibration off, no physics missing"
-
-#: prior range of phi in the extended calibration of the built-in FSI candidates
-DEFAULT_FSI_PRIORS = {
-    "layer": (-2.0, 2.0), "growth": (-0.06, 0.06), "attachment": (0.0, 8.0e-4),
-    "inflow_skew": (-0.8, 0.8), "stiffening": (0.0, 80.0), "gravity": (-200.0, 200.0),
-    "permeability": (0.0, 2000.0),
-}
 
 MISREGISTERED = ("mismatch explained by a misregistration of the observed interfaces "
                  "(not physics)")
@@ -108,7 +101,8 @@ class PredictiveCheckError(ValueError):
 
 def resolve_candidates(fm: Mapping[str, Any], diagnose: Mapping[str, Any]) -> list[CandidateSpec]:
     """The candidates to test: ``diagnose.candidates`` or, for the fsi model, the built-in
-    library (:data:`bayescalib.models.fsi.physics.CANDIDATES`) minus those already switched on."""
+    library (:data:`bayescalib.models.fsi.physics.CANDIDATES`) minus those already switched on,
+    with the prior ranges of ``diagnose.priors`` (a validated ``diagnose`` section)."""
     given = diagnose.get("candidates")
     if given:
         return [CandidateSpec(name=c["name"], target=c["target"], step=float(c["step"]),
@@ -127,7 +121,7 @@ def resolve_candidates(fm: Mapping[str, Any], diagnose: Mapping[str, Any]) -> li
         if (physics.get(name) or {}).get("enabled"):
             continue  # already part of the model being diagnosed
         out.append(CandidateSpec(name=name, target=c.key, step=c.typical,
-                                 prior=DEFAULT_FSI_PRIORS[name], unit=c.unit,
+                                 prior=tuple(diagnose["priors"][name]), unit=c.unit,
                                  switches={f"physics.{name}.enabled": True}, summary=c.summary,
                                  continuous=c.continuous))
     return out
