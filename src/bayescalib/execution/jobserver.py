@@ -507,8 +507,14 @@ def serve(path: str, parent: int | None = None, preload: tuple[str, ...] = _PREL
             import matplotlib
 
             matplotlib.use("Agg")  # the figure stages' backend, chosen once here
+            from bayescalib.plotting.style import warm_up
         except ImportError:
             pass
+        else:
+            try:  # fonts, mathtext grammar: paid here once, not in every figure job
+                warm_up()
+            except Exception as exc:  # noqa: BLE001 - a job pays them itself; serve on
+                print(f"{name}: figure warm-up failed ({exc})", flush=True)
         from bayescalib.inference.surrogate import gpu_possible
 
         if gpu_possible():  # a surrogate on device "auto" may use it
