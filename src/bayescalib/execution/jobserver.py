@@ -191,6 +191,20 @@ def _gather(args: Mapping[str, Any]) -> None:
            _literal(args["n_train"]), args["out"])
 
 
+def _summary(args: Mapping[str, Any]) -> None:
+    from bayescalib.stages import collect_timings, design_summary, setup_logging, summary
+
+    setup_logging(args["log"])
+    extra = {"design": design_summary(args["strategy"], args.get("active", []),
+                                      int(args["n_solves"])),
+             "timings_s": collect_timings(args["root"])}
+    if args.get("convergence"):
+        extra["gp_convergence"] = list(args["convergence"])
+    summary(args["study"], _literal(args["parameters"]), _literal(args["measures"]),
+            args["posterior"], args["training"], args["particles"],
+            _literal(args["figure_map"]), args["out"], extra=extra)
+
+
 def _predictive_solve(args: Mapping[str, Any]) -> None:
     from bayescalib.models.forward import solve_point
     from bayescalib.stages import setup_logging
@@ -268,6 +282,7 @@ STAGES: dict[str, Callable[[Mapping[str, Any]], None]] = {
     "smc": _smc,
     "acquire": _acquire,
     "marginalize": _marginalize,
+    "summary": _summary,
     "fig_response": _fig_response,
     "fig_convergence": _fig_convergence,
     "fig_posterior": _fig_posterior,

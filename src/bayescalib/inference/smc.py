@@ -48,7 +48,6 @@ from dataclasses import dataclass, field
 from typing import Any, Protocol
 
 import numpy as np
-from scipy.optimize import brentq
 from scipy.special import logsumexp
 
 from bayescalib.inference.resampling import systematic_resample
@@ -151,6 +150,10 @@ def next_gamma(ll: np.ndarray, logw: np.ndarray, gamma: float, zeta: float) -> f
 
     if f(1.0) >= 0.0:
         return 1.0
+    # imported here: the jobs that read particles only (bayescalib.inference.posterior,
+    # e.g. the predictive solves in the point job server) need no scipy.optimize
+    from scipy.optimize import brentq
+
     return float(brentq(f, gamma, 1.0, xtol=1e-14, rtol=4 * np.finfo(float).eps, maxiter=500))
 
 
