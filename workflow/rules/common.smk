@@ -175,7 +175,8 @@ PREDICTIVE_JOB = (
     " k {wildcards.k} n {params.n} seed {params.seed}"
     " forward_model {params.forward_model!r:q}"
 )
-# summary.json (the point server: no Snakemake import in the job, the last one of a run)
+# summary.json (the round server, which has scipy.stats imported for the fit check: the
+# last job of a run, it had been a script job that imported Snakemake)
 SUMMARY_JOB = (
     '"$BAYESCALIB_PYTHON" -I -S "$BAYESCALIB_JOB_CLIENT" summary log {log:q} out {output:q}'
     " study {params.study:q} parameters {params.parameters!r:q}"
