@@ -12,11 +12,15 @@ weights and log-likelihoods are bitwise those of the first tree.
 The surrogate: ``--results DIR`` a study's results folder (e.g. the python64 study of
 ``benchmarks/bench_pipeline.py --studies python64 --keep /tmp/bp``:
 ``/tmp/bp/python64_server/results/python64``), whose ``config.yaml`` settings are
-rebuilt here as bench_pipeline builds them (``--study``).
+rebuilt here as bench_pipeline builds them (``--study``). ``--results analytic``
+instead runs ``run_smc`` with the study's SMC settings on a closed-form banana-shaped
+log-likelihood over the python64 box (microseconds per batch): the time is then the
+sampler's own bookkeeping (proposals, prior, acceptance, resampling), the part the
+surrogate's threads do not share.
 
 Usage::
 
-    python benchmarks/bench_smc_stage.py --results DIR [--study python64]
+    python benchmarks/bench_smc_stage.py --results DIR|analytic [--study python64]
         [--trees /work/main,/work/h_smc] [--repeats 3] [--threads 2]
 
 Prints a table and a final one-line JSON summary. No assertions. On a shared machine
@@ -56,6 +60,21 @@ def _child(tree: str, results: str, study: str, threads: int, out: str) -> None:
 
     def call() -> None:
         stages.smc(sur, cfg["smc"], cfg["parameters"], out, threads=threads)
+
+    if results == "analytic":
+        from bayescalib.inference.posterior import write_particles_h5
+        from bayescalib.inference.smc import smc_from_config
+
+        space = stages._space(cfg["parameters"])
+
+        def banana(X: np.ndarray) -> np.ndarray:
+            e = (X[:, 0] - 100.0) / 700.0
+            n = (X[:, 1] + 0.8) / 1.25
+            return (-0.5 * ((n - 0.25 - 0.8 * e**1.5) / 0.04) ** 2
+                    - 0.5 * ((e - 0.4) / 0.2) ** 2)
+
+        def call() -> None:  # the analytic case replaces the stage
+            write_particles_h5(out, smc_from_config(banana, space, cfg["smc"]), space)
 
     call()  # warm-up: imports, first-call caches
     ru0, t0 = resource.getrusage(resource.RUSAGE_SELF), time.perf_counter()
