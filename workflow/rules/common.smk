@@ -175,6 +175,17 @@ PREDICTIVE_JOB = (
     " k {wildcards.k} n {params.n} seed {params.seed}"
     " forward_model {params.forward_model!r:q}"
 )
+# summary.json (the round server, which has scipy.stats imported for the fit check: the
+# last job of a run, it had been a script job that imported Snakemake)
+SUMMARY_JOB = (
+    '"$BAYESCALIB_PYTHON" -I -S "$BAYESCALIB_JOB_CLIENT" summary log {log:q} out {output:q}'
+    " study {params.study:q} parameters {params.parameters!r:q}"
+    " measures {params.measures!r:q} figure_map {params.figure_map!r:q}"
+    " root {params.root:q} strategy {params.strategy:q} n_solves {params.n_solves}"
+    " posterior [ {input.posterior:q} ] training [ {input.training:q} ]"
+    " particles [ {input.particles:q} ] active [ {input.active:q} ]"
+    " convergence [ {input.convergence:q} ]"
+)
 # figures (the round server: Matplotlib imported once per run)
 FIG_RESPONSE_JOB = (
     '"$BAYESCALIB_PYTHON" -I -S "$BAYESCALIB_JOB_CLIENT" fig_response log {log:q}'

@@ -84,6 +84,7 @@ rule fig_posterior:
         f"{R}/logs/{{measure}}/fig_posterior.log",
     benchmark:
         f"{R}/benchmarks/figures/{{measure}}/posterior.tsv"
+    priority: 10  # on the longest chain after the SMC (rule smc)
     shell:
         FIG_POSTERIOR_JOB
 

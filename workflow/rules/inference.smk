@@ -24,6 +24,10 @@ rule smc:
     # the surrogate's chunks on both cores (the same particles, bitwise: tests/test_surrogate.py);
     # Snakemake lowers it to --cores where fewer, and runs it when two cores are free
     threads: 2
+    # after the SMC the longest chain is marginalize -> fig_posterior -> summary: its jobs
+    # go before the other ready ones (fig_response, predictive solves), which fill the
+    # other core
+    priority: 30
     shell:
         SMC_MEASURE_JOB
 
@@ -46,5 +50,6 @@ rule marginalize:
     log:
         f"{R}/logs/{{measure}}/marginalize.log",
     threads: 1
+    priority: 20
     shell:
         MARGINALIZE_JOB

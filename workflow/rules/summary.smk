@@ -26,5 +26,6 @@ rule summary:
         n_solves=lambda wc: len(final_points()),
     log:
         f"{R}/logs/summary.log",
-    script:
-        "../../scripts/summary.py"
+    threads: 1
+    shell:
+        SUMMARY_JOB

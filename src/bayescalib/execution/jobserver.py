@@ -1,5 +1,6 @@
 """A warm process that runs the jobs of a local run (per point: solve, discrepancy;
-per round and per measure: train_surrogate, smc, acquire, marginalize).
+per round and per measure: train_surrogate, smc, acquire, marginalize; the figures and
+summary.json).
 
 Why
 ---
@@ -37,7 +38,10 @@ A run starts two servers side by side (:func:`start_server`): the *point* server
 (``BAYESCALIB_JOBSERVER``) imports only what the per-point jobs need (NumPy, h5py,
 NGSolve, the measures: about 2 s) and serves at once; the *round* server
 (``BAYESCALIB_JOBSERVER_ROUND``) imports GPy, ArviZ, Matplotlib (and torch where a GPU
-can exist) for the per-round, per-measure and figure stages (:data:`ROUND_STAGES`).
+can exist) for the per-round, per-measure, figure and summary stages
+(:data:`ROUND_STAGES`); it also draws one throw-away figure
+(:func:`bayescalib.plotting.style.warm_up`) so that the figure jobs inherit the fonts
+and the mathtext grammar.
 Measured on the smoke study: with one server, the solves that arrived during its
 12 s of GPy/torch/ArviZ imports waited for them, and every per-point job forked from
 a 460 MB process instead of a 160 MB one (fork, copy-on-write and exit about 0.1 s
@@ -191,6 +195,20 @@ def _gather(args: Mapping[str, Any]) -> None:
            _literal(args["n_train"]), args["out"])
 
 
+def _summary(args: Mapping[str, Any]) -> None:
+    from bayescalib.stages import collect_timings, design_summary, setup_logging, summary
+
+    setup_logging(args["log"])
+    extra = {"design": design_summary(args["strategy"], args.get("active", []),
+                                      int(args["n_solves"])),
+             "timings_s": collect_timings(args["root"])}
+    if args.get("convergence"):
+        extra["gp_convergence"] = list(args["convergence"])
+    summary(args["study"], _literal(args["parameters"]), _literal(args["measures"]),
+            args["posterior"], args["training"], args["particles"],
+            _literal(args["figure_map"]), args["out"], extra=extra)
+
+
 def _predictive_solve(args: Mapping[str, Any]) -> None:
     from bayescalib.models.forward import solve_point
     from bayescalib.stages import setup_logging
@@ -268,6 +286,7 @@ STAGES: dict[str, Callable[[Mapping[str, Any]], None]] = {
     "smc": _smc,
     "acquire": _acquire,
     "marginalize": _marginalize,
+    "summary": _summary,
     "fig_response": _fig_response,
     "fig_convergence": _fig_convergence,
     "fig_posterior": _fig_posterior,
@@ -280,7 +299,7 @@ STAGES: dict[str, Callable[[Mapping[str, Any]], None]] = {
 #: server. ``scripts/job.py`` holds the same set (it imports nothing of this package).
 ROUND_STAGES = frozenset({"train_surrogate", "smc", "acquire", "marginalize", "fig_response",
                           "fig_convergence", "fig_posterior", "fig_interfaces", "fig_fields",
-                          "fig_rounds"})
+                          "fig_rounds", "summary"})
 
 #: what the point server imports before it accepts jobs (the heavy part of every
 #: per-point job; also the modules a solve or discrepancy imports on its way, so that
@@ -507,8 +526,14 @@ def serve(path: str, parent: int | None = None, preload: tuple[str, ...] = _PREL
             import matplotlib
 
             matplotlib.use("Agg")  # the figure stages' backend, chosen once here
+            from bayescalib.plotting.style import warm_up
         except ImportError:
             pass
+        else:
+            try:  # fonts, mathtext grammar: paid here once, not in every figure job
+                warm_up()
+            except Exception as exc:  # noqa: BLE001 - a job pays them itself; serve on
+                print(f"{name}: figure warm-up failed ({exc})", flush=True)
         from bayescalib.inference.surrogate import gpu_possible
 
         if gpu_possible():  # a surrogate on device "auto" may use it

@@ -4,10 +4,21 @@ The training inputs of the GP surrogate are the first ``n`` points of one
 scrambled (Owen-scrambled, seeded) Sobol sequence over the box of (x, theta).
 
 Prefix property
-    Points are drawn with ``scipy.stats.qmc.Sobol(d, scramble=True, seed=seed)``
-    and ``random(n)``; the sequence is a deterministic function of ``seed``, so
+    Points are those of ``scipy.stats.qmc.Sobol(d, scramble=True, seed=seed)``
+    and ``random(n)`` (bitwise: :func:`sobol_unit` computes them with NumPy alone,
+    tested against scipy); the sequence is a deterministic function of ``seed``, so
     the first ``n`` points are identical for every larger ``n``. A study that
     raises ``n_train`` reuses all earlier forward solves.
+
+Why not scipy.stats itself
+    The workflow computes the design while Snakemake builds its DAG, before any job
+    can start; importing ``scipy.stats`` there took 1-1.8 s on the development
+    machine, most of the time of a dry run. :func:`sobol_unit` reproduces scipy's
+    algorithm with NumPy: the direction numbers of Joe & Kuo (2008, criterion D(6),
+    read from scipy's data file), the recurrence of Bratley & Fox (1988, Sec. 2),
+    scipy's left linear matrix scramble and digital shift (Matousek 1998) drawn from
+    a generator spawned from ``default_rng(seed)`` in scipy's order, and the Gray-code
+    order of Antonov & Saleev (1979) for the points.
 
 Powers of two
     The balance (net) properties of Sobol points hold for n = 2^m (and for
@@ -24,10 +35,11 @@ Held-out test points
 
 from __future__ import annotations
 
-import warnings
+import importlib.util
+import os
+from functools import cache
 
 import numpy as np
-from scipy.stats import qmc
 
 __all__ = ["scale_to_box", "sobol_design", "sobol_test_points", "sobol_unit"]
 
@@ -41,16 +53,82 @@ def _check_bounds(bounds: np.ndarray) -> np.ndarray:
     return b
 
 
+#: bits of the integers of the sequence (scipy's default): at most 2^30 points
+_BITS = 30
+
+
+@cache
+def _direction_numbers() -> tuple[np.ndarray, np.ndarray]:
+    """scipy's table of primitive polynomials (21201,) and initial direction numbers
+    (21201, 18) (Joe & Kuo 2008, D(6)), read from its data file without importing
+    scipy.stats."""
+    spec = importlib.util.find_spec("scipy")
+    if spec is None or spec.origin is None:  # pragma: no cover - scipy is a dependency
+        raise ImportError("scipy is needed for the Sobol direction numbers")
+    path = os.path.join(os.path.dirname(spec.origin), "stats", "_sobol_direction_numbers.npz")
+    with np.load(path) as f:
+        return f["poly"].astype(np.int64), f["vinit"].astype(np.int64)
+
+
+def _direction_matrix(d: int, bits: int) -> np.ndarray:
+    """Direction numbers v (d, bits) as integers of ``bits`` bits (scipy's
+    ``_initialize_v``: the recurrence of Bratley & Fox 1988, Sec. 2)."""
+    poly, vinit = _direction_numbers()
+    if d > poly.shape[0]:
+        raise ValueError(f"Sobol designs support at most {poly.shape[0]} dimensions, got {d}")
+    v = np.zeros((d, bits), dtype=np.int64)
+    if d == 0:
+        return v
+    v[0, :] = 1
+    for k in range(1, d):
+        p = int(poly[k])
+        m = p.bit_length() - 1
+        row = [int(x) for x in vinit[k, :m]] + [0] * (bits - m)
+        for j in range(m, bits):
+            new = row[j - m]
+            pow2 = 1
+            for i in range(m):
+                pow2 <<= 1
+                if (p >> (m - 1 - i)) & 1:
+                    new ^= pow2 * row[j - i - 1]
+            row[j] = new
+        v[k] = row
+    return v << (bits - 1 - np.arange(bits))
+
+
 def sobol_unit(d: int, n: int, seed: int) -> np.ndarray:
-    """First ``n`` points of the scrambled Sobol sequence in [0, 1)^d, shape (n, d)."""
+    """First ``n`` points of the scrambled Sobol sequence in [0, 1)^d, shape (n, d).
+
+    Bitwise the points of ``scipy.stats.qmc.Sobol(d, scramble=True,
+    seed=np.random.default_rng(seed)).random(n)`` (module docstring), computed without
+    importing scipy.stats.
+    """
     if n < 0:
         raise ValueError(f"n must be >= 0, got {n}")
-    engine = qmc.Sobol(d=d, scramble=True, seed=np.random.default_rng(seed))
-    if n == 0:
-        return np.empty((0, d))
-    with warnings.catch_warnings():
-        warnings.filterwarnings("ignore", message=".*balance properties.*")
-        return engine.random(n)
+    if n > 2**_BITS:
+        raise ValueError(f"at most 2**{_BITS} Sobol points, got n = {n}")
+    bits = _BITS
+    sv = _direction_matrix(d, bits)
+    # scipy's engine draws its scrambling from a child of the generator it is given
+    bg = np.random.default_rng(seed).bit_generator
+    rng = np.random.Generator(type(bg)(bg.seed_seq.spawn(1)[0]))
+    shift = (rng.integers(2, size=(d, bits), dtype=np.uint32).astype(np.int64)
+             @ (1 << np.arange(bits, dtype=np.int64)))
+    ltm = np.tril(rng.integers(2, size=(d, bits, bits), dtype=np.uint32)).astype(np.int64)
+    ltm[:, np.arange(bits), np.arange(bits)] = 1
+    # left linear matrix scramble: each direction number's bits (most significant
+    # first) multiplied by the lower-triangular matrix, mod 2
+    msb = bits - 1 - np.arange(bits)
+    B = (sv[:, None, :] >> msb[None, :, None]) & 1  # (d, bit, direction number)
+    sv = np.sum((np.einsum("dpk,dkj->dpj", ltm, B) % 2) << msb[None, :, None], axis=1)
+    # point k is the shift XOR the direction numbers of the bits of k's Gray code
+    k = np.arange(n, dtype=np.int64)
+    gray = k ^ (k >> 1)
+    q = np.repeat(shift[None, :], n, axis=0)
+    for b in range(int(max(n - 1, 0)).bit_length()):
+        on = ((gray >> b) & 1).astype(bool)
+        q[on] ^= sv[None, :, b]
+    return q * (1.0 / 2**bits)
 
 
 def scale_to_box(U: np.ndarray, bounds: np.ndarray) -> np.ndarray:

@@ -48,7 +48,6 @@ from dataclasses import dataclass, field
 from typing import Any, Protocol
 
 import numpy as np
-from scipy.optimize import brentq
 from scipy.special import logsumexp
 
 from bayescalib.inference.resampling import systematic_resample
@@ -151,6 +150,10 @@ def next_gamma(ll: np.ndarray, logw: np.ndarray, gamma: float, zeta: float) -> f
 
     if f(1.0) >= 0.0:
         return 1.0
+    # imported here: the jobs that read particles only (bayescalib.inference.posterior,
+    # e.g. the predictive solves in the point job server) need no scipy.optimize
+    from scipy.optimize import brentq
+
     return float(brentq(f, gamma, 1.0, xtol=1e-14, rtol=4 * np.finfo(float).eps, maxiter=500))
 
 
@@ -214,25 +217,39 @@ def mh_sweeps(
     N, d = X.shape
     acc_sum = 0.0
     n_evals = 0
+    # the current particles' tempered log target, kept up to date on acceptance
+    # (elementwise, so bitwise the values recomputing it every sweep would give)
+    t_old = _tempered(ll, gamma) + lp
+    old_ok = np.isfinite(t_old)
+    t_old_0 = np.where(old_ok, t_old, 0.0)  # 0 where -inf (then log alpha = +inf)
     for _ in range(n_sweeps):
         Xp = X + rng.standard_normal((N, d)) @ chol.T
         log_u = np.log(rng.random(N))
         lpp = logprior(Xp)
-        inside = np.isfinite(lpp)
-        llp = np.full(N, -np.inf)
-        if np.any(inside):
-            llp[inside] = _safe_loglik(loglik, Xp[inside])
-            n_evals += int(inside.sum())
-        t_new = _tempered(llp, gamma) + lpp
-        t_old = _tempered(ll, gamma) + lp
+        # a proposal outside the prior support is rejected (log alpha = -inf): the
+        # likelihood and the acceptance test are evaluated at the others only
+        idx = np.flatnonzero(np.isfinite(lpp))
+        if idx.size == 0:
+            continue
+        Xi = Xp if idx.size == N else np.take(Xp, idx, axis=0)
+        llp = _safe_loglik(loglik, Xi)
+        n_evals += int(idx.size)
+        t_new = _tempered(llp, gamma) + np.take(lpp, idx)
         new_ok = np.isfinite(t_new)
-        old_ok = np.isfinite(t_old)
-        diff = np.where(new_ok & old_ok, t_new - np.where(old_ok, t_old, 0.0), 0.0)
-        log_alpha = np.where(~new_ok, -np.inf, np.where(~old_ok, np.inf, diff))
-        accept = log_u < log_alpha
-        X[accept] = Xp[accept]
-        ll[accept] = llp[accept]
-        lp[accept] = lpp[accept]
+        ok_i = np.take(old_ok, idx)
+        diff = np.where(new_ok & ok_i, t_new - np.take(t_old_0, idx), 0.0)
+        log_alpha = np.where(~new_ok, -np.inf, np.where(~ok_i, np.inf, diff))
+        acc_i = np.take(log_u, idx) < log_alpha
+        a = idx[acc_i]
+        if a.size == 0:
+            continue
+        accept = np.zeros(N, dtype=bool)
+        accept[a] = True
+        X = np.where(accept[:, None], Xp, X)
+        lp = np.where(accept, lpp, lp)
+        ll[a] = llp[acc_i]
+        old_ok[a] = True  # a proposal with a -inf target is never accepted
+        t_old_0[a] = t_new[acc_i]
         acc_sum += float(W @ accept)
     return X, ll, lp, acc_sum / max(n_sweeps, 1), n_evals
 

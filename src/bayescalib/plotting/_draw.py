@@ -7,8 +7,11 @@ building blocks of :mod:`.joint`, :mod:`.marginals`; they do not save figures.
 
 from __future__ import annotations
 
+import hashlib
 import warnings
+from collections import OrderedDict
 from collections.abc import Callable, Sequence
+from typing import Any
 
 import numpy as np
 from matplotlib.axes import Axes
@@ -29,6 +32,32 @@ __all__ = [
 
 _MAX_KDE_EVAL = 3000  # particles used to estimate HPD thresholds (random subset)
 _MAX_KDE_BUILD = 5000  # particles in a 2-D KDE (random subset, weights renormalized)
+
+#: the last few KDE results of this process (:func:`_memo`): the posterior figures of one
+#: job draw the same KDEs several times (the joint figure's marginals and contours again
+#: in the marginals and pairs figures), and KDE evaluations were a third of that job
+_MEMO: OrderedDict[tuple, Any] = OrderedDict()
+_MEMO_SIZE = 16
+
+
+def _memo(kind: str, arrays: Sequence[np.ndarray], params: tuple, compute: Callable[[], Any]):
+    """``compute()``, or its result of an earlier call with bitwise the same arrays and
+    the same parameters (a deterministic function of them: seeded subsets). Results
+    are shared, never modified by the callers."""
+    h = hashlib.sha1()
+    for a in arrays:
+        a = np.ascontiguousarray(a)
+        h.update(repr((a.dtype.str, a.shape)).encode())
+        h.update(a.tobytes())
+    key = (kind, h.hexdigest(), repr(params))
+    if key in _MEMO:
+        _MEMO.move_to_end(key)
+        return _MEMO[key]
+    out = compute()
+    _MEMO[key] = out
+    while len(_MEMO) > _MEMO_SIZE:
+        _MEMO.popitem(last=False)
+    return out
 
 
 def level_text(p: float) -> str:
@@ -102,8 +131,9 @@ def draw_marginal(ax: Axes, x: np.ndarray, w: np.ndarray, lims: Sequence[float],
     grid = np.linspace(lims[0], lims[1], 400)
     if kde:
         try:
-            dens = weighted_kde(x, w, bw_method,
-                                support=None if support is None else [support])(grid[None, :])
+            sup = None if support is None else [support]
+            dens = _memo("marginal", (x, w, grid), (bw_method, sup),
+                         lambda: weighted_kde(x, w, bw_method, support=sup)(grid[None, :]))
             args = (dens, grid) if horizontal else (grid, dens)
             (out["kde"],) = ax.plot(*args, color=COLORS["kde"], lw=1.2)
         except ValueError as exc:
@@ -152,6 +182,27 @@ def draw_hexbin(ax: Axes, xy: np.ndarray, w: np.ndarray, xlim: Sequence[float],
                      linewidths=0.15, edgecolors="face", mincnt=1)
 
 
+def _hpd_kde(xy: np.ndarray, w: np.ndarray, levels: np.ndarray, bw_method: str | float,
+             seed: int, support) -> tuple[Any, np.ndarray]:
+    """The KDE of :func:`draw_hpd_contours` and its thresholds of the masses ``levels``
+    (descending with ascending mass); ValueError for a degenerate cloud."""
+    rng = np.random.default_rng(seed)
+    if xy.shape[0] > _MAX_KDE_BUILD:
+        idx = rng.choice(xy.shape[0], _MAX_KDE_BUILD, replace=False)
+        if w[idx].sum() > 0:
+            xy, w = xy[idx], w[idx] / w[idx].sum()
+    kde = weighted_kde(xy, w, bw_method, support=support)
+    n = xy.shape[0]
+    if n > _MAX_KDE_EVAL:
+        idx = rng.choice(n, _MAX_KDE_EVAL, replace=False)
+        sub, wsub = xy[idx], w[idx]
+        if wsub.sum() <= 0:
+            sub, wsub = xy, w
+    else:
+        sub, wsub = xy, w
+    return kde, hpd_thresholds(kde(sub.T), wsub, levels)
+
+
 def draw_hpd_contours(ax: Axes, xy: np.ndarray, w: np.ndarray, xlim: Sequence[float],
                       ylim: Sequence[float], levels: Sequence[float], *,
                       n_grid: int = 100, color: str = COLORS["kde"],
@@ -198,26 +249,16 @@ def draw_hpd_contours(ax: Axes, xy: np.ndarray, w: np.ndarray, xlim: Sequence[fl
         coincide.
     """
     levels = np.sort(as_array(levels, "levels", ndim=1))
-    rng = np.random.default_rng(seed)
-    if xy.shape[0] > _MAX_KDE_BUILD:
-        idx = rng.choice(xy.shape[0], _MAX_KDE_BUILD, replace=False)
-        if w[idx].sum() > 0:
-            xy, w = xy[idx], w[idx] / w[idx].sum()
+    sup = None if support is None else np.asarray(support, float).tolist()
     try:
-        kde = weighted_kde(xy, w, bw_method, support=support)
+        kde, thr = _memo("hpd", (xy, w, levels), (bw_method, seed, sup),
+                         lambda: _hpd_kde(xy, w, levels, bw_method, seed, sup))
     except ValueError as exc:
         warnings.warn(f"KDE contours skipped: {exc}", stacklevel=3)
         return None
-    n = xy.shape[0]
-    if n > _MAX_KDE_EVAL:
-        idx = rng.choice(n, _MAX_KDE_EVAL, replace=False)
-        sub, wsub = xy[idx], w[idx]
-        if wsub.sum() <= 0:
-            sub, wsub = xy, w
-    else:
-        sub, wsub = xy, w
-    thr = hpd_thresholds(kde(sub.T), wsub, levels)  # descending with ascending p
-    gx, gy, dens = kde_on_grid(kde, xlim, ylim, n_grid)
+    gx, gy, dens = _memo("hpd_grid", (xy, w, levels),
+                         (bw_method, seed, sup, list(xlim), list(ylim), n_grid),
+                         lambda: kde_on_grid(kde, xlim, ylim, n_grid))
     order = np.argsort(thr)
     t_sorted, p_sorted = thr[order], levels[order]
     keep = np.concatenate([[True], np.diff(t_sorted) > 0])
