@@ -133,7 +133,7 @@ def test_a_failed_refit_falls_back_to_the_full_search(monkeypatch):
     fit_gp, calls = sur.fit_gp, []
 
     def failing_first(*a, **k):
-        calls.append(k.get("start"))
+        calls.append(k.get("warm_start"))
         if len(calls) == 1:
             raise RuntimeError("every GP hyperparameter optimization failed")
         return fit_gp(*a, **k)

@@ -1089,7 +1089,7 @@ def fit_gp(
     rotation: np.ndarray | None = None,
     log_offset: np.ndarray | None = None,
     mean: str = "constant",
-    start: tuple[float, np.ndarray] | None = None,
+    warm_start: tuple[float, np.ndarray] | None = None,
 ) -> GPSurrogate:
     """Train the GP surrogate of the log-likelihood (paper Sec. 3.2, App. D).
 
@@ -1135,7 +1135,7 @@ def fit_gp(
         ``"quadratic"``: the misfit-shaped mean (module docstring), its centre, widths
         and phi0 fitted by the evidence jointly with the kernel, starting from a
         least-squares fit to the targets (:func:`_prefit_quadratic`).
-    start
+    warm_start
         (kernel variance, length scale(s) of shape (1,) or (d,)) of the first optimizer
         start (a warm start, e.g. the previous round's optimum, :func:`fit_round`);
         None: the fixed default. The other starts are drawn as without it.
@@ -1223,8 +1223,9 @@ def fit_gp(
     rng = np.random.default_rng(seed)
     best = None
     for r in range(restarts):
-        if r == 0 and start is not None:
-            v, ls = float(start[0]), np.broadcast_to(np.asarray(start[1], float), l0.shape)
+        if r == 0 and warm_start is not None:
+            v = float(warm_start[0])
+            ls = np.broadcast_to(np.asarray(warm_start[1], float), l0.shape)
         elif r == 0:
             v, ls = v0, l0
         else:
@@ -1433,14 +1434,14 @@ def _describe(kernel: str, warp: bool, log_offset: np.ndarray | None,
 def _fit_candidate(X: np.ndarray, y: np.ndarray, kw: dict[str, Any], bounds: np.ndarray,
                    bound: float | None, candidate: tuple[str, bool, np.ndarray | None,
                                                          np.ndarray | None],
-                   start: tuple[float, np.ndarray] | None = None) -> GPSurrogate | None:
+                   warm_start: tuple[float, np.ndarray] | None = None) -> GPSurrogate | None:
     """:func:`fit_gp` of one candidate of the discrete choices; None when the fit fails or
     a model of L overshoots the bound inside the box (:func:`_overshoots`)."""
     kernel, warp, log_offset, rotation = candidate
     what = _describe(*candidate)
     try:
         gp = fit_gp(X, y, warp=warp, kernel=kernel, rotation=rotation,
-                    log_offset=log_offset, start=start, **kw)
+                    log_offset=log_offset, warm_start=warm_start, **kw)
     except (RuntimeError, np.linalg.LinAlgError) as exc:
         log.warning("surrogate %s: fit failed: %s", what, exc)
         return None
@@ -1593,9 +1594,9 @@ def fit_round(X: np.ndarray, y: np.ndarray, surrogate: dict[str, Any], bounds: n
                                                     previous.log_offset, previous.rotation))
         return fit_from_config(X, y, surrogate, bounds, bound=bound)
     candidate = same[0]
-    start = (float(previous.variance), np.array(previous.lengthscale, float)) \
+    warm = (float(previous.variance), np.array(previous.lengthscale, float)) \
         if REFIT_WARM_START else None
-    gp = _fit_candidate(X, y, kw, bounds, bound, candidate, start=start)
+    gp = _fit_candidate(X, y, kw, bounds, bound, candidate, warm_start=warm)
     if gp is None:
         log.info("surrogate: the refit of %s was rejected: full search",
                  _describe(*candidate))
