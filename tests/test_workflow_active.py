@@ -151,6 +151,28 @@ def _stamps(tmp: Path, name: str) -> dict[str, int]:
             for p in (tmp / "results/analytic/active").glob(f"*/{name}")}
 
 
+def test_the_rounds_search_the_surrogates_choices_when_the_design_grew_by_half(active_run):
+    """surrogate.reselect_growth (default 0.5) through the workflow: round r reads round
+    r-1's surrogate file; it searches the choices in full in round 0 and when its n is
+    at least 1.5 times that of the last search, else it refits (n of the search kept)."""
+    import h5py
+
+    from bayescalib.config import validate
+
+    f = validate({}, "inference")["surrogate"]["reselect_growth"]
+    rounds = sorted((active_run[0] / "results/analytic/active").glob("*/surrogate.h5"),
+                    key=lambda p: int(p.parent.name))
+    n_search = None
+    for path in rounds:
+        with h5py.File(path) as h:
+            n, sel, sel_n = h["X_train"].shape[0], h.attrs["selection"], h.attrs["selection_n"]
+        if n_search is None or n >= (1 + f) * n_search:
+            assert (sel, sel_n) == ("search", n), path
+            n_search = n
+        else:
+            assert (sel, sel_n) == ("refit", n_search), path
+
+
 def test_a_plot_setting_reruns_no_round(active_run, base_study, tmp_path):
     """A round's surrogate reads the previous round's (surrogate.reselect_growth): a
     setting of the figures still recomputes no solve, surrogate, SMC or round record."""

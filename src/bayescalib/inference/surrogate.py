@@ -49,6 +49,20 @@ Log inputs (``log_offset``; ``surrogate.inputs``)
     when the kernel has one length scale per input; with a single length scale (the
     2-D studies) ``auto`` keeps linear inputs (:data:`LOG_INPUTS_NOTE`).
 
+Re-deciding the discrete choices (``surrogate.reselect_growth``; :func:`fit_round`)
+    :func:`fit_from_config` fits every candidate of the discrete choices (kernel x
+    output x input scale x frame: up to 24 GP fits in 3-7D) and keeps the largest
+    evidence. In an active design the training set grows by a small batch a round, so
+    the winner seldom changes from one round to the next while the search dominates the
+    round's time. :func:`fit_round` searches in full in round 0 and once the training
+    set has grown by the fraction f since the last search (n >= (1 + f) n_search, a
+    geometric schedule: O(log n) searches in a run), and in the other rounds refits only
+    the previous choice on all current data (one GP fit; principal frame recomputed,
+    warm-started from the previous hyperparameters), with a fall-back to the full search
+    when that refit fails or overshoots the bound. The choice and n_search travel with
+    the surrogate (``GPSurrogate.selection`` / ``selection_n``, stored in its file). The
+    surrogate of the study's result is always a full search.
+
 Constant prior mean (App. D remark; ``mean="constant"``)
     m = min(L) - f_m (max(L) - min(L)),   f_m = ``mean_offset_factor`` = 1.0,
     so far from the data the surrogate log-likelihood falls below every observed
