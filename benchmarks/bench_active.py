@@ -124,6 +124,9 @@ ACTIVE_KERNEL = "auto"
 ACTIVE_FRAME = "auto"
 #: surrogate.mean of the active method (--mean; None: the schema's default)
 ACTIVE_MEAN: str | None = None
+#: surrogate.reselect_growth of the active method (None: the schema's default); set per
+#: variant by --reselect-growth (methods named ``active[rg=<value>]``)
+ACTIVE_RESELECT: float | None = None
 GRID_N = 400
 #: particles of the SMC run on GPry's surrogate whose draws the metrics use (GPry's own final
 #: nested sample, 50 live points per dimension, has an effective size of a few hundred to a
@@ -508,17 +511,32 @@ def run_active(prob: Problem, budget: int, seed: int) -> dict[str, Any]:
               f"mean err {np.max(np.abs(np.asarray(rec['posterior']['mean']) - prob.ref_mean) / prob.ref_sd):.3g} ref sd",
               flush=True)
 
-    res = calibrate(
-        f, space, bound=prob.B,
-        active={"n_initial": n0, "batch_size": 8, "max_solves": budget},
-        surrogate={"ard": prob.d > 2, "kernel": ACTIVE_KERNEL, "frame": ACTIVE_FRAME,
-                   **({} if ACTIVE_MEAN is None else {"mean": ACTIVE_MEAN})},
+    import bayescalib.inference.surrogate as sur
+
+    searches = [0]
+    full_search = sur.fit_from_config
+
+    def counted(*args: Any, **kwargs: Any) -> Any:  # full searches of the discrete choices
+        searches[0] += 1
+        return full_search(*args, **kwargs)
+
+    sur.fit_from_config = counted
+    try:
+        res = calibrate(
+            f, space, bound=prob.B,
+            active={"n_initial": n0, "batch_size": 8, "max_solves": budget},
+            surrogate={"ard": prob.d > 2, "kernel": ACTIVE_KERNEL, "frame": ACTIVE_FRAME,
+                       **({} if ACTIVE_MEAN is None else {"mean": ACTIVE_MEAN}),
+                       **({} if ACTIVE_RESELECT is None else
+                          {"reselect_growth": ACTIVE_RESELECT})},
         smc={"n_particles": 4000},
         seed=seed,
         # hetero7d is a least-squares likelihood of H7_K measurements: check the best fit
-        n_measurements=H7_K if prob.name == "hetero7d" else None,
-        callback=per_round,
-    )
+            n_measurements=H7_K if prob.name == "hetero7d" else None,
+            callback=per_round,
+        )
+    finally:
+        sur.fit_from_config = full_search
     gp = res.surrogate
     if int(res.n_evaluations) != f.n:
         print(f"  [active] note: res.n_evaluations={res.n_evaluations} but the counter saw {f.n}")
@@ -535,6 +553,7 @@ def run_active(prob: Problem, budget: int, seed: int) -> dict[str, Any]:
             "n_evaluations_reported": int(res.n_evaluations),
             "fit": None if res.fit is None else res.fit["words"],
             "n_initial": n0,
+            "n_searches": searches[0],
             "rounds": history,
         },
         "design": {"X": res.X, "loglik": res.loglik,
@@ -818,17 +837,28 @@ def evaluate(prob: Problem, out: dict[str, Any]) -> dict[str, Any]:
 # ---------------------------------------------------------------------------
 
 
+def _variant(method: str) -> tuple[str, float | None]:
+    """``active[rg=0.5]`` -> ("active", 0.5); any other name -> (name, None)."""
+    if method.startswith("active[rg=") and method.endswith("]"):
+        return "active", float(method[len("active[rg="):-1])
+    return method, None
+
+
 def run_one(prob: Problem, method: str, budget: int, seed: int) -> dict[str, Any]:
-    t0 = time.perf_counter()
+    global ACTIVE_RESELECT
+    base, growth = _variant(method)
+    if growth is not None:
+        ACTIVE_RESELECT = growth
+    t0, c0 = time.perf_counter(), time.process_time()
     try:
-        out = METHODS[method](prob, budget, seed)
+        out = METHODS[base](prob, budget, seed)
     except NotAvailable as e:
         return {"status": str(e)}
     except Exception as e:  # noqa: BLE001 - a failing method must not stop the benchmark
         traceback.print_exc()
         return {"status": f"failed: {type(e).__name__}: {str(e).splitlines()[0][:160] if str(e) else ''}"}
-    wall = time.perf_counter() - t0
-    rec = {"status": "ok", "wall_s": wall, "n_evals": int(out["n_evals"]), "n_rounds": int(out["n_rounds"])}
+    wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+    rec = {"status": "ok", "wall_s": wall, "cpu_s": cpu, "n_evals": int(out["n_evals"]), "n_rounds": int(out["n_rounds"])}
     rec.update(out.get("extra", {}))
     if out.get("design") is not None:
         rec["design"] = out["design"]
@@ -840,7 +870,7 @@ def run_one(prob: Problem, method: str, budget: int, seed: int) -> dict[str, Any
     return rec
 
 
-NUMERIC = ["n_evals", "n_rounds", "wall_s", "hellinger", "mean_err", "sd_err", "kl_gauss"]
+NUMERIC = ["n_evals", "n_rounds", "n_searches", "wall_s", "cpu_s", "hellinger", "mean_err", "sd_err", "kl_gauss"]
 
 
 def summarize(runs: list[dict[str, Any]]) -> dict[str, Any]:
@@ -891,8 +921,8 @@ def table(
     results: dict[str, Any], problems: list[str], methods: list[str], seeds: str, partial: bool = False
 ) -> str:
     head = (
-        "| problem | d | budget | method | evals | rounds | wall s | Hellinger | mean err | sd err "
-        "| KL gauss | notes |\n|---|---|---|---|---|---|---|---|---|---|---|---|\n"
+        "| problem | d | budget | method | evals | rounds | wall s | cpu s | Hellinger | mean err "
+        "| sd err | KL gauss | notes |\n|---|---|---|---|---|---|---|---|---|---|---|---|---|\n"
     )
     rows = []
     for p in problems:
@@ -900,24 +930,26 @@ def table(
         for m in methods:
             if m not in pr["methods"]:
                 if partial:
-                    rows.append(f"| {p} | {pr['d']} | {pr['budget']} | {m} | - | - | - | - | - | - | - | (not run yet) |")
+                    rows.append(f"| {p} | {pr['d']} | {pr['budget']} | {m} | - | - | - | - | - | - | - | - | (not run yet) |")
                 continue
             s = pr["methods"][m]["summary"]
             if s["status"] != "ok" and not s["status"].startswith("ok in"):
-                rows.append(f"| {p} | {pr['d']} | {pr['budget']} | {m} | - | - | - | - | - | - | - | {s['status']} |")
+                rows.append(f"| {p} | {pr['d']} | {pr['budget']} | {m} | - | - | - | - | - | - | - | - | {s['status']} |")
                 continue
             notes = []
             if s["status"] != "ok":
                 notes.append(s["status"])
             if "n_converged" in s:
                 notes.append(f"converged in {s['n_converged']} seeds")
-            elif "converged" in s and m == "active":
+            elif "converged" in s and _variant(m)[0] == "active":
                 reason = _short(s.get("reason", ""))
                 for prefix in ("NOT converged: ", "not converged: "):
                     reason = reason.removeprefix(prefix)
                 notes.append(f"converged={s['converged']}: {reason}")
             elif "converged" in s:
                 notes.append(f"converged={s['converged']}")
+            if "n_searches" in s:
+                notes.append(f"{_fmt(s['n_searches'], 3)} full searches of the surrogate's choices")
             if s.get("fit"):
                 notes.append("fit: " + _short(s["fit"].split(" (p = ")[0], 120))
             if s.get("gpry_config", "default") != "default":
@@ -934,7 +966,7 @@ def table(
             hel = cell("hellinger") if pr["d"] == 2 else "-"
             rows.append(
                 f"| {p} | {pr['d']} | {pr['budget']} | {m} | {cell('n_evals')} | {cell('n_rounds')} "
-                f"| {_fmt(s.get('wall_s'), 2)} | {hel} | {cell('mean_err')} | {cell('sd_err')} "
+                f"| {_fmt(s.get('wall_s'), 2)} | {_fmt(s.get('cpu_s'), 2)} | {hel} | {cell('mean_err')} | {cell('sd_err')} "
                 f"| {cell('kl_gauss')} | {'; '.join(notes)} |"
             )
     legend = (
@@ -1008,6 +1040,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--mean", default=None, choices=["auto", "constant", "quadratic"],
                     help="surrogate.mean of the active method (default: the schema's, constant; "
                          "quadratic: the misfit-shaped mean; auto: quadratic from 3 parameters on)")
+    ap.add_argument("--reselect-growth", default=None,
+                    help="comma-separated values of surrogate.reselect_growth: the active method "
+                         "runs once per value, named active[rg=<value>] (e.g. '0,0.5': today's "
+                         "search every round, and a search when the data grew by half); default: "
+                         "the schema's, one run")
     args = ap.parse_args(argv)
     global ACTIVE_KERNEL, ACTIVE_FRAME, ACTIVE_MEAN
     ACTIVE_MEAN = args.mean
@@ -1024,6 +1061,10 @@ def main(argv: list[str] | None = None) -> int:
     for m in methods:
         if m not in METHODS:
             ap.error(f"unknown method {m!r}; choose from {ALL_METHODS}")
+    if args.reselect_growth is not None and "active" in methods:
+        k = methods.index("active")
+        methods[k:k + 1] = [f"active[rg={float(v):g}]" for v in args.reselect_growth.split(",")
+                            if v.strip()]
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
 
@@ -1031,6 +1072,7 @@ def main(argv: list[str] | None = None) -> int:
         "config": {
             "problems": problems, "methods": methods, "budget_override": args.budget, "active_kernel": args.kernel,
             "active_frame": args.frame, "active_mean": args.mean,
+            "active_reselect_growth": args.reselect_growth,
             "repeats": args.repeats, "seeds": args.seeds, "grid": GRID_N, "python": platform.python_version(),
             "machine": platform.platform(), "cpus": os.cpu_count(),
             "omp_num_threads": os.environ.get("OMP_NUM_THREADS"),

@@ -141,6 +141,69 @@ def test_lighter_round_smc_resamples_the_result_with_the_full_settings(active_ru
         assert f["particles"].shape[0] == 100
 
 
+ROUND_RULES = {"solve", "gather_round", "train_round", "smc_round", "acquire", "train_surrogate",
+               "smc"}
+
+
+def _stamps(tmp: Path, name: str) -> dict[str, int]:
+    """mtime of each round's ``name`` file, by round."""
+    return {p.parent.name: p.stat().st_mtime_ns
+            for p in (tmp / "results/analytic/active").glob(f"*/{name}")}
+
+
+def test_the_rounds_search_the_surrogates_choices_when_the_design_grew_by_half(active_run):
+    """surrogate.reselect_growth (default 0.5) through the workflow: round r reads round
+    r-1's surrogate file; it searches the choices in full in round 0 and when its n is
+    at least 1.5 times that of the last search, else it refits (n of the search kept)."""
+    import h5py
+
+    from bayescalib.config import validate
+
+    f = validate({}, "inference")["surrogate"]["reselect_growth"]
+    rounds = sorted((active_run[0] / "results/analytic/active").glob("*/surrogate.h5"),
+                    key=lambda p: int(p.parent.name))
+    n_search = None
+    for path in rounds:
+        with h5py.File(path) as h:
+            n, sel, sel_n = h["X_train"].shape[0], h.attrs["selection"], h.attrs["selection_n"]
+        if n_search is None or n >= (1 + f) * n_search:
+            assert (sel, sel_n) == ("search", n), path
+            n_search = n
+        else:
+            assert (sel, sel_n) == ("refit", n_search), path
+
+
+def test_a_plot_setting_reruns_no_round(active_run, base_study, tmp_path):
+    """A round's surrogate reads the previous round's (surrogate.reselect_growth): a
+    setting of the figures still recomputes no solve, surrogate, SMC or round record."""
+    tmp = _copy(active_run[0], tmp_path / "run")
+    study = _study(base_study)
+    study["plots"]["dpi"] = int(study["plots"]["dpi"]) + 1
+    _setup(tmp, study)
+    plan = _planned_jobs(_smk(tmp, "-n").stdout)
+    assert not ROUND_RULES & set(plan), plan
+
+
+def test_an_acquisition_setting_decides_the_rounds_again_from_the_first_changed_one(
+        active_run, base_study, tmp_path):
+    """Another explore_fraction: every round's record is decided again (dry run: acquire
+    jobs, no surrogate and no solve planned); then a round's surrogate is refitted only
+    where its training table changed (round 0's, the Sobol design's, never does), though
+    each reads the previous round's surrogate."""
+    tmp = _copy(active_run[0], tmp_path / "run")
+    surrogates, tables = _stamps(tmp, "surrogate.h5"), _stamps(tmp, "training.h5")
+    _setup(tmp, _study(base_study, explore_fraction=0.25))
+    plan = _planned_jobs(_smk(tmp, "-n").stdout)
+    assert plan.get("acquire", 0) >= 1, plan
+    assert not {"solve", "gather_round", "train_round", "smc_round"} & set(plan), plan
+    _smk(tmp)
+    after_s, after_t = _stamps(tmp, "surrogate.h5"), _stamps(tmp, "training.h5")
+    assert after_s["0"] == surrogates["0"] and after_t["0"] == tables["0"]
+    for r, t in after_t.items():
+        if tables.get(r) == t:  # the same training table: the same surrogate file
+            assert after_s[r] == surrogates[r], f"round {r}'s surrogate was refitted"
+
+
 # extended suite (pytest -m extended, run by .ci/run): a longer variant of a check the
 # default suite makes; kept out of the default suite for its time
 @pytest.mark.extended

@@ -31,7 +31,9 @@ rule train_round:
     conda:
         "../envs/bayescalib.yaml"
     input:
-        f"{ACTIVE_DIR}/{{r}}/training.h5",
+        training=f"{ACTIVE_DIR}/{{r}}/training.h5",
+        # the previous round's choices of the surrogate (rounds run in order already)
+        previous=lambda wc: [f"{ACTIVE_DIR}/{int(wc.r) - 1}/surrogate.h5"] if int(wc.r) > 0 else [],
     output:
         f"{ACTIVE_DIR}/{{r}}/surrogate.h5",
     params:

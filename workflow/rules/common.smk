@@ -126,10 +126,13 @@ SOLVE_JOB = (
     " forward_model {params.forward_model!r:q} point {params.point!r:q}"
     f"{' base {input.base:q}' if _WARM else ''}"
 )
+# an active round's fit: previous is the previous round's surrogate (none in round 0),
+# whose discrete choices it refits between full searches (surrogate.reselect_growth)
 TRAIN_JOB = (
     '"$BAYESCALIB_PYTHON" -I -S "$BAYESCALIB_JOB_CLIENT"'
-    " train_surrogate log {log:q} out {output:q} training {input:q}"
+    " train_surrogate log {log:q} out {output:q} training {input.training:q}"
     " surrogate {params.surrogate!r:q} parameters {params.parameters!r:q}"
+    " previous [ {input.previous:q} ]"
 )
 # the primary measure's train_surrogate and smc may reuse the last round's output
 TRAIN_MEASURE_JOB = (

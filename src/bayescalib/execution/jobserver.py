@@ -149,8 +149,10 @@ def _train_surrogate(args: Mapping[str, str]) -> None:
     from bayescalib.stages import setup_logging, train_surrogate
 
     setup_logging(args["log"])
+    previous = args.get("previous") or []  # a list: empty in round 0 and for a measure
     train_surrogate(args["training"], _literal(args["surrogate"]), _literal(args["parameters"]),
-          args["out"], reuse=args.get("reuse") or ())
+          args["out"], reuse=args.get("reuse") or (),
+          previous=previous[0] if isinstance(previous, list) and previous else None)
 
 
 def _granted_threads() -> int:

@@ -601,8 +601,9 @@ class ActiveResult:
     Attributes
     ----------
     X, loglik : all evaluated points (n, d) and their log-likelihoods (n,).
-    surrogate : the last round's GP surrogate.
-    smc : the SMC result on the last round's surrogate (:class:`~bayescalib.inference.smc.SMCResult`;
+    surrogate : the GP surrogate of all evaluations: the last round's when that round
+        searched the discrete choices in full, else a full search fitted after it.
+    smc : the SMC result on that surrogate (:class:`~bayescalib.inference.smc.SMCResult`;
         with the study's settings, also where ``design.active.smc`` lightened the rounds).
     rounds : the per-round records of :func:`acquire_round`.
     fit : :func:`bayescalib.inference.likelihood.fit_check` of the best evaluation
@@ -642,7 +643,11 @@ def calibrate(loglik: Callable[[np.ndarray], np.ndarray], space, *, bound: float
     """Active-design calibration of a log-likelihood given as a Python function.
 
     Runs the rounds of the pipeline's ``active`` stage in-process: the same
-    surrogate fit, SMC and :func:`acquire_round` as the Snakemake rules.
+    surrogate fit (:func:`~bayescalib.inference.surrogate.fit_round`: the discrete
+    choices searched in full in round 0 and when the data have grown by
+    ``surrogate.reselect_growth``, refitted between), SMC and :func:`acquire_round` as
+    the Snakemake rules. The result's surrogate is a full search on all evaluations
+    (the last round's when it was one; else fitted again, and its SMC run again).
 
     Parameters
     ----------
@@ -666,7 +671,7 @@ def calibrate(loglik: Callable[[np.ndarray], np.ndarray], space, *, bound: float
     from bayescalib.config import round_smc, validate
     from bayescalib.inference.design import sobol_design
     from bayescalib.inference.smc import smc_from_config
-    from bayescalib.inference.surrogate import fit_from_config
+    from bayescalib.inference.surrogate import fit_from_config, fit_round
 
     cfg = validate({"design": {"active": dict(active or {})}, "surrogate": dict(surrogate or {}),
                     "smc": dict(smc or {})}, "inference", where="calibrate")
@@ -676,9 +681,10 @@ def calibrate(loglik: Callable[[np.ndarray], np.ndarray], space, *, bound: float
     L = np.asarray(loglik(X), float)
     rounds: list[dict[str, Any]] = []
     previous = None
+    gp = None
     r = 0
     while True:
-        gp = fit_from_config(X, L, cfg["surrogate"], space.bounds, bound=bound)
+        gp = fit_round(X, L, cfg["surrogate"], space.bounds, bound=bound, previous=gp)
         res = smc_from_config(gp.predict, space, smc_round)
         rec = acquire_round(r, X, L, gp, res.particles, res.weights, res.log_evidence, space,
                             a, previous)
@@ -693,7 +699,10 @@ def calibrate(loglik: Callable[[np.ndarray], np.ndarray], space, *, bound: float
 
                 fit = fit_check(L, np.full(L.shape, float(bound)),
                                 np.full(L.shape, float(n_measurements)))
-            if smc_round != cfg["smc"]:  # the rounds sampled lighter: the result in full
+            if gp.selection != "search":  # the result's surrogate: the best choice for all data
+                gp = fit_from_config(X, L, cfg["surrogate"], space.bounds, bound=bound)
+                res = smc_from_config(gp.predict, space, cfg["smc"])
+            elif smc_round != cfg["smc"]:  # the rounds sampled lighter: the result in full
                 res = smc_from_config(gp.predict, space, cfg["smc"])
             return ActiveResult(X, L, gp, res, rounds, fit)
         Xn = np.asarray(rec["next"]["points"], float)

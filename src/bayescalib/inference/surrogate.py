@@ -49,6 +49,20 @@ Log inputs (``log_offset``; ``surrogate.inputs``)
     when the kernel has one length scale per input; with a single length scale (the
     2-D studies) ``auto`` keeps linear inputs (:data:`LOG_INPUTS_NOTE`).
 
+Re-deciding the discrete choices (``surrogate.reselect_growth``; :func:`fit_round`)
+    :func:`fit_from_config` fits every candidate of the discrete choices (kernel x
+    output x input scale x frame: up to 24 GP fits in 3-7D) and keeps the largest
+    evidence. In an active design the training set grows by a small batch a round, so
+    the winner seldom changes from one round to the next while the search dominates the
+    round's time. :func:`fit_round` searches in full in round 0 and once the training
+    set has grown by the fraction f since the last search (n >= (1 + f) n_search, a
+    geometric schedule: O(log n) searches in a run), and in the other rounds refits only
+    the previous choice on all current data (one GP fit; principal frame recomputed,
+    warm-started from the previous hyperparameters), with a fall-back to the full search
+    when that refit fails or overshoots the bound. The choice and n_search travel with
+    the surrogate (``GPSurrogate.selection`` / ``selection_n``, stored in its file). The
+    surrogate of the study's result is always a full search.
+
 Constant prior mean (App. D remark; ``mean="constant"``)
     m = min(L) - f_m (max(L) - min(L)),   f_m = ``mean_offset_factor`` = 1.0,
     so far from the data the surrogate log-likelihood falls below every observed
@@ -157,7 +171,7 @@ import numpy as np
 from bayescalib.io._atomic_write import atomic_path
 from bayescalib.io.header import check_header, write_header
 
-__all__ = ["KERNELS", "GPSurrogate", "fit_from_config", "fit_gp", "kernel_matrix",
+__all__ = ["KERNELS", "GPSurrogate", "fit_from_config", "fit_gp", "fit_round", "kernel_matrix",
            "log_input_offsets", "matern32", "warp_inputs"]
 
 log = logging.getLogger(__name__)
@@ -257,6 +271,12 @@ def _resolve_device(device: str) -> str:
     return "cuda" if torch.cuda.is_available() else "cpu"
 
 
+#: ``GPSurrogate.selection`` of a fit that searched the discrete choices in full, and of
+#: one that refitted the previous round's choice (:func:`fit_round`)
+_SEARCH = "search"
+_REFIT = "refit"
+
+
 @dataclass
 class GPSurrogate:
     """A trained GP surrogate of the log-likelihood with a fast batched predictor.
@@ -297,6 +317,12 @@ class GPSurrogate:
     mean_misfit_min : misfit phi0 (nats) of the quadratic mean at its centre.
     mean_top : the value the quadratic mean of a GP of L falls from (the bound B, or
         max(L) + range(L) without one); NaN for the log-misfit GP.
+    selection : how the discrete choices (kernel, output, input scale, frame) were made:
+        ``"search"`` (every candidate fitted, the largest evidence kept:
+        :func:`fit_from_config`, or one given choice: :func:`fit_gp`) or ``"refit"`` (the
+        previous round's choice refitted, :func:`fit_round`).
+    selection_n : number of training values at the last full search of those choices
+        (-1: unknown, e.g. a file written before it was recorded).
     """
 
     X_train: np.ndarray
@@ -328,6 +354,8 @@ class GPSurrogate:
     mean_factor: np.ndarray | None = None
     mean_misfit_min: float = float("nan")
     mean_top: float = float("nan")
+    selection: str = _SEARCH
+    selection_n: int = -1
     _cache: dict[str, Any] = field(default_factory=dict, repr=False)
 
     def __post_init__(self) -> None:
@@ -726,6 +754,9 @@ class GPSurrogate:
                 f.create_dataset("mean_factor", data=self.mean_factor)
                 f.attrs["mean_misfit_min"] = float(self.mean_misfit_min)
                 f.attrs["mean_top"] = float(self.mean_top)
+            # added within format version 3 (readers ignore unknown attributes)
+            f.attrs["selection"] = self.selection
+            f.attrs["selection_n"] = int(self.selection_n)
 
     @classmethod
     def load(cls, path: str | Path, device: str = "auto") -> GPSurrogate:
@@ -762,6 +793,9 @@ class GPSurrogate:
                 mean_factor=f["mean_factor"][()] if "mean_factor" in f else None,
                 mean_misfit_min=float(f.attrs.get("mean_misfit_min", float("nan"))),
                 mean_top=float(f.attrs.get("mean_top", float("nan"))),
+                # files written before the selection was recorded: a full search, n unknown
+                selection=_plain_str(f.attrs.get("selection", _SEARCH)),
+                selection_n=int(f.attrs.get("selection_n", -1)),
             )
 
     def loo_residuals(self) -> np.ndarray:
@@ -1069,6 +1103,7 @@ def fit_gp(
     rotation: np.ndarray | None = None,
     log_offset: np.ndarray | None = None,
     mean: str = "constant",
+    warm_start: tuple[float, np.ndarray] | None = None,
 ) -> GPSurrogate:
     """Train the GP surrogate of the log-likelihood (paper Sec. 3.2, App. D).
 
@@ -1114,6 +1149,10 @@ def fit_gp(
         ``"quadratic"``: the misfit-shaped mean (module docstring), its centre, widths
         and phi0 fitted by the evidence jointly with the kernel, starting from a
         least-squares fit to the targets (:func:`_prefit_quadratic`).
+    warm_start
+        (kernel variance, length scale(s) of shape (1,) or (d,)) of the first optimizer
+        start (a warm start, e.g. the previous round's optimum, :func:`fit_round`);
+        None: the fixed default. The other starts are drawn as without it.
 
     Returns
     -------
@@ -1198,7 +1237,10 @@ def fit_gp(
     rng = np.random.default_rng(seed)
     best = None
     for r in range(restarts):
-        if r == 0:
+        if r == 0 and warm_start is not None:
+            v = float(warm_start[0])
+            ls = np.broadcast_to(np.asarray(warm_start[1], float), l0.shape)
+        elif r == 0:
             v, ls = v0, l0
         else:
             v = v0 * 10 ** rng.uniform(-1.0, 1.0)
@@ -1352,37 +1394,13 @@ def resolve_ard(ard: bool | str, dim: int) -> bool:
     return dim > 2 if ard == "auto" else bool(ard)
 
 
-def fit_from_config(X: np.ndarray, y: np.ndarray, surrogate: dict[str, Any],
-                    bounds: np.ndarray, *, bound: float | None = None) -> GPSurrogate:
-    """:func:`fit_gp` with the settings of a validated ``surrogate`` config section.
-
-    ``surrogate["output"]`` chooses what the GP models when the log-likelihood's
-    upper bound ``bound`` is known: ``log_misfit`` (the warped output), ``loglik``
-    (L itself, capped at the bound) or ``auto``; ``surrogate["kernel"]`` one of
-    :data:`KERNELS` or ``auto``. Every candidate model is fitted and the one with
-    the largest evidence *of the log-likelihood values* wins (type-II maximum
-    likelihood over the model's discrete choices). The warped model's evidence
-    is carried to the units of L by the Jacobian of the warping,
-    log p(L) = log p(g) + sum_i log|dg/dL|_i = log p(g) - sum_i g_i (warped GPs,
-    Snelson et al. 2004), so all evidences compare like with like. A model of L
-    whose mean rises above the bound inside the box (by more than
-    ``OVERSHOOT_NATS``, on a Sobol sample) contradicts what is known and is not
-    chosen: capping it would leave a plateau of spurious maximal likelihood.
-    Without a bound the GP models L with the paper's kernel.
-
-    ``surrogate["frame"]`` chooses the GP's input coordinates when the kernel has
-    one length scale per input (``ard``): ``axes`` (the box-scaled parameters),
-    ``principal`` (rotated to the principal axes of the high-likelihood training
-    points, :func:`principal_frame`) or ``auto`` (both, chosen by the same evidence
-    rule). An isotropic kernel does not depend on the rotation, so it keeps ``axes``.
-
-    ``surrogate["inputs"]`` chooses the scale of the inputs: ``linear``, ``log`` (the
-    inputs whose box lies in [0, inf) enter as logs, :func:`log_input_offsets`) or
-    ``auto``: with one length scale per input (``ard``), both, by the same evidence
-    rule (the principal frame is computed in each scale); with a single length scale,
-    ``linear`` (see :data:`LOG_INPUTS_NOTE`). Without an input that qualifies, ``log``
-    and ``auto`` are ``linear``.
-    """
+def _search_settings(X: np.ndarray, y: np.ndarray, surrogate: dict[str, Any],
+                     bounds: np.ndarray, bound: float | None
+                     ) -> tuple[dict[str, Any], list[tuple[str, bool, np.ndarray | None,
+                                                           np.ndarray | None]]]:
+    """The keyword arguments of :func:`fit_gp` shared by every candidate of the surrogate's
+    discrete choices, and the candidates (kernel, warp, log_offset, rotation) in the order
+    :func:`fit_from_config` fits them (a principal frame computed from ``X``, ``y``)."""
     kw = {"ard": resolve_ard(surrogate["ard"], np.shape(X)[1]),
           "optimizer": surrogate["optimizer"],
           "restarts": surrogate["restarts"], "seed": surrogate["seed"], "bounds": bounds,
@@ -1415,30 +1433,190 @@ def fit_from_config(X: np.ndarray, y: np.ndarray, surrogate: dict[str, Any],
             V = principal_frame(Xa[ok], ya[ok], bounds, log_offset)
             rotations = [V] if frame == "principal" else [None, V]
         inputs += [(log_offset, rotation) for rotation in rotations]
+    return kw, [(kernel, warp, log_offset, rotation)
+                for kernel, warp, (log_offset, rotation) in
+                itertools.product(kernels, warps, inputs)]
+
+
+def _describe(kernel: str, warp: bool, log_offset: np.ndarray | None,
+              rotation: np.ndarray | None) -> str:
+    return f"{kernel} of {'log-misfit' if warp else 'L'}" + \
+        ("" if rotation is None else " (principal axes)") + \
+        ("" if log_offset is None else " (log inputs)")
+
+
+def _fit_candidate(X: np.ndarray, y: np.ndarray, kw: dict[str, Any], bounds: np.ndarray,
+                   bound: float | None, candidate: tuple[str, bool, np.ndarray | None,
+                                                         np.ndarray | None],
+                   warm_start: tuple[float, np.ndarray] | None = None) -> GPSurrogate | None:
+    """:func:`fit_gp` of one candidate of the discrete choices; None when the fit fails or
+    a model of L overshoots the bound inside the box (:func:`_overshoots`)."""
+    kernel, warp, log_offset, rotation = candidate
+    what = _describe(*candidate)
+    try:
+        gp = fit_gp(X, y, warp=warp, kernel=kernel, rotation=rotation,
+                    log_offset=log_offset, warm_start=warm_start, **kw)
+    except (RuntimeError, np.linalg.LinAlgError) as exc:
+        log.warning("surrogate %s: fit failed: %s", what, exc)
+        return None
+    if bound is not None and not gp.warped and _overshoots(gp, bounds, bound):
+        log.info("surrogate %s: rejected, its mean exceeds the likelihood's "
+                 "upper bound %.6g inside the box", what, bound)
+        return None
+    return gp
+
+
+def _evidence_of_L(gp: GPSurrogate) -> float:
+    """The evidence of the log-likelihood values (the warped GP's carried to L by the
+    Jacobian of the warping, :func:`fit_from_config`)."""
+    return gp.log_marginal_likelihood - (float(np.sum(gp.y_train)) if gp.warped else 0.0)
+
+
+def fit_from_config(X: np.ndarray, y: np.ndarray, surrogate: dict[str, Any],
+                    bounds: np.ndarray, *, bound: float | None = None) -> GPSurrogate:
+    """:func:`fit_gp` with the settings of a validated ``surrogate`` config section.
+
+    ``surrogate["output"]`` chooses what the GP models when the log-likelihood's
+    upper bound ``bound`` is known: ``log_misfit`` (the warped output), ``loglik``
+    (L itself, capped at the bound) or ``auto``; ``surrogate["kernel"]`` one of
+    :data:`KERNELS` or ``auto``. Every candidate model is fitted and the one with
+    the largest evidence *of the log-likelihood values* wins (type-II maximum
+    likelihood over the model's discrete choices). The warped model's evidence
+    is carried to the units of L by the Jacobian of the warping,
+    log p(L) = log p(g) + sum_i log|dg/dL|_i = log p(g) - sum_i g_i (warped GPs,
+    Snelson et al. 2004), so all evidences compare like with like. A model of L
+    whose mean rises above the bound inside the box (by more than
+    ``OVERSHOOT_NATS``, on a Sobol sample) contradicts what is known and is not
+    chosen: capping it would leave a plateau of spurious maximal likelihood.
+    Without a bound the GP models L with the paper's kernel.
+
+    ``surrogate["frame"]`` chooses the GP's input coordinates when the kernel has
+    one length scale per input (``ard``): ``axes`` (the box-scaled parameters),
+    ``principal`` (rotated to the principal axes of the high-likelihood training
+    points, :func:`principal_frame`) or ``auto`` (both, chosen by the same evidence
+    rule). An isotropic kernel does not depend on the rotation, so it keeps ``axes``.
+
+    ``surrogate["inputs"]`` chooses the scale of the inputs: ``linear``, ``log`` (the
+    inputs whose box lies in [0, inf) enter as logs, :func:`log_input_offsets`) or
+    ``auto``: with one length scale per input (``ard``), both, by the same evidence
+    rule (the principal frame is computed in each scale); with a single length scale,
+    ``linear`` (see :data:`LOG_INPUTS_NOTE`). Without an input that qualifies, ``log``
+    and ``auto`` are ``linear``.
+    """
+    kw, candidates = _search_settings(X, y, surrogate, bounds, bound)
     best, best_ev = None, -math.inf
-    for kernel, warp, (log_offset, rotation) in itertools.product(kernels, warps, inputs):
-        what = f"{kernel} of {'log-misfit' if warp else 'L'}" + \
-            ("" if rotation is None else " (principal axes)") + \
-            ("" if log_offset is None else " (log inputs)")
-        try:
-            gp = fit_gp(X, y, warp=warp, kernel=kernel, rotation=rotation,
-                        log_offset=log_offset, **kw)
-        except (RuntimeError, np.linalg.LinAlgError) as exc:
-            log.warning("surrogate %s: fit failed: %s", what, exc)
+    for candidate in candidates:
+        gp = _fit_candidate(X, y, kw, bounds, bound, candidate)
+        if gp is None:
             continue
-        if bound is not None and not gp.warped and _overshoots(gp, bounds, bound):
-            log.info("surrogate %s: rejected, its mean exceeds the likelihood's "
-                     "upper bound %.6g inside the box", what, bound)
-            continue
-        ev = gp.log_marginal_likelihood - (float(np.sum(gp.y_train)) if gp.warped else 0.0)
-        log.info("surrogate %s: evidence of L %.6g", what, ev)
+        ev = _evidence_of_L(gp)
+        log.info("surrogate %s: evidence of L %.6g", _describe(*candidate), ev)
         if best is None or ev > best_ev:
             best, best_ev = gp, ev
     if best is None:
         raise RuntimeError("every GP surrogate fit failed")
-    if len(kernels) * len(warps) * len(inputs) > 1:
+    if len(candidates) > 1:
         log.info("surrogate chosen: %s of %s%s%s", best.kernel,
                  "log-misfit" if best.warped else "L",
                  "" if best.rotation is None else " (principal axes)",
                  "" if best.log_offset is None else " (log inputs)")
+    best.selection, best.selection_n = _SEARCH, best.n_train
     return best
+
+
+
+def _matches(candidate: tuple[str, bool, np.ndarray | None, np.ndarray | None],
+             previous: GPSurrogate) -> bool:
+    """True when ``candidate`` (kernel, warp, log_offset, rotation) makes the same discrete
+    choices as ``previous``: kernel, output (log-misfit or L), input scale (log or linear)
+    and frame (principal or axes; the rotation itself is recomputed from current data)."""
+    kernel, warp, log_offset, rotation = candidate
+    return (kernel == previous.kernel and bool(warp) == previous.warped
+            and (log_offset is None) == (previous.log_offset is None)
+            and (rotation is None) == (previous.rotation is None))
+
+
+#: the refit of :func:`fit_round` starts its first optimizer run at the previous round's
+#: kernel variance and length scales (else at the default start, as the full search)
+REFIT_WARM_START = True
+
+
+def fit_round(X: np.ndarray, y: np.ndarray, surrogate: dict[str, Any], bounds: np.ndarray, *,
+              bound: float | None = None, previous: GPSurrogate | None = None) -> GPSurrogate:
+    """The surrogate of one round of the active design: :func:`fit_from_config` (the full
+    search of the discrete choices: kernel x output x input scale x frame) only when the
+    training set has grown enough since the last full search, else a refit of the
+    previous round's choice.
+
+    Rule (``surrogate["reselect_growth"]`` = f >= 0). With n the number of finite
+    training values now and n_s that of the last full search (``previous.selection_n``),
+    the candidates are searched in full when
+
+        previous is None, f = 0, n_s is unknown, or n >= (1 + f) n_s,
+
+    and when the previous choice is not among the candidates of ``surrogate`` (the
+    settings changed). Otherwise only the previous choice is fitted, on all current data
+    (the principal frame, if chosen, recomputed from them), its first optimizer start at
+    the previous kernel variance and length scales (warm start; the other ``restarts - 1``
+    starts as in :func:`fit_gp`). A refit that fails, or a model of L whose mean exceeds
+    the bound inside the box (:func:`_overshoots`), falls back to the full search. With
+    f = 0 the result is that of :func:`fit_from_config`, bit for bit.
+
+    The discrete choices are chosen by the evidence among models fitted to the same
+    data (type-II maximum likelihood); between searches the evidences of the candidates
+    change slowly as a design grows by small batches, so re-deciding them every round
+    mostly refits the same choice. The refit keeps the choice's continuous
+    hyperparameters (variance, length scales, quadratic mean) optimal for current data.
+
+    Parameters
+    ----------
+    X
+        (n, d) training inputs in user units.
+    y
+        (n,) their log-likelihoods (non-finite: failed, left out).
+    surrogate
+        A validated ``surrogate`` config section.
+    bounds
+        (d, 2) design box.
+    bound
+        Upper bound of the log-likelihood; None: unknown.
+    previous
+        The previous round's surrogate (None: round 0).
+
+    Returns
+    -------
+    GPSurrogate
+        With ``selection`` ``"search"`` (and ``selection_n`` = its n) after a full search,
+        ``"refit"`` (``selection_n`` carried over from ``previous``) after a refit.
+    """
+    if previous is None:
+        return fit_from_config(X, y, surrogate, bounds, bound=bound)
+    growth = float(surrogate["reselect_growth"])
+    ya = np.asarray(y, float).reshape(-1)
+    n = int((np.isfinite(ya) & np.all(np.isfinite(np.asarray(X, float)), axis=1)).sum())
+    n_s = int(previous.selection_n)
+    if growth <= 0 or n_s < 1 or n >= (1.0 + growth) * n_s:
+        if growth > 0 and n_s >= 1:
+            log.info("surrogate: %d training values, %.3g times the %d of the last search "
+                     "of the discrete choices: searched again", n, n / n_s, n_s)
+        return fit_from_config(X, y, surrogate, bounds, bound=bound)
+    kw, candidates = _search_settings(X, y, surrogate, bounds, bound)
+    same = [c for c in candidates if _matches(c, previous)]
+    if not same or kw["ard"] != previous.ard or kw["mean"] != previous.mean_function:
+        log.info("surrogate: the previous choice (%s) is not among the candidates of the "
+                 "settings: full search", _describe(previous.kernel, previous.warped,
+                                                    previous.log_offset, previous.rotation))
+        return fit_from_config(X, y, surrogate, bounds, bound=bound)
+    candidate = same[0]
+    warm = (float(previous.variance), np.array(previous.lengthscale, float)) \
+        if REFIT_WARM_START else None
+    gp = _fit_candidate(X, y, kw, bounds, bound, candidate, warm_start=warm)
+    if gp is None:
+        log.info("surrogate: the refit of %s was rejected: full search",
+                 _describe(*candidate))
+        return fit_from_config(X, y, surrogate, bounds, bound=bound)
+    gp.selection, gp.selection_n = _REFIT, n_s
+    log.info("surrogate: %s refitted on %d values (choices searched at %d; next search "
+             "from %d), evidence of L %.6g", _describe(*candidate), n, n_s,
+             math.ceil((1.0 + growth) * n_s), _evidence_of_L(gp))
+    return gp

@@ -543,15 +543,26 @@ def _space(parameters: Sequence[Mapping[str, Any]]):
 
 def train_surrogate(training_path: str | Path, surrogate: Mapping[str, Any],
           parameters: Sequence[Mapping[str, Any]], out_path: str | Path, *,
-          reuse: Sequence[str | Path] = ()) -> None:
+          reuse: Sequence[str | Path] = (), previous: str | Path | None = None) -> None:
     """Fit the GP surrogate on the training points (failed runs left out).
 
-    ``reuse``: (training table, surrogate) of an earlier fit with the same settings
-    (the last active round's); when the training table holds the same content, that
-    surrogate is copied instead of fitted again (:func:`_reuse`)."""
-    from bayescalib.inference.surrogate import fit_from_config
+    ``previous``: the surrogate file of the previous active round. Its discrete choices
+    (kernel, output, inputs, frame) are refitted instead of searched again until the
+    training set has grown by ``surrogate.reselect_growth`` since their last full search
+    (:func:`bayescalib.inference.surrogate.fit_round`). None (round 0, a fixed design,
+    the study's final surrogate): a full search.
 
-    if _reuse(training_path, reuse, out_path, "train_surrogate"):
+    ``reuse``: (training table, surrogate) of an earlier fit with the same settings
+    (the last active round's); when the training table holds the same content and that
+    surrogate searched the discrete choices in full, it is copied instead of fitted again
+    (:func:`_reuse`). A round's refit is not reused: the study's surrogate is a full
+    search."""
+    from bayescalib.inference.surrogate import GPSurrogate, fit_round
+
+    if reuse and not _full_search(reuse[-1]):
+        log.info("train_surrogate: '%s' refitted the previous round's choices: the "
+                 "discrete choices are searched in full for the study's surrogate", reuse[-1])
+    elif _reuse(training_path, reuse, out_path, "train_surrogate"):
         return
     tab = _read_checked(training_path, read_training, "training table")
     train_mask = tab["is_train"].astype(bool)
@@ -574,7 +585,8 @@ def train_surrogate(training_path: str | Path, surrogate: Mapping[str, Any],
     space = _space(parameters)
     bound = loglik_bound(tab, train_mask)
     try:
-        gp = fit_from_config(X, L, surrogate, space.bounds, bound=bound)
+        prev = None if previous is None else GPSurrogate.load(previous, device="cpu")
+        gp = fit_round(X, L, dict(surrogate), space.bounds, bound=bound, previous=prev)
     except (RuntimeError, ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:
         Lf = L[finite]
         raise PipelineError(
@@ -589,6 +601,21 @@ def train_surrogate(training_path: str | Path, surrogate: Mapping[str, Any],
     gp.save(out_path)
     log.info("GP surrogate on %d points (%d excluded): %s", gp.n_train, gp.n_excluded,
              gp.hyperparameters)
+
+
+def _full_search(surrogate_path: str | Path) -> bool:
+    """False when the surrogate file records a refit of an earlier round's discrete
+    choices (:func:`bayescalib.inference.surrogate.fit_round`); True otherwise (a full
+    search, a file written before the record, or one that cannot be read: then
+    :func:`_reuse` decides)."""
+    import h5py
+
+    try:
+        with h5py.File(surrogate_path, "r") as f:
+            value = f.attrs.get("selection", "search")
+    except OSError:
+        return True
+    return (value.decode() if isinstance(value, bytes) else str(value)) != "refit"
 
 
 def loglik_bound(tab: Mapping[str, Any], use: np.ndarray | None = None) -> float | None:

@@ -18,9 +18,14 @@ rule, and the files of each round laid out as in the workflow's results::
     <workdir>/active/<r>/surrogate.h5      GP surrogate of round r
     <workdir>/active/<r>/particles.h5      SMC on it
     <workdir>/active/<r>/acquire.json      checks, stop rule and the batch of round r+1
-    <workdir>/particles.h5                 SMC on the last round's surrogate with the
+    <workdir>/surrogate.h5                 a full search of the surrogate's discrete
+                                           choices on the last round's data, when that
+                                           round refitted the previous choices
+                                           (``surrogate.reselect_growth``)
+    <workdir>/particles.h5                 SMC on the final surrogate with the
                                            study's settings, when the rounds used
-                                           lighter ones (``design.active.smc``)
+                                           lighter ones (``design.active.smc``) or it
+                                           is the surrogate above
     <workdir>/posterior.json, posterior.nc summaries of the last round
 
 Solves are reused when their run record exists with the same values; surrogates, SMC
@@ -114,6 +119,7 @@ def calibrate_rounds(
     from bayescalib.io.training import write_training
     from bayescalib.models.forward import solve_points
     from bayescalib.stages import (
+        _full_search,
         acquire,
         discrepancy,
         gather_rows,
@@ -157,7 +163,8 @@ def calibrate_rounds(
         write_training(training, rows["X"], rows["loglik"], rows["D"], rows["status"],
                        rows["reason"], names, len(rows["loglik"]), bound=rows["bound"],
                        n_measurements=rows["n_measurements"])
-        train_surrogate(training, surrogate, parameters, rd / "surrogate.h5")
+        train_surrogate(training, surrogate, parameters, rd / "surrogate.h5",
+                        previous=None if r == 0 else work / "active" / str(r - 1) / "surrogate.h5")
         smc(rd / "surrogate.h5", round_smc(smc_cfg, active), parameters, rd / "particles.h5")
         rec = acquire(r, training, rd / "surrogate.h5", rd / "particles.h5", previous, active,
                       parameters, rd / "acquire.json")
@@ -167,11 +174,16 @@ def calibrate_rounds(
         solve(np.asarray(rec["next"]["points"], float))
         previous = rd / "acquire.json"
         r += 1
-    particles = rd / "particles.h5"
-    if round_smc(smc_cfg, active) != dict(smc_cfg):  # the rounds sampled lighter
+    particles, final = rd / "particles.h5", rd / "surrogate.h5"
+    if not _full_search(final):  # the last round refitted its choices: the result searches them
+        final = work / "surrogate.h5"
+        train_surrogate(training, surrogate, parameters, final)
         particles = work / "particles.h5"
-        smc(rd / "surrogate.h5", smc_cfg, parameters, particles)
-    summary = marginalize(particles, rd / "surrogate.h5", posterior_cfg, parameters,
+        smc(final, smc_cfg, parameters, particles)
+    elif round_smc(smc_cfg, active) != dict(smc_cfg):  # the rounds sampled lighter
+        particles = work / "particles.h5"
+        smc(final, smc_cfg, parameters, particles)
+    summary = marginalize(particles, final, posterior_cfg, parameters,
                           int(smc_cfg["seed"]), work / "posterior.json", work / "posterior.nc")
     res = read_particles_h5(particles)
     n_new = len(run_paths)
@@ -185,5 +197,5 @@ def calibrate_rounds(
             "converged": bool(rec["converged"]), "reason": str(rec["reason"]),
             "fit": fit_check(rows["loglik"], rows["bound"], rows["n_measurements"]),
             "rounds": rounds, "n_new": n_new, "n_reused": n_reused, "n_failed": n_failed,
-            "training": str(training), "surrogate": str(rd / "surrogate.h5"),
+            "training": str(training), "surrogate": str(final),
             "particles": str(particles)}

@@ -1,0 +1,247 @@
+"""When the surrogate's discrete choices are searched again (surrogate.reselect_growth).
+
+Contract (bayescalib.inference.surrogate.fit_round): every candidate of the discrete
+choices (kernel x output x input scale x frame) is fitted in round 0 and whenever the
+training set has grown by the stated fraction since the last full search; in the rounds
+between, exactly one fit (the previous choice, on all current data); a refit that fails
+or overshoots the bound falls back to the full search; with ``reselect_growth: 0`` the
+result is bit for bit that of the full search (today's behaviour). The choice and the n
+of its search travel with the surrogate file; the study's final surrogate (the active
+design's result, the workflow's measure fit) is a full search.
+"""
+
+from __future__ import annotations
+
+import h5py
+import numpy as np
+import pytest
+
+import bayescalib.inference.surrogate as sur
+from bayescalib import stages
+from bayescalib.config import validate
+from bayescalib.inference.design import sobol_design
+from bayescalib.io.training import write_training
+
+BOX = np.array([[-2.0, 2.0], [-1.0, 3.0]])
+B = 1.5  # the log-likelihood's upper bound
+#: candidates of a 2-D surrogate with a bound and ``kernel: auto``, ``output: auto``
+#: (one length scale, so linear inputs in the parameter axes): 3 kernels x 2 outputs
+N_CANDIDATES_2D = 6
+
+
+def _loglik(X: np.ndarray) -> np.ndarray:
+    X = np.atleast_2d(X)
+    return B - 0.5 * (((X[:, 0] - 0.3) / 0.4) ** 2 + ((X[:, 1] - 1.0 - 0.5 * X[:, 0]) / 0.3) ** 2)
+
+
+def _cfg(**kw):
+    return validate({"surrogate": {"restarts": 1, **kw}}, "inference",
+                    where="test")["surrogate"]
+
+
+def _data(n: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    X = sobol_design(BOX, n, seed)
+    return X, _loglik(X)
+
+
+class _Count:
+    """Counts the calls of fit_gp (one GP fit each) and of fit_from_config (full searches)."""
+
+    def __init__(self, monkeypatch):
+        self.fits = self.searches = 0
+        fit_gp, search = sur.fit_gp, sur.fit_from_config
+
+        def counted_fit(*a, **k):
+            self.fits += 1
+            return fit_gp(*a, **k)
+
+        def counted_search(*a, **k):
+            self.searches += 1
+            return search(*a, **k)
+
+        monkeypatch.setattr(sur, "fit_gp", counted_fit)
+        monkeypatch.setattr(sur, "fit_from_config", counted_search)
+
+
+def _same(a: sur.GPSurrogate, b: sur.GPSurrogate) -> bool:
+    return (a.kernel == b.kernel and a.warped == b.warped and a.variance == b.variance
+            and np.array_equal(a.lengthscale, b.lengthscale) and np.array_equal(a.chol, b.chol)
+            and np.array_equal(a.alpha, b.alpha))
+
+
+def test_round_0_and_enough_growth_search_every_candidate_and_between_one_fit(monkeypatch):
+    count = _Count(monkeypatch)
+    cfg = _cfg(reselect_growth=0.5)
+    X, L = _data(24)
+    gp0 = sur.fit_round(X[:12], L[:12], cfg, BOX, bound=B, previous=None)  # round 0
+    assert (count.searches, count.fits) == (1, N_CANDIDATES_2D)
+    assert (gp0.selection, gp0.selection_n) == ("search", 12)
+    # 17 < 1.5 * 12 = 18: the previous choice is refitted, one fit on all 17 points
+    gp1 = sur.fit_round(X[:17], L[:17], cfg, BOX, bound=B, previous=gp0)
+    assert (count.searches, count.fits) == (1, N_CANDIDATES_2D + 1)
+    assert (gp1.selection, gp1.selection_n, gp1.n_train) == ("refit", 12, 17)
+    assert (gp1.kernel, gp1.warped) == (gp0.kernel, gp0.warped)
+    # 18 >= 18: searched in full again, and the n of the search moves on
+    gp2 = sur.fit_round(X[:18], L[:18], cfg, BOX, bound=B, previous=gp1)
+    assert (count.searches, count.fits) == (2, 2 * N_CANDIDATES_2D + 1)
+    assert (gp2.selection, gp2.selection_n) == ("search", 18)
+
+
+def test_the_refit_is_warm_started_and_fits_the_data_as_well_as_a_search():
+    """The refit keeps the choice and reoptimizes its hyperparameters on all data: its
+    evidence is within 1 nat of the same choice fitted from the default start."""
+    cfg = _cfg(reselect_growth=1.0)
+    X, L = _data(30)
+    gp0 = sur.fit_round(X[:16], L[:16], cfg, BOX, bound=B)
+    gp1 = sur.fit_round(X, L, cfg, BOX, bound=B, previous=gp0)
+    assert gp1.selection == "refit"
+    cold = sur.fit_gp(X, L, warp=gp0.warped, kernel=gp0.kernel, ard=False, restarts=1,
+                      bounds=BOX, bound=B)
+    assert gp1.log_marginal_likelihood >= cold.log_marginal_likelihood - 1.0
+    Z = sobol_design(BOX, 256, 5)
+    near = Z[_loglik(Z) > B - 3.0]
+    assert near.shape[0] >= 5
+    assert np.max(np.abs(gp1.predict(near) - _loglik(near))) < 0.5
+
+
+def test_a_rejected_refit_falls_back_to_the_full_search(monkeypatch):
+    """The previous choice is a GP of L; its refit overshoots the bound (forced here):
+    every candidate is then fitted and the result is a search."""
+    cfg = _cfg(reselect_growth=10.0)
+    X, L = _data(20)
+    gp0 = sur.fit_round(X[:14], L[:14], _cfg(reselect_growth=10.0, output="loglik"), BOX,
+                        bound=B)
+    assert not gp0.warped
+    count = _Count(monkeypatch)
+    overshoots = sur._overshoots
+    calls = []
+
+    def first_overshoots(gp, bounds, bound, n=4096):  # the refit (first call) overshoots
+        calls.append(gp)
+        return True if len(calls) == 1 else overshoots(gp, bounds, bound, n)
+
+    monkeypatch.setattr(sur, "_overshoots", first_overshoots)
+    gp1 = sur.fit_round(X, L, cfg, BOX, bound=B, previous=gp0)
+    assert (count.searches, count.fits) == (1, 1 + N_CANDIDATES_2D)
+    assert (gp1.selection, gp1.selection_n) == ("search", 20)
+
+
+def test_a_failed_refit_falls_back_to_the_full_search(monkeypatch):
+    cfg = _cfg(reselect_growth=10.0)
+    X, L = _data(20)
+    gp0 = sur.fit_round(X[:14], L[:14], cfg, BOX, bound=B)
+    fit_gp, calls = sur.fit_gp, []
+
+    def failing_first(*a, **k):
+        calls.append(k.get("warm_start"))
+        if len(calls) == 1:
+            raise RuntimeError("every GP hyperparameter optimization failed")
+        return fit_gp(*a, **k)
+
+    monkeypatch.setattr(sur, "fit_gp", failing_first)
+    gp1 = sur.fit_round(X, L, cfg, BOX, bound=B, previous=gp0)
+    assert calls[0] is not None  # the refit was warm-started from the previous optimum
+    assert len(calls) == 1 + N_CANDIDATES_2D and all(s is None for s in calls[1:])
+    assert gp1.selection == "search"
+
+
+def test_a_previous_choice_outside_the_settings_is_searched_again(monkeypatch):
+    X, L = _data(20)
+    gp0 = sur.fit_round(X[:14], L[:14], _cfg(kernel="rbf", reselect_growth=10.0), BOX, bound=B)
+    count = _Count(monkeypatch)
+    gp1 = sur.fit_round(X, L, _cfg(kernel="matern32", reselect_growth=10.0), BOX, bound=B,
+                        previous=gp0)
+    assert count.searches == 1 and gp1.kernel == "matern32" and gp1.selection == "search"
+
+
+def test_reselect_growth_0_is_the_full_search_every_round_bit_for_bit():
+    X, L = _data(22)
+    cfg = _cfg(reselect_growth=0.0)
+    gp0 = sur.fit_round(X[:14], L[:14], cfg, BOX, bound=B)
+    gp1 = sur.fit_round(X, L, cfg, BOX, bound=B, previous=gp0)
+    today = sur.fit_from_config(X, L, cfg, BOX, bound=B)
+    assert gp1.selection == "search" and _same(gp1, today)
+    Z = sobol_design(BOX, 512, 3)
+    assert np.array_equal(gp1.predict(Z), today.predict(Z))
+
+
+def test_the_choice_and_its_n_travel_with_the_surrogate_file(tmp_path):
+    cfg = _cfg(reselect_growth=1.0)
+    X, L = _data(20)
+    gp0 = sur.fit_round(X[:12], L[:12], cfg, BOX, bound=B)
+    gp1 = sur.fit_round(X, L, cfg, BOX, bound=B, previous=gp0)
+    gp1.save(tmp_path / "s.h5")
+    again = sur.GPSurrogate.load(tmp_path / "s.h5", device="cpu")
+    assert (again.selection, again.selection_n) == ("refit", 12)
+    assert (again.kernel, again.warped) == (gp0.kernel, gp0.warped)
+    # a file written before the record (same format version): a full search, n unknown,
+    # so the next round searches in full
+    with h5py.File(tmp_path / "s.h5", "a") as f:
+        del f.attrs["selection"], f.attrs["selection_n"]
+    old = sur.GPSurrogate.load(tmp_path / "s.h5", device="cpu")
+    assert (old.selection, old.selection_n) == ("search", -1)
+    assert sur.fit_round(X, L, cfg, BOX, bound=B, previous=old).selection == "search"
+
+
+# ------------------------------------------------------------------- the workflow's stage
+PARAMETERS = [
+    {"name": "a", "target": "a", "bounds": [-2.0, 2.0],
+     "prior": {"type": "uniform", "lo": -2.0, "hi": 2.0}},
+    {"name": "b", "target": "b", "bounds": [-1.0, 3.0],
+     "prior": {"type": "uniform", "lo": -1.0, "hi": 3.0}},
+]
+
+
+def _table(path, n: int):
+    X, L = _data(n)
+    write_training(path, X, L, np.sqrt(B - L), np.ones(n, bool), [""] * n, ["a", "b"], n,
+                   bound=np.full(n, B))
+    return path
+
+
+def test_the_round_stage_reads_the_previous_rounds_choice_and_the_study_searches_again(
+        tmp_path):
+    """train_surrogate with ``previous`` (a round r > 0 of the workflow) refits the
+    previous round's choice; the measure's fit on the same table does not copy a refit
+    (``reuse``) but searches in full."""
+    cfg = _cfg(reselect_growth=1.0)
+    r0, r1 = tmp_path / "0", tmp_path / "1"
+    r0.mkdir()
+    r1.mkdir()
+    stages.train_surrogate(_table(r0 / "training.h5", 12), cfg, PARAMETERS, r0 / "surrogate.h5")
+    stages.train_surrogate(_table(r1 / "training.h5", 17), cfg, PARAMETERS, r1 / "surrogate.h5",
+                           previous=r0 / "surrogate.h5")
+    s0 = sur.GPSurrogate.load(r0 / "surrogate.h5", device="cpu")
+    s1 = sur.GPSurrogate.load(r1 / "surrogate.h5", device="cpu")
+    assert (s0.selection, s0.selection_n) == ("search", 12)
+    assert (s1.selection, s1.selection_n, s1.n_train) == ("refit", 12, 17)
+    stages.train_surrogate(_table(tmp_path / "training.h5", 17), cfg, PARAMETERS,
+                           tmp_path / "surrogate.h5",
+                           reuse=[r1 / "training.h5", r1 / "surrogate.h5"])
+    final = sur.GPSurrogate.load(tmp_path / "surrogate.h5", device="cpu")
+    assert (final.selection, final.selection_n, final.n_train) == ("search", 17, 17)
+
+
+# ------------------------------------------------------------------ in-process active design
+@pytest.mark.parametrize("growth", [0.0, 10.0])
+def test_calibrate_searches_in_round_0_and_for_its_result(growth, monkeypatch):
+    """In-process rounds (bayescalib.inference.active.calibrate): with reselect_growth 0
+    every round searches in full (and the result is the last round's); with a growth
+    never reached only round 0 searches, and the result's surrogate is one more search."""
+    from bayescalib.inference.active import calibrate
+    from bayescalib.inference.parameters import ParameterSpace
+
+    count = _Count(monkeypatch)
+    space = ParameterSpace.from_config(PARAMETERS)
+    res = calibrate(_loglik, space, bound=B,
+                    active={"n_initial": 10, "batch_size": 4, "max_solves": 22},
+                    surrogate={"restarts": 1, "reselect_growth": growth},
+                    smc={"n_particles": 300, "n_rej": 2}, seed=0)
+    assert res.n_rounds >= 3
+    assert res.surrogate.selection == "search" and res.surrogate.n_train == res.n_evaluations
+    if growth == 0.0:
+        assert count.searches == res.n_rounds
+        assert count.fits == N_CANDIDATES_2D * res.n_rounds
+    else:
+        assert count.searches == 2
+        assert count.fits == 2 * N_CANDIDATES_2D + (res.n_rounds - 1)
