@@ -26,9 +26,14 @@ ACTIVE = {"strategy": "active", "seed": 1,
           "active": {"n_initial": 8, "batch_size": 4, "max_solves": 23}}
 
 
+RESELECT_GROWTH = 0.5
+
+
 def _study(base: dict, **design) -> dict:
     out = json.loads(json.dumps(base))
     out["design"] = json.loads(json.dumps(ACTIVE))
+    # refit the surrogate's previous choice between full searches (off by default)
+    out.setdefault("surrogate", {})["reselect_growth"] = RESELECT_GROWTH
     for k, v in design.items():
         if isinstance(v, dict):
             out["design"]["active"].setdefault(k, {}).update(v)
@@ -152,14 +157,12 @@ def _stamps(tmp: Path, name: str) -> dict[str, int]:
 
 
 def test_the_rounds_search_the_surrogates_choices_when_the_design_grew_by_half(active_run):
-    """surrogate.reselect_growth (default 0.5) through the workflow: round r reads round
+    """surrogate.reselect_growth (0.5 here) through the workflow: round r reads round
     r-1's surrogate file; it searches the choices in full in round 0 and when its n is
     at least 1.5 times that of the last search, else it refits (n of the search kept)."""
     import h5py
 
-    from bayescalib.config import validate
-
-    f = validate({}, "inference")["surrogate"]["reselect_growth"]
+    f = RESELECT_GROWTH
     rounds = sorted((active_run[0] / "results/analytic/active").glob("*/surrogate.h5"),
                     key=lambda p: int(p.parent.name))
     n_search = None
