@@ -41,19 +41,18 @@ unnormalized posterior where it is large,
     log a(x) = log var_L(x) + k (mean_L(x) + log p(x)),   k = ``posterior_power``,
 
 the GP variance of the log-likelihood weighted by the surrogate posterior
-density to the power k. k = 2 (the default) is the "prospective uncertainty
-sampling" of VBMC (Acerbi 2018), a_pro = s^2(x) q(x) exp(f(x)) with the
-surrogate posterior in place of the variational q, i.e. the variance of the
-unnormalized posterior exp(L) p by the delta method (var_L exp(2 mean_L) p^2),
-which also underlies BAPE (Kandasamy et al. 2017) and the batch rules of
-Jarvenpaa et al. (2019); GPry's LogExp acquisition (Gammal et al. 2023) is the
-same form with k = 4 zeta, zeta = d^-0.85 (k = 2.2 in 2D, 1.2 in 4D). k = 1, the
-rule before issue 17, weighs the posterior only once, so a point 10 nats down
-its tail still scores like one e^-5 as likely as the mode: on the curved ridge of
-``benchmarks/bench_active.py`` (seeds 0-2) 35-39 % of the exploiting picks lay
-outside the 99 % posterior region (more than 4.6 nats below the mode, out along
-the ridge's arms), with k = 2 9 % (seed 0; median pick 0.8 nats below the mode
-instead of 3.0). A batch
+density to the power k. k = 1 (the default) weighs the posterior once. k = 2 is
+the "prospective uncertainty sampling" of VBMC (Acerbi 2018), a_pro = s^2(x)
+q(x) exp(f(x)) with the surrogate posterior in place of the variational q, i.e.
+the variance of the unnormalized posterior exp(L) p by the delta method
+(var_L exp(2 mean_L) p^2), which also underlies BAPE (Kandasamy et al. 2017) and
+the batch rules of Jarvenpaa et al. (2019); GPry's LogExp acquisition (Gammal et
+al. 2023) is the same form with k = 4 zeta, zeta = d^-0.85 (k = 2.2 in 2D, 1.2 in
+4D). Measured on ``benchmarks/bench_active.py`` (issue 17, docs/bench_active.md):
+with k = 1, 35-39 % of the exploiting picks on the curved ridge lay outside the
+99 % posterior region, with k = 2 9 %, yet the posterior was not more accurate,
+and on the two-lobe problem k = 2 never probed the weak lobe and stopped as
+converged on the main one; k = 1 stays the default. A batch
 is chosen greedily: after each pick, the GP variance of the remaining
 candidates is conditioned on that point (the variance of a GP does not depend
 on the value that will be observed, so this is exact for the variance; the mean
