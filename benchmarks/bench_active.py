@@ -31,10 +31,15 @@ Methods
 -------
 * ``sobol_gp``: today's pipeline: a scrambled Sobol design of the whole budget,
   the GP surrogate of the log-likelihood (``bayescalib.inference.surrogate.fit_gp``) and
-  SMC on its mean (``bayescalib.inference.smc.run_smc``, 4000 particles).
+  SMC on its mean (``bayescalib.inference.smc.run_smc``).
 * ``active``: ``bayescalib.inference.active.calibrate`` (active design in batches of 8,
   ``max_solves`` = budget, a quarter of the budget as initial design). Reported
-  as "not available" when the module does not import.
+  as "not available" when the module does not import. ``active_vbmc``: the same with
+  VBMC's prospective uncertainty in the acquisition (``posterior_power`` 2), so that
+  both are measured in one run. ``--ard`` and ``--nugget-factor`` set the
+  surrogate of both; ``--trace`` records each round's accuracy (``trace`` in the
+  results: Hellinger of that round's surrogate on the grid in 2D, and the moment
+  metrics of that round's own SMC, 4000 particles).
 * ``pyvbmc``: PyVBMC (``max_fun_evals`` = budget; hard bounds = box, plausible
   bounds = the central 80 % of the box, start at the box centre); 1e5 samples
   of the variational posterior, ``vp.pdf`` on the grid in 2D.
@@ -64,7 +69,13 @@ Metrics (per problem and method; medians over the seeds, ``--seeds`` or ``--repe
   log-posterior, or, if that fails, 30 x 30 histograms of samples on both
   sides, marked ``hist30``).
 * ``mean_err`` / ``sd_err``: max over parameters of |mean - mean_ref| / sd_ref
-  and |sd - sd_ref| / sd_ref, from the method's (weighted) samples.
+  and |sd - sd_ref| / sd_ref, from the method's (weighted) samples. For the surrogate
+  methods (``sobol_gp``, ``active``, ``gpry``) these are the draws of one and the same
+  sampler, SMC with ``METRIC_PARTICLES`` = 20 000 particles on the final surrogate's
+  mean, so that no method is penalized for its own sampler (with 4000 particles the
+  KL of ``sloppy4d`` has a floor of 0.002-0.004 from the draws alone, with 20 000
+  0.0006-0.0008). The row ``floor`` of each problem: the same SMC on the exact
+  log-likelihood, the best these metrics can show.
 * ``kl_gauss``: KL(reference || method) between moment-matched Gaussians.
 * ``active`` also reports ``converged`` and ``reason``, and on ``hetero7d`` (a
   least-squares likelihood of 40 measurements) the absolute fit check of its best
@@ -76,6 +87,8 @@ Run (repository root as working directory)::
     python benchmarks/bench_active.py --problems ridge2d,lobe2d --methods sobol_gp,pyvbmc
     python benchmarks/bench_active.py --budget 128 --repeats 3 --out results/bench_active
     python benchmarks/bench_active.py --methods active --seeds '2d=0-4;4d=0-2;7d=0-2'
+    python benchmarks/bench_active.py --problems ridge2d,lobe2d,sloppy4d --methods active,active_vbmc \
+        --seeds '2d=0-2;4d=0-2' --trace                    # posterior_power 1 and 2
 
 With several seeds the table gives the median and, in brackets, the range over the
 seeds; each ``active`` run's evaluated points are kept in
@@ -127,11 +140,27 @@ ACTIVE_MEAN: str | None = None
 #: surrogate.reselect_growth of the active method (None: the schema's default); set per
 #: variant by --reselect-growth (methods named ``active[rg=<value>]``)
 ACTIVE_RESELECT: float | None = None
+#: further surrogate settings of the active methods (--ard, --nugget-factor; empty: the
+#: benchmark's own ard rule and the schema's defaults)
+ACTIVE_SURROGATE: dict[str, Any] = {}
+#: design.active settings of the method ``active`` (the schema's) and ``active_vbmc`` (VBMC's
+#: prospective uncertainty: the surrogate posterior squared in the score), so that both run in
+#: the same benchmark run
+ACQUISITIONS: dict[str, dict[str, Any]] = {
+    "active": {},
+    "active_vbmc": {"posterior_power": 2.0},
+}
+#: record the active design's accuracy after every round (--trace)
+TRACE = False
 GRID_N = 400
-#: particles of the SMC run on GPry's surrogate whose draws the metrics use (GPry's own final
-#: nested sample, 50 live points per dimension, has an effective size of a few hundred to a
-#: few thousand; its metrics are kept in the results as ``own_sample``)
-GPRY_SMC_PARTICLES = 20000
+#: particles of the SMC run on each surrogate method's final surrogate (sobol_gp, active, gpry)
+#: whose draws the moment metrics use: the same sampler for every method, so that a method is
+#: not penalized for its own sampler (GPry's own final nested sample, 50 live points per
+#: dimension, has an effective size of a few hundred to a few thousand; active's own final SMC
+#: has 4000 particles; their metrics are kept in the results as ``own_sample``). The floor of
+#: the metrics with this sampler, SMC on the exact log-likelihood, is reported per problem.
+METRIC_PARTICLES = 20000
+GPRY_SMC_PARTICLES = METRIC_PARTICLES
 HIST_N = 30
 
 
@@ -462,9 +491,44 @@ def _log_uniform(prob: Problem) -> float:
 # ---------------------------------------------------------------------------
 
 
+def metric_smc(loglik: Callable[[np.ndarray], np.ndarray], prob: Problem, seed: int):
+    """The draws the moment metrics use: the same SMC (``METRIC_PARTICLES`` particles,
+    20 rejuvenation steps, zeta 0.95) for every surrogate method and for the floor."""
+    from bayescalib.inference.smc import run_smc
+
+    return run_smc(loglik, make_space(prob), n_particles=METRIC_PARTICLES, n_rej=20, zeta=0.95,
+                   rng=np.random.default_rng(seed))
+
+
+def sampler_floor(prob: Problem, seed: int = 0) -> dict[str, Any]:
+    """The metrics of :func:`metric_smc` on the exact log-likelihood: what no surrogate
+    method can beat with these draws (in 2D the Hellinger distance uses no draws)."""
+    res = metric_smc(prob.loglik, prob, seed)
+    return {"particles": METRIC_PARTICLES, **moment_metrics(prob, res.particles, res.weights)}
+
+
+def _round_metrics(prob: Problem, gp, rec: dict[str, Any]) -> dict[str, float]:
+    """Accuracy of one round's surrogate: Hellinger on the grid (2D; no draws), and the
+    moment metrics of that round's own SMC (its particles; floor of the round sampler)."""
+    space = make_space(prob)
+    m = np.asarray(rec["posterior"]["mean"], float)
+    C = np.asarray(rec["posterior"]["cov"], float)
+    sd = np.sqrt(np.diag(C))
+    out = {"n_solves": rec["n_solves"],
+           "mean_err": float(np.max(np.abs(m - prob.ref_mean) / prob.ref_sd)),
+           "sd_err": float(np.max(np.abs(sd - prob.ref_sd) / prob.ref_sd)),
+           "kl_gauss": kl_gauss(prob.ref_mean, prob.ref_cov, m, C),
+           "surrogate": f"{gp.kernel} of {'log-misfit' if gp.warped else 'L'}"
+                        + ("" if gp.rotation is None else ", principal axes")}
+    if prob.d == 2:
+        G = prob.grid_points()
+        Q = _normalize_log(gp.predict(G) + space.logprior(G)).reshape(GRID_N, GRID_N)
+        out["hellinger"] = hellinger(prob.ref_grid, Q)
+    return out
+
+
 def run_sobol_gp(prob: Problem, budget: int, seed: int) -> dict[str, Any]:
     from bayescalib.inference.design import sobol_design
-    from bayescalib.inference.smc import run_smc
     from bayescalib.inference.surrogate import fit_gp
 
     f = Counter(prob.loglik)
@@ -472,10 +536,7 @@ def run_sobol_gp(prob: Problem, budget: int, seed: int) -> dict[str, Any]:
     X = sobol_design(prob.bounds, budget, seed)
     y = f(X)
     gp = fit_gp(X, y, ard=prob.d > 2, bounds=prob.bounds, restarts=3, seed=seed)
-    smc = run_smc(
-        lambda Z: gp.predict(Z), space, n_particles=4000, n_rej=20, zeta=0.95,
-        rng=np.random.default_rng(seed),
-    )
+    smc = metric_smc(gp.predict, prob, seed)
     return {
         "samples": smc.particles,
         "weights": smc.weights,
@@ -487,7 +548,7 @@ def run_sobol_gp(prob: Problem, budget: int, seed: int) -> dict[str, Any]:
     }
 
 
-def run_active(prob: Problem, budget: int, seed: int) -> dict[str, Any]:
+def run_active(prob: Problem, budget: int, seed: int, variant: str = "active") -> dict[str, Any]:
     # Adapter for bayescalib.inference.active.calibrate; kept small so that names can follow the API.
     try:
         from bayescalib.inference.active import calibrate
@@ -497,8 +558,25 @@ def run_active(prob: Problem, budget: int, seed: int) -> dict[str, Any]:
     space = make_space(prob)
     n0 = max(2 * prob.d + 2, budget // 4)
     history: list[dict[str, Any]] = []
+    trace: list[dict[str, Any]] = []
+    fitted: list[Any] = []  # each round's surrogate (--trace), in the order calibrate fits them
+    import bayescalib.inference.surrogate as surrogate_module
+
+    fit_orig = surrogate_module.fit_round  # each round's surrogate: a search or a refit
+
+    def fit_recorded(*args, **kwargs):
+        gp = fit_orig(*args, **kwargs)
+        fitted.append(gp)
+        return gp
 
     def per_round(rec: dict[str, Any]) -> None:  # what the stop rule saw, round by round
+        if TRACE:
+            trace.append(_round_metrics(prob, fitted[-1], rec))
+            tr = trace[-1]
+            print(f"    trace: {tr['n_solves']} evals"
+                  + (f", Hellinger {tr['hellinger']:.4f}" if "hellinger" in tr else "")
+                  + f", KL {tr['kl_gauss']:.4g}, mean err {tr['mean_err']:.3g}, "
+                  f"sd err {tr['sd_err']:.3g} ({tr['surrogate']})", flush=True)
         t = rec.get("trust") or {}
         history.append({"round": rec["round"], "n_solves": rec["n_solves"],
                         "trusted": rec["trusted"], "settled": rec["settled"],
@@ -521,28 +599,34 @@ def run_active(prob: Problem, budget: int, seed: int) -> dict[str, Any]:
         return full_search(*args, **kwargs)
 
     sur.fit_from_config = counted
+    if TRACE:
+        sur.fit_round = fit_recorded
     try:
         res = calibrate(
             f, space, bound=prob.B,
-            active={"n_initial": n0, "batch_size": 8, "max_solves": budget},
+            active={"n_initial": n0, "batch_size": 8, "max_solves": budget,
+                    **ACQUISITIONS[variant]},
             surrogate={"ard": prob.d > 2, "kernel": ACTIVE_KERNEL, "frame": ACTIVE_FRAME,
                        **({} if ACTIVE_MEAN is None else {"mean": ACTIVE_MEAN}),
                        **({} if ACTIVE_RESELECT is None else
-                          {"reselect_growth": ACTIVE_RESELECT})},
-        smc={"n_particles": 4000},
-        seed=seed,
-        # hetero7d is a least-squares likelihood of H7_K measurements: check the best fit
+                          {"reselect_growth": ACTIVE_RESELECT}),
+                       **ACTIVE_SURROGATE},
+            smc={"n_particles": 4000},
+            seed=seed,
+            # hetero7d is a least-squares likelihood of H7_K measurements: check the best fit
             n_measurements=H7_K if prob.name == "hetero7d" else None,
             callback=per_round,
         )
     finally:
         sur.fit_from_config = full_search
+        sur.fit_round = fit_orig
     gp = res.surrogate
     if int(res.n_evaluations) != f.n:
         print(f"  [active] note: res.n_evaluations={res.n_evaluations} but the counter saw {f.n}")
+    smc = metric_smc(gp.predict, prob, seed)
     return {
-        "samples": res.smc.particles,
-        "weights": res.smc.weights,
+        "samples": smc.particles,
+        "weights": smc.weights,
         "grid_logpdf": lambda G: gp.predict(G) + space.logprior(G),
         "grid_kind": "surrogate",
         "n_evals": f.n,
@@ -554,7 +638,11 @@ def run_active(prob: Problem, budget: int, seed: int) -> dict[str, Any]:
             "fit": None if res.fit is None else res.fit["words"],
             "n_initial": n0,
             "n_searches": searches[0],
+            "acquisition": variant,
             "rounds": history,
+            "trace": trace,
+            "own_sample": {"particles": len(res.smc.weights),
+                           **moment_metrics(prob, res.smc.particles, res.smc.weights)},
         },
         "design": {"X": res.X, "loglik": res.loglik,
                    "kind": np.asarray(_point_kinds(res.rounds, res.n_evaluations))},
@@ -666,14 +754,10 @@ def _gpry_once(prob: Problem, budget: int, seed: int, surrogate: Any, f: Counter
     # The draws for the metrics: the same SMC as sobol_gp and active, on GPry's surrogate
     # log-likelihood (its mean; -inf where its classifier rules a point out). runner.logp is
     # the surrogate log-posterior (vectorized); its uniform prior is -log(prior volume).
-    from bayescalib.inference.smc import run_smc
-
     log_volume = float(runner.truth.log_prior_volume)
     t0 = time.perf_counter()
-    smc = run_smc(
-        lambda Z: np.asarray(runner.logp(Z), float).reshape(-1) + log_volume, make_space(prob),
-        n_particles=GPRY_SMC_PARTICLES, n_rej=20, zeta=0.95, rng=np.random.default_rng(seed),
-    )
+    smc = metric_smc(lambda Z: np.asarray(runner.logp(Z), float).reshape(-1) + log_volume,
+                     prob, seed)
     t_smc = time.perf_counter() - t0
     n_init_evals, n_batches = _gpry_rounds(runner.progress)
     # the initial design: blocks of n_initial drawn one after the other (each block a batch)
@@ -745,7 +829,12 @@ def run_gpry(prob: Problem, budget: int, seed: int) -> dict[str, Any]:
     return out
 
 
-METHODS = {"sobol_gp": run_sobol_gp, "active": run_active, "pyvbmc": run_pyvbmc, "gpry": run_gpry}
+def run_active_vbmc(prob: Problem, budget: int, seed: int) -> dict[str, Any]:
+    return run_active(prob, budget, seed, "active_vbmc")
+
+
+METHODS = {"sobol_gp": run_sobol_gp, "active": run_active, "active_vbmc": run_active_vbmc,
+           "pyvbmc": run_pyvbmc, "gpry": run_gpry}
 
 
 # ---------------------------------------------------------------------------
@@ -927,6 +1016,11 @@ def table(
     rows = []
     for p in problems:
         pr = results["problems"][p]
+        fl = pr.get("floor")
+        if fl is not None:  # the sampler's floor: the same SMC draws on the exact log-likelihood
+            rows.append(f"| {p} | {pr['d']} | {pr['budget']} | floor | - | - | - | - "
+                        f"| {_fmt(fl['mean_err'])} | {_fmt(fl['sd_err'])} | {_fmt(fl['kl_gauss'])} "
+                        f"| exact log-likelihood, {fl['particles']} SMC particles |")
         for m in methods:
             if m not in pr["methods"]:
                 if partial:
@@ -941,7 +1035,7 @@ def table(
                 notes.append(s["status"])
             if "n_converged" in s:
                 notes.append(f"converged in {s['n_converged']} seeds")
-            elif "converged" in s and _variant(m)[0] == "active":
+            elif "converged" in s and _variant(m)[0].startswith("active"):
                 reason = _short(s.get("reason", ""))
                 for prefix in ("NOT converged: ", "not converged: "):
                     reason = reason.removeprefix(prefix)
@@ -1037,6 +1131,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--frame", default="auto", choices=["auto", "axes", "principal"],
                     help="surrogate.frame of the active method (default auto: ARD kernels in the "
                          "parameter axes and in the principal axes, the larger evidence wins)")
+    ap.add_argument("--ard", default=None, choices=["true", "false", "auto"],
+                    help="surrogate.ard of the active methods (default: one length scale per "
+                         "input from three dimensions on, the schema's auto)")
+    ap.add_argument("--nugget-factor", type=float, default=None,
+                    help="surrogate.nugget_factor of the active methods (default: the schema's)")
+    ap.add_argument("--trace", action="store_true",
+                    help="active methods: record the accuracy after every round (results.json: trace)")
     ap.add_argument("--mean", default=None, choices=["auto", "constant", "quadratic"],
                     help="surrogate.mean of the active method (default: the schema's, constant; "
                          "quadratic: the misfit-shaped mean; auto: quadratic from 3 parameters on)")
@@ -1046,7 +1147,12 @@ def main(argv: list[str] | None = None) -> int:
                          "search every round, and a search when the data grew by half); default: "
                          "the schema's, one run")
     args = ap.parse_args(argv)
-    global ACTIVE_KERNEL, ACTIVE_FRAME, ACTIVE_MEAN
+    global ACTIVE_KERNEL, ACTIVE_FRAME, ACTIVE_MEAN, TRACE
+    TRACE = args.trace
+    if args.ard is not None:
+        ACTIVE_SURROGATE["ard"] = {"true": True, "false": False}.get(args.ard, args.ard)
+    if args.nugget_factor is not None:
+        ACTIVE_SURROGATE["nugget_factor"] = args.nugget_factor
     ACTIVE_MEAN = args.mean
     ACTIVE_KERNEL = args.kernel
     ACTIVE_FRAME = args.frame
@@ -1071,6 +1177,7 @@ def main(argv: list[str] | None = None) -> int:
     results: dict[str, Any] = {
         "config": {
             "problems": problems, "methods": methods, "budget_override": args.budget, "active_kernel": args.kernel,
+            "active_surrogate": dict(ACTIVE_SURROGATE),
             "active_frame": args.frame, "active_mean": args.mean,
             "active_reselect_growth": args.reselect_growth,
             "repeats": args.repeats, "seeds": args.seeds, "grid": GRID_N, "python": platform.python_version(),
@@ -1090,6 +1197,10 @@ def main(argv: list[str] | None = None) -> int:
         }
         seeds = seeds_by_dim.get(prob.d, seeds_by_dim[None])
         pr["seeds"] = seeds
+        pr["floor"] = sampler_floor(prob)
+        print(f"[{pname}] floor of the moment metrics ({METRIC_PARTICLES} SMC particles on the exact "
+              f"log-likelihood): mean err {pr['floor']['mean_err']:.3g}, sd err "
+              f"{pr['floor']['sd_err']:.3g}, KL {pr['floor']['kl_gauss']:.3g}", flush=True)
         for mname in methods:
             runs = []
             for r in seeds:

@@ -150,7 +150,7 @@ def test_a_batch_spreads_out_and_avoids_failed_points():
     space, _, _X, gp = _fitted()
     rng = np.random.default_rng(0)
     pool = space.sample_prior(3000, rng)
-    batch = select_batch(gp, pool, space.logprior(pool), 8)
+    batch = select_batch(gp, pool, space.logprior(pool), 8, posterior_power=2.0)
     P = batch["points"]
     d = np.linalg.norm(P[:, None] - P[None], axis=2) + np.eye(8) * 1e9
     top8 = pool[np.argsort(-(gp.predict(pool, True)[1]))[:8]]
@@ -158,8 +158,37 @@ def test_a_batch_spreads_out_and_avoids_failed_points():
     assert len({tuple(p) for p in P}) == 8
     assert d.min() > d_top.min()  # conditioning spreads the batch
     # a failed point at the first pick: the next batch does not return next to it
-    again = select_batch(gp, pool, space.logprior(pool), 8, failed=P[:1])
+    again = select_batch(gp, pool, space.logprior(pool), 8, posterior_power=2.0,
+                         failed=P[:1])
     assert np.linalg.norm(again["points"] - P[0], axis=1).min() > 1e-3
+
+
+def test_the_exploiting_batch_lies_where_the_posterior_mass_is():
+    """Under a 2D Gaussian posterior the log-likelihood drop below the mode of a
+    posterior draw is Exp(1): 1 nat on average. A batch of exploiting picks scored
+    by VBMC's prospective uncertainty (the surrogate posterior squared,
+    posterior_power 2) lies in that mass: averaged over four designs (16 Sobol
+    points and 8 posterior draws, the log-misfit GP, candidates from the SMC
+    particles as in a round), its mean drop is at most 2 nats. Weighing the posterior
+    once (power 1, the default) sends the picks further down the tails,
+    by at least 0.75 nats more on average (measured: 1.5 against 2.9)."""
+    space = _space([(-5, 5), (-5, 5)])
+    m, C = np.array([0.5, -0.5]), np.array([[0.3, 0.1], [0.1, 0.2]])
+    ll = _gaussian_misfit(m, C)
+    smc = validate({"smc": {"n_particles": 1000, "n_rej": 5, "zeta": 0.9}}, "inference")["smc"]
+    drops = {1.0: [], 2.0: []}
+    for seed in range(4):
+        rng = np.random.default_rng(seed)
+        X = np.vstack([sobol_design(space.bounds, 16, seed), rng.multivariate_normal(m, C, 8)])
+        gp = fit_gp(X, ll(X), bounds=space.bounds, bound=0.0, restarts=1, warp=True)
+        res = smc_from_config(gp.predict, space, {**smc, "seed": seed})
+        pool = candidate_pool(res.particles, res.weights, space.bounds, 3000,
+                              np.random.default_rng(seed))
+        for k, found in drops.items():
+            batch = select_batch(gp, pool, space.logprior(pool), 8, posterior_power=k)
+            found.append(float(np.mean(-ll(batch["points"]))))
+    assert np.mean(drops[2.0]) <= 2.0
+    assert np.mean(drops[1.0]) >= np.mean(drops[2.0]) + 0.75
 
 
 def test_acquire_round_refuses_records_that_are_not_the_chosen_batch():
