@@ -167,103 +167,46 @@ def _image_config(files: list[Path], name: str, gt_path: Path, out: Path, seed: 
     return path
 
 
-def _nearest(points: np.ndarray, nodes: np.ndarray) -> np.ndarray:
-    """Index of the nearest of ``nodes`` (m, 2) for each of ``points`` (n, 2)."""
-    d2 = np.sum((points[:, None, :] - nodes[None, :, :]) ** 2, axis=2)
-    return np.argmin(d2, axis=1)
-
-
 def _effect_region(root: Path, fm: dict, truth: dict, bounds: dict,
                    fd_step: float = 0.01, gt_path: Path | None = None,
                    observed: list | None = None,
-                   misregistration: dict | None = None) -> dict | None:
-    """Per snapshot, the observed nodes where the hidden effect shows.
-
-    ``raw``: where the effect moves the interface by more than half its maximum on that
-    snapshot (noise-free truth against the base model at the truth). ``unabsorbable``:
-    the same for the effect's *unabsorbable part*, the effect with what the base
-    parameters can mimic projected out (least squares on their finite-difference
-    Jacobian at the truth, all snapshots together, threshold half the maximum over all
-    snapshots): where a calibrated base model can still show it.
+                   misregistration: dict | None = None):
+    """Per snapshot, the observed nodes where the hidden effect shows
+    (:func:`bayescalib.diagnosis.localization.effect_regions`; its run records under
+    ``<root>/diagnosis/``).
 
     ``gt_path``: the ground-truth run (default: the study's own); ``observed``: observed
-    interfaces whose nodes are not the ground truth's (images): each takes the value of
-    its nearest ground-truth node. ``misregistration``: the hidden rigid misplacement of
-    the observations (``observations.misregistration``), applied to the ground truth as
-    the observation stage does (about the first snapshot's centroid), so that the
-    "effect" of a misregistered study is the misplacement itself.
+    interfaces whose nodes are not the ground truth's (images). ``misregistration``: the
+    hidden rigid misplacement of the observations (``observations.misregistration``),
+    applied to the ground truth as the observation stage does (about the first
+    snapshot's centroid), so that the "effect" of a misregistered study is the
+    misplacement itself.
     """
-    from bayescalib.diagnosis.residuals import offsets
-    from bayescalib.geometry.interface import Interface
+    from bayescalib.diagnosis.localization import effect_regions
     from bayescalib.io.runrecord import read_run
-    from bayescalib.models.forward import solve_points
 
     gt = read_run(gt_path or root / "observations" / "ground_truth_run.h5")
     if not gt.ok:
         return None
-    pts = [truth]
-    steps = {}
-    for t, (lo, hi) in bounds.items():
-        h = fd_step * (hi - lo)
-        h = -h if truth[t] + h > hi else h
-        steps[t] = h
-        pts.append({**truth, t: truth[t] + h})
-    runs = solve_points(fm, pts, [root / "diagnosis" / "base_at_truth.h5"]
-                        + [root / "diagnosis" / f"base_at_truth_fd_{t}.h5" for t in steps])
-    if not runs[0].ok:
-        return None
-
-    def curves(run):
-        return [ld.current for ld in run.loadings] or [run.interface_current]
-
-    gts, bs = curves(gt), curves(runs[0])
+    gts = [np.asarray(ld.current, dtype=float) for ld in gt.loadings] \
+        or [np.asarray(gt.interface_current, dtype=float)]
     if misregistration:
         from bayescalib.geometry.registration import misplace
 
-        centre = np.asarray(gts[0], dtype=float).mean(axis=0)
+        centre = gts[0].mean(axis=0)
         gts = [misplace(g, misregistration, centre) for g in gts]
-    fd = [(k, h) for k, h in enumerate(steps.values(), start=1) if runs[k].ok]
-    ys, cols = [], []
-    for s, (g, b) in enumerate(zip(gts, bs, strict=True)):
-        y, o = offsets(g, Interface.polyline(b, runs[0].segments),
-                       [Interface.polyline(curves(runs[k])[s], runs[k].segments)
-                        for k, _ in fd])
-        ys.append(y)
-        cols.append(o / np.array([h for _, h in fd])[:, None] if fd else o)
-    raw = [np.abs(y) >= 0.5 * np.max(np.abs(y)) if np.max(np.abs(y)) > 0
-           else np.zeros(len(y), dtype=bool) for y in ys]
-    y_all = np.concatenate(ys)
-    J = np.concatenate(cols, axis=1).T  # (n, p)
-    u = y_all - J @ np.linalg.lstsq(J, y_all, rcond=None)[0] if J.size else y_all
-    cut = 0.5 * np.max(np.abs(u))
-    splits = np.cumsum([len(y) for y in ys])[:-1]
-    unabs = [np.abs(part) >= cut if cut > 0 else np.zeros(len(part), dtype=bool)
-             for part in np.split(u, splits)]
-    if observed is not None:
-        raw, unabs = ([r[_nearest(np.asarray(o.points), np.asarray(g))]
-                       for r, o, g in zip(regions, observed, gts, strict=True)]
-                      for regions in (raw, unabs))
-    return {"raw": raw, "unabsorbable": unabs,
-            "unabsorbable_fraction": float(np.linalg.norm(u) / np.linalg.norm(y_all))
-            if np.linalg.norm(y_all) > 0 else None}
+    return effect_regions(fm, truth, bounds, gts, root / "diagnosis", fd_step=fd_step,
+                          observed=None if observed is None
+                          else [np.asarray(o.points) for o in observed])
 
 
 def _overlap(diag: dict, regions: list[np.ndarray] | None, labels: list[str],
              core: bool = False) -> float | None:
-    """IoU of the located intervals (``core``: their cores, the half-maximum part of the
-    located residual; None for a diagnosis that recorded no cores) against ``regions``."""
-    if regions is None:
-        return None
-    located = [np.zeros(len(r), dtype=bool) for r in regions]
-    for loc in diag["check"]["located"]:
-        k = labels.index(loc["snapshot"])
-        if core and "core_nodes" not in loc:
-            return None
-        for a, b in loc["core_nodes"] if core else [loc["nodes"]]:
-            located[k][a:b + 1] = True
-    loc_all, reg_all = np.concatenate(located), np.concatenate(regions)
-    union = np.sum(loc_all | reg_all)
-    return float(np.sum(loc_all & reg_all) / union) if union else None
+    """IoU of the located intervals (``core``: their cores) against ``regions``
+    (:func:`bayescalib.diagnosis.localization.located_overlap`)."""
+    from bayescalib.diagnosis.localization import located_overlap
+
+    return located_overlap(diag["check"]["located"], regions, labels, core=core)
 
 
 def _hidden_words(hidden: dict, misregistration: dict | None) -> str:
@@ -304,7 +247,7 @@ def _wall_span(root: Path) -> float | None:
     return diag.stat().st_mtime - min(first) + lead
 
 
-def _row(study_file: Path, variant: str, root: Path, regions: dict | None, labels,
+def _row(study_file: Path, variant: str, root: Path, regions, labels,
          mode: str = "synthetic", hidden: dict | None = None,
          misregistration: dict | None = None) -> dict:
     diag = json.loads((root / "diagnosis" / "diagnosis.json").read_text())
@@ -336,12 +279,12 @@ def _row(study_file: Path, variant: str, root: Path, regions: dict | None, label
         if diag["attribution"]["ranking"] else None,
         "refit_p": (diag.get("refit") or {}).get("p_value"),
         "selected": diag["attribution"]["selected"], "chosen": diag["chosen_model"],
-        "overlap": _overlap(diag, regions and regions["raw"], labels),
-        "overlap_unabsorbable": _overlap(diag, regions and regions["unabsorbable"], labels),
-        "core_overlap": _overlap(diag, regions and regions["raw"], labels, core=True),
-        "core_overlap_unabsorbable": _overlap(diag, regions and regions["unabsorbable"],
+        "overlap": _overlap(diag, regions and regions.raw, labels),
+        "overlap_unabsorbable": _overlap(diag, regions and regions.unabsorbable, labels),
+        "core_overlap": _overlap(diag, regions and regions.raw, labels, core=True),
+        "core_overlap_unabsorbable": _overlap(diag, regions and regions.unabsorbable,
                                               labels, core=True),
-        "unabsorbable_fraction": regions and regions["unabsorbable_fraction"],
+        "unabsorbable_fraction": regions and regions.unabsorbable_fraction,
         "residual_to_noise": chk["residual_rms_mm"] / chk["sigma_mm"],
         "rms_before_um": 1e3 * chk["residual_rms_mm"],
         "rms_after_um": 1e3 * chosen["check_after"]["residual_rms_mm"] if chosen else None,
