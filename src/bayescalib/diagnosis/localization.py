@@ -78,12 +78,54 @@ def _curves(run) -> list[np.ndarray]:
     return [ld.current for ld in run.loadings] or [run.interface_current]
 
 
+def _per_snapshot(fm: Mapping[str, Any], points: Sequence[Mapping[str, float]],
+                  stems: Sequence[Path]) -> tuple[list[list[np.ndarray | None]], list, list]:
+    """Solve the base model at ``points``; where a series of loadings fails as a whole,
+    solve each of its loadings alone, so that the loadings that converge are kept.
+
+    Returns the curves (one list per point, ``None`` per loading that failed), the
+    segments per point (``None`` for a point with no loading solved) and the reason per
+    point and loading (``""`` where it converged).
+    """
+    from bayescalib.models.forward import loading_labels, solve_points
+
+    runs = solve_points(fm, points, [s.with_suffix(".h5") for s in stems])
+    loadings = fm.get("loadings") or {}
+    factors = [float(f) for f in loadings.get("factors", [])]
+    n_snap = max(1, len(factors))
+    curves = [_curves(r) if r.ok else [None] * n_snap for r in runs]
+    segments = [r.segments if r.ok else None for r in runs]
+    reasons = [[""] * n_snap if r.ok else [r.reason] * n_snap for r in runs]
+    redo = [k for k, r in enumerate(runs) if not r.ok and n_snap > 1]
+    if redo:
+        labels = loading_labels(factors)
+        jobs = [(k, s) for k in redo for s in range(n_snap)]
+        # a loading alone is the one-loading series of that factor (the same solve path)
+        alone = [{**fm, "loadings": {**loadings, "factors": [factors[s]]}} for _, s in jobs]
+        single = [solve_points(f, [points[k]], [Path(f"{stems[k]}_{labels[s]}.h5")])[0]
+                  for f, (k, s) in zip(alone, jobs, strict=True)]
+        for (k, s), r in zip(jobs, single, strict=True):
+            curves[k][s] = np.asarray(r.interface_current) if r.ok else None
+            reasons[k][s] = "" if r.ok else r.reason
+            if r.ok and segments[k] is None:
+                segments[k] = r.segments
+    return curves, segments, reasons
+
+
 def effect_regions(fm: Mapping[str, Any], truth: Mapping[str, float],
                    bounds: Mapping[str, tuple[float, float]],
                    truth_curves: Sequence[np.ndarray], out_dir: str | Path, *,
                    fd_step: float = 0.01,
                    observed: Sequence[np.ndarray] | None = None) -> EffectRegions | None:
     """The raw and unabsorbable regions of a hidden effect (see the module docstring).
+
+    The base model is solved at the truth and at one finite-difference step per
+    calibrated parameter. Where a series of loadings fails as a whole (e.g. the base
+    model inverts elements at the largest loads, where the data's hidden stiffening
+    does not), each of its loadings is solved alone: a snapshot where the base model at
+    the truth has no solution has no effect region (the effect is not defined there); it
+    is left out of the scores and named in :attr:`EffectRegions.excluded` with the
+    solver's reason. The Jacobian uses the steps that solved on every snapshot scored.
 
     Parameters
     ----------
@@ -100,7 +142,8 @@ def effect_regions(fm: Mapping[str, Any], truth: Mapping[str, float],
         the loadings (the hidden effect included; a hidden misregistration applied).
     out_dir
         Folder of the run records: ``base_at_truth.h5`` and
-        ``base_at_truth_fd_<target>.h5``; records solved at the same values are reused.
+        ``base_at_truth_fd_<target>.h5`` (and ``..._<loading label>.h5`` for loadings
+        solved alone); records solved at the same values are reused.
     fd_step
         Relative finite-difference step.
     observed
@@ -111,11 +154,11 @@ def effect_regions(fm: Mapping[str, Any], truth: Mapping[str, float],
     Returns
     -------
     EffectRegions or None
-        None where the base model at the truth could not be solved.
+        None where the base model at the truth could not be solved at any loading.
     """
     from bayescalib.diagnosis.residuals import offsets
     from bayescalib.geometry.interface import Interface
-    from bayescalib.models.forward import solve_points
+    from bayescalib.models.forward import loading_labels
 
     out_dir = Path(out_dir)
     steps: dict[str, float] = {}
@@ -125,37 +168,49 @@ def effect_regions(fm: Mapping[str, Any], truth: Mapping[str, float],
         h = -h if truth[t] + h > hi else h
         steps[t] = h
         pts.append({**truth, t: truth[t] + h})
-    runs = solve_points(fm, pts, [out_dir / "base_at_truth.h5"]
-                        + [out_dir / f"base_at_truth_fd_{t}.h5" for t in steps])
-    if not runs[0].ok:
-        return None
+    curves, segments, reasons = _per_snapshot(
+        fm, pts, [out_dir / "base_at_truth"] + [out_dir / f"base_at_truth_fd_{t}"
+                                                 for t in steps])
     gts = [np.asarray(g, dtype=float) for g in truth_curves]
-    bs = _curves(runs[0])
-    fd = [(k, h) for k, h in enumerate(steps.values(), start=1) if runs[k].ok]
+    if len(gts) != len(curves[0]):
+        raise ValueError(f"effect_regions: {len(gts)} true interfaces for "
+                         f"{len(curves[0])} loadings of the forward model")
+    scored = [s for s, c in enumerate(curves[0]) if c is not None]
+    if not scored:
+        return None
+    factors = [float(f) for f in (fm.get("loadings") or {}).get("factors", [])]
+    labels = loading_labels(factors) if len(factors) > 1 else ["nominal"]
+    excluded = {labels[s]: reasons[0][s] for s in range(len(gts)) if s not in scored}
+    fd = [(k, h) for k, h in enumerate(steps.values(), start=1)
+          if all(curves[k][s] is not None for s in scored)]
     ys, cols = [], []
-    for s, (g, b) in enumerate(zip(gts, bs, strict=True)):
-        y, o = offsets(g, Interface.polyline(b, runs[0].segments),
-                       [Interface.polyline(_curves(runs[k])[s], runs[k].segments)
-                        for k, _ in fd])
+    for s in scored:
+        y, o = offsets(gts[s], Interface.polyline(curves[0][s], segments[0]),
+                       [Interface.polyline(curves[k][s], segments[k]) for k, _ in fd])
         ys.append(y)
         cols.append(o / np.array([h for _, h in fd])[:, None] if fd else o)
-    raw = [np.abs(y) >= 0.5 * np.max(np.abs(y)) if np.max(np.abs(y)) > 0
-           else np.zeros(len(y), dtype=bool) for y in ys]
+    raw_s = [np.abs(y) >= 0.5 * np.max(np.abs(y)) if np.max(np.abs(y)) > 0
+             else np.zeros(len(y), dtype=bool) for y in ys]
     y_all = np.concatenate(ys)
     J = np.concatenate(cols, axis=1).T  # (n, p)
     u = y_all - J @ np.linalg.lstsq(J, y_all, rcond=None)[0] if J.size else y_all
     cut = 0.5 * np.max(np.abs(u))
     splits = np.cumsum([len(y) for y in ys])[:-1]
-    unabs = [np.abs(part) >= cut if cut > 0 else np.zeros(len(part), dtype=bool)
-             for part in np.split(u, splits)]
+    unabs_s = [np.abs(part) >= cut if cut > 0 else np.zeros(len(part), dtype=bool)
+               for part in np.split(u, splits)]
     if observed is not None:
-        raw, unabs = ([r[nearest_nodes(o, g)] for r, o, g in zip(regions, observed, gts,
-                                                                  strict=True)]
-                      for regions in (raw, unabs))
+        near = [nearest_nodes(observed[s], gts[s]) for s in scored]
+        raw_s = [r[i] for r, i in zip(raw_s, near, strict=True)]
+        unabs_s = [r[i] for r, i in zip(unabs_s, near, strict=True)]
+    raw: list[np.ndarray | None] = [None] * len(gts)
+    unabs: list[np.ndarray | None] = [None] * len(gts)
+    for s, r, ua in zip(scored, raw_s, unabs_s, strict=True):
+        raw[s], unabs[s] = r, ua
     return EffectRegions(
         raw=raw, unabsorbable=unabs,
         unabsorbable_fraction=float(np.linalg.norm(u) / np.linalg.norm(y_all))
-        if np.linalg.norm(y_all) > 0 else None)
+        if np.linalg.norm(y_all) > 0 else None,
+        excluded=excluded)
 
 
 def located_overlap(located: Sequence[Mapping[str, Any]],
@@ -171,7 +226,8 @@ def located_overlap(located: Sequence[Mapping[str, Any]],
         (list of inclusive node ranges).
     regions
         One boolean array (n_s,) per snapshot (as ``labels``), e.g.
-        :attr:`EffectRegions.raw`.
+        :attr:`EffectRegions.raw`; ``None`` for a snapshot left out of the score (its
+        located nodes do not count).
     labels
         Snapshot labels, in the order of ``regions``.
     core
@@ -183,15 +239,18 @@ def located_overlap(located: Sequence[Mapping[str, Any]],
         The IoU in [0, 1]; None without regions, where the union is empty, or for
         ``core`` where the diagnosis recorded no cores.
     """
-    if regions is None:
+    if regions is None or all(r is None for r in regions):
         return None
-    located_nodes = [np.zeros(len(r), dtype=bool) for r in regions]
+    located_nodes = [None if r is None else np.zeros(len(r), dtype=bool) for r in regions]
     for loc in located:
-        k = list(labels).index(loc["snapshot"])
         if core and "core_nodes" not in loc:
             return None
+        hit = located_nodes[list(labels).index(loc["snapshot"])]
+        if hit is None:
+            continue
         for a, b in loc["core_nodes"] if core else [loc["nodes"]]:
-            located_nodes[k][a:b + 1] = True
-    loc_all, reg_all = np.concatenate(located_nodes), np.concatenate(regions)
+            hit[a:b + 1] = True
+    loc_all = np.concatenate([m for m in located_nodes if m is not None])
+    reg_all = np.concatenate([r for r in regions if r is not None])
     union = np.sum(loc_all | reg_all)
     return float(np.sum(loc_all & reg_all) / union) if union else None
