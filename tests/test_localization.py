@@ -107,3 +107,17 @@ def test_no_snapshot_solvable_gives_no_regions(tmp_path):
 
     # the base model fails at every loading (E below its failure threshold)
     assert effect_regions(_fm(np.inf, fail_below_E=1000.0), TRUTH, BOUNDS, _truth_curves(), tmp_path) is None
+
+
+def test_points_whose_record_names_have_dots_are_kept_apart(tmp_path):
+    """The records of the finite-difference steps are named after the targets, which
+    have dots (``base_at_truth_fd_material.E``): two steps must not share one file."""
+    from bayescalib.diagnosis.localization import _per_snapshot
+
+    pts = [{**TRUTH, "E": 300.0}, {**TRUTH, "E": 500.0}]
+    curves, _, _ = _per_snapshot(_fm(np.inf), pts,
+                                 [tmp_path / "fd_material.E", tmp_path / "fd_material.nu"])
+    assert sorted(p.name for p in tmp_path.glob("*.h5")) == ["fd_material.E.h5",
+                                                             "fd_material.nu.h5"]
+    # at 1 x the load the softer point moves further: 0.028 mm x (400/300 - 400/500) apart
+    assert np.max(np.abs(curves[0][1] - curves[1][1])) > 0.01

@@ -89,7 +89,8 @@ def _per_snapshot(fm: Mapping[str, Any], points: Sequence[Mapping[str, float]],
     """
     from bayescalib.models.forward import loading_labels, solve_points
 
-    runs = solve_points(fm, points, [s.with_suffix(".h5") for s in stems])
+    # not with_suffix: a target's name has dots (base_at_truth_fd_material.E)
+    runs = solve_points(fm, points, [Path(f"{s}.h5") for s in stems])
     loadings = fm.get("loadings") or {}
     factors = [float(f) for f in loadings.get("factors", [])]
     n_snap = max(1, len(factors))
