@@ -32,18 +32,18 @@ def _fm(fail_above_load: float, **options) -> dict:
             "loadings": {"parameter": "V", "nominal": 100.0, "factors": FACTORS}}
 
 
-def _truth_curves() -> list[np.ndarray]:
+def _truth_curves(scale: list[float] | None = None) -> list[np.ndarray]:
     """The base model at the truth with the hidden bump: nodes 20-29 moved by 4 um
-    along the curve's normal, at every loading."""
+    (times ``scale`` per loading, default 1) along the curve's normal."""
     from bayescalib.models.analytic import interface
 
     out = []
-    for f in FACTORS:
+    for f, a in zip(FACTORS, scale or [1.0] * len(FACTORS), strict=True):
         c = interface({**TRUTH, "V": 100.0 * f})["current"]
         t = np.gradient(c, axis=0)
         n = np.column_stack([-t[:, 1], t[:, 0]]) / np.linalg.norm(t, axis=1)[:, None]
         c = c.copy()
-        c[BUMP] += BUMP_MM * n[BUMP]
+        c[BUMP] += a * BUMP_MM * n[BUMP]
         out.append(c)
     return out
 
@@ -100,6 +100,18 @@ def test_snapshots_where_the_base_model_at_the_truth_fails_are_left_out_not_the_
     again = effect_regions(_fm(1.5), TRUTH, BOUNDS, _truth_curves(), tmp_path)
     assert {p.name: p.stat().st_mtime_ns for p in tmp_path.glob("*.h5")} == mtimes
     assert again.excluded == reg.excluded
+
+
+def test_a_snapshot_where_the_effect_is_only_rounding_has_no_region(tmp_path):
+    """A flow-driven effect vanishes at zero load up to rounding (1.9e-15 um in the
+    concealed FSI cases): its half maximum must not mark nodes there."""
+    from bayescalib.diagnosis.localization import effect_regions
+
+    reg = effect_regions(_fm(np.inf), TRUTH, BOUNDS, _truth_curves([1e-13, 1.0, 2.0, 3.0]),
+                         tmp_path)
+    assert not reg.raw[0].any()
+    for r in reg.raw[1:]:
+        np.testing.assert_array_equal(r, _bump_mask())
 
 
 def test_no_snapshot_solvable_gives_no_regions(tmp_path):

@@ -9,7 +9,8 @@ where the observed interface leaves the predictive band
 an *effect region*:
 
 * **raw**: the nodes where the hidden effect moves the interface by at least half its
-  maximum on that snapshot. The effect at node j of snapshot s is the signed normal
+  maximum on that snapshot (none on a snapshot where the effect is only rounding,
+  :data:`NEGLIGIBLE`). The effect at node j of snapshot s is the signed normal
   offset ``y_sj`` of the noise-free true interface from the base model solved at the
   true theta (:func:`bayescalib.diagnosis.residuals.offsets`).
 * **unabsorbable**: the same for the effect's part that the base parameters cannot
@@ -34,7 +35,14 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["EffectRegions", "effect_regions", "located_overlap", "nearest_nodes"]
+__all__ = ["NEGLIGIBLE", "EffectRegions", "effect_regions", "located_overlap",
+           "nearest_nodes"]
+
+#: a snapshot whose largest effect is below this fraction of the largest over all
+#: snapshots has no raw region: rounding, not an effect (a flow-driven effect at zero
+#: load differs from the base model by ~1e-15 um, whose half maximum would mark
+#: arbitrary nodes)
+NEGLIGIBLE = 1.0e-6
 
 
 @dataclass
@@ -190,7 +198,8 @@ def effect_regions(fm: Mapping[str, Any], truth: Mapping[str, float],
                        [Interface.polyline(curves[k][s], segments[k]) for k, _ in fd])
         ys.append(y)
         cols.append(o / np.array([h for _, h in fd])[:, None] if fd else o)
-    raw_s = [np.abs(y) >= 0.5 * np.max(np.abs(y)) if np.max(np.abs(y)) > 0
+    peak = max(float(np.max(np.abs(y))) for y in ys)
+    raw_s = [np.abs(y) >= 0.5 * np.max(np.abs(y)) if np.max(np.abs(y)) > NEGLIGIBLE * peak
              else np.zeros(len(y), dtype=bool) for y in ys]
     y_all = np.concatenate(ys)
     J = np.concatenate(cols, axis=1).T  # (n, p)
