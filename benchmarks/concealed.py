@@ -597,9 +597,11 @@ def write_doc(rows: list[dict], path: Path, *, command: str, figures: list[str],
          "(unconverged: the better confirmed of its last two rounds), at 16 fresh draws "
          "solved for the report only. Its spread over the draws (bootstrap and per-draw "
          "16-84 %) is listed under the table; **noise**: "
-         "the noise sd the check used (given for synthetic, estimated for images)."),
+         "the noise sd the check used (given for synthetic, estimated for images). "
+         "RMS after `-`: no extension calibrated (no significant mismatch, or a "
+         "misregistration explains it)."),
          ("- **ln B (best)**: natural log of the Bayes factor of the best extended model "
-         "(named in brackets) against the base."),
+         "(named in brackets) against the base; `-`: no extension calibrated."),
          ("- **E / nu err**: relative error of the posterior mean against the truth, in the "
          "study's calibration -> in the chosen model (`-`: no extension chosen; `reg.`: "
          "the base parameters re-fitted jointly with a misregistration that explains the "
@@ -685,8 +687,10 @@ def write_doc(rows: list[dict], path: Path, *, command: str, figures: list[str],
                 L += [(f"**{r['name']}** ({r['hidden']}; loadings {_loadings_words(r)}): the "
                        "residual (observed minus predicted interface along the normal, um, "
                        "+ into the fluid) against the arc length (mm) in each snapshot, for "
-                       f"the calibrated base model{below}. Blue: the pointwise band; dotted: "
-                       "the simultaneous band; shaded: the located intervals (darker: their "
+                       f"the calibrated base model{below}. Dots: the residual at the "
+                       "observed nodes; orange: its smoothed curve; blue: the pointwise "
+                       "band; dashed: the band of the smoothed residual; dotted: the "
+                       "simultaneous band; shaded: the located intervals (darker: their "
                        "cores, where recorded)."), "",
                       f"![{r['name']} residuals]({figdir.name}/{dst.name})", ""]
     words = [r for r in ok_rows if r["study"] in ("two_effects", "misregistration")
