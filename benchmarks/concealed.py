@@ -37,11 +37,13 @@ Usage::
         [--observations synthetic,images] [--cores 2] [--out results/concealed]
         [--only-finished] [--doc docs/diagnosis.md]
 
-``--only-finished`` runs nothing: it tabulates the studies (of those asked for) whose
-diagnosis has finished, so the doc can be regenerated from what has been run.
+``--only-finished`` runs no study: it tabulates the studies (of those asked for) whose
+diagnosis has finished, so the doc can be regenerated from what has been run (the
+overlaps' solves of the base model at the truth, a few coarse solves per case, are made
+where their records are missing).
 ``--doc`` writes the published page (:func:`write_doc`): the method in short, the
 columns, the table, the aims of issue 15 checked row by row (:func:`aims`), the plain
-words of the held-back-style cases, the residual figures of two cases (copied to
+words of the held-back-style cases, the residual figures of three cases (``--figures``; copied to
 ``docs/diagnosis/``), the commands and the wall times. Wall time: the elapsed time of
 the Snakemake run that did the work (kept in ``<out>/wall/<study>.txt``; a resumed or
 reused run keeps the first record) and the sum of the jobs' own times (Snakemake
@@ -167,111 +169,73 @@ def _image_config(files: list[Path], name: str, gt_path: Path, out: Path, seed: 
     return path
 
 
-def _nearest(points: np.ndarray, nodes: np.ndarray) -> np.ndarray:
-    """Index of the nearest of ``nodes`` (m, 2) for each of ``points`` (n, 2)."""
-    d2 = np.sum((points[:, None, :] - nodes[None, :, :]) ** 2, axis=2)
-    return np.argmin(d2, axis=1)
-
-
 def _effect_region(root: Path, fm: dict, truth: dict, bounds: dict,
                    fd_step: float = 0.01, gt_path: Path | None = None,
                    observed: list | None = None,
-                   misregistration: dict | None = None) -> dict | None:
-    """Per snapshot, the observed nodes where the hidden effect shows.
-
-    ``raw``: where the effect moves the interface by more than half its maximum on that
-    snapshot (noise-free truth against the base model at the truth). ``unabsorbable``:
-    the same for the effect's *unabsorbable part*, the effect with what the base
-    parameters can mimic projected out (least squares on their finite-difference
-    Jacobian at the truth, all snapshots together, threshold half the maximum over all
-    snapshots): where a calibrated base model can still show it.
+                   misregistration: dict | None = None):
+    """Per snapshot, the observed nodes where the hidden effect shows
+    (:func:`bayescalib.diagnosis.localization.effect_regions`; its run records under
+    ``<root>/diagnosis/``).
 
     ``gt_path``: the ground-truth run (default: the study's own); ``observed``: observed
-    interfaces whose nodes are not the ground truth's (images): each takes the value of
-    its nearest ground-truth node. ``misregistration``: the hidden rigid misplacement of
-    the observations (``observations.misregistration``), applied to the ground truth as
-    the observation stage does (about the first snapshot's centroid), so that the
-    "effect" of a misregistered study is the misplacement itself.
+    interfaces whose nodes are not the ground truth's (images). ``misregistration``: the
+    hidden rigid misplacement of the observations (``observations.misregistration``),
+    applied to the ground truth as the observation stage does (about the first
+    snapshot's centroid), so that the "effect" of a misregistered study is the
+    misplacement itself.
     """
-    from bayescalib.diagnosis.residuals import offsets
-    from bayescalib.geometry.interface import Interface
+    from bayescalib.diagnosis.localization import effect_regions
     from bayescalib.io.runrecord import read_run
-    from bayescalib.models.forward import solve_points
 
     gt = read_run(gt_path or root / "observations" / "ground_truth_run.h5")
     if not gt.ok:
         return None
-    pts = [truth]
-    steps = {}
-    for t, (lo, hi) in bounds.items():
-        h = fd_step * (hi - lo)
-        h = -h if truth[t] + h > hi else h
-        steps[t] = h
-        pts.append({**truth, t: truth[t] + h})
-    runs = solve_points(fm, pts, [root / "diagnosis" / "base_at_truth.h5"]
-                        + [root / "diagnosis" / f"base_at_truth_fd_{t}.h5" for t in steps])
-    if not runs[0].ok:
-        return None
-
-    def curves(run):
-        return [ld.current for ld in run.loadings] or [run.interface_current]
-
-    gts, bs = curves(gt), curves(runs[0])
+    gts = [np.asarray(ld.current, dtype=float) for ld in gt.loadings] \
+        or [np.asarray(gt.interface_current, dtype=float)]
     if misregistration:
         from bayescalib.geometry.registration import misplace
 
-        centre = np.asarray(gts[0], dtype=float).mean(axis=0)
+        centre = gts[0].mean(axis=0)
         gts = [misplace(g, misregistration, centre) for g in gts]
-    fd = [(k, h) for k, h in enumerate(steps.values(), start=1) if runs[k].ok]
-    ys, cols = [], []
-    for s, (g, b) in enumerate(zip(gts, bs, strict=True)):
-        y, o = offsets(g, Interface.polyline(b, runs[0].segments),
-                       [Interface.polyline(curves(runs[k])[s], runs[k].segments)
-                        for k, _ in fd])
-        ys.append(y)
-        cols.append(o / np.array([h for _, h in fd])[:, None] if fd else o)
-    raw = [np.abs(y) >= 0.5 * np.max(np.abs(y)) if np.max(np.abs(y)) > 0
-           else np.zeros(len(y), dtype=bool) for y in ys]
-    y_all = np.concatenate(ys)
-    J = np.concatenate(cols, axis=1).T  # (n, p)
-    u = y_all - J @ np.linalg.lstsq(J, y_all, rcond=None)[0] if J.size else y_all
-    cut = 0.5 * np.max(np.abs(u))
-    splits = np.cumsum([len(y) for y in ys])[:-1]
-    unabs = [np.abs(part) >= cut if cut > 0 else np.zeros(len(part), dtype=bool)
-             for part in np.split(u, splits)]
-    if observed is not None:
-        raw, unabs = ([r[_nearest(np.asarray(o.points), np.asarray(g))]
-                       for r, o, g in zip(regions, observed, gts, strict=True)]
-                      for regions in (raw, unabs))
-    return {"raw": raw, "unabsorbable": unabs,
-            "unabsorbable_fraction": float(np.linalg.norm(u) / np.linalg.norm(y_all))
-            if np.linalg.norm(y_all) > 0 else None}
+    return effect_regions(fm, truth, bounds, gts, root / "diagnosis", fd_step=fd_step,
+                          observed=None if observed is None
+                          else [np.asarray(o.points) for o in observed])
 
 
 def _overlap(diag: dict, regions: list[np.ndarray] | None, labels: list[str],
              core: bool = False) -> float | None:
-    """IoU of the located intervals (``core``: their cores, the half-maximum part of the
-    located residual; None for a diagnosis that recorded no cores) against ``regions``."""
-    if regions is None:
-        return None
-    located = [np.zeros(len(r), dtype=bool) for r in regions]
-    for loc in diag["check"]["located"]:
-        k = labels.index(loc["snapshot"])
-        if core and "core_nodes" not in loc:
-            return None
-        for a, b in loc["core_nodes"] if core else [loc["nodes"]]:
-            located[k][a:b + 1] = True
-    loc_all, reg_all = np.concatenate(located), np.concatenate(regions)
-    union = np.sum(loc_all | reg_all)
-    return float(np.sum(loc_all & reg_all) / union) if union else None
+    """IoU of the located intervals (``core``: their cores) against ``regions``
+    (:func:`bayescalib.diagnosis.localization.located_overlap`)."""
+    from bayescalib.diagnosis.localization import located_overlap
+
+    return located_overlap(diag["check"]["located"], regions, labels, core=core)
+
+
+def _key_unit(key: str) -> str:
+    """Unit of a hidden config key: a candidate's phi in its library unit (``-``:
+    dimensionless, none written), geometry in mm (the config's length unit)."""
+    from bayescalib.models.fsi.physics import CANDIDATES
+
+    parts = key.split(".")
+    if parts[0] == "physics" and parts[-1] == "phi" and parts[1] in CANDIDATES:
+        unit = CANDIDATES[parts[1]].unit
+        return "" if unit == "-" else unit
+    return "mm" if parts[0] == "geometry" else ""
+
+
+#: units of the misregistration's fields (observations.misregistration)
+_MISREG_UNITS = {"shift_x": "mm", "shift_y": "mm", "rotation": "rad", "scale": ""}
 
 
 def _hidden_words(hidden: dict, misregistration: dict | None) -> str:
-    """The hidden effect(s) of a study in a few words (``none``: nothing hidden)."""
-    parts = [f"{k}={v}" for k, v in hidden.items() if not isinstance(v, bool)]
+    """The hidden effect(s) of a study in a few words, with units (``none``: nothing
+    hidden)."""
+    parts = [f"{k}={v:g} {_key_unit(k)}".strip() for k, v in hidden.items()
+             if not isinstance(v, bool)]
     if misregistration:
-        parts.append("misregistration(" + ", ".join(f"{k}={v:g}" for k, v in
-                                                     misregistration.items()) + ")")
+        parts.append("misregistration(" + ", ".join(
+            f"{k}={v:g} {_MISREG_UNITS.get(k, '')}".strip()
+            for k, v in misregistration.items()) + ")")
     return ", ".join(parts) or "none"
 
 
@@ -304,9 +268,9 @@ def _wall_span(root: Path) -> float | None:
     return diag.stat().st_mtime - min(first) + lead
 
 
-def _row(study_file: Path, variant: str, root: Path, regions: dict | None, labels,
+def _row(study_file: Path, variant: str, root: Path, regions, labels,
          mode: str = "synthetic", hidden: dict | None = None,
-         misregistration: dict | None = None) -> dict:
+         misregistration: dict | None = None, factors: list[float] | None = None) -> dict:
     diag = json.loads((root / "diagnosis" / "diagnosis.json").read_text())
     chk = diag["check"]
     ext = diag["extended"]
@@ -325,6 +289,8 @@ def _row(study_file: Path, variant: str, root: Path, regions: dict | None, label
         "hidden_candidates": _hidden_candidates(hidden),
         "hidden_misregistration": misregistration or None,
         "loadings": variant, "observations": mode,
+        # the loading factors (x the nominal inflow) of the snapshots
+        "factors": [float(f) for f in factors] if factors else None,
         "sigma_um": 1e3 * chk["sigma_mm"], "sigma_source": chk["sigma_source"],
         # the one noise level the re-checks are judged against (estimated noise: the
         # smallest estimate; bayescalib.diagnosis.stage.reference_noise)
@@ -336,12 +302,16 @@ def _row(study_file: Path, variant: str, root: Path, regions: dict | None, label
         if diag["attribution"]["ranking"] else None,
         "refit_p": (diag.get("refit") or {}).get("p_value"),
         "selected": diag["attribution"]["selected"], "chosen": diag["chosen_model"],
-        "overlap": _overlap(diag, regions and regions["raw"], labels),
-        "overlap_unabsorbable": _overlap(diag, regions and regions["unabsorbable"], labels),
-        "core_overlap": _overlap(diag, regions and regions["raw"], labels, core=True),
-        "core_overlap_unabsorbable": _overlap(diag, regions and regions["unabsorbable"],
+        "overlap": _overlap(diag, regions and regions.raw, labels),
+        "overlap_unabsorbable": _overlap(diag, regions and regions.unabsorbable, labels),
+        "core_overlap": _overlap(diag, regions and regions.raw, labels, core=True),
+        "core_overlap_unabsorbable": _overlap(diag, regions and regions.unabsorbable,
                                               labels, core=True),
-        "unabsorbable_fraction": regions and regions["unabsorbable_fraction"],
+        "unabsorbable_fraction": regions and regions.unabsorbable_fraction,
+        # snapshots left out of the overlaps (the base model at the truth has no
+        # solution there, so the effect is not defined): label -> the solver's reason
+        "overlap_excluded": dict(regions.excluded) if regions else {},
+        "snapshot_labels": list(labels),
         "residual_to_noise": chk["residual_rms_mm"] / chk["sigma_mm"],
         "rms_before_um": 1e3 * chk["residual_rms_mm"],
         "rms_after_um": 1e3 * chosen["check_after"]["residual_rms_mm"] if chosen else None,
@@ -371,7 +341,8 @@ def _row(study_file: Path, variant: str, root: Path, regions: dict | None, label
                       "rms_spread": (e["check_after"] or {}).get("residual_rms_spread"),
                       "rms_draws": (e.get("check_after_draws") or {}).get("draws"),
                       "explains": e["explains"],
-                      "converged": e["converged"], "phi": {k: v["mean"] for k, v in e["phi"].items()}}
+                      "converged": e["converged"], "phi": {k: v["mean"] for k, v in e["phi"].items()},
+                      "phi_unit": {k: v.get("unit", "-") for k, v in e["phi"].items()}}
                      for e in ext],
         "plain_words": diag.get("plain_words") or [],
         "job_s": _job_seconds(root),
@@ -380,6 +351,31 @@ def _row(study_file: Path, variant: str, root: Path, regions: dict | None, label
 
 def _fmt(v, f="{:.2f}") -> str:
     return "-" if v is None else f.format(v)
+
+
+def _loadings_words(r: dict) -> str:
+    """The loading factors of a row (x the nominal inflow), e.g. ``0, 0.5, 1 x``; the
+    variant's name where they were not recorded."""
+    f = r.get("factors")
+    return ", ".join(f"{x:g}" for x in f) + " x" if f else r["loadings"]
+
+
+#: mark of an overlap scored on part of the snapshots (listed under the table)
+_PART = " (†)"
+
+
+def _part_mark(r: dict) -> str:
+    return _PART if r.get("overlap_excluded") else ""
+
+
+def _excluded_words(r: dict) -> str:
+    """Which snapshots the overlaps of a row leave out, and why (short)."""
+    ex = r.get("overlap_excluded") or {}
+    why = sorted({v.split(" (iteration")[0].removeprefix("loading ") for v in ex.values()})
+    kept = [x for x in r.get("snapshot_labels", []) if x not in ex]
+    return (f"{r['name']}: scored on {', '.join(kept) or 'no snapshot'}; "
+            f"{', '.join(ex)} left out: the base model at the true parameters could not "
+            f"be solved there, so the effect is not defined ({'; '.join(why)})")
 
 
 def _spread_words(e: dict) -> str:
@@ -478,6 +474,10 @@ def _add_iou(add, r: dict) -> None:
     ov, src = r.get("core_overlap_unabsorbable"), "core"
     if ov is None:
         ov, src = r["overlap_unabsorbable"], "intervals (no core recorded)"
+    ex = r.get("overlap_excluded") or {}
+    if ex:
+        src += "; " + ", ".join(x for x in r.get("snapshot_labels", []) if x not in ex) \
+            + " only, (†)"
     add("IoU (unabsorbable) >= 0.5", None if ov is None else ov >= 0.5, f"{_fmt(ov)} ({src})")
 
 
@@ -498,9 +498,9 @@ def table_markdown(rows: list[dict]) -> str:
             continue
         eb, ea = r["err_before"], r["err_after"]
         lines.append(
-            f"| {r['hidden']} | {r['loadings']} | {r['observations']} | {r['verdict']} | {r['top1']} "
+            f"| {r['hidden']} | {_loadings_words(r)} | {r['observations']} | {r['verdict']} | {r['top1']} "
             f"({_fmt(r['identifiable_top1'])}) | {_fmt(r['refit_p'], '{:.2g}')} | {r['chosen']} | "
-            f"{_fmt(r['overlap'])} / {_fmt(r['overlap_unabsorbable'])} | "
+            f"{_fmt(r['overlap'])} / {_fmt(r['overlap_unabsorbable'])}{_part_mark(r)} | "
             f"{_fmt(r['residual_to_noise'], '{:.1f}')} | "
             f"{_fmt(r['sigma_um'])} ({r['sigma_source']}, {r['noise_model']}) | "
             f"{_fmt(r['rms_before_um'])} / {_fmt(r['rms_after_um'])} | "
@@ -508,6 +508,7 @@ def table_markdown(rows: list[dict]) -> str:
             f"{r['base_solves']} ({r['base_converged']}) | "
             f"{_fmt(eb.get('E'), '{:.1%}')} / {_fmt(ea.get('E'), '{:.1%}')} | "
             f"{_fmt(eb.get('nu'), '{:.1%}')} / {_fmt(ea.get('nu'), '{:.1%}')} |")
+    lines += [f"\n†: {_excluded_words(r)}." for r in rows if r.get("overlap_excluded")]
     return "\n".join(lines)
 
 
@@ -548,8 +549,10 @@ def write_doc(rows: list[dict], path: Path, *, command: str, figures: list[str],
          "`benchmarks/concealed_notes.md`)."), "",
          "## The method in short", "",
          ("Each case is a study of `config/concealed/` (with `common.yaml`): synthetic "
-         "observations of the FSI model (coarse mesh) at three loadings (0, 0.5, 1 x the "
-         "nominal inflow; `one`: the nominal loading only) with something hidden in the "
+         "observations of the FSI model (coarse mesh) at the loadings of the *loadings* "
+         "column, in multiples of the nominal inflow rate of 100 mm^2/s (0, 0.5 and 1 x "
+         "as set in `common.yaml`; the one-loading variant: 1 x only; "
+         "`stiffening_loadings.yaml`: 0, 1, 2 and 3 x) with something hidden in the "
          "data that the calibrated model (E, nu) does not have (one library effect, two "
          "at once, an effect outside the library, a misregistration of the observations, "
          "or nothing: the null case), and Gaussian coordinate noise (1 um; 1.5 um for "
@@ -567,8 +570,12 @@ def write_doc(rows: list[dict], path: Path, *, command: str, figures: list[str],
          "OCT-like scans (5 um pixels, blur, speckle), segmented to masks and read as "
          "files; the noise is then estimated from the data."), "",
          "## How to read the columns", "",
-         ("- **hidden effect**: what the data hide (`physics.<candidate>.phi`, a geometry "
-         "change outside the library, or a misregistration: shifts mm, rotation rad)."),
+         ("- **hidden effect**: what the data hide: `physics.<candidate>.phi` in the "
+         "candidate's unit (none written: dimensionless, e.g. the growth strain or the "
+         "Fung exponent of stiffening), a geometry change outside the library (mm), or a "
+         "misregistration of the observations (shifts mm, rotation rad)."),
+         ("- **loadings**: the snapshots' inflow rates in multiples of the nominal "
+         "100 mm^2/s."),
          ("- **verdict**: the diagnosis's verdict; **top-1**: the best-ranked candidate "
          "(identifiable fraction of its signature: the part E and nu cannot mimic); "
          "**chosen**: the model the diagnosis keeps."),
@@ -579,20 +586,28 @@ def write_doc(rows: list[dict], path: Path, *, command: str, figures: list[str],
          "In brackets the same for the located *cores* (the located nodes whose smoothed "
          "residual is at least half its largest value: the half-maximum rule of the "
          "regions; the aim is judged on the core's unabs. IoU; `-`: the diagnosis was "
-         "run before cores were recorded)."),
+         "run before cores were recorded). `-` for both: nothing hidden. (†): scored "
+         "only on the snapshots where the base model at the true parameters could be "
+         "solved (the effect is not defined on the others); which, and why, is listed "
+         "under the table. A snapshot where the effect is nil (a flow-driven effect at "
+         "zero load) has no region."),
          ("- **RMS before/after**: residual RMS of the base model and of the chosen (else "
          "best-evidence solved) extension at real solves of 16 posterior draws (against "
          "their mean prediction); for an extension whose round was chosen by real solves "
          "(unconverged: the better confirmed of its last two rounds), at 16 fresh draws "
          "solved for the report only. Its spread over the draws (bootstrap and per-draw "
          "16-84 %) is listed under the table; **noise**: "
-         "the noise sd the check used (given for synthetic, estimated for images)."),
-         "- **ln B**: log Bayes factor of the best extended model against the base.",
+         "the noise sd the check used (given for synthetic, estimated for images). "
+         "RMS after `-`: no extension calibrated (no significant mismatch, or a "
+         "misregistration explains it)."),
+         ("- **ln B (best)**: natural log of the Bayes factor of the best extended model "
+         "(named in brackets) against the base; `-`: no extension calibrated."),
          ("- **E / nu err**: relative error of the posterior mean against the truth, in the "
          "study's calibration -> in the chosen model (`-`: no extension chosen; `reg.`: "
          "the base parameters re-fitted jointly with a misregistration that explains the "
          "mismatch)."),
-         "- **solves**: the study's calibration solves (converged or not).", "",
+         ("- **solves**: the study's calibration solves (conv.: its active design "
+         "converged)."), "",
          "## The concealed table", ""]
     head = ("| case | loadings | obs. | verdict | top-1 | chosen | overlap raw / unabs. | "
             "RMS before / after [um] (noise) | ln B (best) | E err | nu err | solves |")
@@ -604,13 +619,17 @@ def write_doc(rows: list[dict], path: Path, *, command: str, figures: list[str],
             continue
 
         L.append(
-            f"| {r['study']}: {r['hidden']} | {r['loadings']} | {r['observations']} | "
+            f"| {r['study']}: {r['hidden']} | {_loadings_words(r)} | {r['observations']} | "
             f"{r['verdict']} | {r['top1']} ({_fmt(r['identifiable_top1'])}) | {r['chosen']} | "
             f"{_fmt(r['overlap'])} / {_fmt(r['overlap_unabsorbable'])} "
-            f"({_fmt(r.get('core_overlap'))} / {_fmt(r.get('core_overlap_unabsorbable'))}) | "
+            f"({_fmt(r.get('core_overlap'))} / {_fmt(r.get('core_overlap_unabsorbable'))})"
+            f"{_part_mark(r)} | "
             f"{_fmt(r['rms_before_um'])} / {_fmt(r['rms_after_um'])} ({_fmt(r['sigma_um'])}) | "
             f"{_fmt(r['log_bf'], '{:.1f}')} ({r['best_extended'] or '-'}) | {_err(r, 'E')} | "
             f"{_err(r, 'nu')} | {r['base_solves']} ({'conv.' if r['base_converged'] else 'not conv.'}) |")
+    part = [r for r in ok_rows if r.get("overlap_excluded")]
+    if part:
+        L += [""] + [f"(†) {_excluded_words(r)}." for r in part]
     L += ["", ("Every extended model calibrated, per case (ln B, RMS after at real solves, "
           "explains the mismatch or not, posterior mean of phi):"), ""]
     for r in ok_rows:
@@ -620,7 +639,10 @@ def write_doc(rows: list[dict], path: Path, *, command: str, figures: list[str],
                 f"{_spread_words(e)}, "
                 f"{'explains' if e['explains'] else 'does not explain'}"
                 f"{'' if e['converged'] else ' (not converged)'}, "
-                + ", ".join(f"phi_{k} = {v:.3g}" for k, v in e["phi"].items())
+                + ", ".join(f"phi_{k} = {v:.3g}"
+                            + ("" if (e.get("phi_unit") or {}).get(k, "-") == "-"
+                               else f" {e['phi_unit'][k]}")
+                            for k, v in e["phi"].items())
                 for e in r["extended"]))
         if r["failed_signatures"]:
             L.append(f"- {r['name']}: not testable: " + "; ".join(
@@ -635,7 +657,7 @@ def write_doc(rows: list[dict], path: Path, *, command: str, figures: list[str],
     missed = []
     for r in ok_rows:
         for a in aims(r):
-            L.append(f"| {r['study']} | {r['loadings']} | {r['observations']} | {a['aim']} | "
+            L.append(f"| {r['study']} | {_loadings_words(r)} | {r['observations']} | {a['aim']} | "
                      f"{_mark(a['met'])} | {a['note']} |")
             if a["met"] is False:
                 missed.append(f"{r['name']}: {a['aim']} ({a['note']})")
@@ -652,10 +674,24 @@ def write_doc(rows: list[dict], path: Path, *, command: str, figures: list[str],
             src = REPO / "results" / r["name"] / "figures" / "diagnosis" / "residuals.png"
             dst = figdir / f"{r['name']}_residuals.png"
             if _copy_figure(src, dst):
-                L += [(f"**{r['name']}** ({r['hidden']}): residual of the calibrated model "
-                      "along the interface per snapshot (pointwise and simultaneous bands, "
-                      "located intervals shaded), and below it that of the chosen (or best) "
-                      "extension, where one was calibrated."), "",
+                # the extension the figure shows (bayescalib.diagnosis.report): the
+                # chosen one, else the first calibrated and re-checked (the top-ranked)
+                solved = [e["candidate"] for e in r["extended"]
+                          if e["rms_after_um"] is not None]
+                ext = r["chosen"] if r["chosen"] != "base" else (solved[0] if solved else None)
+                below = ("" if ext is None else
+                         f", and below it for the model with {ext} ("
+                         + ("chosen" if ext == r["chosen"] else
+                            "not chosen: the first extension calibrated, the top-ranked "
+                            "candidate's") + ")")
+                L += [(f"**{r['name']}** ({r['hidden']}; loadings {_loadings_words(r)}): the "
+                       "residual (observed minus predicted interface along the normal, um, "
+                       "+ into the fluid) against the arc length (mm) in each snapshot, for "
+                       f"the calibrated base model{below}. Dots: the residual at the "
+                       "observed nodes; orange: its smoothed curve; blue: the pointwise "
+                       "band; dashed: the band of the smoothed residual; dotted: the "
+                       "simultaneous band; shaded: the located intervals (darker: their "
+                       "cores, where recorded)."), "",
                       f"![{r['name']} residuals]({figdir.name}/{dst.name})", ""]
     words = [r for r in ok_rows if r["study"] in ("two_effects", "misregistration")
              and r["observations"] == "synthetic" and r["loadings"] == "several"]
@@ -672,7 +708,10 @@ def write_doc(rows: list[dict], path: Path, *, command: str, figures: list[str],
           "```bash",
           "python benchmarks/concealed.py --variants several,one --observations synthetic,images",
           "```", "",
-          "This page, from the finished studies under `results/` (runs nothing):", "",
+          ("This page, from the finished studies under `results/` (runs no study; for the "
+           "overlaps it solves the base model at the true parameters, a few coarse solves "
+           "per case, where `results/<study>/diagnosis/base_at_truth*.h5` are not there "
+           "yet):"), "",
           "```bash", command, "```", "",
           ("Wall time per study (the Snakemake run that did the work, or else the span from "
            "its observations to its diagnosis.json; on a 2-core machine shared with other "
@@ -696,9 +735,10 @@ def main() -> None:
     ap.add_argument("--cores", type=int, default=2)
     ap.add_argument("--out", default=str(REPO / "results" / "concealed"))
     ap.add_argument("--only-finished", action="store_true",
-                    help="run nothing; tabulate the studies whose diagnosis has finished")
+                    help="run no study; tabulate the studies whose diagnosis has finished")
     ap.add_argument("--doc", default=None, help="write the published page here (Markdown)")
-    ap.add_argument("--figures", default="concealed_two_effects,concealed_misregistration",
+    ap.add_argument("--figures", default="concealed_two_effects,concealed_misregistration,"
+                    "concealed_stiffening_loadings",
                     help="studies whose residual figure the doc shows (comma-separated)")
     args = ap.parse_args()
     out = Path(args.out)
@@ -780,7 +820,8 @@ def main() -> None:
                     gt_path=gt_path,
                     observed=used.snapshots if mode == "images" else None,
                     misregistration=misreg or None) if hidden or misreg else None
-                rows.append(_row(sf, variant, root, regions, obs.labels, mode, hidden, misreg))
+                rows.append(_row(sf, variant, root, regions, obs.labels, mode, hidden, misreg,
+                                 (cfg["forward_model"].get("loadings") or {}).get("factors")))
     table = table_markdown(rows)
     print(table)
     out.mkdir(parents=True, exist_ok=True)

@@ -54,6 +54,7 @@ def reference_interface(n_nodes: int = 66, width: float = 0.6, height: float = 0
 def interface(params: Mapping[str, float], *, n_nodes: int = 66, width: float = 0.6,
               height: float = 0.4, centre: float = 1.0, u0: float = 0.028,
               E0: float = 400.0, V0: float = 100.0, fail_below_E: float = 0.0,
+              fail_above_load: float = np.inf,
               prestrain_solvable: tuple[float, float] | None = None) -> dict:
     """Deformed interface for parameters ``E`` (Pa), ``nu`` (-), ``V`` (mm^2/s).
 
@@ -65,6 +66,11 @@ def interface(params: Mapping[str, float], *, n_nodes: int = 66, width: float = 
     fail_below_E
         Raise (a failed solve) when ``E`` is below this value (Pa), mimicking
         the FSI model's failures for soft material.
+    fail_above_load
+        Raise (a failed solve) when the load factor ``(V/V0) (E0/E)`` (the displacement
+        relative to ``u0``) exceeds this value, mimicking the FSI model's inverted
+        elements where a soft material is loaded hard (e.g. the base model of the
+        concealed stiffening case at 2 and 3 x the nominal inflow).
     prestrain_solvable
         ``(lo, hi)``: raise (a failed solve) when ``prestrain`` lies outside, mimicking
         a candidate effect whose solves fail on one side or everywhere but at 0 (e.g.
@@ -84,6 +90,9 @@ def interface(params: Mapping[str, float], *, n_nodes: int = 66, width: float = 
         raise ValueError(f"nu must lie in (-1, 0.5), got {nu}")
     if E < fail_below_E:
         raise RuntimeError(f"analytic model: E = {E:g} Pa below the failure threshold")
+    if (V / V0) * (E0 / E) > fail_above_load:
+        raise RuntimeError(f"analytic model: load factor {(V / V0) * (E0 / E):g} above "
+                           f"{fail_above_load:g} (an inverted element, as it were)")
     ref = reference_interface(n_nodes, width, height, centre)
     t = np.linspace(0.0, np.pi, n_nodes)
     load = (V / V0) * (E0 / E) * u0
