@@ -360,6 +360,9 @@ def test_random_check_points_catch_a_surrogate_that_is_confident_and_too_narrow(
             rec1 = acquire_round(1, np.vstack([X, P]), L, gp, smc.particles, smc.weights,
                                  smc.log_evidence, space, active, rec)
             assert "likely too narrow" in rec1["reason"], rec1["reason"]
+            t1 = rec1["trust"]  # the reason also gives the typical error, not only the largest
+            assert (f"RMS {t1['rms_error']:.3g} nats over {t1['n_region']} point(s)"
+                    in rec1["reason"]), rec1["reason"]
     if narrow > 1:
         assert min(worst) > 2.0 * active["stop"]["gp_tol"], worst
     else:

@@ -591,7 +591,8 @@ def _why_not(rec: Mapping[str, Any], stop_cfg: Mapping[str, Any]) -> str:
             parts.append("no new solve fell in the posterior region")
         else:
             parts.append(f"the surrogate missed new solves in the posterior region by up to "
-                         f"{t['max_abs_error']:.3g} nats (tolerance {stop_cfg['gp_tol']:g})")
+                         f"{t['max_abs_error']:.3g} nats (tolerance {stop_cfg['gp_tol']:g}; RMS "
+                         f"{t['rms_error']:.3g} nats over {t['n_region']} point(s))")
             under = t.get("check_max_underprediction")
             if under is not None and under > stop_cfg["gp_tol"]:
                 parts.append(f"a random check point in the posterior region has a log-likelihood "
