@@ -78,6 +78,15 @@ def test_summary_says_whether_the_active_design_converged(active_run):
     assert fit["n_measurements"] == 1 and fit["consistent"] and 0 <= fit["misfit_nats"] < 3
     assert s["measures"]["rkhs"]["fit"] == fit
     assert "best fit within the noise" in line[0]
+    # the posterior checked with real solves of its draws (posterior_check, default 32)
+    check = s["posterior_check"]
+    assert check["n_draws"] == 32 and isinstance(check["confirmed"], bool)
+    assert set(check["shift_sd"]) == {"E", "nu"} and check["log_weight_sd"] >= 0
+    path = Path(check["file"]) if Path(check["file"]).is_absolute() else tmp / check["file"]
+    draws = json.loads(path.read_text())["draws"]
+    assert len(draws) == 32 and all(d["surrogate_loglik"] is not None for d in draws)
+    assert (("posterior confirmed by" in line[0]) if check["confirmed"]
+            else ("POSTERIOR NOT CONFIRMED" in line[0])), line[0]
     assert "Nothing to be done" in _smk(tmp, "-n").stdout
 
 
@@ -185,6 +194,24 @@ def test_a_plot_setting_reruns_no_round(active_run, base_study, tmp_path):
     _setup(tmp, study)
     plan = _planned_jobs(_smk(tmp, "-n").stdout)
     assert not ROUND_RULES & set(plan), plan
+
+
+def test_a_posterior_check_setting_reruns_only_the_check(active_run, base_study, tmp_path):
+    """Stricter thresholds of the posterior check: the check and the summary are planned,
+    no solve, round, surrogate, SMC or predictive solve; more draws add only the new
+    predictive solves' draws (a systematic resample of more draws: all are drawn anew,
+    but no design solve or round)."""
+    tmp = _copy(active_run[0], tmp_path / "run")
+    study = _study(base_study)
+    study["posterior_check"] = {"sd_tol": 0.1}
+    _setup(tmp, study)
+    plan = _planned_jobs(_smk(tmp, "-n").stdout)
+    assert {k for k, n in plan.items() if n} <= {"posterior_check", "summary", "all"}, plan
+    assert plan.get("posterior_check") == 1, plan
+    study["posterior_check"] = {"draws": 40}
+    _setup(tmp, study)
+    plan = _planned_jobs(_smk(tmp, "-n").stdout)
+    assert not (ROUND_RULES | {"solve", "discrepancy", "smc", "train_surrogate"}) & set(plan), plan
 
 
 def test_an_acquisition_setting_decides_the_rounds_again_from_the_first_changed_one(

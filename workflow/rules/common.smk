@@ -172,6 +172,13 @@ GATHER_JOB = (
     " names {params.names!r:q} targets {params.targets!r:q} n_train {params.n_train!r:q}"
     " runs [ {input.runs:q} ] disc [ {input.disc:q} ]"
 )
+POSTERIOR_CHECK_JOB = (
+    '"$BAYESCALIB_PYTHON" -I -S "$BAYESCALIB_JOB_CLIENT" posterior_check log {log:q}'
+    " out {output:q} samples [ {input.samples:q} ] obs {input.obs:q}"
+    " surrogate {input.surrogate:q} measure_name {params.measure_name:q}"
+    " measure {params.measure!r:q} likelihood {params.likelihood!r:q}"
+    " parameters {params.parameters!r:q} check {params.check!r:q}"
+)
 PREDICTIVE_JOB = (
     '"$BAYESCALIB_PYTHON" -I -S "$BAYESCALIB_JOB_CLIENT" predictive_solve log {log:q}'
     " out {output:q} particles {input.particles:q} parameters {params.parameters!r:q}"
@@ -187,7 +194,7 @@ SUMMARY_JOB = (
     " root {params.root:q} strategy {params.strategy:q} n_solves {params.n_solves}"
     " posterior [ {input.posterior:q} ] training [ {input.training:q} ]"
     " particles [ {input.particles:q} ] active [ {input.active:q} ]"
-    " convergence [ {input.convergence:q} ]"
+    " convergence [ {input.convergence:q} ] check [ {input.check:q} ]"
 )
 # figures (the round server: Matplotlib imported once per run)
 FIG_RESPONSE_JOB = (
@@ -247,7 +254,10 @@ def _set_aside(wildcards):
 # ---- Figures
 
 FMT = study.config["plots"]["formats"]
-K = study.config["plots"]["n_interface_samples"]
+K = study.config["plots"]["n_interface_samples"]  # drawn in the interface figure
+# posterior draws solved (predictive_solve): the figure's and the posterior check's
+N_CHECK = study.config["posterior_check"]["draws"]
+K_SOLVED = max(K, N_CHECK)
 DIM = len(study.config["parameters"])
 
 

@@ -99,7 +99,7 @@ rule predictive_solve:
     params:
         forward_model=study.forward_section(),
         parameters=study.config["parameters"],
-        n=K,
+        n=K_SOLVED,
         seed=study.config["smc"]["seed"],
     log:
         f"{R}/logs/predictive/{{k}}.log",
@@ -108,6 +108,30 @@ rule predictive_solve:
     threads: 1
     shell:
         PREDICTIVE_JOB
+
+
+rule posterior_check:
+    conda:
+        "../envs/bayescalib.yaml"
+    input:
+        samples=expand(f"{R}/predictive/{{k}}.h5", k=range(K_SOLVED)),
+        obs=f"{R}/observations/observations.h5",
+        surrogate=f"{R}/{study.primary_measure}/surrogate.h5",
+    output:
+        f"{R}/{study.primary_measure}/posterior_check.json",
+    params:
+        measure_name=study.primary_measure,
+        measure=study.config["measure"][study.primary_measure],
+        likelihood=study.config["likelihood"],
+        parameters=study.config["parameters"],
+        check=study.config["posterior_check"],
+    log:
+        f"{R}/logs/posterior_check.log",
+    benchmark:
+        f"{R}/benchmarks/posterior_check.tsv"
+    threads: 1
+    shell:
+        POSTERIOR_CHECK_JOB
 
 
 rule fig_interfaces:

@@ -14,6 +14,7 @@ rule summary:
         if study.config["convergence"]["enabled"]
         else [],
         active=lambda wc: active_records(),
+        check=[f"{R}/{study.primary_measure}/posterior_check.json"] if N_CHECK else [],
     output:
         report(f"{R}/summary.json", caption="../report/summary.rst", category="Summary"),
     params:

@@ -198,7 +198,13 @@ def _gather(args: Mapping[str, Any]) -> None:
 
 
 def _summary(args: Mapping[str, Any]) -> None:
-    from bayescalib.stages import collect_timings, design_summary, setup_logging, summary
+    from bayescalib.stages import (
+        collect_timings,
+        design_summary,
+        posterior_check_summary,
+        setup_logging,
+        summary,
+    )
 
     setup_logging(args["log"])
     extra = {"design": design_summary(args["strategy"], args.get("active", []),
@@ -206,9 +212,20 @@ def _summary(args: Mapping[str, Any]) -> None:
              "timings_s": collect_timings(args["root"])}
     if args.get("convergence"):
         extra["gp_convergence"] = list(args["convergence"])
+    if args.get("check"):  # a list: empty when posterior_check.draws is 0
+        extra["posterior_check"] = posterior_check_summary(args["check"][0])
     summary(args["study"], _literal(args["parameters"]), _literal(args["measures"]),
             args["posterior"], args["training"], args["particles"],
             _literal(args["figure_map"]), args["out"], extra=extra)
+
+
+def _posterior_check(args: Mapping[str, Any]) -> None:
+    from bayescalib.stages import posterior_check, setup_logging
+
+    setup_logging(args["log"])
+    posterior_check(args["samples"], args["obs"], args["measure_name"],
+                    _literal(args["measure"]), _literal(args["likelihood"]), args["surrogate"],
+                    _literal(args["parameters"]), _literal(args["check"]), args["out"])
 
 
 def _predictive_solve(args: Mapping[str, Any]) -> None:
@@ -283,6 +300,7 @@ STAGES: dict[str, Callable[[Mapping[str, Any]], None]] = {
     "solve": _solve,
     "discrepancy": _discrepancy,
     "predictive_solve": _predictive_solve,
+    "posterior_check": _posterior_check,
     "gather": _gather,
     "train_surrogate": _train_surrogate,
     "smc": _smc,
@@ -301,7 +319,7 @@ STAGES: dict[str, Callable[[Mapping[str, Any]], None]] = {
 #: server. ``scripts/job.py`` holds the same set (it imports nothing of this package).
 ROUND_STAGES = frozenset({"train_surrogate", "smc", "acquire", "marginalize", "fig_response",
                           "fig_convergence", "fig_posterior", "fig_interfaces", "fig_fields",
-                          "fig_rounds", "summary"})
+                          "fig_rounds", "summary", "posterior_check"})
 
 #: what the point server imports before it accepts jobs (the heavy part of every
 #: per-point job; also the modules a solve or discrepancy imports on its way, so that

@@ -825,6 +825,58 @@ def summary(study_name: str, parameters: Sequence[Mapping[str, Any]], measures: 
     return out
 
 
+def posterior_check(sample_runs: Sequence[str | Path], obs_path: str | Path, measure_name: str,
+                    measure: Mapping[str, Any], likelihood: Mapping[str, Any],
+                    surrogate_path: str | Path, parameters: Sequence[Mapping[str, Any]],
+                    check: Mapping[str, Any], out_path: str | Path) -> dict[str, Any]:
+    """The final posterior checked by importance sampling with real solves.
+
+    ``sample_runs`` are the forward solves of equally weighted draws of the final
+    posterior (the ``predictive_solve`` jobs); each gets its discrepancy and real
+    log-likelihood (records under ``<out>.draws/``), the surrogate's log-likelihood at the
+    same parameters is the one the SMC sampled, and
+    :func:`bayescalib.inference.importance.importance_check` compares the two
+    posteriors. Writes ``out_path`` (JSON: the check's numbers keyed by parameter name,
+    in the user's units) and returns it.
+    """
+    from bayescalib.inference.importance import importance_check
+    from bayescalib.inference.surrogate import GPSurrogate
+
+    names = [p["name"] for p in parameters]
+    targets = [p.get("target") or p["name"] for p in parameters]
+    draws_dir = Path(str(out_path) + ".draws")
+    X, L = [], []
+    for k, rp in enumerate(sample_runs):
+        rec = discrepancy(rp, obs_path, measure_name, measure, likelihood,
+                          draws_dir / f"{k}.json")
+        X.append([float(rec["parameters"][t]) for t in targets])
+        L.append(-math.inf if rec.get("loglik") is None else float(rec["loglik"]))
+    X_arr, L_arr = np.asarray(X, float).reshape(-1, len(names)), np.asarray(L, float)
+    gp = _read_checked(surrogate_path, GPSurrogate.load, "surrogate")
+    mu = gp.predict(X_arr)
+    res = importance_check(X_arr, L_arr, mu, min_ess_fraction=check["min_ess_fraction"],
+                           shift_tol=check["shift_tol"], sd_tol=check["sd_tol"])
+    out = {"measure": measure_name, "names": names, **res,
+           "draws": [{"parameters": dict(zip(names, x, strict=True)),
+                      "loglik": None if not math.isfinite(ll) else ll,
+                      "surrogate_loglik": float(m)}
+                     for x, ll, m in zip(X_arr.tolist(), L_arr.tolist(), mu.tolist(),
+                                         strict=True)]}
+    for key in ("mean_q", "sd_q", "mean_is", "sd_is", "shift_sd", "shift_se", "sd_ratio"):
+        if key in out:
+            out[key] = dict(zip(names, out[key], strict=True))
+    write_json(out_path, out)
+    log.info("posterior check (%s): %s", measure_name, res["words"])
+    return out
+
+
+def posterior_check_summary(path: str | Path) -> dict[str, Any]:
+    """The ``posterior_check`` block of summary.json: the check's file without its
+    per-draw records (which stay in the file, named here)."""
+    rec = _read_json_checked(path)
+    return {"file": str(path), **{k: v for k, v in rec.items() if k != "draws"}}
+
+
 def design_summary(strategy: str, acquire_paths: Sequence[str | Path],
                    n_solves: int) -> dict[str, Any]:
     """The ``design`` block of summary.json: how the solves were chosen and whether
@@ -876,6 +928,13 @@ def run_line(summary_json: Mapping[str, Any]) -> str:
         state += ("; best fit within the noise" if fit["consistent"] else
                   "; BEST FIT WORSE THAN THE NOISE (mode not found, missing physics or "
                   "sigma_N too small: see fit in summary.json)")
+    check = summary_json.get("posterior_check")
+    if check and check.get("confirmed"):
+        state += (f"; posterior confirmed by {check['n_draws'] - check['n_failed']} real solves "
+                  f"of its draws (log-weight sd {check['log_weight_sd']:.2g} nats)")
+    elif check:
+        state += ("; POSTERIOR NOT CONFIRMED BY REAL SOLVES of its draws (posterior_check in "
+                  "summary.json)")
     return (f"bayescalib {summary_json['study']}: {', '.join(parts)}; {state}; "
             f"{n_solves} solves, {n_failed} failed")
 
@@ -908,9 +967,11 @@ def front_page(summary_path: str | Path) -> dict[str, Any] | None:
                      fmt(truth.get(n))])
     design = s.get("design") or {}
     fit = s.get("fit") or {}
+    check = s.get("posterior_check") or {}
     return {"line": run_line(s), "reason": design.get("reason", ""), "rows": rows,
             "converged": design.get("converged"), "measure": s.get("measure"),
-            "fit": fit.get("words", ""), "fit_consistent": fit.get("consistent")}
+            "fit": fit.get("words", ""), "fit_consistent": fit.get("consistent"),
+            "check": check.get("words", ""), "check_confirmed": check.get("confirmed")}
 
 
 def collect_timings(root: str | Path) -> dict[str, Any]:
