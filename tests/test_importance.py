@@ -99,3 +99,18 @@ def test_small_errors_with_few_draws_are_confirmed_and_leave_the_tail_unjudged()
     assert res["pareto_k"] is None
     assert res["confirmed"], res["words"]
     assert res["log_weight_sd"] == pytest.approx(0.1, rel=0.35)
+
+
+def test_spurious_surrogate_mass_is_caught_by_the_spread_of_the_log_weights():
+    """A tenth of the draws lie where the real log-likelihood is 10 nats below the
+    surrogate's (mass the surrogate invented): the other weights are equal, so the ESS is
+    90 %, and the means and sds barely move if the spurious draws sit at the centre; the
+    log-weights' sd (3 nats) says it."""
+    x, L, _ = _gauss_case(1.0, 0.0, 40, 6)
+    x[:4, 0] = [-0.05, 0.05, -0.1, 0.1]  # near the centre: moments hardly change
+    mu = L.copy()
+    mu[:4] = L[:4] + 10.0
+    res = importance_check(x, L, mu)
+    assert res["ess_fraction"] == pytest.approx(0.9, abs=0.01)
+    assert res["log_weight_sd"] > 2.5
+    assert not res["confirmed"] and "log-weights spread" in res["words"]

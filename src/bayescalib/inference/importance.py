@@ -31,9 +31,13 @@ are all that is needed to judge q against pi where q puts its mass:
 Draws whose solve failed carry no log-likelihood; they are counted and left out
 (a failure inside the posterior is reported by the caller). A check is *confirmed*
 when k < 0.7 (or was not estimable), ESS / S >= ``min_ess_fraction``, every mean
-shift is within ``shift_tol`` sd plus twice its Monte Carlo error and every sd ratio
-within a factor 1 + ``sd_tol``: then pi and q agree where q lives, as far as S solves
-can tell. With few draws the sd ratio is the most sensitive of these: for a surrogate
+shift is within ``shift_tol`` sd plus twice its Monte Carlo error, every sd ratio
+within a factor 1 + ``sd_tol`` and the log-weights' sd is at most
+``max_log_weight_sd`` nats: then pi and q agree where q lives, as far as S solves can
+tell. The last one is the surrogate's error where the posterior lives, stated in nats:
+for log-normal weights ESS ≈ exp(-sd^2), so ESS >= 1/2 already bounds it by 0.83 nats,
+but spurious surrogate mass (draws where the real likelihood is far below the
+surrogate's: weights near 0) leaves the ESS high and shows only in the spread. With few draws the sd ratio is the most sensitive of these: for a surrogate
 posterior half as wide as the real one (1-D Gaussians), 32 draws give an sd ratio of
 1.4-1.7 in every seed tried (tests/test_importance.py), while the tail needs more
 draws than that to show. A
@@ -117,7 +121,7 @@ def pareto_k(log_weights: np.ndarray) -> float | None:
 
 def importance_check(X: np.ndarray, loglik: np.ndarray, surrogate_mean: np.ndarray, *,
                      min_ess_fraction: float = 0.5, shift_tol: float = 0.2,
-                     sd_tol: float = 0.2) -> dict[str, Any]:
+                     sd_tol: float = 0.2, max_log_weight_sd: float = 1.0) -> dict[str, Any]:
     """Compare the surrogate posterior with the real one at real solves of its draws.
 
     Parameters
@@ -128,7 +132,7 @@ def importance_check(X: np.ndarray, loglik: np.ndarray, surrogate_mean: np.ndarr
         (S,) real log-likelihoods there (-inf or NaN: failed solve, left out).
     surrogate_mean
         (S,) the surrogate's log-likelihood (its mean) at the same draws.
-    min_ess_fraction, shift_tol, sd_tol
+    min_ess_fraction, shift_tol, sd_tol, max_log_weight_sd
         Thresholds of the verdict (module docstring).
 
     Returns
@@ -173,14 +177,16 @@ def importance_check(X: np.ndarray, loglik: np.ndarray, surrogate_mean: np.ndarr
     shift_ok = bool(np.all(np.abs(shift) <= shift_tol + 2.0 * shift_se))
     ratio = sd_is / scale
     sd_ok = bool(np.all((ratio <= 1.0 + sd_tol) & (ratio >= 1.0 / (1.0 + sd_tol))))
-    confirmed = bool(tail_ok and ess_frac >= min_ess_fraction and shift_ok and sd_ok)
+    spread_ok = lsd <= max_log_weight_sd
+    confirmed = bool(tail_ok and ess_frac >= min_ess_fraction and shift_ok and sd_ok
+                     and spread_ok)
     out.update(
         log_weight_sd=lsd, kl_estimate=0.5 * lsd**2, ess_fraction=float(ess_frac),
         pareto_k=k, mean_q=mean_q.tolist(), sd_q=sd_q.tolist(), mean_is=mean_is.tolist(),
         sd_is=sd_is.tolist(), shift_sd=shift.tolist(), shift_se=shift_se.tolist(),
         sd_ratio=ratio.tolist(), confirmed=confirmed,
         min_ess_fraction=float(min_ess_fraction), shift_tol=float(shift_tol),
-        sd_tol=float(sd_tol))
+        sd_tol=float(sd_tol), max_log_weight_sd=float(max_log_weight_sd))
     head = (f"{S} real solves of posterior draws: log-weight sd {lsd:.2g} nats, ESS "
             f"{100 * ess_frac:.0f} %, Pareto k {'-' if k is None else f'{k:.2f}'}, largest "
             f"mean shift {np.max(np.abs(shift)):.2g} sd (MC error {np.max(shift_se):.2g}), sd "
@@ -197,5 +203,7 @@ def importance_check(X: np.ndarray, loglik: np.ndarray, surrogate_mean: np.ndarr
             why.append(f"a mean moves by more than {shift_tol:g} sd")
         if not sd_ok:
             why.append(f"an sd changes by more than a factor {1 + sd_tol:g}")
+        if not spread_ok:
+            why.append(f"the log-weights spread by more than {max_log_weight_sd:g} nats")
         out["words"] = head + ": NOT confirmed (" + "; ".join(why) + ")."
     return out

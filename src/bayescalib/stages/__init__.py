@@ -855,7 +855,8 @@ def posterior_check(sample_runs: Sequence[str | Path], obs_path: str | Path, mea
     gp = _read_checked(surrogate_path, GPSurrogate.load, "surrogate")
     mu = gp.predict(X_arr)
     res = importance_check(X_arr, L_arr, mu, min_ess_fraction=check["min_ess_fraction"],
-                           shift_tol=check["shift_tol"], sd_tol=check["sd_tol"])
+                           shift_tol=check["shift_tol"], sd_tol=check["sd_tol"],
+                           max_log_weight_sd=check["max_log_weight_sd"])
     out = {"measure": measure_name, "names": names, **res,
            "draws": [{"parameters": dict(zip(names, x, strict=True)),
                       "loglik": None if not math.isfinite(ll) else ll,
