@@ -228,6 +228,9 @@ def test_active_calibration_converges_to_the_closed_form_posterior():
     assert res.converged, res.reason
     assert res.n_evaluations < 96
     _assert_closed_form(res, mean, cov)
+    # the posterior checked at 32 real evaluations of its draws (not design points)
+    assert res.check["n_draws"] == 32 and res.check["confirmed"], res.check["words"]
+    assert res.check["log_weight_sd"] < 0.5
 
 
 def test_lighter_round_smc_still_reports_the_posterior_with_the_full_settings():
@@ -287,6 +290,12 @@ def test_a_spent_budget_is_reported_as_not_converged():
                                                     "zeta": 0.9})
     assert res.n_evaluations == 14 and not res.converged
     assert res.reason.startswith("NOT converged") and "max_solves = 14" in res.reason
+    none = calibrate(_gaussian_misfit([0.63, 0.21], np.diag([0.01, 0.015]) ** 2), space,
+                     bound=0.0, active={"n_initial": 8, "batch_size": 4, "max_solves": 8},
+                     surrogate={"restarts": 1}, smc={"n_particles": 300, "n_rej": 3,
+                                                     "zeta": 0.9},
+                     posterior_check={"draws": 0})
+    assert none.check is None
 
 
 def test_the_rounds_are_reproducible():

@@ -623,6 +623,9 @@ class ActiveResult:
     rounds : the per-round records of :func:`acquire_round`.
     fit : :func:`bayescalib.inference.likelihood.fit_check` of the best evaluation
         (None without ``bound`` and ``n_measurements``).
+    check : :func:`bayescalib.inference.importance.importance_check` of the final
+        posterior at ``posterior_check.draws`` real evaluations of its draws (None with
+        0 draws); they are not added to ``X`` (the pipeline's posterior_check stage).
     """
 
     X: np.ndarray
@@ -631,6 +634,7 @@ class ActiveResult:
     smc: Any
     rounds: list[dict[str, Any]] = field(default_factory=list)
     fit: dict[str, Any] | None = None
+    check: dict[str, Any] | None = None
 
     @property
     def n_evaluations(self) -> int:
@@ -654,7 +658,8 @@ def calibrate(loglik: Callable[[np.ndarray], np.ndarray], space, *, bound: float
               surrogate: Mapping[str, Any] | None = None,
               smc: Mapping[str, Any] | None = None, seed: int = 0,
               callback: Callable[[dict[str, Any]], None] | None = None,
-              n_measurements: int | None = None) -> ActiveResult:
+              n_measurements: int | None = None,
+              posterior_check: Mapping[str, Any] | None = None) -> ActiveResult:
     """Active-design calibration of a log-likelihood given as a Python function.
 
     Runs the rounds of the pipeline's ``active`` stage in-process: the same
@@ -682,6 +687,11 @@ def calibrate(loglik: Callable[[np.ndarray], np.ndarray], space, *, bound: float
     n_measurements
         Number of measurements behind the Gaussian log-likelihood: with ``bound``,
         the result's ``fit`` checks the best evaluation against the noise model.
+    posterior_check
+        Partial ``posterior_check`` section: the result's ``check`` evaluates
+        ``loglik`` at that many equally weighted draws of the final posterior (a
+        systematic resample, seeded by ``seed``) and compares the posteriors
+        (:func:`bayescalib.inference.importance.importance_check`).
     """
     from bayescalib.config import round_smc, validate
     from bayescalib.inference.design import sobol_design
@@ -689,7 +699,8 @@ def calibrate(loglik: Callable[[np.ndarray], np.ndarray], space, *, bound: float
     from bayescalib.inference.surrogate import fit_from_config, fit_round
 
     cfg = validate({"design": {"active": dict(active or {})}, "surrogate": dict(surrogate or {}),
-                    "smc": dict(smc or {})}, "inference", where="calibrate")
+                    "smc": dict(smc or {}), "posterior_check": dict(posterior_check or {})},
+                   "inference", where="calibrate")
     a = cfg["design"]["active"]
     smc_round = round_smc(cfg["smc"], a)
     X = sobol_design(space.bounds, int(a["n_initial"]), seed)
@@ -719,12 +730,32 @@ def calibrate(loglik: Callable[[np.ndarray], np.ndarray], space, *, bound: float
                 res = smc_from_config(gp.predict, space, cfg["smc"])
             elif smc_round != cfg["smc"]:  # the rounds sampled lighter: the result in full
                 res = smc_from_config(gp.predict, space, cfg["smc"])
-            return ActiveResult(X, L, gp, res, rounds, fit)
+            return ActiveResult(X, L, gp, res, rounds, fit,
+                                _posterior_check(loglik, gp, res, cfg["posterior_check"], seed))
         Xn = np.asarray(rec["next"]["points"], float)
         X = np.vstack([X, Xn])
         L = np.concatenate([L, np.asarray(loglik(Xn), float)])
         previous = rec
         r += 1
+
+
+def _posterior_check(loglik: Callable[[np.ndarray], np.ndarray], gp, res,
+                     check: Mapping[str, Any], seed: int) -> dict[str, Any] | None:
+    """:func:`~bayescalib.inference.importance.importance_check` of the SMC result ``res``
+    on ``gp`` at ``check["draws"]`` real evaluations of its draws (None for 0 draws)."""
+    from bayescalib.inference.importance import importance_check
+    from bayescalib.inference.resampling import systematic_resample
+
+    n = int(check["draws"])
+    if n == 0:
+        return None
+    W = np.asarray(res.weights, float)
+    D = np.asarray(res.particles, float)[
+        systematic_resample(W / W.sum(), np.random.default_rng([int(seed), 0xC4EC]), n)]
+    return importance_check(D, np.asarray(loglik(D), float), gp.predict(D),
+                            min_ess_fraction=check["min_ess_fraction"],
+                            shift_tol=check["shift_tol"], sd_tol=check["sd_tol"],
+                            max_log_weight_sd=check["max_log_weight_sd"])
 
 
 def history_table(rounds: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
