@@ -141,8 +141,7 @@ ACTIVE_MEAN: str | None = None
 #: variant by --reselect-growth (methods named ``active[rg=<value>]``)
 ACTIVE_RESELECT: float | None = None
 #: further surrogate settings of the active methods (--ard, --nugget-factor, --nugget,
-#: --nugget-floor; empty: the
-#: benchmark's own ard rule and the schema's defaults)
+#: --nugget-floor; empty: the schema's defaults)
 ACTIVE_SURROGATE: dict[str, Any] = {}
 #: design.active settings of the method ``active`` (the schema's) and ``active_vbmc`` (VBMC's
 #: prospective uncertainty: the surrogate posterior squared in the score), so that both run in
@@ -607,7 +606,7 @@ def run_active(prob: Problem, budget: int, seed: int, variant: str = "active") -
             f, space, bound=prob.B,
             active={"n_initial": n0, "batch_size": 8, "max_solves": budget,
                     **ACQUISITIONS[variant]},
-            surrogate={"ard": prob.d > 2, "kernel": ACTIVE_KERNEL, "frame": ACTIVE_FRAME,
+            surrogate={"kernel": ACTIVE_KERNEL, "frame": ACTIVE_FRAME,
                        **({} if ACTIVE_MEAN is None else {"mean": ACTIVE_MEAN}),
                        **({} if ACTIVE_RESELECT is None else
                           {"reselect_growth": ACTIVE_RESELECT}),
@@ -1133,8 +1132,8 @@ def main(argv: list[str] | None = None) -> int:
                     help="surrogate.frame of the active method (default auto: ARD kernels in the "
                          "parameter axes and in the principal axes, the larger evidence wins)")
     ap.add_argument("--ard", default=None, choices=["true", "false", "auto"],
-                    help="surrogate.ard of the active methods (default: one length scale per "
-                         "input from three dimensions on, the schema's auto)")
+                    help="surrogate.ard of the active methods (default: the schema's auto, one "
+                         "length scale per input from two dimensions on)")
     ap.add_argument("--nugget-factor", type=float, default=None,
                     help="surrogate.nugget_factor of the active methods (default: the schema's)")
     ap.add_argument("--nugget", default=None, choices=["fixed", "fit"],
