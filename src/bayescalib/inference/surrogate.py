@@ -1544,8 +1544,7 @@ def _search_settings(X: np.ndarray, y: np.ndarray, surrogate: dict[str, Any],
           "restarts": surrogate["restarts"], "seed": surrogate["seed"], "bounds": bounds,
           "mean_offset_factor": surrogate["mean_offset_factor"],
           "nugget_factor": surrogate["nugget_factor"], "bound": bound,
-          "nugget": surrogate.get("nugget", "fixed"),
-          "nugget_floor": surrogate.get("nugget_floor", 1e-5),
+          "nugget": surrogate["nugget"], "nugget_floor": surrogate["nugget_floor"],
           "mean": resolve_mean(surrogate.get("mean", "auto"), np.shape(X)[1])}
     output = surrogate["output"]
     warps = [False] if bound is None or output == "loglik" else \
