@@ -36,8 +36,8 @@ Methods
   ``max_solves`` = budget, a quarter of the budget as initial design). Reported
   as "not available" when the module does not import. ``active_vbmc``: the same with
   VBMC's prospective uncertainty in the acquisition (``posterior_power`` 2), so that
-  both are measured in one run. ``--ard`` and ``--nugget-factor`` set the
-  surrogate of both; ``--trace`` records each round's accuracy (``trace`` in the
+  both are measured in one run. ``--ard``, ``--nugget-factor``, ``--nugget`` and
+  ``--nugget-floor`` set the surrogate of both; ``--trace`` records each round's accuracy (``trace`` in the
   results: Hellinger of that round's surrogate on the grid in 2D, and the moment
   metrics of that round's own SMC, 4000 particles).
 * ``pyvbmc``: PyVBMC (``max_fun_evals`` = budget; hard bounds = box, plausible
@@ -140,8 +140,8 @@ ACTIVE_MEAN: str | None = None
 #: surrogate.reselect_growth of the active method (None: the schema's default); set per
 #: variant by --reselect-growth (methods named ``active[rg=<value>]``)
 ACTIVE_RESELECT: float | None = None
-#: further surrogate settings of the active methods (--ard, --nugget-factor; empty: the
-#: benchmark's own ard rule and the schema's defaults)
+#: further surrogate settings of the active methods (--ard, --nugget-factor, --nugget,
+#: --nugget-floor; empty: the schema's defaults)
 ACTIVE_SURROGATE: dict[str, Any] = {}
 #: design.active settings of the method ``active`` (the schema's) and ``active_vbmc`` (VBMC's
 #: prospective uncertainty: the surrogate posterior squared in the score), so that both run in
@@ -606,7 +606,7 @@ def run_active(prob: Problem, budget: int, seed: int, variant: str = "active") -
             f, space, bound=prob.B,
             active={"n_initial": n0, "batch_size": 8, "max_solves": budget,
                     **ACQUISITIONS[variant]},
-            surrogate={"ard": prob.d > 2, "kernel": ACTIVE_KERNEL, "frame": ACTIVE_FRAME,
+            surrogate={"kernel": ACTIVE_KERNEL, "frame": ACTIVE_FRAME,
                        **({} if ACTIVE_MEAN is None else {"mean": ACTIVE_MEAN}),
                        **({} if ACTIVE_RESELECT is None else
                           {"reselect_growth": ACTIVE_RESELECT}),
@@ -1132,10 +1132,17 @@ def main(argv: list[str] | None = None) -> int:
                     help="surrogate.frame of the active method (default auto: ARD kernels in the "
                          "parameter axes and in the principal axes, the larger evidence wins)")
     ap.add_argument("--ard", default=None, choices=["true", "false", "auto"],
-                    help="surrogate.ard of the active methods (default: one length scale per "
-                         "input from three dimensions on, the schema's auto)")
+                    help="surrogate.ard of the active methods (default: the schema's auto, one "
+                         "length scale per input from two dimensions on)")
     ap.add_argument("--nugget-factor", type=float, default=None,
                     help="surrogate.nugget_factor of the active methods (default: the schema's)")
+    ap.add_argument("--nugget", default=None, choices=["fixed", "fit"],
+                    help="surrogate.nugget of the active methods: fixed (nugget_factor times the "
+                         "range of the GP's targets) or fit (by the evidence, at least "
+                         "--nugget-floor); default: the schema's")
+    ap.add_argument("--nugget-floor", type=float, default=None,
+                    help="surrogate.nugget_floor (nats^2) of the active methods (default: the "
+                         "schema's)")
     ap.add_argument("--trace", action="store_true",
                     help="active methods: record the accuracy after every round (results.json: trace)")
     ap.add_argument("--mean", default=None, choices=["auto", "constant", "quadratic"],
@@ -1153,6 +1160,10 @@ def main(argv: list[str] | None = None) -> int:
         ACTIVE_SURROGATE["ard"] = {"true": True, "false": False}.get(args.ard, args.ard)
     if args.nugget_factor is not None:
         ACTIVE_SURROGATE["nugget_factor"] = args.nugget_factor
+    if args.nugget is not None:
+        ACTIVE_SURROGATE["nugget"] = args.nugget
+    if args.nugget_floor is not None:
+        ACTIVE_SURROGATE["nugget_floor"] = args.nugget_floor
     ACTIVE_MEAN = args.mean
     ACTIVE_KERNEL = args.kernel
     ACTIVE_FRAME = args.frame

@@ -24,9 +24,11 @@ from bayescalib.io.training import write_training
 
 BOX = np.array([[-2.0, 2.0], [-1.0, 3.0]])
 B = 1.5  # the log-likelihood's upper bound
-#: candidates of a 2-D surrogate with a bound and ``kernel: auto``, ``output: auto``
-#: (one length scale, so linear inputs in the parameter axes): 3 kernels x 2 outputs
-N_CANDIDATES_2D = 6
+#: candidates of a 2-D surrogate with a bound and ``kernel: auto``, ``output: auto``,
+#: ``ard: auto`` (one length scale per input from two dimensions on since issue 17, so
+#: ``frame: auto`` fits the parameter axes and the principal axes; linear inputs in 2-D):
+#: 3 kernels x 2 outputs x 2 frames (6 with the earlier single length scale in 2-D)
+N_CANDIDATES_2D = 12
 
 
 def _loglik(X: np.ndarray) -> np.ndarray:
@@ -95,8 +97,9 @@ def test_the_refit_is_warm_started_and_fits_the_data_as_well_as_a_search():
     gp0 = sur.fit_round(X[:16], L[:16], cfg, BOX, bound=B)
     gp1 = sur.fit_round(X, L, cfg, BOX, bound=B, previous=gp0)
     assert gp1.selection == "refit"
-    cold = sur.fit_gp(X, L, warp=gp0.warped, kernel=gp0.kernel, ard=False, restarts=1,
-                      bounds=BOX, bound=B)
+    cold = sur.fit_gp(X, L, warp=gp0.warped, kernel=gp0.kernel, ard=gp1.ard, restarts=1,
+                      bounds=BOX, bound=B, rotation=gp1.rotation, nugget=cfg["nugget"],
+                      nugget_floor=cfg["nugget_floor"])
     assert gp1.log_marginal_likelihood >= cold.log_marginal_likelihood - 1.0
     Z = sobol_design(BOX, 256, 5)
     near = Z[_loglik(Z) > B - 3.0]

@@ -54,7 +54,7 @@ def convergence_study(
         Increasing training sizes, each <= n_max.
     **fit_kwargs
         Passed to :func:`bayescalib.inference.surrogate.fit_gp` (ard, optimizer, restarts,
-        seed, bounds, mean_offset_factor, nugget_factor).
+        seed, bounds, mean_offset_factor, nugget_factor, nugget, nugget_floor).
 
     Returns
     -------

@@ -46,8 +46,9 @@ Log inputs (``log_offset``; ``surrogate.inputs``)
     RMS error 1.52 -> 0.25 nats (n = 104) and 0.41 -> 0.06 nats (n = 149).
     ``fit_from_config`` fits both scales and keeps the larger evidence
     (``inputs: auto``; the targets are the same, so the evidences compare directly)
-    when the kernel has one length scale per input; with a single length scale (the
-    2-D studies) ``auto`` keeps linear inputs (:data:`LOG_INPUTS_NOTE`).
+    when the kernel has one length scale per input in three or more dimensions; with a
+    single length scale, and in one or two dimensions (the 2-D studies), ``auto`` keeps
+    linear inputs (:data:`LOG_INPUTS_NOTE`).
 
 Re-deciding the discrete choices (``surrogate.reselect_growth``; :func:`fit_round`)
     :func:`fit_from_config` fits every candidate of the discrete choices (kernel x
@@ -97,13 +98,38 @@ Misfit-shaped prior mean (``mean="quadratic"``; ``surrogate.mean``)
     surrogate then keeps climbing toward the fitted mode (and falls off quadratically
     beyond it) instead of reverting to a floor.
 
-Fixed nugget
-    sigma_n^2 = f_n (max(L) - min(L)),  f_n = ``nugget_factor`` = 1e-5, fixed
-    (not optimized), for numerical stability.
+Nugget (``surrogate.nugget``)
+    ``fixed`` (the paper's): sigma_n^2 = f_n (max(y) - min(y)), f_n = ``nugget_factor``
+    = 1e-5, fixed (not optimized), for numerical stability. The range of the targets is
+    set by the far points of a design (ridge2d: 890 nats among 64 values, so a noise
+    of 0.09 nats sd on every value), so a fixed relative nugget caps the accuracy near
+    the mode (docs/bench_active.md, issue 17).
+
+    ``fit``: sigma_n^2 is a hyperparameter of the evidence, maximized with the kernel's
+    (the GP noise variance of GP regression, Rasmussen & Williams 2006 Sec. 5.4; VBMC
+    fits its GP noise the same way, Acerbi 2018), within
+
+        floor <= sigma_n^2 <= max(var(y), 1e3 floor),
+
+    so that noise-free values are interpolated (the evidence drives the noise to the
+    floor) while a solver's discretization noise (FSI) is smoothed over instead of
+    interpolated. The floor is absolute, ``nugget_floor`` = s_f^2 in nats^2 of the
+    log-likelihood (default 1e-5: VBMC's minimum GP noise, ``tol_gp_noise`` =
+    sqrt(1e-5) nats sd), not relative to the range of L, so far points do not raise it.
+    For the log-misfit GP it is carried to the units of g by the warping's slope at the
+    best training value, dg/dL = -1 / (1 + Phi_min): floor_g = s_f^2 exp(-2 min g).
+    The optimizer starts: the first at 10 floor, the others log-uniform between the
+    floor and 1e-2 var(y); a refit of :func:`fit_round` adds one start at the previous
+    round's kernel hyperparameters and nugget. Should
+    K + sigma_n^2 I not factorize in float64 at the optimum (a smooth kernel, dense
+    points), sigma_n^2 is raised tenfold until it does (logged; the evidence is
+    recomputed there). The fitted value travels in the surrogate file (``nugget``;
+    ``nugget_mode`` says which rule made it; files written before it was recorded
+    read as ``fixed``).
 
 Training (eq. gploglikeli)
-    The kernel variance s^2 and length scale(s) l maximize the evidence
-    log p(L | s^2, l) with GPy's L-BFGS-B (``optimizer="lbfgsb"``) or scaled
+    The kernel variance s^2 and length scale(s) l (and sigma_n^2 with the fitted nugget)
+    maximize the evidence log p(L | s^2, l) with GPy's L-BFGS-B (``optimizer="lbfgsb"``) or scaled
     conjugate gradients (``"scg"``), from ``restarts`` starting points: the
     first a fixed default (s^2 = mean((L - m)^2), l = 0.3), the others drawn
     log-uniformly around it from ``numpy.random.default_rng(seed)``. The best
@@ -288,7 +314,9 @@ class GPSurrogate:
         g = log(1 + bound - L) when ``bound`` is set (see :attr:`loglik_train`).
     shift, scale : (d,) input scaling u = (x - shift) / scale.
     mean_const : constant prior mean m.
-    nugget : fixed nugget variance sigma_n^2.
+    nugget : nugget (noise) variance sigma_n^2 in the units of ``y_train``.
+    nugget_fitted : True when ``nugget`` was fitted by the evidence (``nugget="fit"`` of
+        :func:`fit_gp`), False when fixed by the rule of ``nugget_factor``.
     variance : kernel variance s^2.
     lengthscale : (1,) or (d,) length scale(s) on scaled inputs.
     ard : one length scale per input.
@@ -356,6 +384,7 @@ class GPSurrogate:
     mean_top: float = float("nan")
     selection: str = _SEARCH
     selection_n: int = -1
+    nugget_fitted: bool = False
     _cache: dict[str, Any] = field(default_factory=dict, repr=False)
 
     def __post_init__(self) -> None:
@@ -439,6 +468,7 @@ class GPSurrogate:
             "mean_misfit_min": None if self.mean_function == "constant" else
             float(self.mean_misfit_min),
             "nugget": float(self.nugget),
+            "nugget_mode": "fit" if self.nugget_fitted else "fixed",
             "log_marginal_likelihood": float(self.log_marginal_likelihood),
             "input_shift": [float(v) for v in self.shift],
             "input_scale": [float(v) for v in self.scale],
@@ -757,6 +787,7 @@ class GPSurrogate:
             # added within format version 3 (readers ignore unknown attributes)
             f.attrs["selection"] = self.selection
             f.attrs["selection_n"] = int(self.selection_n)
+            f.attrs["nugget_mode"] = "fit" if self.nugget_fitted else "fixed"
 
     @classmethod
     def load(cls, path: str | Path, device: str = "auto") -> GPSurrogate:
@@ -796,6 +827,8 @@ class GPSurrogate:
                 # files written before the selection was recorded: a full search, n unknown
                 selection=_plain_str(f.attrs.get("selection", _SEARCH)),
                 selection_n=int(f.attrs.get("selection_n", -1)),
+                # files written before the fitted nugget: the fixed rule
+                nugget_fitted=_plain_str(f.attrs.get("nugget_mode", "fixed")) == "fit",
             )
 
     def loo_residuals(self) -> np.ndarray:
@@ -811,13 +844,19 @@ class GPSurrogate:
 
 #: shift of a log input whose box starts near zero, as a share of its upper bound
 LOG_OFFSET_SHARE = 0.05
-#: why ``inputs: auto`` keeps linear inputs for a kernel with a single length scale
-#: (the 1-D/2-D studies), measured with the default study (2-D, default mesh, seed 1):
+#: why ``inputs: auto`` keeps linear inputs for a kernel with a single length scale and in
+#: one or two dimensions (the 2-D studies), measured with the default study (2-D, default
+#: mesh, seed 1, one length scale):
 #: with log inputs the evidence chose them in every round, the posterior stayed the
 #: same (E 380.3 +- 62 Pa, nu 0.195 +- 0.21 against 381.4 +- 61, 0.200 +- 0.21) but
 #: the run needed 97 solves instead of 43 (the exploring picks went to the stretched
-#: low-E end of the box, the band's tail, and missed there by 1.5-2.3 nats).
-LOG_INPUTS_NOTE = "log inputs are tried with per-input length scales only"
+#: low-E end of the box, the band's tail, and missed there by 1.5-2.3 nats). With one
+#: length scale per input and the fitted nugget (the defaults since issue 17) the smoke
+#: study (coarse mesh, design seeds 1-3, benchmarks/bench_active_fsi.py) gave the same with
+#: both scales: Hellinger <= 0.1 from 18/23/28 solves (log tried) and 18/18/28 (linear),
+#: so the 2-D studies keep linear inputs.
+LOG_INPUTS_NOTE = ("log inputs are tried with per-input length scales from three "
+                   "dimensions on only")
 
 
 def log_input_offsets(bounds: np.ndarray) -> np.ndarray | None:
@@ -1059,8 +1098,9 @@ def _bound_attr(value: Any) -> float | None:
 
 
 def _build_gpy(U, y, mean_const, variance, lengthscale, nugget, ard, kernel="matern32",
-               mapping=None):
-    """GPy ``GPRegression`` on the GP inputs U with a fixed nugget; the prior mean is
+               mapping=None, noise_bounds=None):
+    """GPy ``GPRegression`` on the GP inputs U with the nugget ``nugget``: fixed, or free
+    within ``noise_bounds`` = (floor, upper) (the fitted nugget); the prior mean is
     ``mapping`` (a GPy mapping, e.g. the quadratic one) or the fixed constant ``mean_const``."""
     import GPy
 
@@ -1080,7 +1120,11 @@ def _build_gpy(U, y, mean_const, variance, lengthscale, nugget, ard, kernel="mat
         np.asarray(U, float), np.asarray(y, float)[:, None], kernel=kern, mean_function=mf,
         noise_var=float(nugget),
     )
-    model.Gaussian_noise.variance.fix()
+    if noise_bounds is None:
+        model.Gaussian_noise.variance.fix()
+    else:
+        model.Gaussian_noise.variance.constrain_bounded(*map(float, noise_bounds),
+                                                         warning=False)
     return model
 
 
@@ -1103,7 +1147,9 @@ def fit_gp(
     rotation: np.ndarray | None = None,
     log_offset: np.ndarray | None = None,
     mean: str = "constant",
-    warm_start: tuple[float, np.ndarray] | None = None,
+    warm_start: tuple[float, np.ndarray] | tuple[float, np.ndarray, float] | None = None,
+    nugget: str = "fixed",
+    nugget_floor: float = 1e-5,
 ) -> GPSurrogate:
     """Train the GP surrogate of the log-likelihood (paper Sec. 3.2, App. D).
 
@@ -1123,7 +1169,7 @@ def fit_gp(
         (d, 2) design box for the input scaling; default: min/max of ``X``.
     mean_offset_factor, nugget_factor
         m = min(y) - mean_offset_factor * (max(y) - min(y));
-        sigma_n^2 = nugget_factor * (max(y) - min(y)) (fixed). With ``bound``
+        sigma_n^2 = nugget_factor * (max(y) - min(y)) (``nugget="fixed"``). With ``bound``
         the same rules act on the warped values g, with the mean placed above
         them: m = max(g) + mean_offset_factor * (max(g) - min(g)).
     max_iters
@@ -1150,9 +1196,19 @@ def fit_gp(
         and phi0 fitted by the evidence jointly with the kernel, starting from a
         least-squares fit to the targets (:func:`_prefit_quadratic`).
     warm_start
-        (kernel variance, length scale(s) of shape (1,) or (d,)) of the first optimizer
-        start (a warm start, e.g. the previous round's optimum, :func:`fit_round`);
-        None: the fixed default. The other starts are drawn as without it.
+        (kernel variance, length scale(s) of shape (1,) or (d,)[, nugget]) of the first
+        optimizer start (a warm start, e.g. the previous round's optimum,
+        :func:`fit_round`; the nugget is used with ``nugget="fit"`` only, clipped to its
+        bounds); None: the fixed default. The other starts are drawn as without it. With
+        ``nugget="fit"`` the warm start comes on top of the ``restarts`` starts (the fixed
+        default included); with a fixed nugget it replaces the fixed default.
+    nugget
+        ``"fixed"``: sigma_n^2 by the rule of ``nugget_factor``; ``"fit"``: sigma_n^2
+        maximizes the evidence with the kernel's hyperparameters, at least the floor
+        (module docstring).
+    nugget_floor
+        Floor s_f^2 of the fitted nugget, in nats^2 of the log-likelihood (carried to the
+        units of g for the log-misfit GP), > 0; unused with ``nugget="fixed"``.
 
     Returns
     -------
@@ -1175,6 +1231,10 @@ def fit_gp(
         raise ValueError(f"kernel must be one of {sorted(KERNELS)}, got {kernel!r}")
     if mean not in ("constant", "quadratic"):
         raise ValueError(f"mean must be 'constant' or 'quadratic', got {mean!r}")
+    if nugget not in ("fixed", "fit"):
+        raise ValueError(f"nugget must be 'fixed' or 'fit', got {nugget!r}")
+    if not (math.isfinite(float(nugget_floor)) and nugget_floor > 0):
+        raise ValueError(f"nugget_floor must be a positive number, got {nugget_floor!r}")
     ok = np.isfinite(y) & np.all(np.isfinite(X), axis=1)
     n_excluded = int((~ok).sum())
     X, y = X[ok], y[ok]
@@ -1214,7 +1274,13 @@ def fit_gp(
         mean_const = float(y.min() - mean_offset_factor * y_range)
     else:  # far from the data: above every observed misfit
         mean_const = float(y.max() + mean_offset_factor * y_range)
-    nugget = float(nugget_factor * y_range)
+    noise_bounds = None
+    if nugget == "fit":  # floor in nats^2 of L, carried to g by dg/dL at the best value
+        floor = float(nugget_floor) * (math.exp(-2.0 * float(y.min())) if warp else 1.0)
+        noise_bounds = (floor, max(float(np.var(y)), NUGGET_UPPER_FLOORS * floor))
+        nugget0 = NUGGET_START_FLOORS * floor
+    else:
+        nugget0 = float(nugget_factor * y_range)
 
     mapping, quad0, top = None, None, float("nan")
     if mean == "quadratic":
@@ -1233,20 +1299,34 @@ def fit_gp(
     v0 = float(np.mean((y - m_train) ** 2))
     v0 = v0 if v0 > 0 else y_range**2
     l0 = np.full(d if ard else 1, 0.3)
-    model = _build_gpy(U, y, mean_const, v0, l0, nugget, ard, kernel, mapping)
+    model = _build_gpy(U, y, mean_const, v0, l0, nugget0, ard, kernel, mapping, noise_bounds)
     rng = np.random.default_rng(seed)
     best = None
-    for r in range(restarts):
-        if r == 0 and warm_start is not None:
+    # with the fitted nugget a warm start is one start more, before the default one: near
+    # the floor the evidence has more local optima, and a previous round's optimum alone
+    # was measured 18 nats of evidence below the default start's (test_surrogate_reselect)
+    extra = int(warm_start is not None and noise_bounds is not None)
+    for k in range(restarts + extra):
+        r = k - extra  # -1: the extra warm start
+        s2 = nugget0
+        if warm_start is not None and (r < 0 or (r == 0 and not extra)):
             v = float(warm_start[0])
             ls = np.broadcast_to(np.asarray(warm_start[1], float), l0.shape)
+            if len(warm_start) > 2 and warm_start[2] is not None:
+                s2 = float(warm_start[2])
         elif r == 0:
             v, ls = v0, l0
         else:
             v = v0 * 10 ** rng.uniform(-1.0, 1.0)
             ls = 10 ** rng.uniform(np.log10(0.05), np.log10(1.0), size=l0.shape)
+            if noise_bounds is not None:  # drawn only when fitted: fixed runs keep their draws
+                s2_hi = max(NUGGET_RESTART_SHARE * noise_bounds[1], noise_bounds[0])
+                s2 = 10 ** rng.uniform(np.log10(noise_bounds[0]), np.log10(s2_hi))
         model.kern.variance[:] = v
         model.kern.lengthscale[:] = ls
+        if noise_bounds is not None:  # strictly inside the bounds of the logistic transform
+            lo_n, hi_n = noise_bounds
+            model.Gaussian_noise.variance[:] = min(max(s2, lo_n * (1 + 1e-9)), hi_n * (1 - 1e-9))
         if mapping is not None:  # every start from the least-squares mean
             mapping.set(start)
         try:
@@ -1261,10 +1341,16 @@ def fit_gp(
         log.info("GP restart %d: log evidence %.6g", r, lml)
         if np.isfinite(lml) and (best is None or lml > best[0]):
             best = (lml, float(model.kern.variance[0]), np.array(model.kern.lengthscale, float),
-                    None if mapping is None else mapping.values())
+                    None if mapping is None else mapping.values(),
+                    float(model.Gaussian_noise.variance[0]))
     if best is None:
         raise RuntimeError("every GP hyperparameter optimization failed")
-    lml, var, ls, quad = best
+    lml, var, ls, quad, nugget_var = best
+    if noise_bounds is None:
+        nugget_var = nugget0
+    if noise_bounds is not None:
+        m_best = mean_const if quad is None else quadratic_mean(U, *quad, top, warp)
+        nugget_var, lml = _factorizable_nugget(U, y - m_best, var, ls, kernel, nugget_var, lml)
     quad = quad if quad is not None else (None, None, float("nan"))
     return GPSurrogate(
         X_train=X,
@@ -1272,7 +1358,7 @@ def fit_gp(
         shift=shift,
         scale=scale,
         mean_const=mean_const,
-        nugget=nugget,
+        nugget=nugget_var,
         variance=var,
         lengthscale=ls,
         ard=ard,
@@ -1291,7 +1377,47 @@ def fit_gp(
         mean_factor=quad[1],
         mean_misfit_min=quad[2],
         mean_top=top,
+        nugget_fitted=noise_bounds is not None,
     )
+
+
+#: fitted nugget (:func:`fit_gp`, ``nugget="fit"``): the first optimizer start at this many
+#: floors, the upper bound at least this many floors above it (else var(y)), the other
+#: starts log-uniform up to this share of the upper bound
+NUGGET_START_FLOORS = 10.0
+NUGGET_UPPER_FLOORS = 1e3
+NUGGET_RESTART_SHARE = 1e-2
+#: the fitted nugget is raised tenfold at most this many times until K + sigma_n^2 I factorizes
+NUGGET_RAISES = 8
+
+
+def _factorizable_nugget(U: np.ndarray, r: np.ndarray, variance: float,
+                         lengthscale: np.ndarray, kernel: str, nugget: float, lml: float
+                         ) -> tuple[float, float]:
+    """The fitted nugget, raised tenfold until K + sigma_n^2 I has a float64 Cholesky factor
+    (GPy's own factorization adds jitter silently; the predictor does not), and the
+    evidence there: (nugget, log evidence). ``r`` (n,): the targets minus the prior mean;
+    U (n, d): the GP inputs. Unchanged (``nugget``, ``lml``) when it factorizes as it is."""
+    K = kernel_matrix(U, U, variance, lengthscale, kernel)
+    n = K.shape[0]
+    for k in range(NUGGET_RAISES + 1):
+        s2 = nugget * 10.0**k
+        try:
+            C = np.linalg.cholesky(K + s2 * np.eye(n))
+        except np.linalg.LinAlgError:
+            continue
+        if k == 0:
+            return nugget, lml
+        log.warning("fitted nugget %.3g does not factorize K + nugget I; raised to %.3g",
+                    nugget, s2)
+        from scipy.linalg import solve_triangular
+
+        z = solve_triangular(C, r, lower=True, check_finite=False)
+        ev = -0.5 * float(z @ z) - float(np.sum(np.log(np.diag(C)))) \
+            - 0.5 * n * math.log(2.0 * math.pi)
+        return s2, ev
+    raise np.linalg.LinAlgError(f"K + nugget I is not positive definite up to nugget "
+                                f"{nugget * 10.0**NUGGET_RAISES:.3g}")
 
 
 #: smallest effective number of training points behind :func:`principal_frame`'s
@@ -1388,10 +1514,22 @@ def resolve_mean(mean: str, dim: int) -> str:
     return mean
 
 
+#: smallest number of parameters from which ``surrogate.ard: auto`` gives one length scale
+#: per input. 2 since issue 17: with the fitted nugget, ridge2d (active design, seeds 0-2)
+#: reached Hellinger 0.0003-0.0004 with 52-61 evaluations against 0.0006-0.0010 with 64
+#: and one length scale, and the 2-D FSI smoke study (design seed 1) Hellinger <= 0.1
+#: from 18 solves against 33 (docs/bench_active.md, "Issue 17: a fitted nugget").
+ARD_FROM_DIM = 2
+#: smallest number of parameters from which ``surrogate.inputs: auto`` tries log inputs
+#: (with one length scale per input; :data:`LOG_INPUTS_NOTE`)
+LOG_INPUTS_FROM_DIM = 3
+
+
 def resolve_ard(ard: bool | str, dim: int) -> bool:
     """The ``surrogate.ard`` setting for a ``dim``-dimensional input: ``"auto"`` is
-    one length scale per input from three dimensions on."""
-    return dim > 2 if ard == "auto" else bool(ard)
+    one length scale per input from :data:`ARD_FROM_DIM` (2) dimensions on (in 1-D the
+    two are the same model)."""
+    return dim >= ARD_FROM_DIM if ard == "auto" else bool(ard)
 
 
 def _search_settings(X: np.ndarray, y: np.ndarray, surrogate: dict[str, Any],
@@ -1406,6 +1544,7 @@ def _search_settings(X: np.ndarray, y: np.ndarray, surrogate: dict[str, Any],
           "restarts": surrogate["restarts"], "seed": surrogate["seed"], "bounds": bounds,
           "mean_offset_factor": surrogate["mean_offset_factor"],
           "nugget_factor": surrogate["nugget_factor"], "bound": bound,
+          "nugget": surrogate["nugget"], "nugget_floor": surrogate["nugget_floor"],
           "mean": resolve_mean(surrogate.get("mean", "auto"), np.shape(X)[1])}
     output = surrogate["output"]
     warps = [False] if bound is None or output == "loglik" else \
@@ -1419,7 +1558,7 @@ def _search_settings(X: np.ndarray, y: np.ndarray, surrogate: dict[str, Any],
     frame = surrogate["frame"]
     offsets = log_input_offsets(bounds)
     inputs_cfg = surrogate["inputs"]
-    if inputs_cfg == "auto" and not kw["ard"]:
+    if inputs_cfg == "auto" and (not kw["ard"] or np.shape(X)[1] < LOG_INPUTS_FROM_DIM):
         inputs_cfg = "linear"  # measured: log inputs cost the 2-D studies solves (LOG_INPUTS_NOTE)
     scales: list[np.ndarray | None] = \
         [None] if offsets is None or inputs_cfg == "linear" else \
@@ -1498,9 +1637,10 @@ def fit_from_config(X: np.ndarray, y: np.ndarray, surrogate: dict[str, Any],
 
     ``surrogate["inputs"]`` chooses the scale of the inputs: ``linear``, ``log`` (the
     inputs whose box lies in [0, inf) enter as logs, :func:`log_input_offsets`) or
-    ``auto``: with one length scale per input (``ard``), both, by the same evidence
-    rule (the principal frame is computed in each scale); with a single length scale,
-    ``linear`` (see :data:`LOG_INPUTS_NOTE`). Without an input that qualifies, ``log``
+    ``auto``: with one length scale per input (``ard``) in three or more dimensions,
+    both, by the same evidence rule (the principal frame is computed in each scale);
+    with a single length scale or in one or two dimensions, ``linear`` (see
+    :data:`LOG_INPUTS_NOTE`). Without an input that qualifies, ``log``
     and ``auto`` are ``linear``.
     """
     kw, candidates = _search_settings(X, y, surrogate, bounds, bound)
@@ -1557,7 +1697,8 @@ def fit_round(X: np.ndarray, y: np.ndarray, surrogate: dict[str, Any], bounds: n
     and when the previous choice is not among the candidates of ``surrogate`` (the
     settings changed). Otherwise only the previous choice is fitted, on all current data
     (the principal frame, if chosen, recomputed from them), its first optimizer start at
-    the previous kernel variance and length scales (warm start; the other ``restarts - 1``
+    the previous kernel variance and length scales, and fitted nugget (warm start: with a
+    fitted nugget one start more, before the default ones; the other ``restarts - 1``
     starts as in :func:`fit_gp`). A refit that fails, or a model of L whose mean exceeds
     the bound inside the box (:func:`_overshoots`), falls back to the full search. With
     f = 0 the result is that of :func:`fit_from_config`, bit for bit.
@@ -1602,13 +1743,15 @@ def fit_round(X: np.ndarray, y: np.ndarray, surrogate: dict[str, Any], bounds: n
         return fit_from_config(X, y, surrogate, bounds, bound=bound)
     kw, candidates = _search_settings(X, y, surrogate, bounds, bound)
     same = [c for c in candidates if _matches(c, previous)]
-    if not same or kw["ard"] != previous.ard or kw["mean"] != previous.mean_function:
+    if not same or kw["ard"] != previous.ard or kw["mean"] != previous.mean_function \
+            or (kw["nugget"] == "fit") != previous.nugget_fitted:
         log.info("surrogate: the previous choice (%s) is not among the candidates of the "
                  "settings: full search", _describe(previous.kernel, previous.warped,
                                                     previous.log_offset, previous.rotation))
         return fit_from_config(X, y, surrogate, bounds, bound=bound)
     candidate = same[0]
-    warm = (float(previous.variance), np.array(previous.lengthscale, float)) \
+    warm = (float(previous.variance), np.array(previous.lengthscale, float),
+            float(previous.nugget) if previous.nugget_fitted else None) \
         if REFIT_WARM_START else None
     gp = _fit_candidate(X, y, kw, bounds, bound, candidate, warm_start=warm)
     if gp is None:

@@ -595,7 +595,9 @@ def train_surrogate(training_path: str | Path, surrogate: Mapping[str, Any],
             "Try more surrogate.restarts (now "
             f"{surrogate['restarts']}), the other surrogate.optimizer (now "
             f"'{surrogate['optimizer']}'), a larger surrogate.nugget_factor (now "
-            f"{surrogate['nugget_factor']:g}), or a larger likelihood.sigma_n2 if the values "
+            f"{surrogate['nugget_factor']:g}) or surrogate.nugget_floor (now "
+            f"{surrogate['nugget_floor']:g}; surrogate.nugget is '{surrogate['nugget']}'), "
+            "or a larger likelihood.sigma_n2 if the values "
             "are extreme."
         ) from None
     gp.save(out_path)
@@ -662,7 +664,8 @@ def convergence(training_path: str | Path, surrogate: Mapping[str, Any],
         ard=resolve_ard(surrogate["ard"], space.dim),
         optimizer=surrogate["optimizer"], restarts=surrogate["restarts"],
         seed=surrogate["seed"], mean_offset_factor=surrogate["mean_offset_factor"],
-        nugget_factor=surrogate["nugget_factor"],
+        nugget_factor=surrogate["nugget_factor"], nugget=surrogate["nugget"],
+        nugget_floor=surrogate["nugget_floor"],
     )
     write_json(out_path, res)
     return res
