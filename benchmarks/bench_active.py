@@ -621,18 +621,27 @@ def run_active(prob: Problem, budget: int, seed: int, variant: str = "active") -
         sur.fit_from_config = full_search
         sur.fit_round = fit_orig
     gp = res.surrogate
-    if int(res.n_evaluations) != f.n:
-        print(f"  [active] note: res.n_evaluations={res.n_evaluations} but the counter saw {f.n}")
+    # the posterior check's evaluations (posterior_check.draws, its schema default) are
+    # not design evaluations: counted apart
+    n_check = 0 if res.check is None else int(res.check["n_draws"])
+    if int(res.n_evaluations) != f.n - n_check:
+        print(f"  [active] note: res.n_evaluations={res.n_evaluations} but the counter saw "
+              f"{f.n - n_check} (+{n_check} for the posterior check)")
+    if res.check is not None:
+        print(f"    posterior check: {res.check['words']}", flush=True)
     smc = metric_smc(gp.predict, prob, seed)
     return {
         "samples": smc.particles,
         "weights": smc.weights,
         "grid_logpdf": lambda G: gp.predict(G) + space.logprior(G),
         "grid_kind": "surrogate",
-        "n_evals": f.n,
+        "n_evals": f.n - n_check,
         "n_rounds": int(res.n_rounds),
         "extra": {
             "converged": bool(res.converged),
+            "check_confirmed": None if res.check is None else bool(res.check["confirmed"]),
+            "check": None if res.check is None else res.check["words"],
+            "check_evals": n_check,
             "reason": str(res.reason),
             "n_evaluations_reported": int(res.n_evaluations),
             "fit": None if res.fit is None else res.fit["words"],
@@ -976,6 +985,9 @@ def summarize(runs: list[dict[str, Any]]) -> dict[str, Any]:
     conv = [bool(r["converged"]) for r in ok if "converged" in r]
     if len(conv) > 1:
         s["n_converged"] = f"{sum(conv)}/{len(conv)}"
+    checks = [bool(r["check_confirmed"]) for r in ok if r.get("check_confirmed") is not None]
+    if checks:
+        s["n_check_confirmed"] = f"{sum(checks)}/{len(checks)}"
     for k in ("converged", "reason", "fit", "hellinger_from", "success_flag", "gpry_config"):
         vals = [r[k] for r in ok if k in r]
         if vals:
@@ -1042,6 +1054,9 @@ def table(
                 notes.append(f"converged={s['converged']}: {reason}")
             elif "converged" in s:
                 notes.append(f"converged={s['converged']}")
+            if "n_check_confirmed" in s:
+                notes.append(f"posterior check confirmed in {s['n_check_confirmed']} "
+                             f"(32 evaluations each, not counted in evals)")
             if "n_searches" in s:
                 notes.append(f"{_fmt(s['n_searches'], 3)} full searches of the surrogate's choices")
             if s.get("fit"):
