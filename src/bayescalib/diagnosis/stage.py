@@ -409,8 +409,8 @@ def _signatures(cands: Sequence[CandidateSpec], first: Sequence[Any],
 
 
 #: Gauss-Newton iterations (with real solves) of the joint fit of the base parameters
-#: and a misregistration
-N_REGISTRATION_ITERATIONS = 4
+#: and a misregistration, rejected (halved) steps included
+N_REGISTRATION_ITERATIONS = 8
 
 
 def _registration(modes, r, J, v, C0, obs, obs_pts, check, draws, theta, h, fd, targets,
@@ -451,6 +451,10 @@ def _registration(modes, r, J, v, C0, obs, obs_pts, check, draws, theta, h, fd, 
         return out
     est = dict(out["estimate"])
     th = np.clip(theta + step0, lo, hi)
+    # the last accepted point (its chi2 = sum r^2 / v at its own solve): a step that raises
+    # the misfit is halved back towards it (the rotation trades off against E and nu, and
+    # undamped Gauss-Newton overshot: E 341 -> 667 -> 100 -> 203 -> 253 for a truth of 400)
+    best: dict[str, Any] | None = None
     for it in range(N_REGISTRATION_ITERATIONS):
         pts = [dict(zip(targets, map(float, th), strict=True))]
         pts += [{**pts[0], targets[i]: float(th[i] + h[i])} for i in fd]
@@ -469,6 +473,16 @@ def _registration(modes, r, J, v, C0, obs, obs_pts, check, draws, theta, h, fd, 
             os_.append(o)
             bs.append(registration_signatures(moved[s], C[s], centre, modes))
         rk = np.concatenate(ys)
+        chi2_here = float(np.sum(rk**2 / np.asarray(v, float)))
+        if best is not None and chi2_here > best["chi2"]:  # worse: halve the step back
+            out["iterations"].append({"chi2_at_point": chi2_here, "rejected": True,
+                                      "theta": dict(zip(names, map(float, th), strict=True))})
+            th = best["theta"] + 0.5 * (th - best["theta"])
+            est = {m: best["estimate"][m] + 0.5 * (est[m] - best["estimate"][m]) for m in modes}
+            if np.all(np.abs(th - best["theta"]) <= 0.1 * np.abs(h)):
+                break
+            continue
+        best = {"chi2": chi2_here, "theta": th.copy(), "estimate": dict(est)}
         Jk = jacobian_from_offsets(list(np.concatenate(os_, axis=1)), np.zeros(len(rk)),
                                    [h[i] for i in fd])
         bt = block_test(rk, Jk, np.concatenate(bs), v, modes)
@@ -476,11 +490,15 @@ def _registration(modes, r, J, v, C0, obs, obs_pts, check, draws, theta, h, fd, 
         dth = np.zeros(len(targets))
         dth[fd] = bt["base_step"]
         th = np.clip(th + dth, lo, hi)
-        out["iterations"].append({"chi2": bt["chi2_after"], "p_after": bt["p_after"],
-                                  "estimate": dict(est),
+        out["iterations"].append({"chi2_at_point": chi2_here, "chi2": bt["chi2_after"],
+                                  "p_after": bt["p_after"], "estimate": dict(est),
                                   "theta": dict(zip(names, map(float, th), strict=True))})
         if np.all(np.abs(dth) <= 0.1 * np.abs(h)):
             break
+    if best is not None and (not out["iterations"] or out["iterations"][-1].get("rejected")
+                             or not np.all(np.abs(th - best["theta"]) <= 0.1 * np.abs(h))):
+        # the last step was not confirmed by a solve: keep the best point that was
+        th, est = best["theta"], best["estimate"]
     out["estimate"] = est
     out["refit_parameters"] = dict(zip(names, map(float, th), strict=True))
     moved = [Interface(register(obs_pts[s], est, centre), obs.snapshots[s].cells,
