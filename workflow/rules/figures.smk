@@ -106,6 +106,8 @@ rule predictive_solve:
     benchmark:
         f"{R}/benchmarks/predictive/{{k}}.tsv"
     threads: 1
+    group:
+        "solves"  # single-threaded forward solves: batched into SLURM jobs like the design's
     shell:
         PREDICTIVE_JOB
 
