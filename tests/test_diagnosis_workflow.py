@@ -188,23 +188,18 @@ def test_a_misregistration_is_named_not_blamed_on_physics(tmp_path, concealed):
     estimate of the transform is not checked, only what it explains.)"""
     from bayescalib.diagnosis.stage import MISREGISTERED
 
-    # KNOWN GAP, pinned: with the surrogate defaults of issue 17 (fitted nugget, one length
-    # scale per input in 2-D) the base posterior differs, the joint re-fit lands at E 403
-    # (chi2 76 on 128 values at its own solve), but the check after it, on the posterior
-    # draws moved by the re-fit's change, leaves 2.0 um against 1 um noise, and the verdict
-    # blames base_slip. With the surrogate before (fixed nugget, one length scale) it passes.
-    # The check after a registration re-fit must not depend on how the posterior absorbed
-    # the misplacement; until it does, this case runs with the surrogate it was built on.
+    # the check after the re-fit draws from the joint fit's own (Laplace) posterior: with
+    # the base posterior's draws moved along instead, it depended on how that posterior
+    # had absorbed the misplacement (2.0 um against 1 um noise with the fitted nugget)
     cfg = {**concealed, "study": "analytic_misregistered",
            "observations": {**concealed["observations"], "hidden": {},
                             "misregistration": {"shift_x": 0.006, "shift_y": -0.004,
                                                 "rotation": 0.01}},
-           "diagnose": {**concealed["diagnose"], "n_extend": 0},
-           "surrogate": {**concealed.get("surrogate", {}), "nugget": "fixed", "ard": False}}
+           "diagnose": {**concealed["diagnose"], "n_extend": 0}}
     d, _ = _diagnosis(tmp_path, cfg)
     assert d["check"]["adequate"] is False
     reg = d["registration"]
-    assert reg["significant"] and reg["explains"]
+    assert reg["significant"] and reg["explains"] and reg["draws_after"] == "laplace"
     assert reg["check_after"]["residual_rms_mm"] <= 1.5 * reg["check_after"]["sigma_mm"]
     # the re-fitted base parameters are closer to the truth than the biased posterior
     assert abs(reg["refit_parameters"]["E"] - 400.0) < abs(d["posterior_mean"]["E"] - 400.0)

@@ -107,7 +107,10 @@ rule predictive_solve:
         f"{R}/benchmarks/predictive/{{k}}.tsv"
     threads: 1
     group:
-        "solves"  # single-threaded forward solves: batched into SLURM jobs like the design's
+        # single-threaded forward solves batched into SLURM jobs like the design's,
+        # in a group of their own: they follow the posterior, which follows the
+        # design's solves, and a group may not be left and re-entered
+        "predictive_solves"
     shell:
         PREDICTIVE_JOB
 

@@ -56,6 +56,7 @@ cause the chosen model does not contain.
 
 from __future__ import annotations
 
+import itertools
 import json
 import logging
 import math
@@ -408,24 +409,20 @@ def _signatures(cands: Sequence[CandidateSpec], first: Sequence[Any],
     return signatures, failed, attempts
 
 
-#: Gauss-Newton iterations (with real solves) of the joint fit of the base parameters
-#: and a misregistration, rejected (halved) steps included
-N_REGISTRATION_ITERATIONS = 8
-
-
 def _registration(modes, r, J, v, C0, obs, obs_pts, check, draws, theta, h, fd, targets,
                   names, box, fm, cfg, work: Path, workers: int, warm_start, sigma) -> dict:
     """Test and, when significant, model a rigid misregistration of the observations.
 
     The block test (:func:`~bayescalib.diagnosis.attribution.block_test`) at the posterior
     mean says whether a misplacement beyond what E, nu, ... absorb is significant. If so,
-    the base parameters and the registration are fitted jointly by Gauss-Newton with real
-    solves (the mean and finite-difference steps, re-linearized each iteration; the base
+    the base parameters and the registration are fitted jointly by damped Gauss-Newton
+    with real solves (:func:`~bayescalib.diagnosis.registration.joint_fit`; the base
     posterior may sit far from the joint fit because it absorbed the misplacement), and
-    the registered observations are checked against the solved posterior draws moved by
-    the fitted change of the base parameters.
+    the registered observations are checked against solved draws of the joint fit's
+    Laplace posterior (:func:`~bayescalib.diagnosis.registration.laplace_draws`).
     """
     from bayescalib.diagnosis.attribution import block_test, jacobian_from_offsets
+    from bayescalib.diagnosis.registration import joint_fit, laplace_draws
     from bayescalib.diagnosis.residuals import offsets, predictive_check, registration_signatures
     from bayescalib.geometry.interface import Interface
     from bayescalib.geometry.registration import register
@@ -449,67 +446,55 @@ def _registration(modes, r, J, v, C0, obs, obs_pts, check, draws, theta, h, fd, 
     out["base_step"] = dict(zip([names[i] for i in fd], out["base_step"], strict=True))
     if not out["significant"] or check.adequate:
         return out
-    est = dict(out["estimate"])
-    th = np.clip(theta + step0, lo, hi)
-    # the last accepted point (its chi2 = sum r^2 / v at its own solve): a step that raises
-    # the misfit is halved back towards it (the rotation trades off against E and nu, and
-    # undamped Gauss-Newton overshot: E 341 -> 667 -> 100 -> 203 -> 253 for a truth of 400)
-    best: dict[str, Any] | None = None
-    for it in range(N_REGISTRATION_ITERATIONS):
+    solve_no = itertools.count()
+
+    def evaluate(th: np.ndarray, est: Mapping[str, float]):
+        """Residual, Jacobian and registration signatures of the registered observations."""
         pts = [dict(zip(targets, map(float, th), strict=True))]
         pts += [{**pts[0], targets[i]: float(th[i] + h[i])} for i in fd]
+        it = next(solve_no)
         runs = solve_points(fm, pts, [work / "registration" / f"gauss_newton_{it}" / f"{k}.h5"
                                       for k in range(len(pts))],
                             workers=workers, warm_start=warm_start)
         if not all(run.ok for run in runs):
-            out["iterations"].append({"failed": next(run.reason for run in runs if not run.ok)})
-            break
+            return next(run.reason for run in runs if not run.ok)
         C = model_interfaces(runs[0], n_snap)
-        moved = [register(obs_pts[s], est, centre) for s in range(n_snap)]
         ys, os_, bs = [], [], []
         for s in range(n_snap):
-            y, o = offsets(moved[s], C[s], [model_interfaces(run, n_snap)[s] for run in runs[1:]])
+            moved = register(obs_pts[s], est, centre)
+            y, o = offsets(moved, C[s], [model_interfaces(run, n_snap)[s] for run in runs[1:]])
             ys.append(y)
             os_.append(o)
-            bs.append(registration_signatures(moved[s], C[s], centre, modes))
+            bs.append(registration_signatures(moved, C[s], centre, modes))
         rk = np.concatenate(ys)
-        chi2_here = float(np.sum(rk**2 / np.asarray(v, float)))
-        if best is not None and chi2_here > best["chi2"]:  # worse: halve the step back
-            out["iterations"].append({"chi2_at_point": chi2_here, "rejected": True,
-                                      "theta": dict(zip(names, map(float, th), strict=True))})
-            th = best["theta"] + 0.5 * (th - best["theta"])
-            est = {m: best["estimate"][m] + 0.5 * (est[m] - best["estimate"][m]) for m in modes}
-            if np.all(np.abs(th - best["theta"]) <= 0.1 * np.abs(h)):
-                break
-            continue
-        best = {"chi2": chi2_here, "theta": th.copy(), "estimate": dict(est)}
         Jk = jacobian_from_offsets(list(np.concatenate(os_, axis=1)), np.zeros(len(rk)),
                                    [h[i] for i in fd])
-        bt = block_test(rk, Jk, np.concatenate(bs), v, modes)
-        est = {m: est[m] + bt["estimate"][m] for m in modes}
-        dth = np.zeros(len(targets))
-        dth[fd] = bt["base_step"]
-        th = np.clip(th + dth, lo, hi)
-        out["iterations"].append({"chi2_at_point": chi2_here, "chi2": bt["chi2_after"],
-                                  "p_after": bt["p_after"], "estimate": dict(est),
-                                  "theta": dict(zip(names, map(float, th), strict=True))})
-        if np.all(np.abs(dth) <= 0.1 * np.abs(h)):
-            break
-    if best is not None and (not out["iterations"] or out["iterations"][-1].get("rejected")
-                             or not np.all(np.abs(th - best["theta"]) <= 0.1 * np.abs(h))):
-        # the last step was not confirmed by a solve: keep the best point that was
-        th, est = best["theta"], best["estimate"]
+        return rk, Jk, np.concatenate(bs)
+
+    fit = joint_fit(evaluate, theta + step0, out["estimate"], fd, h, lo, hi, v, modes, names)
+    out["iterations"] = fit.iterations
+    if fit.J is None:
+        out["check_after_failed"] = "no solve of the joint fit succeeded"
+        return out
+    th, est = fit.theta, fit.estimate
     out["estimate"] = est
     out["refit_parameters"] = dict(zip(names, map(float, th), strict=True))
     moved = [Interface(register(obs_pts[s], est, centre), obs.snapshots[s].cells,
                        name=f"registered {obs.labels[s]}") for s in range(n_snap)]
+    # the registered model's own posterior (Laplace at the joint fit), not the base
+    # posterior's draws moved along: those carry how the base posterior absorbed the
+    # misplacement (with a different surrogate it absorbed it differently, and the
+    # moved draws missed the registered data by 2 um against 1 um noise)
     Xr = np.clip(draws["X"][draws["ok"]] + (th - theta), lo, hi)
+    Xr[:, fd] = laplace_draws(fit.J, fit.B, v, th[fd], lo[fd], hi[fd], len(Xr),
+                              np.random.default_rng(int(cfg["seed"]) + 2))
+    out["draws_after"] = "laplace"
     rruns = solve_points(fm, [dict(zip(targets, map(float, x), strict=True)) for x in Xr],
                          [work / "registration" / "draws" / f"{k}.h5" for k in range(len(Xr))],
                          workers=workers, warm_start=warm_start)
     rcurves = [model_interfaces(rr, n_snap) for rr in rruns if rr.ok]
     if len(rcurves) < 2:
-        out["check_after_failed"] = "fewer than 2 moved posterior draws solved"
+        out["check_after_failed"] = "fewer than 2 draws of the registered model solved"
         return out
     after = predictive_check(
         moved, rcurves, labels=obs.labels,
