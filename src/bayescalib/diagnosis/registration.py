@@ -16,10 +16,10 @@ misregistered analytic case), so a step that raises chi2 at its own solve is hal
 towards the last accepted point, and only points confirmed by a solve are returned.
 
 What the registered model predicts is then judged with draws that do not depend on how
-the base posterior absorbed the misplacement: the Laplace approximation of the joint
-fit, ``N(theta*, [F^-1]_theta)`` with ``F = [J B]^T V^-1 [J B]`` the Gauss-Newton
-information of base parameters and registration together (the registration
-marginalized), truncated to the prior box.
+the base posterior absorbed the misplacement: the Laplace approximation at the joint
+fit, ``N(theta*, (J^T V^-1 J)^-1)`` (the Gauss-Newton information of the base
+parameters with the observations registered by the fit's estimate), truncated to the
+prior box.
 """
 
 from __future__ import annotations
@@ -140,22 +140,22 @@ def joint_fit(evaluate: Callable[[np.ndarray, Mapping[str, float]], Evaluation |
     return fit
 
 
-def laplace_draws(J: np.ndarray, B: np.ndarray, v: np.ndarray, theta: np.ndarray,
-                  lo: np.ndarray, hi: np.ndarray, n: int,
-                  rng: np.random.Generator) -> np.ndarray:
-    """Draws of the base parameters from the Laplace approximation of the joint fit.
+def laplace_draws(J: np.ndarray, v: np.ndarray, theta: np.ndarray, lo: np.ndarray,
+                  hi: np.ndarray, n: int, rng: np.random.Generator) -> np.ndarray:
+    """Draws of the base parameters from the Laplace approximation at the joint fit.
 
-    ``F = [J B]^T V^-1 [J B]`` is the Gauss-Newton information of the base parameters
-    and the registration together; the base block of ``F^+`` is their covariance with
-    the registration marginalized. Draws outside the prior box are redrawn (the
-    posterior truncated to it); after 64 rounds the remainder is clipped.
+    The observations are registered once, by the fit's estimate, so the draws are of the
+    base parameters *given* that registration: ``N(theta*, (J^T V^-1 J)^+)``. (With the
+    registration marginalized instead, the draws would move E and nu along their
+    trade-off with the rotation while the observations stay where the estimate put them:
+    they are not the registered model's posterior.) Draws outside the prior box
+    are redrawn (the posterior truncated to it); after 64 rounds the remainder is
+    clipped.
 
     Parameters
     ----------
     J
         (n_obs, q) base Jacobian at ``theta``, mm per unit of each parameter.
-    B
-        (n_obs, k) registration signatures, mm per unit of each mode.
     v
         (n_obs,) noise variances, mm^2.
     theta
@@ -173,9 +173,9 @@ def laplace_draws(J: np.ndarray, B: np.ndarray, v: np.ndarray, theta: np.ndarray
         (n, q) draws.
     """
     w = 1.0 / np.sqrt(np.asarray(v, dtype=float))
-    A = np.hstack([np.asarray(J, float), np.asarray(B, float)]) * w[:, None]
-    q = np.asarray(J).shape[1]
-    cov = np.linalg.pinv(A.T @ A, rcond=1e-12, hermitian=True)[:q, :q]
+    A = np.asarray(J, float) * w[:, None]
+    q = A.shape[1]
+    cov = np.linalg.pinv(A.T @ A, rcond=1e-12, hermitian=True)
     lam, U = np.linalg.eigh(0.5 * (cov + cov.T))
     L = U * np.sqrt(np.clip(lam, 0.0, None))
     theta = np.asarray(theta, dtype=float)
