@@ -142,3 +142,16 @@ def test_the_core_overlap_counts_only_the_core_nodes(bench):
     assert bench._overlap(diag, regions, labels, core=True) == pytest.approx(1.0)
     del diag["check"]["located"][0]["core_nodes"]
     assert bench._overlap(diag, regions, labels, core=True) is None
+
+
+def test_the_truth_inside_the_chosen_posterior_is_reported_beside_the_halving(bench):
+    # E 3.5 % -> 5.2 % is not halved, but 0.9 posterior sd from the truth: both said
+    row = _row(err_before={"E": 0.035, "nu": 0.49}, err_after={"E": 0.052, "nu": 0.27},
+               z_after={"E": 0.9, "nu": 0.9})
+    met = _met(bench, row)
+    assert met["base-parameter error halved"] is False
+    assert met["base parameters' truth within 2 posterior sd (chosen model)"] is True
+    far = _met(bench, {**row, "z_after": {"E": 2.5, "nu": 0.9}})
+    assert far["base parameters' truth within 2 posterior sd (chosen model)"] is False
+    # rows without posterior sds (older results) get no such row
+    assert "base parameters' truth within 2 posterior sd (chosen model)" not in _met(bench, _row())
