@@ -1053,8 +1053,8 @@ def table(
             elif "converged" in s:
                 notes.append(f"converged={s['converged']}")
             if "n_check_confirmed" in s:
-                notes.append(f"posterior check confirmed in {s['n_check_confirmed']} "
-                             f"(32 evaluations each, not counted in evals)")
+                notes.append(f"last posterior check of the rounds confirmed in "
+                             f"{s['n_check_confirmed']} (its draws counted in evals)")
             if "n_searches" in s:
                 notes.append(f"{_fmt(s['n_searches'], 3)} full searches of the surrogate's choices")
             if s.get("fit"):
