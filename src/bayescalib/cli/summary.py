@@ -66,8 +66,10 @@ def run(args: argparse.Namespace) -> int:
                          _fmt(r["gp_max_error_nats"]), _fmt(r["shift_sd"]),
                          "yes" if r["settled"] else "-",
                          "-" if pc is None else
-                         f"{'confirmed' if pc else 'NOT confirmed'} (log-weight sd "
-                         f"{r['log_weight_sd']:.2g}, ESS {100 * r['ess_fraction']:.0f} %)"])
+                         ("confirmed" if pc else "NOT confirmed")
+                         + ("" if r["log_weight_sd"] is None else
+                            f" (log-weight sd {r['log_weight_sd']:.2g}, ESS "
+                            f"{100 * r['ess_fraction']:.0f} %)")])
         _table(rows)
     elif d:
         print(f"\n{d.get('reason', '')}")
