@@ -237,6 +237,29 @@ def test_active_calibration_converges_to_the_closed_form_posterior():
     assert "confirmed by 32 real solves of its draws" in res.reason, res.reason
 
 
+def test_without_check_rounds_a_round_counts_only_when_settled_and_trusted():
+    """posterior_check.draws 0 (the diagnosis's calibrations, which check their posteriors
+    themselves): no check round is run, the pointwise trust check decides in its place
+    (as the stop rule did before the check rounds), and the reason says the posterior
+    was not checked with real solves of its draws."""
+    mean, cov = np.array([0.4, -0.3]), np.array([[0.09, 0.06], [0.06, 0.16]])
+    space = _space([(-3, 3), (-3, 3)])
+    records = []
+    res = calibrate(_gaussian_misfit(mean, cov), space, bound=0.0,
+                    active={"n_initial": 16, "batch_size": 8, "max_solves": 96},
+                    surrogate={"restarts": 2}, smc={"n_particles": 2000, "zeta": 0.95,
+                                                    "n_rej": 10},
+                    posterior_check={"draws": 0}, callback=records.append)
+    assert res.converged, res.reason
+    assert "NOT checked with real solves of its draws" in res.reason, res.reason
+    assert all("posterior_check" not in (rec.get("next") or {}).get("kind", [])
+               for rec in records)
+    for rec in records[1:]:
+        counted = rec["settled"] and rec["trusted"]
+        assert (rec["settled_streak"] > 0) == counted, rec
+    _assert_closed_form(res, mean, cov)
+
+
 def test_lighter_round_smc_still_reports_the_posterior_with_the_full_settings():
     """design.active.smc lightens the rounds' sampler only: the result is sampled once
     more, with the study's settings, on the last round's surrogate. Same closed-form

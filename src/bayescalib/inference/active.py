@@ -38,8 +38,12 @@ the posterior lives, they are the most useful solves the rounds can get), the
 settled streak starts again, and the rounds go on; when the budget is spent the
 run stops **NOT converged** and says why (the posterior reported is the last
 round's). A check that does not fit in the budget left is not run, and the reason
-says so. With ``posterior_check.draws`` 0, a posterior settled for ``patience``
-rounds converges unchecked (said in the reason).
+says so. With ``posterior_check.draws`` 0 there are no check rounds, and the trust
+check decides in their place: converged when the posterior is settled and the
+surrogate predicted the new solves in the posterior region within ``gp_tol`` nats for
+``patience`` rounds in a row (said in the reason: not checked with real solves of its
+draws). The diagnosis's calibrations run this way; they check their posteriors with
+real solves themselves.
 
 Check points. The trust check can only test the surrogate where the batch goes,
 and an uncertainty-driven batch goes where the surrogate is unsure. A surrogate
@@ -497,16 +501,20 @@ def acquire_round(r: int, X: np.ndarray, L: np.ndarray, gp, particles: np.ndarra
     pc = rec["posterior_check"]
     n_draws = int(check["draws"])
     patience = int(stop_cfg["patience"])
+    # without check rounds (draws: 0) the pointwise trust check stands in for the
+    # posterior check, as in the stop rule before it: a round counts when settled and
+    # trusted (the diagnosis's calibrations, which check their posteriors themselves)
+    counts = settled and (n_draws > 0 or rec["trusted"])
     if pc is None:
         streak = (int(previous.get("settled_streak", 0)) if previous else 0) + 1 \
-            if settled else 0
+            if counts else 0
     else:  # after a check round the streak starts again (unless it converged)
         streak = 0
     rec["settled_streak"] = streak
     budget_left = int(active["max_solves"]) - n
     if pc is not None:
         rec["converged"] = bool(pc["confirmed"] and settled)
-    else:  # without a posterior check (draws: 0), a settled posterior is all there is
+    else:  # without a posterior check (draws: 0): settled and trusted, patience rounds
         rec["converged"] = n_draws == 0 and streak >= patience
     can_check = 0 < n_draws <= budget_left
     check_next = can_check and (streak >= patience or budget_left - n_draws < 1)
@@ -522,11 +530,13 @@ def acquire_round(r: int, X: np.ndarray, L: np.ndarray, gp, particles: np.ndarra
                 f"{rec['change']['sd_change']:.2g}) when they were added")
         else:
             rec["reason"] = (
-                f"converged after round {r} with {n} solves: the posterior moved by at most "
-                f"{stop_cfg['shift_tol']:g} sd in the last {streak} round(s) (now "
+                f"converged after round {r} with {n} solves: in the last {streak} round(s) "
+                f"the posterior moved by at most {stop_cfg['shift_tol']:g} sd (now "
                 f"{rec['change']['shift_sd']:.3g} sd, sd change "
-                f"{rec['change']['sd_change']:.3g}); NOT checked with real solves of its "
-                f"draws (posterior_check.draws: 0)")
+                f"{rec['change']['sd_change']:.3g}) and the surrogate predicted the new "
+                f"solves in the posterior region within {stop_cfg['gp_tol']:g} nats (max "
+                f"error {rec['trust']['max_abs_error']:.3g}); NOT checked with real solves of "
+                f"its draws (posterior_check.draws: 0)")
     elif budget_left <= 0:
         rec["stop"] = True
         rec["reason"] = (
@@ -690,20 +700,23 @@ def _why_not(rec: Mapping[str, Any], stop_cfg: Mapping[str, Any], check: Mapping
         parts.append(f"the posterior moved by {c['shift_sd']:.3g} sd (tolerance "
                      f"{stop_cfg['shift_tol']:g}) and its sd changed by {c['sd_change']:.3g} "
                      f"(tolerance {stop_cfg['sd_tol']:g})")
-    elif pc is None:
+    elif pc is None and int(check["draws"]) > 0:
         parts.append(f"the posterior settled in {rec['settled_streak']} round(s) in a row, "
                      f"{stop_cfg['patience']} needed before its posterior check")
+    elif pc is None and t["passed"]:
+        parts.append(f"settled and trusted in {rec['settled_streak']} round(s) in a row, "
+                     f"{stop_cfg['patience']} needed")
     n_draws = int(check["draws"])
     if n_draws > budget_left and (pc is None or not pc["confirmed"]):
         parts.append(f"the posterior check's {n_draws} draws do not fit in the "
                      f"{max(budget_left, 0)} solve(s) left of the budget")
-    if not t["passed"]:  # words only: the trust check no longer decides
+    if not t["passed"]:  # decides only without check rounds (posterior_check.draws 0)
         if t["n_region"] == 0:
             parts.append("no new solve fell in the posterior region")
         else:
             parts.append(f"the surrogate missed new solves in the posterior region by up to "
-                         f"{t['max_abs_error']:.3g} nats (RMS {t['rms_error']:.3g} nats over "
-                         f"{t['n_region']} point(s))")
+                         f"{t['max_abs_error']:.3g} nats (tolerance {stop_cfg['gp_tol']:g}; RMS "
+                         f"{t['rms_error']:.3g} nats over {t['n_region']} point(s))")
             under = t.get("check_max_underprediction")
             if under is not None and under > stop_cfg["gp_tol"]:
                 parts.append(f"a random check point in the posterior region has a log-likelihood "

@@ -109,8 +109,9 @@ def calibrate_rounds(
     check
         Validated ``posterior_check`` section: the rounds' check rounds
         (:func:`bayescalib.inference.active.acquire_round`). None: none (``draws`` 0),
-        and a posterior settled for ``patience`` rounds converges unchecked; the
-        diagnosis checks its extended calibrations with solves of their draws itself.
+        and a posterior settled and trusted (the trust check within ``gp_tol``) for
+        ``patience`` rounds converges; the diagnosis checks its extended calibrations
+        with solves of their draws itself.
 
     Returns
     -------
