@@ -119,17 +119,19 @@ def main(argv: list[str] | None = None) -> int:
                      "mean_err_sd": (np.abs(m - m_ref) / sd_ref).tolist(),
                      "sd_ratio": (sd / sd_ref).tolist(),
                      "gp_max_error_nats": rec["gp_max_error_nats"],
-                     "shift_sd": rec["shift_sd"], "checks_passed": rec["checks_passed"]})
+                     "shift_sd": rec["shift_sd"], "settled": rec["settled"],
+                     "posterior_check_confirmed": rec["posterior_check_confirmed"]})
     print("| round | solves | Hellinger | mean err E, nu [ref sd] | sd ratio E, nu | "
-          "GP err [nats] | shift [sd] | checks |")
-    print("|---|---|---|---|---|---|---|---|")
+          "GP err [nats] | shift [sd] | settled | posterior check |")
+    print("|---|---|---|---|---|---|---|---|---|")
     for r in rows:
         ge = "-" if r["gp_max_error_nats"] is None else f"{r['gp_max_error_nats']:.3g}"
         sh = "-" if r["shift_sd"] is None else f"{r['shift_sd']:.3g}"
         print(f"| {r['round']} | {r['n_solves']} | {r['hellinger']:.3f} | "
               f"{r['mean_err_sd'][0]:.2f}, {r['mean_err_sd'][1]:.2f} | "
               f"{r['sd_ratio'][0]:.2f}, {r['sd_ratio'][1]:.2f} | {ge} | {sh} | "
-              f"{'pass' if r['checks_passed'] else '-'} |")
+              f"{'yes' if r['settled'] else '-'} | "
+              f"{ {None: '-', True: 'confirmed', False: 'NOT confirmed'}[r['posterior_check_confirmed']] } |")
     reach = next((r["n_solves"] for k, r in enumerate(rows)
                   if all(x["hellinger"] <= 0.1 for x in rows[k:])), None)
     d = summary["design"]

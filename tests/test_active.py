@@ -16,9 +16,8 @@ from bayescalib.inference.active import (
     calibrate,
     candidate_pool,
     check_points,
-    point_round,
     posterior_change,
-    round_sizes,
+    posterior_draws,
     select_batch,
     trust_check,
 )
@@ -47,6 +46,10 @@ def _gaussian_misfit(mean, cov):
 
 def _active(**kw):
     return validate({"design": {"active": kw}}, "inference")["design"]["active"]
+
+
+def _check(**kw):
+    return validate({"posterior_check": kw}, "inference")["posterior_check"]
 
 
 # ----------------------------------------------------------------- bounded surrogate
@@ -130,13 +133,6 @@ def test_posterior_change_is_measured_in_posterior_sd():
     assert 0 < ch["hellinger"] < 1
 
 
-def test_round_layout_maps_every_point_to_its_round():
-    sizes = round_sizes(8, 4, 18, 5)
-    assert sizes == [8, 12, 16, 18, 18]
-    assert [point_round(i, 8, 4) for i in (0, 7, 8, 11, 12, 17)] == \
-        [(0, 0), (0, 7), (1, 0), (1, 3), (2, 0), (3, 1)]
-
-
 # ------------------------------------------------------------------- acquisition
 def _fitted(n=16, seed=0):
     space = _space([(-3, 3), (-3, 3)])
@@ -195,13 +191,13 @@ def test_acquire_round_refuses_records_that_are_not_the_chosen_batch():
     space, ll, X, gp = _fitted()
     a = _active(n_initial=16, batch_size=4, max_solves=40)
     W = np.full(len(X), 1.0 / len(X))
-    rec0 = acquire_round(0, X, ll(X), gp, X, W, 0.0, space, a, None)
+    rec0 = acquire_round(0, X, ll(X), gp, X, W, 0.0, space, a, None, _check())
     # the batch of 4 and the default single check point
     assert not rec0["stop"] and len(rec0["next"]["points"]) == 5
     assert rec0["next"]["kind"] == ["acquired"] * 4 + ["check"]
     wrong = np.vstack([X, X[:5] + 0.01])
     with pytest.raises(ValueError, match="not the batch"):
-        acquire_round(1, wrong, ll(wrong), gp, X, W, 0.0, space, a, rec0)
+        acquire_round(1, wrong, ll(wrong), gp, X, W, 0.0, space, a, rec0, _check())
 
 
 # ------------------------------------------------------------------ the whole loop
@@ -226,11 +222,42 @@ def test_active_calibration_converges_to_the_closed_form_posterior():
                     surrogate={"restarts": 2}, smc={"n_particles": 2000, "zeta": 0.95,
                                                     "n_rej": 10})
     assert res.converged, res.reason
-    assert res.n_evaluations < 96
+    assert res.n_evaluations <= 96
     _assert_closed_form(res, mean, cov)
-    # the posterior checked at 32 real evaluations of its draws (not design points)
+    # the stop rule's last test: the round before the last was a check round of 32
+    # draws of its posterior, evaluated as design points, and they confirmed it
+    last, before = res.rounds[-1], res.rounds[-2]
+    assert before["next"]["kind"] == ["posterior_check"] * 32
+    draws = np.asarray(before["next"]["points"])
+    np.testing.assert_array_equal(res.X[-32:], draws)
+    assert last["posterior_check"] is res.check and res.check["round"] == before["round"]
     assert res.check["n_draws"] == 32 and res.check["confirmed"], res.check["words"]
     assert res.check["log_weight_sd"] < 0.5
+    assert res.reason.startswith(f"converged after round {last['round']}")
+    assert "confirmed by 32 real solves of its draws" in res.reason, res.reason
+
+
+def test_without_check_rounds_a_round_counts_only_when_settled_and_trusted():
+    """posterior_check.draws 0 (the diagnosis's calibrations, which check their posteriors
+    themselves): no check round is run, the pointwise trust check decides in its place
+    (as the stop rule did before the check rounds), and the reason says the posterior
+    was not checked with real solves of its draws."""
+    mean, cov = np.array([0.4, -0.3]), np.array([[0.09, 0.06], [0.06, 0.16]])
+    space = _space([(-3, 3), (-3, 3)])
+    records = []
+    res = calibrate(_gaussian_misfit(mean, cov), space, bound=0.0,
+                    active={"n_initial": 16, "batch_size": 8, "max_solves": 96},
+                    surrogate={"restarts": 2}, smc={"n_particles": 2000, "zeta": 0.95,
+                                                    "n_rej": 10},
+                    posterior_check={"draws": 0}, callback=records.append)
+    assert res.converged, res.reason
+    assert "NOT checked with real solves of its draws" in res.reason, res.reason
+    assert all("posterior_check" not in (rec.get("next") or {}).get("kind", [])
+               for rec in records)
+    for rec in records[1:]:
+        counted = rec["settled"] and rec["trusted"]
+        assert (rec["settled_streak"] > 0) == counted, rec
+    _assert_closed_form(res, mean, cov)
 
 
 def test_lighter_round_smc_still_reports_the_posterior_with_the_full_settings():
@@ -275,7 +302,7 @@ def test_a_spuriously_confident_start_is_caught_and_repaired():
                     callback=records.append)
     r0 = np.asarray(records[0]["posterior"]["mean"])
     assert np.max(np.abs(r0 - mean) / np.sqrt(np.diag(cov))) > 3  # round 0 is wrong
-    assert not records[1]["checks_passed"]
+    assert not records[1]["trusted"]
     assert res.converged, res.reason
     W = res.smc.weights / res.smc.weights.sum()
     m = W @ res.smc.particles
@@ -290,6 +317,9 @@ def test_a_spent_budget_is_reported_as_not_converged():
                                                     "zeta": 0.9})
     assert res.n_evaluations == 14 and not res.converged
     assert res.reason.startswith("NOT converged") and "max_solves = 14" in res.reason
+    # the default 32 draws of the posterior check never fit in the 6 solves after round 0
+    assert "posterior check's 32 draws do not fit" in res.reason, res.reason
+    assert res.check is None
     none = calibrate(_gaussian_misfit([0.63, 0.21], np.diag([0.01, 0.015]) ** 2), space,
                      bound=0.0, active={"n_initial": 8, "batch_size": 4, "max_solves": 8},
                      surrogate={"restarts": 1}, smc={"n_particles": 300, "n_rej": 3,
@@ -355,7 +385,7 @@ def test_random_check_points_catch_a_surrogate_that_is_confident_and_too_narrow(
     for seed in range(5):
         active["seed"] = seed
         rec = acquire_round(0, X, wrong(X), gp, smc.particles, smc.weights, smc.log_evidence,
-                            space, active, None)
+                            space, active, None, _check())
         nxt = rec["next"]
         assert nxt["kind"] == ["acquired"] * 8 + ["check"] * 3
         P = np.asarray(nxt["points"])
@@ -367,7 +397,7 @@ def test_random_check_points_catch_a_surrogate_that_is_confident_and_too_narrow(
             # the next round says why, in words
             L = np.concatenate([wrong(X), truth(P)])
             rec1 = acquire_round(1, np.vstack([X, P]), L, gp, smc.particles, smc.weights,
-                                 smc.log_evidence, space, active, rec)
+                                 smc.log_evidence, space, active, rec, _check())
             assert "likely too narrow" in rec1["reason"], rec1["reason"]
             t1 = rec1["trust"]  # the reason also gives the typical error, not only the largest
             assert (f"RMS {t1['rms_error']:.3g} nats over {t1['n_region']} point(s)"
@@ -409,3 +439,86 @@ def test_ard_auto_gives_one_length_scale_per_input_from_two_dimensions_on():
         if d >= 2:
             gp = fit_from_config(X, L, {**cfg, "ard": False}, box)
             assert gp.ard is False and np.size(gp.lengthscale) == 1
+
+
+# ---------------------------------------------------------- the posterior check round
+def test_the_budget_keeps_room_for_the_check_round_and_is_never_exceeded():
+    """40 solves, 8 Sobol points, batches of 4 + 1 check point and a check of 16 draws:
+    the batches are cut so that the last 16 solves of the budget are the check's, and
+    no run ever evaluates more than max_solves points."""
+    space = _space([(-3, 3), (-3, 3)])
+    ll = _gaussian_misfit([0.2, -0.4], np.array([[0.2, 0.05], [0.05, 0.1]]))
+    res = calibrate(ll, space, bound=0.0,
+                    active={"n_initial": 8, "batch_size": 4, "max_solves": 40,
+                            "stop": {"patience": 50}},  # never settled long enough
+                    posterior_check={"draws": 16}, surrogate={"restarts": 1},
+                    smc={"n_particles": 500, "n_rej": 5, "zeta": 0.9})
+    assert res.n_evaluations <= 40
+    sizes = [rec["n_solves"] for rec in res.rounds]
+    assert all(n <= 40 for n in sizes)
+    kinds = [rec["next"]["kind"] for rec in res.rounds if "next" in rec]
+    # the check round comes once the budget left is its 16 draws, and it is the last batch
+    assert kinds[-1] == ["posterior_check"] * 16
+    assert res.rounds[-2]["n_solves"] == 40 - 16
+    assert res.rounds[-1]["posterior_check"] is not None
+    assert all("posterior_check" not in k for k in kinds[:-1])
+
+
+def test_a_posterior_too_narrow_is_not_confirmed_and_the_rounds_go_on():
+    """The surrogate is forced to be confidently wrong: trained on a log-likelihood 4x
+    too narrow (4D Gaussian, sd 0.05 in a unit box; see the check points' test). Its
+    posterior does not move between rounds (the same surrogate and particles are
+    passed), so with patience 1 round 1 asks for a check round of 32 draws. The real
+    log-likelihoods at those draws rise where the surrogate's fall (its sd 4x too
+    small: sd ratio far above 1 + sd_tol), so round 2 must not confirm it, must not
+    converge, must restart the settled streak and must choose an ordinary batch."""
+    d, mean, sd = 4, np.full(4, 0.5), 0.05
+    space = _space([(0, 1)] * d)
+    truth = _gaussian_misfit(mean, np.eye(d) * sd**2)
+    wrong = _gaussian_misfit(mean, np.eye(d) * (sd / 4.0) ** 2)
+    rng = np.random.default_rng(0)
+    X = np.clip(np.vstack([sobol_design(space.bounds, 32, 0),
+                           mean + (sd / 4.0) * rng.standard_normal((96, d))]), 0.0, 1.0)
+    gp = fit_gp(X, wrong(X), ard=True, bounds=space.bounds, bound=0.0, warp=False,
+                restarts=1, kernel="rbf")
+    smc = smc_from_config(gp.predict, space, validate(
+        {"smc": {"n_particles": 2000, "n_rej": 10, "zeta": 0.95}}, "inference")["smc"])
+    active = _active(n_initial=32, batch_size=8, max_solves=1000, seed=0,
+                     stop={"patience": 1})
+    check = _check(draws=32)
+    post = (smc.particles, smc.weights, smc.log_evidence, space, active)
+    L = wrong(X)
+    rec0 = acquire_round(0, X, L, gp, *post, None, check)
+    X1 = np.vstack([X, rec0["next"]["points"]])
+    L1 = np.concatenate([L, truth(np.asarray(rec0["next"]["points"]))])
+    rec1 = acquire_round(1, X1, L1, gp, *post, rec0, check)
+    assert rec1["settled"] and not rec1["stop"]
+    assert rec1["next"]["kind"] == ["posterior_check"] * 32
+    D = np.asarray(rec1["next"]["points"])
+    X2, L2 = np.vstack([X1, D]), np.concatenate([L1, truth(D)])
+    rec2 = acquire_round(2, X2, L2, gp, *post, rec1, check)
+    pc = rec2["posterior_check"]
+    assert pc is not None and pc["round"] == 1 and not pc["confirmed"], pc["words"]
+    assert max(pc["sd_ratio"].values()) > 1.2
+    assert not rec2["converged"] and not rec2["stop"] and rec2["settled_streak"] == 0
+    assert "NOT confirmed" in rec2["reason"], rec2["reason"]
+    assert "posterior_check" not in rec2["next"]["kind"]
+
+
+def test_the_check_rounds_points_are_draws_of_the_posterior():
+    """Weighted particles of N(m, C) (importance weights of a wider Gaussian): 2000
+    draws have mean m and sd sqrt(diag C) within Monte Carlo tolerance (standard error
+    of the mean sd/sqrt(2000) = 0.022 sd, tolerance 0.1 sd; of the sd about 1.6 %,
+    tolerance 6 %), none repeats and none is a point of the design so far."""
+    rng = np.random.default_rng(5)
+    m, s = np.array([0.4, 0.6]), np.array([0.05, 0.08])
+    P = m + 2.0 * s * rng.standard_normal((40000, 2))
+    logw = -0.5 * np.sum(((P - m) / s) ** 2, 1) + 0.5 * np.sum(((P - m) / (2 * s)) ** 2, 1)
+    W = np.exp(logw - logw.max())
+    P[1] = P[0]  # a repeated particle (a rejected move)
+    D = posterior_draws(P, W, 2000, np.random.default_rng(1), exclude=P[:3])
+    assert D.shape == (2000, 2)
+    assert np.all(np.abs(D.mean(0) - m) / s < 0.1), D.mean(0)
+    assert np.all(np.abs(D.std(0) / s - 1) < 0.06), D.std(0)
+    assert len(np.unique(D, axis=0)) == 2000
+    assert not any(np.all(D == x, axis=1).any() for x in P[:3])

@@ -537,6 +537,13 @@ def test_the_rounds_figure_marks_the_random_check_points_apart_from_the_acquired
     assert "random check point, next round" not in labels
     with pytest.raises(ValueError, match="4 batch points but 3 kinds"):
         plot_rounds(*args, **kw, batch_kinds=[["check"] * 3, None])
+    # a check round: every point of the batch is a posterior draw of the posterior check
+    _, fig = plot_rounds(*args, **kw, batch_kinds=[["posterior_check"] * 4, None],
+                         return_figure=True)
+    lines = {ln.get_label(): ln for ln in fig.axes[0].get_lines()}
+    assert "chosen for next round" not in lines
+    np.testing.assert_array_equal(lines["posterior check's draws, next round"].get_xdata(),
+                                  batch[:, 0])
 
 
 def test_residual_bands_name_the_located_mismatch_and_its_core(tmp_path):

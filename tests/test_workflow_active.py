@@ -19,11 +19,13 @@ from _workflow_helpers import smk as _smk
 
 pytestmark = pytest.mark.workflow
 
-# rounds of 4 acquired points and 1 check point: 8, 13, 18, 23 solves. The budget lies
-# on that lattice, so raising it (28) adds a round and leaves every finished one as it
-# was (a round cut short by the budget is chosen again, larger, when the budget grows)
+# rounds of 4 acquired points and 1 check point: 8, 13, 18, 23 solves, then (if no
+# earlier one confirmed the posterior) a check round of 6 draws: 29 solves at most. The
+# check round is chosen once the posterior settled for 2 rounds (the default patience),
+# or because only its 6 solves are left of the budget
 ACTIVE = {"strategy": "active", "seed": 1,
-          "active": {"n_initial": 8, "batch_size": 4, "max_solves": 23}}
+          "active": {"n_initial": 8, "batch_size": 4, "max_solves": 29}}
+CHECK = {"draws": 6}
 
 
 RESELECT_GROWTH = 0.5
@@ -34,6 +36,7 @@ def _study(base: dict, **design) -> dict:
     out["design"] = json.loads(json.dumps(ACTIVE))
     # refit the surrogate's previous choice between full searches (off by default)
     out.setdefault("surrogate", {})["reselect_growth"] = RESELECT_GROWTH
+    out["posterior_check"] = dict(CHECK)
     for k, v in design.items():
         if isinstance(v, dict):
             out["design"]["active"].setdefault(k, {}).update(v)
@@ -65,7 +68,7 @@ def test_summary_says_whether_the_active_design_converged(active_run):
     assert s["converged"] == d["converged"]
     assert d["n_rounds"] == len(d["rounds"]) >= 2
     assert next(r["n_solves"] for r in d["rounds"]) == 8
-    assert d["n_solves"] == s["n_train"] == len(_runs(tmp)) <= 23
+    assert d["n_solves"] == s["n_train"] == len(_runs(tmp)) <= 29
     if not d["converged"]:
         assert d["reason"].startswith("NOT converged")
     assert all((tmp / f).is_file() for f in s["figures"]["rounds"])
@@ -78,16 +81,45 @@ def test_summary_says_whether_the_active_design_converged(active_run):
     assert fit["n_measurements"] == 1 and fit["consistent"] and 0 <= fit["misfit_nats"] < 3
     assert s["measures"]["rkhs"]["fit"] == fit
     assert "best fit within the noise" in line[0]
-    # the posterior checked with real solves of its draws (posterior_check, default 32)
+    # the posterior checked with real solves of its draws inside the rounds: a check
+    # round of 6 draws (the budget keeps room for it), whose verdict is in the record of
+    # the round after it and in summary.json
     check = s["posterior_check"]
-    assert check["n_draws"] == 32 and isinstance(check["confirmed"], bool)
+    assert check["n_draws"] == 6 and isinstance(check["confirmed"], bool)
     assert set(check["shift_sd"]) == {"E", "nu"} and check["log_weight_sd"] >= 0
     path = Path(check["file"]) if Path(check["file"]).is_absolute() else tmp / check["file"]
-    draws = json.loads(path.read_text())["draws"]
-    assert len(draws) == 32 and all(d["surrogate_loglik"] is not None for d in draws)
-    assert (("posterior confirmed by" in line[0]) if check["confirmed"]
-            else ("POSTERIOR NOT CONFIRMED" in line[0])), line[0]
+    verdict = json.loads(path.read_text())
+    assert verdict["posterior_check"]["words"] == check["words"]
+    checked = json.loads((path.parent.parent / f"{check['round']}/acquire.json").read_text())
+    assert checked["next"]["kind"] == ["posterior_check"] * 6
+    n0 = checked["n_solves"]
+    assert verdict["n_solves"] == n0 + 6  # the draws are design points of the next round
+    for k, x in enumerate(checked["next"]["points"]):
+        run_values = json.loads((tmp / f"results/analytic/discrepancy/rkhs/{n0 + k}.json")
+                                .read_text())["parameters"]
+        assert [run_values["E"], run_values["nu"]] == pytest.approx(x, rel=1e-12)
+    rounds = d["rounds"]
+    assert rounds[-1]["posterior_check_confirmed"] == check["confirmed"]
+    if d["converged"]:
+        assert check["confirmed"] and "posterior confirmed by 6 real solves" in line[0]
+        assert "confirmed by 6 real solves of its draws" in d["reason"]
+    elif not check["confirmed"]:
+        assert "POSTERIOR NOT CONFIRMED" in line[0], line[0]
+    # an active design runs no final check: no predictive solve beyond the figure's
+    predictive = sorted((tmp / "results/analytic/predictive").glob("*.h5"))
+    assert len(predictive) == 1  # plots.n_interface_samples
+    assert not (tmp / "results/analytic/rkhs/posterior_check.json").exists()
     assert "Nothing to be done" in _smk(tmp, "-n").stdout
+
+
+def test_a_fixed_design_checks_its_final_posterior_with_the_posterior_check_rule(done_run):
+    """A fixed design has no rounds: its final posterior's draws are solved after the
+    design (predictive solves, default 32) and checked there."""
+    s = _summary(done_run)
+    check = s["posterior_check"]
+    assert check["n_draws"] == 32 and "round" not in check
+    assert check["file"].endswith("rkhs/posterior_check.json")
+    assert len(list((done_run / "results/analytic/predictive").glob("*.h5"))) == 32
 
 
 def _planned_jobs(dry_run: str) -> dict[str, int]:
@@ -111,8 +143,12 @@ def test_a_stop_rule_change_resolves_nothing(active_run, base_study, tmp_path):
     n_before = _summary(tmp)["design"]["n_solves"]
     records = tmp / "results/analytic/active/0/acquire.json"
     stamp = records.stat().st_mtime_ns
-    # tolerances so loose that the stop rule can only stop earlier: no new point
-    _setup(tmp, _study(base_study, stop={"shift_tol": 1e6, "sd_tol": 1e6, "gp_tol": 1e6}))
+    # the trust check's tolerance (words only) and a looser posterior check, which can
+    # only confirm earlier: the rounds are decided again, no new point, none redone
+    study = _study(base_study, stop={"gp_tol": 1e6})
+    study["posterior_check"].update(sd_tol=0.5, max_log_weight_sd=2.0)
+    _setup(tmp, study)
+    assert "posterior_check" not in _planned_jobs(_smk(tmp, "-n").stdout)  # fixed only
     _smk(tmp)
     s = _summary(tmp)
     assert records.stat().st_mtime_ns != stamp  # the rounds were decided again
@@ -122,15 +158,23 @@ def test_a_stop_rule_change_resolves_nothing(active_run, base_study, tmp_path):
 
 
 def test_a_larger_budget_solves_only_new_points(active_run, base_study, tmp_path):
+    """A run that did not converge, given a larger budget, goes on from its rounds: no
+    finished solve is redone but those of a check round that was chosen only because
+    the budget was ending (with more budget left that round is an ordinary batch)."""
     tmp = _copy(active_run[0], tmp_path / "run")
     s0 = _summary(tmp)
     if s0["design"]["converged"]:
         pytest.skip("the base run converged within its budget")
     before = _runs(tmp)
-    _setup(tmp, _study(base_study, max_solves=28))
+    rounds = s0["design"]["rounds"]
+    last_batch = set()
+    if rounds[-1]["posterior_check_confirmed"] is not None:  # the last batch was a check
+        last_batch = {f"{i}.h5" for i in range(rounds[-2]["n_solves"], rounds[-1]["n_solves"])}
+    _setup(tmp, _study(base_study, max_solves=40))
     _smk(tmp)
     after = _runs(tmp)
-    assert all(after[n] == t for n, t in before.items()), "a finished solve was redone"
+    assert all(after[n] == t for n, t in before.items() if n not in last_batch), \
+        "a finished solve was redone"
     assert len(after) == _summary(tmp)["design"]["n_solves"] > len(before)
 
 
@@ -194,24 +238,6 @@ def test_a_plot_setting_reruns_no_round(active_run, base_study, tmp_path):
     _setup(tmp, study)
     plan = _planned_jobs(_smk(tmp, "-n").stdout)
     assert not ROUND_RULES & set(plan), plan
-
-
-def test_a_posterior_check_setting_reruns_only_the_check(active_run, base_study, tmp_path):
-    """Stricter thresholds of the posterior check: the check and the summary are planned,
-    no solve, round, surrogate, SMC or predictive solve; more draws add only the new
-    predictive solves' draws (a systematic resample of more draws: all are drawn anew,
-    but no design solve or round)."""
-    tmp = _copy(active_run[0], tmp_path / "run")
-    study = _study(base_study)
-    study["posterior_check"] = {"sd_tol": 0.1}
-    _setup(tmp, study)
-    plan = _planned_jobs(_smk(tmp, "-n").stdout)
-    assert {k for k, n in plan.items() if n} <= {"posterior_check", "summary", "all"}, plan
-    assert plan.get("posterior_check") == 1, plan
-    study["posterior_check"] = {"draws": 40}
-    _setup(tmp, study)
-    plan = _planned_jobs(_smk(tmp, "-n").stdout)
-    assert not (ROUND_RULES | {"solve", "discrepancy", "smc", "train_surrogate"}) & set(plan), plan
 
 
 def test_an_acquisition_setting_decides_the_rounds_again_from_the_first_changed_one(

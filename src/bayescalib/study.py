@@ -459,21 +459,6 @@ class Study:
         """SMC settings of the active rounds (:func:`bayescalib.config.round_smc`)."""
         return round_smc(self.config["smc"], self.config["design"]["active"])
 
-    def round_size(self, r: int) -> int:
-        """Number of design points after active round ``r`` (0-based)."""
-        from bayescalib.inference.active import round_sizes
-
-        a = self.config["design"]["active"]
-        return round_sizes(a["n_initial"], a["batch_size"] + a["check_points"], a["max_solves"],
-                           int(r) + 1)[-1]
-
-    def point_round(self, i: int) -> tuple[int, int]:
-        """(active round, position in its batch) of design point ``i``."""
-        from bayescalib.inference.active import point_round
-
-        a = self.config["design"]["active"]
-        return point_round(int(i), a["n_initial"], a["batch_size"] + a["check_points"])
-
     @property
     def n_test(self) -> int:
         if not self.config["convergence"]["enabled"]:

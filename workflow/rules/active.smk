@@ -79,6 +79,7 @@ checkpoint acquire:
         f"{ACTIVE_DIR}/{{r}}/acquire.json",
     params:
         active=study.config["design"]["active"],
+        check=study.config["posterior_check"],
         parameters=study.config["parameters"],
         round=lambda wc: int(wc.r),
     benchmark:

@@ -28,11 +28,20 @@ def _acquire_path(r):
     return f"{ACTIVE_DIR}/{int(r)}/acquire.json"
 
 
+_ACQUIRE_CACHE = {}
+
+
 def _read_acquire(r):
-    """The record of active round r (runs the checkpoint first when needed)."""
+    """The record of active round r (runs the checkpoint first when needed); read once
+    per version of the file (point_round reads the records for every design point)."""
+    import os
+
     path = checkpoints.acquire.get(r=int(r)).output[0]
-    with open(path) as fh:
-        return _json.load(fh)
+    key = (path, os.stat(path).st_mtime_ns)
+    if key not in _ACQUIRE_CACHE:
+        with open(path) as fh:
+            _ACQUIRE_CACHE[key] = _json.load(fh)
+    return _ACQUIRE_CACHE[key]
 
 
 def final_round():
@@ -43,11 +52,35 @@ def final_round():
     return r
 
 
+def round_size(r):
+    """Number of design points after active round r: round 0's Sobol points, then each
+    round's batch as the record before it chose it (a batch, or a check round of
+    posterior_check.draws posterior draws: rounds differ in size)."""
+    if int(r) == 0:
+        return study.n_sobol
+    rec = _read_acquire(int(r) - 1)
+    return int(rec["n_solves"]) + len(rec["next"]["points"])
+
+
+def point_round(i):
+    """(active round, position in its batch) of design point i >= n_sobol: the records
+    are read in order until one's batch holds it."""
+    r = 0
+    while True:
+        rec = _read_acquire(r)
+        if rec["stop"]:
+            raise ValueError(f"design point {i} lies beyond the final active round {r}")
+        end = int(rec["n_solves"]) + len(rec["next"]["points"])
+        if int(i) < end:
+            return r + 1, int(i) - int(rec["n_solves"])
+        r += 1
+
+
 def final_points():
     """Indices of the design points of the final design."""
     if not study.active:
         return list(range(study.n_points))
-    return list(range(study.round_size(final_round())))
+    return list(range(round_size(final_round())))
 
 
 def active_records():
@@ -61,7 +94,7 @@ def point_source(i):
     """The acquire record that chose design point i (None for a Sobol point)."""
     if int(i) < study.n_sobol:
         return None
-    r, _ = study.point_round(int(i))
+    r, _ = point_round(int(i))
     return checkpoints.acquire.get(r=r - 1).output[0]
 
 
@@ -70,7 +103,7 @@ def point_values(i):
     src = point_source(i)
     if src is None:
         return study.point(int(i))
-    r, j = study.point_round(int(i))
+    r, j = point_round(int(i))
     with open(src) as fh:
         return study.point_values(_json.load(fh)["next"]["points"][j])
 
@@ -87,7 +120,7 @@ def _round_reuse(wildcards, *names):
 
 
 def _round_inputs(wildcards):
-    n = study.round_size(int(wildcards.r))
+    n = round_size(int(wildcards.r))
     m = study.primary_measure
     return {"runs": [f"{R}/runs/{i}.h5" for i in range(n)],
             "disc": [f"{R}/discrepancy/{m}/{i}.json" for i in range(n)]}
@@ -156,7 +189,7 @@ ACQUIRE_JOB = (
     '"$BAYESCALIB_PYTHON" -I -S "$BAYESCALIB_JOB_CLIENT"'
     " acquire log {log:q} out {output:q} round {params.round}"
     " training {input.training:q} surrogate {input.surrogate:q}"
-    " particles {input.particles:q} active {params.active!r:q}"
+    " particles {input.particles:q} active {params.active!r:q} check {params.check!r:q}"
     " parameters {params.parameters!r:q} previous {input.previous:q}"
 )
 MARGINALIZE_JOB = (
@@ -255,8 +288,9 @@ def _set_aside(wildcards):
 
 FMT = study.config["plots"]["formats"]
 K = study.config["plots"]["n_interface_samples"]  # drawn in the interface figure
-# posterior draws solved (predictive_solve): the figure's and the posterior check's
-N_CHECK = study.config["posterior_check"]["draws"]
+# posterior draws solved (predictive_solve): the figure's, and with a fixed design the
+# final posterior check's (an active design checks its posterior inside the rounds)
+N_CHECK = 0 if study.active else study.config["posterior_check"]["draws"]
 K_SOLVED = max(K, N_CHECK)
 DIM = len(study.config["parameters"])
 

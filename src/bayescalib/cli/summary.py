@@ -59,11 +59,17 @@ def run(args: argparse.Namespace) -> int:
     if d.get("rounds"):
         print(f"\nactive design: {d['reason']}")
         rows = [["round", "solves", "failed", "GP error [nats]", "posterior change [sd]",
-                 "checks"]]
+                 "settled", "posterior check"]]
         for r in d["rounds"]:
+            pc = r["posterior_check_confirmed"]
             rows.append([str(r["round"]), str(r["n_solves"]), str(r["n_failed"]),
                          _fmt(r["gp_max_error_nats"]), _fmt(r["shift_sd"]),
-                         "pass" if r["checks_passed"] else "-"])
+                         "yes" if r["settled"] else "-",
+                         "-" if pc is None else
+                         ("confirmed" if pc else "NOT confirmed")
+                         + ("" if r["log_weight_sd"] is None else
+                            f" (log-weight sd {r['log_weight_sd']:.2g}, ESS "
+                            f"{100 * r['ess_fraction']:.0f} %)")])
         _table(rows)
     elif d:
         print(f"\n{d.get('reason', '')}")

@@ -177,7 +177,7 @@ def _acquire(args: Mapping[str, str]) -> None:
 
     setup_logging(args["log"])
     acquire(int(args["round"]), args["training"], args["surrogate"], args["particles"],
-            args.get("previous") or None, _literal(args["active"]),
+            args.get("previous") or None, _literal(args["active"]), _literal(args["check"]),
             _literal(args["parameters"]), args["out"])
 
 
@@ -202,6 +202,7 @@ def _summary(args: Mapping[str, Any]) -> None:
         collect_timings,
         design_summary,
         posterior_check_summary,
+        round_check_summary,
         setup_logging,
         summary,
     )
@@ -212,8 +213,10 @@ def _summary(args: Mapping[str, Any]) -> None:
              "timings_s": collect_timings(args["root"])}
     if args.get("convergence"):
         extra["gp_convergence"] = list(args["convergence"])
-    if args.get("check"):  # a list: empty when posterior_check.draws is 0
+    if args.get("check"):  # fixed design: a list, empty when posterior_check.draws is 0
         extra["posterior_check"] = posterior_check_summary(args["check"][0])
+    elif args["strategy"] == "active":  # the last check of the rounds (None: none ran)
+        extra["posterior_check"] = round_check_summary(args.get("active", []))
     summary(args["study"], _literal(args["parameters"]), _literal(args["measures"]),
             args["posterior"], args["training"], args["particles"],
             _literal(args["figure_map"]), args["out"], extra=extra)

@@ -68,8 +68,9 @@ def plot_rounds(
     failed : (F, 2) points whose solves failed, optional.
     batch_kinds : sequence of (q,) sequences of str or None, optional
         Per round, what each point of its batch is: ``"acquired"`` (chosen by the
-        acquisition) or ``"check"`` (a random check point, drawn without the
-        surrogate); absent = all acquired.
+        acquisition), ``"check"`` (a random check point, drawn without the
+        surrogate) or ``"posterior_check"`` (a check round's posterior draw); absent =
+        all acquired.
     max_panels : most rounds drawn as panels (first and last always).
     """
     names, units = as_names_units(names, units, 2)
@@ -101,11 +102,17 @@ def plot_rounds(
                 kinds = batch_kinds[r] if batch_kinds is not None else None
                 check = (np.asarray(kinds) == "check" if kinds is not None
                          else np.zeros(len(nb), bool))
+                draw = (np.asarray(kinds) == "posterior_check" if kinds is not None
+                        else np.zeros(len(nb), bool))
                 if check.shape != (len(nb),):
                     raise ValueError(f"plot_rounds: round {r} has {len(nb)} batch points "
                                      f"but {check.size} kinds")
-                ax.plot(*nb[~check].T, ls="none", marker="x", ms=5, color=COLORS["map"],
-                        label="chosen for next round")
+                if np.any(~check & ~draw):
+                    ax.plot(*nb[~check & ~draw].T, ls="none", marker="x", ms=5,
+                            color=COLORS["map"], label="chosen for next round")
+                if draw.any():
+                    ax.plot(*nb[draw].T, ls="none", marker="+", ms=6, color=COLORS["map"],
+                            label="posterior check's draws, next round")
                 if check.any():
                     ax.plot(*nb[check].T, ls="none", marker="D", ms=4, mfc="none",
                             mec=COLORS["map"], mew=0.8, label="random check point, next round")

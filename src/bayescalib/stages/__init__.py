@@ -701,8 +701,8 @@ def smc(surrogate_path: str | Path, smc_cfg: Mapping[str, Any],
 
 def acquire(round_index: int, training_path: str | Path, surrogate_path: str | Path,
             particles_path: str | Path, previous_path: str | Path | None,
-            active: Mapping[str, Any], parameters: Sequence[Mapping[str, Any]],
-            out_path: str | Path) -> dict[str, Any]:
+            active: Mapping[str, Any], check: Mapping[str, Any],
+            parameters: Sequence[Mapping[str, Any]], out_path: str | Path) -> dict[str, Any]:
     """Active design, end of round ``round_index``: trust check, posterior change,
     stop rule and the next batch (:func:`bayescalib.inference.active.acquire_round`), as JSON."""
     from bayescalib.inference.active import acquire_round
@@ -716,7 +716,8 @@ def acquire(round_index: int, training_path: str | Path, surrogate_path: str | P
         _read_checked(previous_path, read_json, "active round record")
     try:
         rec = acquire_round(int(round_index), tab["X"], tab["loglik"], gp, res.particles,
-                            res.weights, res.log_evidence, _space(parameters), active, previous)
+                            res.weights, res.log_evidence, _space(parameters), active, previous,
+                            check)
     except ValueError as exc:
         raise PipelineError(f"active round {round_index}: {exc}. Delete results/<study>/active "
                             "and the runs of the active rounds, then rerun.") from None
@@ -881,6 +882,18 @@ def posterior_check_summary(path: str | Path) -> dict[str, Any]:
     return {"file": str(path), **{k: v for k, v in rec.items() if k != "draws"}}
 
 
+def round_check_summary(acquire_paths: Sequence[str | Path]) -> dict[str, Any] | None:
+    """The ``posterior_check`` block of summary.json for an active design: the last
+    check round's verdict (:func:`bayescalib.inference.active.round_check`, ``round``:
+    the round whose posterior was checked), with the record it is in; None when the
+    rounds ran no check."""
+    for path in reversed(list(acquire_paths)):
+        rec = _read_checked(path, read_json, "active round record")
+        if rec.get("posterior_check") is not None:
+            return {"file": str(path), **rec["posterior_check"]}
+    return None
+
+
 def design_summary(strategy: str, acquire_paths: Sequence[str | Path],
                    n_solves: int) -> dict[str, Any]:
     """The ``design`` block of summary.json: how the solves were chosen and whether
@@ -933,9 +946,14 @@ def run_line(summary_json: Mapping[str, Any]) -> str:
                   "; BEST FIT WORSE THAN THE NOISE (mode not found, missing physics or "
                   "sigma_N too small: see fit in summary.json)")
     check = summary_json.get("posterior_check")
-    if check and check.get("confirmed"):
+    if check and check.get("confirmed") and (design.get("converged") is not False
+                                             or "round" not in check):
         state += (f"; posterior confirmed by {check['n_draws'] - check['n_failed']} real solves "
                   f"of its draws (log-weight sd {check['log_weight_sd']:.2g} nats)")
+    elif check and check.get("confirmed"):  # active: a check round passed, the posterior moved
+        state += (f"; the posterior of round {check['round']} was confirmed by "
+                  f"{check['n_draws'] - check['n_failed']} real solves of its draws but moved "
+                  f"when they were added")
     elif check:
         state += ("; POSTERIOR NOT CONFIRMED BY REAL SOLVES of its draws (posterior_check in "
                   "summary.json)")

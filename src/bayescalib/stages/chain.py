@@ -87,6 +87,7 @@ def calibrate_rounds(
     reused: Mapping[str, Any] | None = None,
     workers: int = 1,
     warm_start: str | Path | None = None,
+    check: Mapping[str, Any] | None = None,
 ) -> dict[str, Any]:
     """Calibrate by active-design rounds (see the module docstring).
 
@@ -105,6 +106,12 @@ def calibrate_rounds(
     reused
         Training rows that enter every round as they are (:func:`training_rows`, with
         ``X`` of shape (m, d)); e.g. the base design at ``phi = 0``.
+    check
+        Validated ``posterior_check`` section: the rounds' check rounds
+        (:func:`bayescalib.inference.active.acquire_round`). None: none (``draws`` 0),
+        and a posterior settled and trusted (the trust check within ``gp_tol``) for
+        ``patience`` rounds converges; the diagnosis checks its extended calibrations
+        with solves of their draws itself.
 
     Returns
     -------
@@ -114,7 +121,7 @@ def calibrate_rounds(
         ``rounds`` (the acquire records), ``n_new``, ``n_reused``, ``n_failed`` (of the
         new solves) and the paths ``training``, ``surrogate``, ``particles``.
     """
-    from bayescalib.config import round_smc
+    from bayescalib.config import round_smc, validate
     from bayescalib.inference.posterior import read_particles_h5
     from bayescalib.io.training import write_training
     from bayescalib.models.forward import solve_points
@@ -128,6 +135,8 @@ def calibrate_rounds(
         train_surrogate,
     )
 
+    check_cfg = validate({"posterior_check": dict(check or {"draws": 0})}, "inference",
+                         where="calibrate_rounds")["posterior_check"]
     work = Path(workdir)
     switches = dict(switches or {})
     targets = [p.get("target") or p["name"] for p in parameters]
@@ -167,7 +176,7 @@ def calibrate_rounds(
                         previous=None if r == 0 else work / "active" / str(r - 1) / "surrogate.h5")
         smc(rd / "surrogate.h5", round_smc(smc_cfg, active), parameters, rd / "particles.h5")
         rec = acquire(r, training, rd / "surrogate.h5", rd / "particles.h5", previous, active,
-                      parameters, rd / "acquire.json")
+                      check_cfg, parameters, rd / "acquire.json")
         rounds.append(rec)
         if rec["stop"]:
             break
