@@ -546,6 +546,33 @@ def test_the_rounds_figure_marks_the_random_check_points_apart_from_the_acquired
                                   batch[:, 0])
 
 
+def test_the_rounds_figure_shows_the_posterior_check_and_one_legend_for_all_panels(tmp_path):
+    """A check round's draws appear only in a later panel, yet the legend (in the first)
+    names them; the checks' panel draws the posterior check's log-weight sd where it was
+    judged (filled: confirmed) and says that the trust check's tolerance then decides
+    nothing."""
+    from bayescalib.plotting.rounds import plot_rounds
+
+    rng = np.random.default_rng(1)
+    draws = [rng.normal(size=(50, 2)) for _ in range(3)]
+    design = rng.uniform(-3, 3, size=(16, 2))
+    batch = rng.uniform(-3, 3, size=(4, 2))
+    _, fig = plot_rounds(
+        draws, design, [8, 12, 16], [batch, batch, None], [None, 0.3, 0.1],
+        [None, 2.0, 0.4], NAMES, UNITS, [tmp_path / "rounds.png"], bounds=[[-3, 3], [-3, 3]],
+        shift_tol=0.2, gp_tol=1.0, converged=True,
+        batch_kinds=[["acquired"] * 4, ["posterior_check"] * 4, None],
+        check=[None, None, {"log_weight_sd": 0.13, "confirmed": True}], return_figure=True)
+    legend = [t.get_text() for t in fig.axes[0].get_legend().get_texts()]
+    assert "posterior check's draws, next round" in legend
+    checks_ax = fig.axes[-1]
+    lines = {ln.get_label(): ln for ln in checks_ax.get_lines()}
+    confirmed = lines["posterior check of the round before: log-weight sd [nats], confirmed"]
+    np.testing.assert_array_equal(confirmed.get_xdata(), [2])
+    np.testing.assert_allclose(confirmed.get_ydata(), [0.13])
+    assert any("the posterior check decides" in label for label in lines)
+
+
 def test_residual_bands_name_the_located_mismatch_and_its_core(tmp_path):
     from bayescalib.plotting.diagnosis import plot_residual_bands
 

@@ -3,7 +3,8 @@ and the two checks of the stop rule per round (:mod:`bayescalib.inference.active
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
+from typing import Any
 
 import numpy as np
 from matplotlib.figure import Figure
@@ -39,6 +40,7 @@ def plot_rounds(
     truth: Sequence[float] | None = None,
     failed: np.ndarray | None = None,
     batch_kinds: Sequence[Sequence[str] | None] | None = None,
+    check: Sequence[Mapping[str, Any] | None] | None = None,
     max_panels: int = 6,
     dpi: float = 200,
     return_figure: bool = False,
@@ -71,6 +73,11 @@ def plot_rounds(
         acquisition), ``"check"`` (a random check point, drawn without the
         surrogate) or ``"posterior_check"`` (a check round's posterior draw); absent =
         all acquired.
+    check : sequence of dict or None, optional
+        Per round, the posterior check of the previous round's posterior judged there
+        (``log_weight_sd`` in nats, ``confirmed``), None where there was none. Drawn in
+        the checks' panel (filled: confirmed); with check rounds the trust check's
+        tolerance is drawn as reported, not deciding.
     max_panels : most rounds drawn as panels (first and last always).
     """
     names, units = as_names_units(names, units, 2)
@@ -86,6 +93,7 @@ def plot_rounds(
     with paper_style():
         fig = Figure(figsize=(3.0 * ncols, 2.7 * nrows), layout="constrained")
         gs = fig.add_gridspec(nrows, ncols)
+        panels = []
         for k, r in enumerate(shown):
             ax = fig.add_subplot(gs[k // ncols, k % ncols])
             d = np.atleast_2d(np.asarray(draws[r], float))
@@ -100,21 +108,21 @@ def plot_rounds(
             if batches[r] is not None and len(batches[r]):
                 nb = np.atleast_2d(np.asarray(batches[r], float))
                 kinds = batch_kinds[r] if batch_kinds is not None else None
-                check = (np.asarray(kinds) == "check" if kinds is not None
-                         else np.zeros(len(nb), bool))
+                is_check = (np.asarray(kinds) == "check" if kinds is not None
+                            else np.zeros(len(nb), bool))
                 draw = (np.asarray(kinds) == "posterior_check" if kinds is not None
                         else np.zeros(len(nb), bool))
-                if check.shape != (len(nb),):
+                if is_check.shape != (len(nb),):
                     raise ValueError(f"plot_rounds: round {r} has {len(nb)} batch points "
-                                     f"but {check.size} kinds")
-                if np.any(~check & ~draw):
-                    ax.plot(*nb[~check & ~draw].T, ls="none", marker="x", ms=5,
+                                     f"but {is_check.size} kinds")
+                if np.any(~is_check & ~draw):
+                    ax.plot(*nb[~is_check & ~draw].T, ls="none", marker="x", ms=5,
                             color=COLORS["map"], label="chosen for next round")
                 if draw.any():
                     ax.plot(*nb[draw].T, ls="none", marker="+", ms=6, color=COLORS["map"],
                             label="posterior check's draws, next round")
-                if check.any():
-                    ax.plot(*nb[check].T, ls="none", marker="D", ms=4, mfc="none",
+                if is_check.any():
+                    ax.plot(*nb[is_check].T, ls="none", marker="D", ms=4, mfc="none",
                             mec=COLORS["map"], mew=0.8, label="random check point, next round")
             if failed is not None and len(failed):
                 f = np.atleast_2d(np.asarray(failed, float))
@@ -127,8 +135,14 @@ def plot_rounds(
             ax.set_title(f"round {r}: {n_solves[r]} solves", fontsize=8)
             ax.set_xlabel(axis_label(names[0], units[0]))
             ax.set_ylabel(axis_label(names[1], units[1]))
-            if k == 0:
-                ax.legend(loc="best", fontsize=6, markerscale=1.2)
+            panels.append(ax)
+        # one legend for all panels (a check round's draws appear only in later ones)
+        entries: dict[str, Any] = {}
+        for pax in panels:
+            for h, lab in zip(*pax.get_legend_handles_labels(), strict=True):
+                entries.setdefault(lab, h)
+        panels[0].legend(list(entries.values()), list(entries), loc="best", fontsize=6,
+                         markerscale=1.2)
         ax = fig.add_subplot(gs[nrows - 1, :])
         rr = np.arange(n)
         sh = np.array([np.nan if v is None else v for v in shift_sd], float)
@@ -139,8 +153,20 @@ def plot_rounds(
                     label="surrogate error at new solves [nats]")
         ax.axhline(shift_tol, color=COLORS["mean"], ls="--", lw=0.8,
                    label=f"tolerance {shift_tol:g} sd")
+        checks = list(check) if check is not None else [None] * n
+        judged = [r for r in range(n) if checks[r] is not None
+                  and checks[r].get("log_weight_sd") is not None]
         ax.axhline(gp_tol, color=COLORS["hist"], ls=":", lw=0.8,
-                   label=f"tolerance {gp_tol:g} nats")
+                   label=(f"tolerance {gp_tol:g} nats (reported; the posterior check decides)"
+                          if judged else f"tolerance {gp_tol:g} nats"))
+        for ok in (True, False):
+            rr_ok = [r for r in judged if bool(checks[r]["confirmed"]) is ok]
+            if rr_ok:
+                ax.semilogy(rr_ok, [max(checks[r]["log_weight_sd"], 1e-3) for r in rr_ok],
+                            ls="none", marker="P", ms=8, color=COLORS["map"],
+                            mfc=COLORS["map"] if ok else "none",
+                            label="posterior check of the round before: log-weight sd "
+                                  f"[nats], {'confirmed' if ok else 'NOT confirmed'}")
         ax.set_xlabel("round")
         ax.set_xticks(rr)
         ax.set_ylabel("stop-rule checks")
