@@ -589,3 +589,47 @@ def test_residual_bands_name_the_located_mismatch_and_its_core(tmp_path):
     _, fig = plot_residual_bands([plain], [tmp_path / "q.png"], row_titles=["model"],
                               return_figure=True)
     assert "located mismatch" not in [t.get_text() for t in fig.axes[0].get_legend().get_texts()]
+
+
+def test_a_freetype_failure_is_drawn_again_once_with_fresh_fonts(tmp_path, monkeypatch):
+    """FreeType once failed on a glyph in a figure job ("FT_Load_Glyph ... too many
+    hints") and not on the same inputs again: the figure is drawn a second time with
+    fresh font objects; a second failure, or any other error, is raised."""
+    from matplotlib.figure import Figure
+
+    from bayescalib.plotting._checks import save_figure
+
+    fig = Figure()
+    fig.add_subplot().plot([0, 1], [0, 1])
+    real = fig.savefig
+    calls = []
+
+    def flaky(*a, **kw):
+        calls.append(1)
+        if len(calls) == 1:
+            raise RuntimeError("FT_Load_Glyph (ft2font_wrapper.cpp line 1946) failed with "
+                               "error 0x16: too many hints")
+        return real(*a, **kw)
+
+    monkeypatch.setattr(fig, "savefig", flaky)
+    (out,) = save_figure(fig, tmp_path / "f.png", dpi=50)
+    assert out.is_file() and len(calls) == 2
+    assert not list(tmp_path.glob("*.tmp*"))
+
+    def broken(*a, **kw):
+        raise RuntimeError("FT_Load_Glyph failed with error 0x16: too many hints")
+
+    monkeypatch.setattr(fig, "savefig", broken)
+    with pytest.raises(RuntimeError, match="too many hints"):
+        save_figure(fig, tmp_path / "g.png", dpi=50)
+    assert not (tmp_path / "g.png").exists()
+
+    def other(*a, **kw):
+        calls.append(1)
+        raise RuntimeError("something else")
+
+    monkeypatch.setattr(fig, "savefig", other)
+    n = len(calls)
+    with pytest.raises(RuntimeError, match="something else"):
+        save_figure(fig, tmp_path / "h.png", dpi=50)
+    assert len(calls) == n + 1  # not retried
