@@ -9,7 +9,6 @@ to any number of paths, the format taken from each suffix.
 
 from __future__ import annotations
 
-import logging
 import os
 from collections.abc import Sequence
 from pathlib import Path
@@ -20,8 +19,6 @@ from matplotlib.figure import Figure
 
 from bayescalib.inference.weights import normalize_weights
 from bayescalib.io._atomic_write import atomic_path
-
-log = logging.getLogger(__name__)
 
 __all__ = [
     "PathsLike",
@@ -238,30 +235,9 @@ def save_figure(fig: Figure, paths: PathsLike, dpi: float = 200) -> list[Path]:
     """
     out = as_paths(paths)
     for p in out:
-        for attempt in (0, 1):
-            try:
-                with atomic_path(p, suffix=p.suffix) as tmp:
-                    fig.savefig(tmp, dpi=dpi, format=p.suffix.lower().lstrip("."))
-                break
-            except RuntimeError as exc:
-                # FreeType failing on a glyph ("FT_Load_Glyph ... too many hints") was
-                # seen once in a default study's figure job and not again on the same
-                # inputs: drawn again with fresh font objects; a second failure is raised
-                if attempt or not str(exc).startswith("FT_"):
-                    raise
-                log.warning("%s: %s; drawing it again with fresh font objects", p, exc)
-                _fresh_fonts()
+        with atomic_path(p, suffix=p.suffix) as tmp:
+            fig.savefig(tmp, dpi=dpi, format=p.suffix.lower().lstrip("."))
     return out
-
-
-def _fresh_fonts() -> None:
-    """Drop matplotlib's cached FreeType font objects (they are made again from the
-    font files on next use)."""
-    from matplotlib import font_manager
-
-    clear = getattr(getattr(font_manager, "_get_font", None), "cache_clear", None)
-    if clear is not None:
-        clear()
 
 
 def finish(fig: Figure, paths: PathsLike, dpi: float, return_figure: bool):
