@@ -589,3 +589,42 @@ def test_residual_bands_name_the_located_mismatch_and_its_core(tmp_path):
     _, fig = plot_residual_bands([plain], [tmp_path / "q.png"], row_titles=["model"],
                               return_figure=True)
     assert "located mismatch" not in [t.get_text() for t in fig.axes[0].get_legend().get_texts()]
+
+
+def test_figure_jobs_forked_from_a_warm_process_share_no_font_objects():
+    """The round job server draws a warm-up figure, then forks figure jobs. A mathtext
+    layout holds the FreeType font objects it was made with, and they read glyphs from
+    an open font file whose offset a forked child shares with its siblings: two figure
+    jobs drawing at once read corrupt outlines ("FT_Load_Glyph ... invalid outline",
+    "too many hints"; a fresh default study failed this way). A forked child starts with
+    an empty layout cache, and concurrent children draw without error (before the fix,
+    two children redrawing the warm-up figure 40 times each failed in every run)."""
+    import os
+
+    from bayescalib.plotting import style
+
+    style.warm_up()
+    (cache,) = style._SHARED_LAYOUTS
+    assert cache.cache_info().currsize > 0
+    r, w = os.pipe()
+    pids = []
+    for _ in range(2):
+        pid = os.fork()
+        if pid == 0:  # pragma: no cover - the child reports through its exit code
+            code = 0
+            try:
+                os.close(r)
+                empty = style._SHARED_LAYOUTS[0].cache_info().currsize == 0
+                os.write(w, b"1" if empty else b"0")
+                for _ in range(40):
+                    style.warm_up()
+            except BaseException:  # noqa: BLE001
+                code = 1
+            os._exit(code)
+        pids.append(pid)
+    os.close(w)
+    codes = [os.waitstatus_to_exitcode(os.waitpid(p, 0)[1]) for p in pids]
+    flags = os.read(r, 8)
+    os.close(r)
+    assert flags == b"11", "a forked child inherited the parent's mathtext layouts"
+    assert codes == [0, 0], "a forked child failed to draw (FreeType on a shared font file)"

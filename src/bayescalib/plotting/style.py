@@ -21,8 +21,10 @@ from __future__ import annotations
 
 import contextlib
 import functools
+import os
 import re
 from collections.abc import Iterator
+from typing import Any
 
 import matplotlib as mpl
 
@@ -167,10 +169,19 @@ def _share_mathtext_layouts() -> None:
 
     _parse_cached._bayescalib_shared = True  # type: ignore[attr-defined]
     cls._parse_cached = _parse_cached
+    # a layout holds the FreeType font objects it was made with, and those read their
+    # glyphs from an open font file: a forked child sharing the file (and its offset)
+    # with its parent and siblings read corrupt outlines when two figure jobs forked from
+    # the warm round server drew at once ("FT_Load_Glyph ... invalid outline", "too many
+    # hints"). A child starts with an empty cache, as Matplotlib's own font cache does.
+    os.register_at_fork(after_in_child=shared.cache_clear)
+    _SHARED_LAYOUTS.append(shared)
 
 
 #: the first MathTextParser of each output type (kept alive: it keys the shared cache)
 _FIRST_PARSER: dict[str, object] = {}
+#: the process-wide layout cache, once made (emptied in every forked child)
+_SHARED_LAYOUTS: list[Any] = []
 
 
 def warm_up(dpi: float = 150.0, formats: tuple[str, ...] = ("png", "pdf")) -> None:
