@@ -247,10 +247,16 @@ def _round_stages(root: Path, cfg: dict) -> dict[str, list[float]]:
             }
             if r is not None:
                 prev = root / "active" / str(r - 1) / "acquire.json" if r > 0 else None
+                import inspect
+
+                # the tree's acquire takes the posterior_check section since the check
+                # rounds (older trees: not)
+                check = ([cfg["posterior_check"]] if "check" in
+                         inspect.signature(stages.acquire).parameters else [])
                 calls["acquire"] = partial(
                     stages.acquire, r, folder / "training.h5", folder / "surrogate.h5",
-                    folder / "particles.h5", prev, cfg["design"]["active"], cfg["parameters"],
-                    t / "acquire.json")
+                    folder / "particles.h5", prev, cfg["design"]["active"], *check,
+                    cfg["parameters"], t / "acquire.json")
             else:
                 calls["marginalize"] = partial(
                     stages.marginalize, folder / "particles.h5", folder / "surrogate.h5",
