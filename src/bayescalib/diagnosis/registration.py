@@ -51,8 +51,9 @@ class JointFit:
         The registration at that iterate, by mode.
     chi2
         ``sum r^2 / v`` there, at its own solve (``inf`` when no iterate solved).
-    J, B
-        (n, q) and (n, k) linearization there (``None`` when no iterate solved).
+    J
+        (n, q) base Jacobian there (``None`` when no iterate solved), for
+        :func:`laplace_draws`.
     iterations
         One record per iterate: ``chi2_at_point``, and either the accepted step's
         ``chi2`` / ``p_after`` / ``estimate`` / ``theta`` or ``rejected`` / ``failed``.
@@ -62,7 +63,6 @@ class JointFit:
     estimate: dict[str, float]
     chi2: float = float("inf")
     J: np.ndarray | None = None
-    B: np.ndarray | None = None
     iterations: list[dict[str, Any]] = field(default_factory=list)
 
 
@@ -126,7 +126,7 @@ def joint_fit(evaluate: Callable[[np.ndarray, Mapping[str, float]], Evaluation |
             if np.all(np.abs(0.5 * step[free]) <= small):
                 break
             continue
-        fit.theta, fit.estimate, fit.chi2, fit.J, fit.B = th.copy(), dict(est), chi2_here, J, B
+        fit.theta, fit.estimate, fit.chi2, fit.J = th.copy(), dict(est), chi2_here, J
         bt = block_test(r, J, B, v, modes)
         est = {m: est[m] + bt["estimate"][m] for m in modes}
         dth = np.zeros(len(th))
