@@ -185,6 +185,10 @@ class Problem:
     grid_axes: tuple[np.ndarray, np.ndarray] | None = None  # 2D only: cell centres
     ref_grid: np.ndarray | None = None  # 2D only: (n1, n2) cell masses, sum 1
     ref_info: dict[str, Any] = field(default_factory=dict)
+    # least-squares problems: the model's outputs and the data in noise units, so that
+    # loglik = B - 1/2 |y - outputs(X)|^2 (the ``emulator`` method needs them)
+    outputs: Callable[[np.ndarray], np.ndarray] | None = None
+    y: np.ndarray | None = None
 
     @property
     def d(self) -> int:
@@ -325,7 +329,8 @@ def make_hetero7d(out: Path, refresh: bool) -> Problem:
         r = (h7_model(X) - y) / H7_SIGMA
         return -0.5 * np.sum(r * r, axis=1)
 
-    prob = Problem("hetero7d", list(H7_NAMES), H7_BOUNDS.copy(), loglik, 0.0)
+    prob = Problem("hetero7d", list(H7_NAMES), H7_BOUNDS.copy(), loglik, 0.0,
+                   outputs=lambda X: h7_model(X) / H7_SIGMA, y=y / H7_SIGMA)
     ref = _h7_reference(prob, out / "reference_hetero7d.npz", refresh)
     prob.ref_mean, prob.ref_cov = ref["mean"], ref["cov"]
     prob.ref_info = {
@@ -836,12 +841,109 @@ def run_gpry(prob: Problem, budget: int, seed: int) -> dict[str, Any]:
     return out
 
 
+#: batch of the ``emulator`` method: equally weighted draws of the current posterior,
+#: solved together; they are the next round's design points and its posterior check
+EMULATOR_BATCH = 16
+#: SMC of the ``emulator`` rounds (light, as the active design's round SMC) and of its
+#: final posterior (the metrics use that sample: 20 000 particles of the common metric
+#: SMC cost ~10 min here on a 7D emulator; 8000 add sampling noise only)
+EMULATOR_ROUND_SMC = {"n_particles": 2000, "n_rej": 10, "zeta": 0.99}
+EMULATOR_FINAL_SMC = {"n_particles": 8000, "n_rej": 20, "zeta": 0.95}
+
+
+def run_emulator(prob: Problem, budget: int, seed: int) -> dict[str, Any]:
+    """Output emulator (``bayescalib.inference.emulator``) in rounds of posterior draws.
+
+    Round 0: the scrambled Sobol design of a quarter of the budget (as ``active``).
+    Each round fits the emulator of the model's outputs to every evaluation, samples
+    the emulated likelihood's posterior (SMC), and evaluates ``EMULATOR_BATCH``
+    equally weighted draws of it. The next round judges that posterior with the draws
+    (``importance_check``: the real against the emulated log-likelihood at them,
+    default thresholds) and stops, converged, when the check confirms it and the
+    posterior refitted with the draws moved by at most 0.2 sd (sd change at most 0.2);
+    otherwise until the budget is spent. Least-squares problems only (``outputs``)."""
+    if prob.outputs is None:
+        raise NotAvailable("not applicable (needs the model's outputs: a least-squares problem)")
+    from bayescalib.inference.active import posterior_change, posterior_draws, posterior_moments
+    from bayescalib.inference.design import sobol_design
+    from bayescalib.inference.emulator import EmulatedLikelihood, fit_output_emulator
+    from bayescalib.inference.importance import importance_check
+    from bayescalib.inference.smc import run_smc
+
+    f = Counter(prob.loglik)
+    space = make_space(prob)
+
+    def evaluate(X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return np.asarray(prob.outputs(X), float), f(X)  # one model run gives both
+
+    n0 = max(2 * prob.d + 2, budget // 4)
+    X = sobol_design(prob.bounds, n0, seed)
+    U, L = evaluate(X)
+    history: list[dict[str, Any]] = []
+    prev, pending = None, None
+    converged, reason, r = False, "", 0
+    while True:
+        em = fit_output_emulator(X, U, prob.bounds, seed=seed)
+        lik = EmulatedLikelihood(em, prob.y, offset=prob.B)
+        res = run_smc(lik.predict, space, rng=np.random.default_rng([seed, r, 0xE1]),
+                      **EMULATOR_ROUND_SMC)
+        mom = posterior_moments(res.particles, res.weights)
+        rec: dict[str, Any] = {"round": r, "n_solves": int(len(L)),
+                               "components": em.n_components, "discarded": em.discarded,
+                               "log_inputs": em.log_inputs,
+                               "mean": mom["mean"].tolist(), "sd": mom["sd"].tolist()}
+        if pending is not None:
+            D, mu = pending
+            chk = importance_check(D, L[-len(D):], mu)
+            change = posterior_change(prev, mom)
+            rec.update(check=chk["words"], confirmed=bool(chk["confirmed"]),
+                       log_weight_sd=chk.get("log_weight_sd"), shift_sd=change["shift_sd"],
+                       sd_change=change["sd_change"])
+            converged = bool(chk["confirmed"] and change["shift_sd"] <= 0.2
+                             and change["sd_change"] <= 0.2)
+        history.append(rec)
+        err = np.max(np.abs(mom["mean"] - prob.ref_mean) / prob.ref_sd)
+        print(f"    round {r}: {len(L)} evals, {em.n_components} components, best {f.best:.4g}, "
+              f"mean err {err:.3g} ref sd"
+              + ("" if pending is None else
+                 f", check: log-weight sd {rec['log_weight_sd']:.3g}, "
+                 f"{'confirmed' if rec['confirmed'] else 'not confirmed'}, moved "
+                 f"{rec['shift_sd']:.2g} sd"), flush=True)
+        if converged:
+            reason = (f"converged after round {r} with {len(L)} evaluations: {rec['check']}; "
+                      f"moved {rec['shift_sd']:.2g} sd")
+            break
+        left = budget - len(L)
+        if left < 1:
+            reason = f"NOT converged: the budget of {budget} evaluations is spent after round {r}"
+            break
+        D = posterior_draws(res.particles, res.weights, min(EMULATOR_BATCH, left),
+                            np.random.default_rng([seed, r, 0xD7A]), exclude=X)
+        pending, prev = (D, lik.predict(D)), mom
+        Un, Ln = evaluate(D)
+        X, U, L = np.vstack([X, D]), np.vstack([U, Un]), np.concatenate([L, Ln])
+        r += 1
+    smc = run_smc(lik.predict, space, rng=np.random.default_rng(seed), **EMULATOR_FINAL_SMC)
+    return {
+        "samples": smc.particles,
+        "weights": smc.weights,
+        "grid_logpdf": lambda G: lik.predict(G) + space.logprior(G),
+        "grid_kind": "surrogate",
+        "n_evals": f.n,
+        "n_rounds": r + 1,
+        "extra": {"converged": converged, "reason": reason, "rounds": history,
+                  "components": em.n_components, "final_smc": EMULATOR_FINAL_SMC},
+        "design": {"X": X, "loglik": L,
+                   "kind": np.asarray(["initial"] * n0 + ["draw"] * (len(L) - n0))},
+    }
+
+
 def run_active_vbmc(prob: Problem, budget: int, seed: int) -> dict[str, Any]:
     return run_active(prob, budget, seed, "active_vbmc")
 
 
 METHODS = {"sobol_gp": run_sobol_gp, "active": run_active, "active_vbmc": run_active_vbmc,
-           "pyvbmc": run_pyvbmc, "gpry": run_gpry}
+           "emulator": run_emulator, "pyvbmc": run_pyvbmc, "gpry": run_gpry}
 
 
 # ---------------------------------------------------------------------------

@@ -1,0 +1,265 @@
+"""Emulator of the model's outputs, and the likelihood computed from it.
+
+Why
+---
+The paper's surrogate (:mod:`bayescalib.inference.surrogate`) is a GP of the scalar
+log-likelihood L(x) = -1/2 |y - u(x)|^2 / sigma^2 + const. When the data are
+informative, L falls by thousands of nats across the prior box while the posterior
+lives in a region a few nats deep: a stationary GP of L must be accurate to a fraction
+of a nat inside a thin shell of a steep surface. In seven dimensions it is not
+(``docs/bench_active.md``: on ``hetero7d`` the active design's posterior stays 2-10
+reference sd off after 200 evaluations, the GP missing new evaluations by tens to
+thousands of nats). The model's outputs u(x) themselves are smooth and of modest
+range; the sharpness of L comes only from the squared norm. Emulating u(x) and
+computing L from the emulated outputs keeps that structure exact (calibration with
+high-dimensional output, Higdon, Gattiker, Williams & Rightley 2008; the emulator's
+uncertainty integrated out as in Kennedy & O'Hagan 2001).
+
+Method
+------
+Outputs and data are given in noise units (divided by the observation noise sd), so
+that the likelihood is L(x) = offset - 1/2 |y - u(x)|^2.
+
+1. **Principal outputs** (:func:`principal_outputs`). The training outputs U (n, m)
+   are centred, u = ubar + Phi^T a + t, with Phi (k, m) the leading right singular
+   vectors (orthonormal rows) and a = Phi (u - ubar) the coordinates. k is the smallest
+   number whose discarded energy per training point, sum_{j>k} S_j^2 / n, is at most
+   ``energy_tol`` (noise units squared: 0.01 means the discarded part t would move L
+   by about 0.005 nats on average), at most ``max_components`` and n - 1.
+2. **One GP per coordinate** (:func:`fit_output_emulator`): a_j(x) ~ GP with zero
+   mean (the coordinates are centred), ARD Matern 5/2 kernel (the outputs are smooth)
+   on the box-scaled inputs, log inputs where they qualify and raise the leading
+   coordinate's evidence (the rule of ``surrogate.inputs: auto``), fitted nugget.
+3. **The likelihood, emulator uncertainty integrated out** (:class:`EmulatedLikelihood`).
+   With the coordinates a ~ N(ahat(x), diag(s^2(x))) and c = Phi (y - ubar),
+
+       L(x) = offset - 1/2 |P_perp (y - ubar)|^2
+              - 1/2 sum_j [ (c_j - ahat_j)^2 / (1 + s_j^2) + log(1 + s_j^2) ],
+
+   the Gaussian marginal likelihood of y given x (noise covariance I + Phi^T S Phi;
+   Kennedy & O'Hagan 2001, eq. for the code uncertainty). Where the emulator is
+   unsure, its variance widens the likelihood instead of letting a guess pass as
+   data: the posterior is honest about how little the design has seen there. L never
+   exceeds ``offset`` (the bound of the Gaussian log-likelihood, issue 17's
+   requirement), by construction. The discarded part t is the same for every x in
+   this formula (a constant); ``discarded`` reports its size on the design.
+4. **Its uncertainty** (for acquisitions): the plug-in quadratic -1/2 sum (c_j - a_j)^2
+   has, under a ~ N(ahat, diag(s^2)), the variance sum_j [(c_j - ahat_j)^2 s_j^2 +
+   s_j^4 / 2] (exact for Gaussian a).
+
+The emulated likelihood has the interface of the log-likelihood surrogate that SMC
+calls (``predict(X)``, ``predict(X, return_var=True)``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+__all__ = ["EmulatedLikelihood", "OutputEmulator", "fit_output_emulator", "principal_outputs"]
+
+
+def principal_outputs(U: np.ndarray, *, energy_tol: float = 1e-2,
+                      max_components: int = 30) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+    """Centre the outputs and keep their leading principal directions.
+
+    Parameters
+    ----------
+    U
+        (n, m) training outputs in noise units.
+    energy_tol
+        Largest discarded energy per training point, sum_{j>k} S_j^2 / n (noise units
+        squared).
+    max_components
+        Upper limit of k (also at most n - 1 and m).
+
+    Returns
+    -------
+    mean : (m,) the outputs' mean ubar.
+    basis : (k, m) orthonormal rows Phi.
+    coords : (n, k) the coordinates a = (U - ubar) Phi^T.
+    discarded : float, the discarded energy per training point.
+    """
+    U = np.atleast_2d(np.asarray(U, float))
+    n, m = U.shape
+    if n < 2:
+        raise ValueError(f"principal_outputs needs at least 2 training outputs, got {n}")
+    if energy_tol < 0:
+        raise ValueError(f"energy_tol must be >= 0, got {energy_tol}")
+    mean = U.mean(axis=0)
+    _, S, Vt = np.linalg.svd(U - mean, full_matrices=False)
+    tail = np.concatenate([np.cumsum((S**2)[::-1])[::-1], [0.0]]) / n  # tail[k] = sum_{j>=k}
+    k_max = max(1, min(int(max_components), n - 1, m, S.size))
+    k = next((j for j in range(1, k_max + 1) if tail[j] <= energy_tol), k_max)
+    basis = Vt[:k]
+    return mean, basis, (U - mean) @ basis.T, float(tail[k])
+
+
+@dataclass
+class OutputEmulator:
+    """Emulator of a model's outputs: principal directions and one GP per coordinate.
+
+    Attributes
+    ----------
+    mean : (m,) mean output ubar (noise units).
+    basis : (k, m) orthonormal principal directions Phi.
+    components : k :class:`~bayescalib.inference.surrogate.GPSurrogate`, the GP of each
+        coordinate a_j(x).
+    discarded : discarded energy per training point (noise units squared).
+    n_train : number of training points.
+    log_inputs : whether the inputs that qualify entered as logs.
+    """
+
+    mean: np.ndarray
+    basis: np.ndarray
+    components: list[Any]
+    discarded: float
+    n_train: int
+    log_inputs: bool = False
+    info: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def n_components(self) -> int:
+        return int(self.basis.shape[0])
+
+    def predict(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Coordinates' posterior means and variances at X (M, d): two (M, k) arrays."""
+        X = np.atleast_2d(np.asarray(X, float))
+        a = np.empty((X.shape[0], self.n_components))
+        v = np.empty_like(a)
+        for j, gp in enumerate(self.components):
+            a[:, j], v[:, j] = gp.predict(X, return_var=True)
+        return a, np.maximum(v, 0.0)
+
+    def predict_outputs(self, X: np.ndarray) -> np.ndarray:
+        """Emulated outputs ubar + a Phi at X: (M, m), noise units."""
+        a, _ = self.predict(X)
+        return self.mean + a @ self.basis
+
+
+def _fit_coordinate(X, a, bounds, log_offset, *, kernel: str, restarts: int, seed: int,
+                    nugget_floor: float):
+    from bayescalib.inference.surrogate import fit_gp
+
+    a = np.asarray(a, float)
+    span = float(np.ptp(a)) or 1.0
+    # fit_gp's constant mean is min(y) - f (max(y) - min(y)); f = min(y) / range puts it
+    # at 0, the coordinates' mean (they are centred)
+    return fit_gp(X, a, ard=True, restarts=restarts, seed=seed, bounds=bounds,
+                  mean_offset_factor=float(a.min()) / span, kernel=kernel,
+                  log_offset=log_offset, nugget="fit", nugget_floor=nugget_floor,
+                  device="cpu")
+
+
+def fit_output_emulator(X: np.ndarray, U: np.ndarray, bounds: np.ndarray, *,
+                        energy_tol: float = 1e-2, max_components: int = 30,
+                        kernel: str = "matern52", restarts: int = 2, seed: int = 0,
+                        inputs: str = "auto", nugget_floor: float = 1e-6) -> OutputEmulator:
+    """Fit the output emulator (module docstring, steps 1-2).
+
+    Parameters
+    ----------
+    X
+        (n, d) design points in user units.
+    U
+        (n, m) their outputs in noise units; rows with a non-finite entry (failed
+        solves) are left out.
+    bounds
+        (d, 2) design box (input scaling).
+    energy_tol, max_components
+        :func:`principal_outputs`.
+    kernel
+        Kernel of every coordinate's GP (:data:`~bayescalib.inference.surrogate.KERNELS`).
+    restarts, seed
+        Optimizer starts of each GP fit, and their seed.
+    inputs
+        ``linear``, ``log`` (inputs whose box lies in [0, inf) as logs) or ``auto``
+        (both fitted to the leading coordinate; the larger evidence decides for all).
+    nugget_floor
+        Floor of each coordinate GP's fitted nugget (noise units squared).
+    """
+    from bayescalib.inference.surrogate import log_input_offsets
+
+    X = np.atleast_2d(np.asarray(X, float))
+    U = np.atleast_2d(np.asarray(U, float))
+    if X.shape[0] != U.shape[0]:
+        raise ValueError(f"X has {X.shape[0]} rows and U {U.shape[0]}: one output row per point")
+    ok = np.all(np.isfinite(U), axis=1)
+    X, U = X[ok], U[ok]
+    mean, basis, coords, discarded = principal_outputs(U, energy_tol=energy_tol,
+                                                       max_components=max_components)
+    offsets = log_input_offsets(np.asarray(bounds, float))
+    qualifies = offsets is not None and bool(np.any(np.isfinite(offsets)))
+    if inputs not in ("linear", "log", "auto"):
+        raise ValueError(f"inputs must be 'linear', 'log' or 'auto', got {inputs!r}")
+    use_log = qualifies and inputs != "linear"
+    kw = {"kernel": kernel, "restarts": restarts, "seed": seed, "nugget_floor": nugget_floor}
+    first = _fit_coordinate(X, coords[:, 0], bounds, offsets if use_log else None, **kw)
+    if qualifies and inputs == "auto":
+        linear = _fit_coordinate(X, coords[:, 0], bounds, None, **kw)
+        if linear.log_marginal_likelihood > first.log_marginal_likelihood:
+            first, use_log = linear, False
+    comps = [first] + [
+        _fit_coordinate(X, coords[:, j], bounds, offsets if use_log else None, **kw)
+        for j in range(1, basis.shape[0])]
+    return OutputEmulator(mean=mean, basis=basis, components=comps, discarded=discarded,
+                          n_train=int(X.shape[0]), log_inputs=bool(use_log),
+                          info={"n_failed": int((~ok).sum())})
+
+
+class EmulatedLikelihood:
+    """The Gaussian log-likelihood of data ``y`` computed from an :class:`OutputEmulator`,
+    its uncertainty integrated out (module docstring, steps 3-4).
+
+    Parameters
+    ----------
+    emulator
+        The fitted output emulator.
+    y
+        (m,) observed data in noise units.
+    offset
+        The likelihood's value at a perfect fit (its upper bound), e.g.
+        -m log sigma - m/2 log(2 pi) for the Gaussian density in user units; 0 gives
+        -1/2 |y - u|^2.
+    """
+
+    warped = False
+
+    def __init__(self, emulator: OutputEmulator, y: Sequence[float] | np.ndarray,
+                 offset: float = 0.0) -> None:
+        self.emulator = emulator
+        y = np.asarray(y, float).reshape(-1)
+        if y.shape[0] != emulator.mean.shape[0]:
+            raise ValueError(f"y has {y.shape[0]} values, the emulator {emulator.mean.shape[0]} "
+                             "outputs")
+        self.y = y
+        r = y - emulator.mean
+        self.c = emulator.basis @ r
+        self.perp = float(max(r @ r - self.c @ self.c, 0.0))
+        self.offset = float(offset)
+        self.bound = self.offset - 0.5 * self.perp
+
+    @property
+    def dim(self) -> int:
+        return int(self.emulator.components[0].dim)
+
+    def predict(self, X: np.ndarray, return_var: bool = False):
+        """Log-likelihood at X (M, d): the marginal over the emulator, (M,); with
+        ``return_var`` also the variance of the plug-in log-likelihood (M,)."""
+        a, s2 = self.emulator.predict(X)
+        d2 = (self.c - a) ** 2
+        L = self.bound - 0.5 * np.sum(d2 / (1.0 + s2) + np.log1p(s2), axis=1)
+        if not return_var:
+            return L
+        return L, np.sum(d2 * s2 + 0.5 * s2 * s2, axis=1)
+
+    __call__ = predict
+
+    def plug_in(self, X: np.ndarray) -> np.ndarray:
+        """-1/2 |y - u_hat(x)|^2 + offset with the emulator's mean outputs (no
+        uncertainty), (M,): the likelihood of the emulated model itself."""
+        a, _ = self.emulator.predict(X)
+        return self.bound - 0.5 * np.sum((self.c - a) ** 2, axis=1)

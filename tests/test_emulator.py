@@ -1,0 +1,132 @@
+"""The output emulator and the likelihood computed from it (bayescalib.inference.emulator)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.stats import multivariate_normal
+
+from bayescalib.inference.emulator import (
+    EmulatedLikelihood,
+    OutputEmulator,
+    fit_output_emulator,
+    principal_outputs,
+)
+
+
+class _FixedGP:
+    """A stand-in coordinate GP with a given mean and variance at every point."""
+
+    dim = 2
+
+    def __init__(self, mean: float, var: float) -> None:
+        self.mean, self.var = mean, var
+
+    def predict(self, X, return_var=False):
+        X = np.atleast_2d(X)
+        m, v = np.full(len(X), self.mean), np.full(len(X), self.var)
+        return (m, v) if return_var else m
+
+
+def _fixed_emulator(rng, m=6, k=3, a_hat=(0.4, -1.2, 2.0), s2=(0.3, 1.5, 0.01)):
+    Q, _ = np.linalg.qr(rng.standard_normal((m, k)))
+    return OutputEmulator(mean=rng.standard_normal(m), basis=Q.T,
+                          components=[_FixedGP(a, v) for a, v in zip(a_hat, s2)],
+                          discarded=0.0, n_train=10)
+
+
+def test_principal_outputs_recover_a_low_rank_output_set_exactly():
+    rng = np.random.default_rng(0)
+    U = rng.standard_normal((30, 2)) @ rng.standard_normal((2, 12)) + 5.0
+    mean, basis, coords, discarded = principal_outputs(U, energy_tol=1e-10)
+    assert basis.shape == (2, 12)
+    np.testing.assert_allclose(basis @ basis.T, np.eye(2), atol=1e-12)
+    np.testing.assert_allclose(mean + coords @ basis, U, atol=1e-10)
+    assert discarded < 1e-20
+
+
+def test_principal_outputs_keep_the_fewest_components_within_the_energy_tolerance():
+    rng = np.random.default_rng(1)
+    scales = np.array([10.0, 3.0, 1.0, 0.1, 0.01])
+    U = (rng.standard_normal((400, 5)) * scales) @ np.linalg.qr(rng.standard_normal((5, 5)))[0]
+    _, S, _ = np.linalg.svd(U - U.mean(0), full_matrices=False)
+    for tol in (1.5, 0.02, 1e-5):
+        _, basis, _, discarded = principal_outputs(U, energy_tol=tol)
+        k = basis.shape[0]
+        assert discarded <= tol
+        assert discarded == pytest.approx(np.sum(S[k:] ** 2) / 400)
+        assert np.sum(S[k - 1:] ** 2) / 400 > tol  # one component fewer would not do
+
+
+def test_emulated_likelihood_is_the_gaussian_marginal_over_the_emulator():
+    # y | x ~ N(ubar + Phi^T a_hat, I + Phi^T diag(s^2) Phi) (Kennedy & O'Hagan), with
+    # the likelihood's offset in place of the normalizing constant's -m/2 log(2 pi)
+    rng = np.random.default_rng(2)
+    em = _fixed_emulator(rng)
+    y = rng.standard_normal(6) * 2.0
+    lik = EmulatedLikelihood(em, y, offset=-3.0)
+    a = np.array([c.mean for c in em.components])
+    S = np.diag([c.var for c in em.components])
+    ref = multivariate_normal(em.mean + a @ em.basis, np.eye(6) + em.basis.T @ S @ em.basis)
+    expected = ref.logpdf(y) + 3.0 * np.log(2 * np.pi) - 3.0
+    assert lik.predict(np.zeros((1, 2)))[0] == pytest.approx(expected, rel=1e-12)
+
+
+def test_emulated_likelihood_variance_is_that_of_the_plug_in_quadratic():
+    rng = np.random.default_rng(3)
+    em = _fixed_emulator(rng)
+    y = rng.standard_normal(6)
+    lik = EmulatedLikelihood(em, y)
+    _, var = lik.predict(np.zeros((1, 2)), return_var=True)
+    a = np.array([c.mean for c in em.components])
+    s = np.sqrt([c.var for c in em.components])
+    draws = a + s * rng.standard_normal((400_000, 3))
+    quad = -0.5 * np.sum((lik.c - draws) ** 2, axis=1)
+    # Monte Carlo: 400 000 draws give the variance to about 0.5 % (kurtosis of a quadratic)
+    assert var[0] == pytest.approx(np.var(quad), rel=0.02)
+
+
+def test_emulated_likelihood_never_exceeds_the_bound_of_the_gaussian_likelihood():
+    rng = np.random.default_rng(4)
+    em = _fixed_emulator(rng, a_hat=(50.0, -80.0, 3.0), s2=(1e4, 0.0, 2.0))
+    for y in (em.mean + np.array([50.0, -80.0, 3.0]) @ em.basis, rng.standard_normal(6)):
+        lik = EmulatedLikelihood(em, y, offset=1.7)
+        L = lik.predict(np.zeros((5, 2)))
+        assert np.all(L <= 1.7) and np.all(L <= lik.bound)
+
+
+def _linear_problem(n, seed=0):
+    rng = np.random.default_rng(seed)
+    A = rng.standard_normal((2, 15)) * 40.0
+    bounds = np.array([[-1.0, 1.0], [-2.0, 0.5]])
+    model = lambda X: np.atleast_2d(X) @ A + 3.0  # noqa: E731  outputs in noise units
+    X = bounds[:, 0] + rng.random((n, 2)) * (bounds[:, 1] - bounds[:, 0])
+    return model, bounds, X
+
+
+def test_an_emulator_of_a_linear_model_gives_its_likelihood_to_a_small_fraction_of_a_nat():
+    model, bounds, X = _linear_problem(25)
+    em = fit_output_emulator(X, model(X), bounds, inputs="linear", restarts=1)
+    assert em.n_components == 2  # the outputs span two directions
+    truth = np.array([0.3, -0.7])
+    y = model(truth)[0] + np.random.default_rng(9).standard_normal(15)
+    lik = EmulatedLikelihood(em, y)
+    G = np.random.default_rng(10).uniform(bounds[:, 0], bounds[:, 1], (200, 2))
+    exact = -0.5 * np.sum((y - model(G)) ** 2, axis=1)
+    near = exact > exact.max() - 20.0  # the region a posterior lives in
+    # a GP of a linear function from 25 points: coordinates to ~1e-4 noise sd, so the
+    # likelihood (values of order -1e4 nats over the box) to 0.05 nats where it matters
+    np.testing.assert_allclose(lik.predict(G[near]), exact[near], atol=0.05)
+    np.testing.assert_allclose(lik.plug_in(G), exact, rtol=1e-3, atol=0.05)
+
+
+def test_failed_evaluations_are_left_out_of_the_emulator():
+    model, bounds, X = _linear_problem(20, seed=1)
+    U = model(X)
+    U[3, 4] = np.nan
+    em = fit_output_emulator(X, U, bounds, inputs="linear", restarts=1)
+    assert em.n_train == 19 and em.info["n_failed"] == 1
+    with pytest.raises(ValueError, match="one output row per point"):
+        fit_output_emulator(X[:5], U, bounds)
+    with pytest.raises(ValueError, match="15 outputs"):
+        EmulatedLikelihood(em, np.zeros(3))
