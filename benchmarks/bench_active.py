@@ -888,7 +888,7 @@ def run_emulator(prob: Problem, budget: int, seed: int) -> dict[str, Any]:
         res = run_smc(lik.predict, space, rng=np.random.default_rng([seed, r, 0xE1]),
                       **EMULATOR_ROUND_SMC)
         mom = posterior_moments(res.particles, res.weights)
-        rec: dict[str, Any] = {"round": r, "n_solves": int(len(L)),
+        rec: dict[str, Any] = {"round": r, "n_solves": len(L),
                                "components": em.n_components, "discarded": em.discarded,
                                "log_inputs": em.log_inputs,
                                "mean": mom["mean"].tolist(), "sd": mom["sd"].tolist()}

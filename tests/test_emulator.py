@@ -99,7 +99,7 @@ def _linear_problem(n, seed=0):
     rng = np.random.default_rng(seed)
     A = rng.standard_normal((2, 15)) * 40.0
     bounds = np.array([[-1.0, 1.0], [-2.0, 0.5]])
-    model = lambda X: np.atleast_2d(X) @ A + 3.0  # noqa: E731  outputs in noise units
+    model = lambda X: np.atleast_2d(X) @ A + 3.0
     X = bounds[:, 0] + rng.random((n, 2)) * (bounds[:, 1] - bounds[:, 0])
     return model, bounds, X
 
