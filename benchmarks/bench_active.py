@@ -40,6 +40,13 @@ Methods
   ``--nugget-floor`` set the surrogate of both; ``--trace`` records each round's accuracy (``trace`` in the
   results: Hellinger of that round's surrogate on the grid in 2D, and the moment
   metrics of that round's own SMC, 4000 particles).
+* ``emulator`` (least-squares problems only: ``hetero7d``): the emulator of the model's
+  outputs (``bayescalib.inference.emulator``: principal output directions, one GP per
+  coordinate, the Gaussian likelihood computed from the emulated outputs with the
+  emulator's uncertainty integrated out) in rounds of ``EMULATOR_BATCH`` = 16 posterior
+  draws, each round's draws the previous posterior's importance check; converged when
+  a check confirms it and the posterior moved by at most 0.2 sd (``run_emulator``). Its
+  metrics use its own final SMC (8000 particles), not the common 20 000-particle one.
 * ``pyvbmc``: PyVBMC (``max_fun_evals`` = budget; hard bounds = box, plausible
   bounds = the central 80 % of the box, start at the box centre); 1e5 samples
   of the variational posterior, ``vp.pdf`` on the grid in 2D.
@@ -1292,7 +1299,7 @@ def main(argv: list[str] | None = None) -> int:
             ap.error(f"unknown problem {p!r}; choose from {ALL_PROBLEMS}")
     for m in methods:
         if m not in METHODS:
-            ap.error(f"unknown method {m!r}; choose from {ALL_METHODS}")
+            ap.error(f"unknown method {m!r}; choose from {list(METHODS)}")
     if args.reselect_growth is not None and "active" in methods:
         k = methods.index("active")
         methods[k:k + 1] = [f"active[rg={float(v):g}]" for v in args.reselect_growth.split(",")
