@@ -226,8 +226,6 @@ class EmulatedLikelihood:
         -1/2 |y - u|^2.
     """
 
-    warped = False
-
     def __init__(self, emulator: OutputEmulator, y: Sequence[float] | np.ndarray,
                  offset: float = 0.0) -> None:
         self.emulator = emulator
@@ -241,10 +239,6 @@ class EmulatedLikelihood:
         self.perp = float(max(r @ r - self.c @ self.c, 0.0))
         self.offset = float(offset)
         self.bound = self.offset - 0.5 * self.perp
-
-    @property
-    def dim(self) -> int:
-        return int(self.emulator.components[0].dim)
 
     def predict(self, X: np.ndarray, return_var: bool = False):
         """Log-likelihood at X (M, d): the marginal over the emulator, (M,); with
