@@ -17,7 +17,6 @@ from bayescalib.inference.emulator import (
 class _FixedGP:
     """A stand-in coordinate GP with a given mean and variance at every point."""
 
-
     def __init__(self, mean: float, var: float) -> None:
         self.mean, self.var = mean, var
 
