@@ -859,89 +859,49 @@ EMULATOR_FINAL_SMC = {"n_particles": 8000, "n_rej": 20, "zeta": 0.95}
 
 
 def run_emulator(prob: Problem, budget: int, seed: int) -> dict[str, Any]:
-    """Output emulator (``bayescalib.inference.emulator``) in rounds of posterior draws.
-
-    Round 0: the scrambled Sobol design of a quarter of the budget (as ``active``).
-    Each round fits the emulator of the model's outputs to every evaluation, samples
-    the emulated likelihood's posterior (SMC), and evaluates ``EMULATOR_BATCH``
-    equally weighted draws of it. The next round judges that posterior with the draws
-    (``importance_check``: the real against the emulated log-likelihood at them,
-    default thresholds) and stops, converged, when the check confirms it and the
-    posterior refitted with the draws moved by at most 0.2 sd (sd change at most 0.2);
-    otherwise until the budget is spent. Least-squares problems only (``outputs``)."""
+    """Output emulator in rounds of posterior draws
+    (``bayescalib.inference.emulator.calibrate_outputs``): a Sobol design of a quarter
+    of the budget (as ``active``), then rounds of ``EMULATOR_BATCH`` posterior draws,
+    each the previous posterior's importance check (default thresholds); converged
+    when a check confirms it and the posterior moved by at most 0.2 sd (sd change at
+    most 0.2). Least-squares problems only (``outputs``)."""
     if prob.outputs is None:
         raise NotAvailable("not applicable (needs the model's outputs: a least-squares problem)")
-    from bayescalib.inference.active import posterior_change, posterior_draws, posterior_moments
-    from bayescalib.inference.design import sobol_design
-    from bayescalib.inference.emulator import EmulatedLikelihood, fit_output_emulator
-    from bayescalib.inference.importance import importance_check
-    from bayescalib.inference.smc import run_smc
+    from bayescalib.inference.emulator import calibrate_outputs
 
-    f = Counter(prob.loglik)
-    space = make_space(prob)
+    f = Counter(prob.loglik)  # counts the evaluations (each gives outputs and loglik)
 
-    def evaluate(X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        return np.asarray(prob.outputs(X), float), f(X)  # one model run gives both
+    def outputs(X: np.ndarray) -> np.ndarray:
+        f(X)
+        return prob.outputs(X)
 
-    n0 = max(2 * prob.d + 2, budget // 4)
-    X = sobol_design(prob.bounds, n0, seed)
-    U, L = evaluate(X)
-    history: list[dict[str, Any]] = []
-    prev, pending = None, None
-    converged, reason, r = False, "", 0
-    while True:
-        em = fit_output_emulator(X, U, prob.bounds, seed=seed)
-        lik = EmulatedLikelihood(em, prob.y, offset=prob.B)
-        res = run_smc(lik.predict, space, rng=np.random.default_rng([seed, r, 0xE1]),
-                      **EMULATOR_ROUND_SMC)
-        mom = posterior_moments(res.particles, res.weights)
-        rec: dict[str, Any] = {"round": r, "n_solves": len(L),
-                               "components": em.n_components, "discarded": em.discarded,
-                               "log_inputs": em.log_inputs,
-                               "mean": mom["mean"].tolist(), "sd": mom["sd"].tolist()}
-        if pending is not None:
-            D, mu = pending
-            chk = importance_check(D, L[-len(D):], mu)
-            change = posterior_change(prev, mom)
-            rec.update(check=chk["words"], confirmed=bool(chk["confirmed"]),
-                       log_weight_sd=chk.get("log_weight_sd"), shift_sd=change["shift_sd"],
-                       sd_change=change["sd_change"])
-            converged = bool(chk["confirmed"] and change["shift_sd"] <= 0.2
-                             and change["sd_change"] <= 0.2)
-        history.append(rec)
-        err = np.max(np.abs(mom["mean"] - prob.ref_mean) / prob.ref_sd)
-        print(f"    round {r}: {len(L)} evals, {em.n_components} components, best {f.best:.4g}, "
-              f"mean err {err:.3g} ref sd"
-              + ("" if pending is None else
+    def per_round(rec: dict[str, Any]) -> None:
+        err = np.max(np.abs(np.asarray(rec["mean"]) - prob.ref_mean) / prob.ref_sd)
+        print(f"    round {rec['round']}: {rec['n_solves']} evals, {rec['components']} "
+              f"components, best {f.best:.4g}, mean err {err:.3g} ref sd"
+              + ("" if "check" not in rec else
                  f", check: log-weight sd {rec['log_weight_sd']:.3g}, "
                  f"{'confirmed' if rec['confirmed'] else 'not confirmed'}, moved "
                  f"{rec['shift_sd']:.2g} sd"), flush=True)
-        if converged:
-            reason = (f"converged after round {r} with {len(L)} evaluations: {rec['check']}; "
-                      f"moved {rec['shift_sd']:.2g} sd")
-            break
-        left = budget - len(L)
-        if left < 1:
-            reason = f"NOT converged: the budget of {budget} evaluations is spent after round {r}"
-            break
-        D = posterior_draws(res.particles, res.weights, min(EMULATOR_BATCH, left),
-                            np.random.default_rng([seed, r, 0xD7A]), exclude=X)
-        pending, prev = (D, lik.predict(D)), mom
-        Un, Ln = evaluate(D)
-        X, U, L = np.vstack([X, D]), np.vstack([U, Un]), np.concatenate([L, Ln])
-        r += 1
-    smc = run_smc(lik.predict, space, rng=np.random.default_rng(seed), **EMULATOR_FINAL_SMC)
+
+    space = make_space(prob)
+    n0 = max(2 * prob.d + 2, budget // 4)
+    res = calibrate_outputs(outputs, prob.y, space, offset=prob.B, n_initial=n0,
+                            batch=EMULATOR_BATCH, max_solves=budget, seed=seed,
+                            round_smc=EMULATOR_ROUND_SMC, final_smc=EMULATOR_FINAL_SMC,
+                            callback=per_round)
+    lik, n = res.likelihood, len(res.loglik)
     return {
-        "samples": smc.particles,
-        "weights": smc.weights,
+        "samples": res.smc.particles,
+        "weights": res.smc.weights,
         "grid_logpdf": lambda G: lik.predict(G) + space.logprior(G),
         "grid_kind": "surrogate",
         "n_evals": f.n,
-        "n_rounds": r + 1,
-        "extra": {"converged": converged, "reason": reason, "rounds": history,
-                  "components": em.n_components, "final_smc": EMULATOR_FINAL_SMC},
-        "design": {"X": X, "loglik": L,
-                   "kind": np.asarray(["initial"] * n0 + ["draw"] * (len(L) - n0))},
+        "n_rounds": len(res.rounds),
+        "extra": {"converged": res.converged, "reason": res.reason, "rounds": res.rounds,
+                  "components": lik.emulator.n_components, "final_smc": EMULATOR_FINAL_SMC},
+        "design": {"X": res.X, "loglik": res.loglik,
+                   "kind": np.asarray(["initial"] * n0 + ["draw"] * (n - n0))},
     }
 
 
