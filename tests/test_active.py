@@ -522,3 +522,33 @@ def test_the_check_rounds_points_are_draws_of_the_posterior():
     assert np.all(np.abs(D.std(0) / s - 1) < 0.06), D.std(0)
     assert len(np.unique(D, axis=0)) == 2000
     assert not any(np.all(D == x, axis=1).any() for x in P[:3])
+
+
+def test_a_round_whose_whole_batch_failed_says_so_and_where_to_look():
+    """Every solve after the Sobol design fails (e.g. a wall-clock limit on a loaded
+    machine): the rounds learn nothing, and their reason must say that, not merely that
+    no new solve fell in the posterior region."""
+    mean, cov = np.array([0.4, -0.3]), np.array([[0.09, 0.06], [0.06, 0.16]])
+    space = _space([(-3, 3), (-3, 3)])
+    good = _gaussian_misfit(mean, cov)
+    calls = []
+
+    def failing_after_round_0(X):
+        calls.append(len(X))
+        return good(X) if len(calls) == 1 else np.full(len(X), -np.inf)
+
+    records = []
+    res = calibrate(failing_after_round_0, space, bound=0.0,
+                    active={"n_initial": 16, "batch_size": 8, "max_solves": 32},
+                    surrogate={"restarts": 1}, smc={"n_particles": 500, "zeta": 0.9,
+                                                   "n_rej": 5},
+                    callback=records.append)
+    assert not res.converged
+    assert len(records) >= 2 and len(res.loglik) == 32
+    for rec in records[1:]:
+        n = rec["trust"]["n_batch"]
+        assert rec["trust"]["n_batch_failed"] == n > 0
+        assert f"every one of the {n} solves of the last batch failed" in rec["reason"], \
+            rec["reason"]
+        assert "time_limit_s" in rec["reason"]
+    assert "n_batch_failed" not in (records[0]["trust"] or {})

@@ -481,6 +481,8 @@ def acquire_round(r: int, X: np.ndarray, L: np.ndarray, gp, particles: np.ndarra
                             L[n - q_prev:], best, d, stop_cfg["gp_tol"])
         rec["trust"] = {k: (v.tolist() if isinstance(v, np.ndarray) else v)
                         for k, v in trust.items()}
+        rec["trust"]["n_batch"] = int(q_prev)
+        rec["trust"]["n_batch_failed"] = int((~np.isfinite(L[n - q_prev:])).sum())
         kinds = np.asarray(nxt.get("kind", ["acquired"] * q_prev))
         is_check = kinds == "check"
         err, region = trust["errors"], trust["in_region"]
@@ -689,6 +691,12 @@ def _why_not(rec: Mapping[str, Any], stop_cfg: Mapping[str, Any], check: Mapping
         return "round 0 has no out-of-sample check yet."
     parts = []
     t, c, pc = rec["trust"], rec["change"], rec.get("posterior_check")
+    if t.get("n_batch") and t.get("n_batch_failed") == t["n_batch"]:
+        # nothing was learnt this round: say so first, and where to look
+        parts.append(f"every one of the {t['n_batch']} solves of the last batch failed, so the "
+                     f"surrogate learnt nothing new (their run records give the reasons; a "
+                     f"wall-clock time limit points at the machine's load or at "
+                     f"forward_model.time_limit_s)")
     if pc is not None:
         if not pc["confirmed"]:
             parts.append(f"the posterior of round {pc['round']} was NOT confirmed by real "
