@@ -22,7 +22,13 @@ from bayescalib.measures import (
     euclidean,
     rkhs,
 )
-from bayescalib.measures.currents import current, naive_rkhs_squared, rkhs_squared
+from bayescalib.measures.currents import (
+    current,
+    current_field,
+    field_grid,
+    naive_rkhs_squared,
+    rkhs_squared,
+)
 
 R, DR = 0.4, 0.01
 
@@ -192,6 +198,29 @@ def test_rkhs_matches_naive_double_loop():
     for backend in ("numpy", "torch"):
         blocked = rkhs_squared(x, ax, y, ay, 0.05, backend=backend, chunk=5000)
         np.testing.assert_allclose(blocked, dense, rtol=1e-10)
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_rkhs_distance_is_the_l2_distance_of_the_square_root_smoothed_currents(dim):
+    """The Gaussian kernel is the convolution of Gaussians of half its variance, so D^2 is
+    the squared L2 norm of the difference of the currents smoothed by that half-width
+    Gaussian: on a grid of spacing sigma_W / 2 the trapezoid rule gives it to about
+    exp(-2 pi^2) = 3e-9 relative (tolerance 1e-7: the rule's aliasing error, with
+    margin). The grid values are a residual vector of the RKHS measure."""
+    if dim == 2:
+        a, b, sw = arc(R, 61), arc(R + DR, 45, a0=0.1), 0.4 * R
+    else:
+        a, b, sw = icosphere(R, 1), icosphere(R + DR, 1), 0.8 * R
+    c1, a1 = current(a, sw, math.inf)
+    c2, a2 = current(b, sw, math.inf)
+    s11, s12, s22 = rkhs_squared(c1, a1, c2, a2, sw, backend="numpy", truncate=None)
+    both = np.vstack([c1, c2])
+    grid, weight = field_grid(both.min(axis=0), both.max(axis=0), sw)
+    residual = (current_field(c1, a1, sw, grid) - current_field(c2, a2, sw, grid)) * math.sqrt(weight)
+    assert np.sum(residual**2) == pytest.approx(s11 - 2 * s12 + s22, rel=1e-7)
+    # and each inner product alone: <a1, a1> as the square of one smoothed current
+    self1 = np.sum(current_field(c1, a1, sw, grid) ** 2) * weight
+    assert self1 == pytest.approx(s11, rel=1e-7)
 
 
 def test_rkhs_numpy_and_torch_agree():
