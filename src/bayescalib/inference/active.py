@@ -414,7 +414,7 @@ def _round_seed(seed: int, r: int) -> np.random.Generator:
 def acquire_round(r: int, X: np.ndarray, L: np.ndarray, gp, particles: np.ndarray,
                   weights: np.ndarray, log_evidence: float, space, active: Mapping[str, Any],
                   previous: Mapping[str, Any] | None,
-                  check: Mapping[str, Any]) -> dict[str, Any]:
+                  check: Mapping[str, Any], acquisition: str = "select") -> dict[str, Any]:
     """Everything decided at the end of round ``r``: checks, stop rule, next batch.
 
     Parameters
@@ -438,6 +438,15 @@ def acquire_round(r: int, X: np.ndarray, L: np.ndarray, gp, particles: np.ndarra
         The validated ``posterior_check`` section: ``draws`` (the size of a check
         round) and the thresholds of
         :func:`~bayescalib.inference.importance.importance_check`.
+    acquisition
+        ``select``: batches chosen by :func:`select_batch`, check rounds once the
+        posterior has settled (the module docstring). ``draws``: every batch is a check
+        round of ``posterior_check.draws`` draws (``design.active.batch_size`` when that
+        is 0), cut to the budget left: the rounds of the output emulator
+        (:func:`bayescalib.inference.emulator.calibrate_outputs`), whose surrogate has no
+        variance-driven acquisition and whose best design points are where the posterior
+        lives. Converged when a round's draws confirm the posterior that drew them and
+        the posterior refitted with them is settled.
 
     Returns
     -------
@@ -501,7 +510,10 @@ def acquire_round(r: int, X: np.ndarray, L: np.ndarray, gp, particles: np.ndarra
     rec["settled"] = bool(settled)
     rec["trusted"] = bool(rec["trust"] is not None and rec["trust"]["passed"])
     pc = rec["posterior_check"]
-    n_draws = int(check["draws"])
+    if acquisition not in ("select", "draws"):
+        raise ValueError(f"acquisition must be 'select' or 'draws', got {acquisition!r}")
+    draws_only = acquisition == "draws"
+    n_draws = int(check["draws"]) or (int(active["batch_size"]) if draws_only else 0)
     patience = int(stop_cfg["patience"])
     # without check rounds (draws: 0) the pointwise trust check stands in for the
     # posterior check, as in the stop rule before it: a round counts when settled and
@@ -518,8 +530,12 @@ def acquire_round(r: int, X: np.ndarray, L: np.ndarray, gp, particles: np.ndarra
         rec["converged"] = bool(pc["confirmed"] and settled)
     else:  # without a posterior check (draws: 0): settled and trusted, patience rounds
         rec["converged"] = n_draws == 0 and streak >= patience
-    can_check = 0 < n_draws <= budget_left
-    check_next = can_check and (streak >= patience or budget_left - n_draws < 1)
+    if draws_only:  # every round checks; the last one with the solves left
+        n_draws = min(n_draws, budget_left)
+        can_check = check_next = n_draws >= 2
+    else:
+        can_check = 0 < n_draws <= budget_left
+        check_next = can_check and (streak >= patience or budget_left - n_draws < 1)
     if rec["converged"]:
         rec["stop"] = True
         if pc is not None:
@@ -539,7 +555,7 @@ def acquire_round(r: int, X: np.ndarray, L: np.ndarray, gp, particles: np.ndarra
                 f"solves in the posterior region within {stop_cfg['gp_tol']:g} nats (max "
                 f"error {rec['trust']['max_abs_error']:.3g}); NOT checked with real solves of "
                 f"its draws (posterior_check.draws: 0)")
-    elif budget_left <= 0:
+    elif budget_left <= 0 or (draws_only and not check_next):
         rec["stop"] = True
         rec["reason"] = (
             f"NOT converged: the budget design.active.max_solves = {active['max_solves']} is "
@@ -548,7 +564,11 @@ def acquire_round(r: int, X: np.ndarray, L: np.ndarray, gp, particles: np.ndarra
             "design.active.max_solves to go on (finished solves are kept).")
     else:
         rec["stop"] = False
-        if check_next:
+        if check_next and draws_only:
+            rec["reason"] = (f"continue: {n_draws} draws of this posterior are solved next, "
+                             f"its posterior check and the next design points. "
+                             + _why_not(rec, stop_cfg, check, budget_left))
+        elif check_next:
             why = (f"the posterior settled for {streak} round(s) in a row"
                    if streak >= patience else
                    f"{budget_left} solves are left, the last for the posterior check")
@@ -678,7 +698,12 @@ def _loglik_var_scale(gp, g: np.ndarray) -> np.ndarray:
 
 def _predict_loglik(gp, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The surrogate's log-likelihood mean and sd at X (M,), as :func:`select_batch`
-    reports them for its picks."""
+    reports them for its picks (an output emulator's
+    :class:`~bayescalib.inference.emulator.EmulatedLikelihood`: its marginal
+    log-likelihood and the sd of the plug-in one)."""
+    if not hasattr(gp, "predict_latent"):
+        mean, var = gp.predict(X, return_var=True)
+        return np.asarray(mean, float), np.sqrt(np.maximum(var, 0.0))
     g, var_g = gp.predict_latent(X, return_var=True)
     return gp.loglik_from_latent(g), np.sqrt(_loglik_var_scale(gp, g) * np.maximum(var_g, 0.0))
 

@@ -68,7 +68,7 @@ from typing import Any
 import numpy as np
 
 __all__ = ["EmulatedCalibration", "EmulatedLikelihood", "OutputEmulator", "calibrate_outputs",
-           "fit_output_emulator", "principal_outputs"]
+           "fit_output_emulator", "load_surrogate", "principal_outputs"]
 
 
 def principal_outputs(U: np.ndarray, *, energy_tol: float = 1e-2,
@@ -266,6 +266,103 @@ class EmulatedLikelihood:
         uncertainty), (M,): the likelihood of the emulated model itself."""
         a, _ = self.emulator.predict(X)
         return self.bound - 0.5 * np.sum((self.c - a) ** 2, axis=1)
+
+    # ------------------------------------------- the surrogate interface of the stages
+    @property
+    def n_train(self) -> int:
+        return int(self.emulator.n_train)
+
+    @property
+    def n_excluded(self) -> int:
+        """Training rows left out (failed solves: outputs not finite)."""
+        return int(self.emulator.info.get("n_failed", 0))
+
+    @property
+    def threads(self) -> int:
+        comps = self.emulator.components
+        return int(comps[0].threads) if comps else 1
+
+    @threads.setter
+    def threads(self, value: int) -> None:
+        """Threads of every coordinate GP's chunked prediction (the same chunks, so
+        the values are those of one thread)."""
+        for gp in self.emulator.components:
+            gp.threads = max(1, int(value))
+
+    @property
+    def hyperparameters(self) -> dict[str, Any]:
+        """What was fitted, JSON-serializable: the number of principal outputs, the
+        discarded energy, the inputs' scale and each coordinate GP's hyperparameters."""
+        em = self.emulator
+        return {"output": "outputs", "n_outputs": int(em.mean.shape[0]),
+                "components": em.n_components, "discarded": float(em.discarded),
+                "log_inputs": bool(em.log_inputs), "offset": self.offset,
+                "bound": self.bound,
+                "coordinates": [gp.hyperparameters for gp in em.components]}
+
+    def save(self, path) -> None:
+        """Write the emulator and the data to HDF5 atomically (kind ``emulator`` of
+        :mod:`bayescalib.io.header`): ``/mean (m,)``, ``/basis (k, m)``, ``/y (m,)``,
+        one group ``/coordinates/<j>`` per coordinate GP
+        (:meth:`~bayescalib.inference.surrogate.GPSurrogate.write_group`), attributes
+        ``offset``, ``discarded``, ``n_train``, ``n_failed``, ``log_inputs``."""
+        import h5py
+
+        from bayescalib.io._atomic_write import atomic_path
+        from bayescalib.io.header import write_header
+
+        em = self.emulator
+        with atomic_path(path, suffix=".h5") as tmp, h5py.File(tmp, "w") as f:
+            write_header(f, "emulator")
+            f["mean"] = em.mean
+            f["basis"] = em.basis
+            f["y"] = self.y
+            f.attrs["offset"] = self.offset
+            f.attrs["discarded"] = float(em.discarded)
+            f.attrs["n_train"] = int(em.n_train)
+            f.attrs["n_failed"] = int(em.info.get("n_failed", 0))
+            f.attrs["log_inputs"] = bool(em.log_inputs)
+            g = f.create_group("coordinates")
+            for j, gp in enumerate(em.components):
+                gp.write_group(g.create_group(str(j)))
+
+    @classmethod
+    def load(cls, path, device: str = "cpu") -> EmulatedLikelihood:
+        """Read a file written by :meth:`save`; predictions are reproduced exactly."""
+        import h5py
+
+        from bayescalib.inference.surrogate import GPSurrogate
+        from bayescalib.io.header import check_header
+
+        with h5py.File(path, "r") as f:
+            check_header(f, "emulator", path)
+            g = f["coordinates"]
+            comps = [GPSurrogate.read_group(g[str(j)], device=device) for j in range(len(g))]
+            em = OutputEmulator(mean=f["mean"][()], basis=f["basis"][()], components=comps,
+                                discarded=float(f.attrs["discarded"]),
+                                n_train=int(f.attrs["n_train"]),
+                                log_inputs=bool(f.attrs["log_inputs"]),
+                                info={"n_failed": int(f.attrs["n_failed"])})
+            return cls(em, f["y"][()], offset=float(f.attrs["offset"]))
+
+
+def load_surrogate(path, device: str = "auto"):
+    """The surrogate a ``train_surrogate`` job wrote, whatever its kind: a
+    :class:`~bayescalib.inference.surrogate.GPSurrogate` of the log-likelihood
+    (``surrogate.target: loglik``) or an :class:`EmulatedLikelihood`
+    (``surrogate.target: outputs``). Both give ``predict(X)`` and
+    ``predict(X, return_var=True)`` of the log-likelihood."""
+    import h5py
+
+    from bayescalib.inference.surrogate import GPSurrogate
+    from bayescalib.io.header import FORMATS
+
+    with h5py.File(path, "r") as f:
+        kind = f.attrs.get("format")
+    kind = kind.decode() if isinstance(kind, bytes) else kind
+    if kind == FORMATS["emulator"][0]:
+        return EmulatedLikelihood.load(path, device=device)
+    return GPSurrogate.load(path, device=device)
 
 
 @dataclass

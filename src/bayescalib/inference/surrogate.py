@@ -758,36 +758,42 @@ class GPSurrogate:
 
         with atomic_path(path, suffix=".h5") as tmp, h5py.File(tmp, "w") as f:
             write_header(f, "surrogate")
-            f.attrs["kernel"] = KERNELS[self.kernel][1]
-            f.create_dataset("X_train", data=self.X_train)
-            f.create_dataset("y_train", data=self.y_train)
-            f.create_dataset("input_shift", data=self.shift)
-            f.create_dataset("input_scale", data=self.scale)
-            f.create_dataset("lengthscale", data=self.lengthscale)
-            f.create_dataset("chol", data=self.chol, compression="gzip")
-            f.create_dataset("alpha", data=self.alpha)
-            for k in ("mean_const", "nugget", "variance", "log_marginal_likelihood"):
-                f.attrs[k] = float(getattr(self, k))
-            f.attrs["ard"] = bool(self.ard)
-            f.attrs["n_excluded"] = int(self.n_excluded)
-            f.attrs["optimizer"] = self.optimizer
-            f.attrs["restarts"] = int(self.restarts)
-            f.attrs["bound"] = float("nan") if self.bound is None else float(self.bound)
-            f.attrs["warp"] = bool(self.warp)
-            if self.rotation is not None:
-                f.create_dataset("input_rotation", data=self.rotation)
-            if self.log_offset is not None:
-                f.create_dataset("input_log_offset", data=self.log_offset)
-            f.attrs["mean_function"] = self.mean_function
-            if self.mean_function == "quadratic":
-                f.create_dataset("mean_center", data=self.mean_center)
-                f.create_dataset("mean_factor", data=self.mean_factor)
-                f.attrs["mean_misfit_min"] = float(self.mean_misfit_min)
-                f.attrs["mean_top"] = float(self.mean_top)
-            # added within format version 3 (readers ignore unknown attributes)
-            f.attrs["selection"] = self.selection
-            f.attrs["selection_n"] = int(self.selection_n)
-            f.attrs["nugget_mode"] = "fit" if self.nugget_fitted else "fixed"
+            self.write_group(f)
+
+    def write_group(self, f) -> None:
+        """Write the surrogate's data into the open h5py file or group ``f`` (the layout
+        of :meth:`save`, without the file header: an emulator stores one per output
+        coordinate, :mod:`bayescalib.inference.emulator`)."""
+        f.attrs["kernel"] = KERNELS[self.kernel][1]
+        f.create_dataset("X_train", data=self.X_train)
+        f.create_dataset("y_train", data=self.y_train)
+        f.create_dataset("input_shift", data=self.shift)
+        f.create_dataset("input_scale", data=self.scale)
+        f.create_dataset("lengthscale", data=self.lengthscale)
+        f.create_dataset("chol", data=self.chol, compression="gzip")
+        f.create_dataset("alpha", data=self.alpha)
+        for k in ("mean_const", "nugget", "variance", "log_marginal_likelihood"):
+            f.attrs[k] = float(getattr(self, k))
+        f.attrs["ard"] = bool(self.ard)
+        f.attrs["n_excluded"] = int(self.n_excluded)
+        f.attrs["optimizer"] = self.optimizer
+        f.attrs["restarts"] = int(self.restarts)
+        f.attrs["bound"] = float("nan") if self.bound is None else float(self.bound)
+        f.attrs["warp"] = bool(self.warp)
+        if self.rotation is not None:
+            f.create_dataset("input_rotation", data=self.rotation)
+        if self.log_offset is not None:
+            f.create_dataset("input_log_offset", data=self.log_offset)
+        f.attrs["mean_function"] = self.mean_function
+        if self.mean_function == "quadratic":
+            f.create_dataset("mean_center", data=self.mean_center)
+            f.create_dataset("mean_factor", data=self.mean_factor)
+            f.attrs["mean_misfit_min"] = float(self.mean_misfit_min)
+            f.attrs["mean_top"] = float(self.mean_top)
+        # added within format version 3 (readers ignore unknown attributes)
+        f.attrs["selection"] = self.selection
+        f.attrs["selection_n"] = int(self.selection_n)
+        f.attrs["nugget_mode"] = "fit" if self.nugget_fitted else "fixed"
 
     @classmethod
     def load(cls, path: str | Path, device: str = "auto") -> GPSurrogate:
@@ -796,40 +802,45 @@ class GPSurrogate:
 
         with h5py.File(path, "r") as f:
             check_header(f, "surrogate", path)
-            return cls(
-                X_train=f["X_train"][()],
-                y_train=f["y_train"][()],
-                shift=f["input_shift"][()],
-                scale=f["input_scale"][()],
-                mean_const=float(f.attrs["mean_const"]),
-                nugget=float(f.attrs["nugget"]),
-                variance=float(f.attrs["variance"]),
-                lengthscale=f["lengthscale"][()],
-                ard=bool(f.attrs["ard"]),
-                n_excluded=int(f.attrs["n_excluded"]),
-                log_marginal_likelihood=float(f.attrs["log_marginal_likelihood"]),
-                optimizer=str(f.attrs["optimizer"]),
-                restarts=int(f.attrs["restarts"]),
-                chol=f["chol"][()],
-                alpha=f["alpha"][()],
-                device=device,
-                bound=_bound_attr(f.attrs.get("bound")),
-                warp=bool(f.attrs.get("warp", False)),
-                kernel=_kernel_name(str(f.attrs.get("kernel", "Matern32"))),
-                rotation=f["input_rotation"][()] if "input_rotation" in f else None,
-                log_offset=f["input_log_offset"][()] if "input_log_offset" in f else None,
-                # format version 2 (before the quadratic mean): a constant mean
-                mean_function=_plain_str(f.attrs.get("mean_function", "constant")),
-                mean_center=f["mean_center"][()] if "mean_center" in f else None,
-                mean_factor=f["mean_factor"][()] if "mean_factor" in f else None,
-                mean_misfit_min=float(f.attrs.get("mean_misfit_min", float("nan"))),
-                mean_top=float(f.attrs.get("mean_top", float("nan"))),
-                # files written before the selection was recorded: a full search, n unknown
-                selection=_plain_str(f.attrs.get("selection", _SEARCH)),
-                selection_n=int(f.attrs.get("selection_n", -1)),
-                # files written before the fitted nugget: the fixed rule
-                nugget_fitted=_plain_str(f.attrs.get("nugget_mode", "fixed")) == "fit",
-            )
+            return cls.read_group(f, device=device)
+
+    @classmethod
+    def read_group(cls, f, device: str = "auto") -> GPSurrogate:
+        """Read a surrogate from the open h5py file or group ``f`` (:meth:`write_group`)."""
+        return cls(
+            X_train=f["X_train"][()],
+            y_train=f["y_train"][()],
+            shift=f["input_shift"][()],
+            scale=f["input_scale"][()],
+            mean_const=float(f.attrs["mean_const"]),
+            nugget=float(f.attrs["nugget"]),
+            variance=float(f.attrs["variance"]),
+            lengthscale=f["lengthscale"][()],
+            ard=bool(f.attrs["ard"]),
+            n_excluded=int(f.attrs["n_excluded"]),
+            log_marginal_likelihood=float(f.attrs["log_marginal_likelihood"]),
+            optimizer=str(f.attrs["optimizer"]),
+            restarts=int(f.attrs["restarts"]),
+            chol=f["chol"][()],
+            alpha=f["alpha"][()],
+            device=device,
+            bound=_bound_attr(f.attrs.get("bound")),
+            warp=bool(f.attrs.get("warp", False)),
+            kernel=_kernel_name(str(f.attrs.get("kernel", "Matern32"))),
+            rotation=f["input_rotation"][()] if "input_rotation" in f else None,
+            log_offset=f["input_log_offset"][()] if "input_log_offset" in f else None,
+            # format version 2 (before the quadratic mean): a constant mean
+            mean_function=_plain_str(f.attrs.get("mean_function", "constant")),
+            mean_center=f["mean_center"][()] if "mean_center" in f else None,
+            mean_factor=f["mean_factor"][()] if "mean_factor" in f else None,
+            mean_misfit_min=float(f.attrs.get("mean_misfit_min", float("nan"))),
+            mean_top=float(f.attrs.get("mean_top", float("nan"))),
+            # files written before the selection was recorded: a full search, n unknown
+            selection=_plain_str(f.attrs.get("selection", _SEARCH)),
+            selection_n=int(f.attrs.get("selection_n", -1)),
+            # files written before the fitted nugget: the fixed rule
+            nugget_fitted=_plain_str(f.attrs.get("nugget_mode", "fixed")) == "fit",
+        )
 
     def loo_residuals(self) -> np.ndarray:
         """Leave-one-out residuals y_i - mean_{-i}(x_i) = alpha_i / [(K + s_n^2 I)^{-1}]_ii, (n,).

@@ -1,8 +1,9 @@
 """The header of every HDF5 file the pipeline writes: what the file is and which
 version of its layout it holds.
 
-Five stage outputs are HDF5 files: run records (``runs/<i>.h5``), the observation
-set, training tables, GP surrogates and SMC particles. Each carries two root
+Six stage outputs are HDF5 files: run records (``runs/<i>.h5``), the observation
+set, training tables, GP surrogates (or output emulators, ``surrogate.target:
+outputs``) and SMC particles. Each carries two root
 attributes, ``format`` (the kind, e.g. ``bayescalib.TrainingTable``) and
 ``format_version`` (an integer raised whenever the layout changes). A reader
 checks both before it reads anything, so a file of another kind, or one written
@@ -31,6 +32,7 @@ FORMATS: dict[str, tuple[str, int, str]] = {
     "training": ("bayescalib.TrainingTable", 1, "training table"),
     "surrogate": ("bayescalib.GPSurrogate", 3, "GP surrogate file"),
     "particles": ("bayescalib.SMCParticles", 1, "particle file"),
+    "emulator": ("bayescalib.EmulatedLikelihood", 1, "output emulator file"),
 }
 
 #: kinds whose files had no header before it was introduced (read as version 1)

@@ -4,7 +4,7 @@ the ``gather`` stage, the input of ``train_surrogate``, ``smc`` and ``acquire``)
 Layout (kind ``training`` of :mod:`bayescalib.io.header`)::
 
     /X (n, d)  /loglik (n,)  /D (n,)  /status (n,) int8  /is_train (n,) int8
-    /bound (n,)  /reason (n,) str
+    /bound (n,)  /reason (n,) str  /residuals (n, m)
     attrs: format, format_version, names (JSON list), n_train, n_failed
 """
 
@@ -29,12 +29,15 @@ log = logging.getLogger(__name__)
 def write_training(out_path: str | Path, X: np.ndarray, L: np.ndarray, D: np.ndarray,
                    ok: np.ndarray, reasons: Sequence[str], names: Sequence[str],
                    n_train: int, *, bound: np.ndarray | None = None,
-                   n_measurements: np.ndarray | None = None) -> None:
+                   n_measurements: np.ndarray | None = None,
+                   residuals: np.ndarray | None = None) -> None:
     """Write a training table atomically: the design points ``X`` (n, d), their
     log-likelihoods ``L``, discrepancies ``D``, success flags ``ok`` and failure
     ``reasons`` (n,), the parameter ``names``, the number of training rows ``n_train``
     (the rest are held-out test points), each row's likelihood ``bound`` and its
-    number of measurements ``n_measurements`` (NaN where unknown)."""
+    number of measurements ``n_measurements`` (NaN where unknown), and its residual
+    vector in noise units ``residuals`` (n, m) (a row of NaN for a failed solve; m = 0:
+    none), whose half squared norm is the misfit: ``loglik = bound - |r|^2 / 2``."""
     import h5py
 
     n = len(L)
@@ -48,6 +51,8 @@ def write_training(out_path: str | Path, X: np.ndarray, L: np.ndarray, D: np.nda
         f["bound"] = np.full(n, np.nan) if bound is None else np.asarray(bound, dtype=float)
         f["n_measurements"] = np.full(n, np.nan) if n_measurements is None else \
             np.asarray(n_measurements, dtype=float)
+        R = np.zeros((n, 0)) if residuals is None else np.asarray(residuals, dtype=float)
+        f["residuals"] = R if R.ndim == 2 else R.reshape(n, -1 if R.size else 0)
         f.create_dataset("reason", data=np.array(list(reasons), dtype=object),
                          dtype=h5py.string_dtype())
         f.attrs["names"] = json.dumps(list(names))
@@ -66,6 +71,9 @@ def read_training(path: str | Path) -> dict[str, Any]:
         out = {k: f[k][...] for k in ("X", "loglik", "D", "status", "is_train")}
         for key in ("bound", "n_measurements"):  # absent from tables of earlier runs
             out[key] = f[key][...] if key in f else np.full(len(out["loglik"]), np.nan)
+        # absent from tables of earlier runs: no residual vectors (m = 0)
+        out["residuals"] = f["residuals"][...] if "residuals" in f else \
+            np.zeros((len(out["loglik"]), 0))
         out["reason"] = [r.decode() if isinstance(r, bytes) else str(r) for r in f["reason"][...]]
         out["names"] = json.loads(f.attrs["names"])
         out["n_train"] = int(f.attrs["n_train"])

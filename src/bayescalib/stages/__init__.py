@@ -394,7 +394,8 @@ def gather_rows(run_paths: Sequence[str | Path], disc_paths: Sequence[str | Path
     Returns ``X (n, d)`` (columns in the order of ``targets``), ``loglik (n,)``
     (-inf for failed runs), ``D (n,)``, ``status (n,)`` (1 ok, 0 failed),
     ``bound (n,)`` (:func:`record_bound`, NaN for failed runs), ``n_measurements``
-    (n,) (summed over snapshots, NaN for failed runs) and ``reason`` (n strings).
+    (n,) (summed over snapshots, NaN for failed runs), ``residuals`` (n, m)
+    (:func:`record_residuals`; rows of NaN for failed runs) and ``reason`` (n strings).
     """
     if len(run_paths) != len(disc_paths):
         raise PipelineError("gather: the number of run records and discrepancy files differ")
@@ -406,6 +407,7 @@ def gather_rows(run_paths: Sequence[str | Path], disc_paths: Sequence[str | Path
     bound = np.full(n, np.nan)
     n_meas = np.full(n, np.nan)
     reasons: list[str] = []
+    res_rows: dict[int, np.ndarray] = {}
     for i, (rp, dp) in enumerate(zip(run_paths, disc_paths, strict=True)):
         run = _read_run_checked(rp)
         missing = [t for t in targets if t not in run.parameters]
@@ -421,9 +423,47 @@ def gather_rows(run_paths: Sequence[str | Path], disc_paths: Sequence[str | Path
             ok[i] = 1
             bound[i] = record_bound(rec)
             n_meas[i] = sum(float(s_["n"]) for s_ in rec.get("snapshots") or []) or math.nan
+            r_i = record_residuals(rec)
+            if r_i is not None:
+                res_rows[i] = r_i
         reasons.append(run.reason or rec.get("reason") or "")
     return {"X": X, "loglik": L, "D": D, "status": ok, "bound": bound,
-            "n_measurements": n_meas, "reason": reasons}
+            "n_measurements": n_meas, "reason": reasons,
+            "residuals": _residual_matrix(res_rows, n, disc_paths)}
+
+
+def record_residuals(rec: Mapping[str, Any]) -> np.ndarray | None:
+    """The residual vector of a discrepancy record in noise units, (m,): the distance
+    vectors of its snapshots, concatenated, over sigma_N. Its half squared norm is the
+    misfit, ``loglik = bound - |r|^2 / 2`` (eq:loglik with D^2 = |d|^2 summed over
+    snapshots); for the RKHS measure, whose distance vector is [D], it is D / sigma_N.
+    None for a failed run or a record without distance vectors."""
+    snaps = rec.get("snapshots") or []
+    if rec.get("loglik") is None or not rec.get("sigma_n2") or not snaps \
+            or any("distances" not in s_ for s_ in snaps):
+        return None
+    d = np.concatenate([np.atleast_1d(np.asarray(s_["distances"], float)) for s_ in snaps])
+    return d / math.sqrt(float(rec["sigma_n2"]))
+
+
+def _residual_matrix(rows: Mapping[int, np.ndarray], n: int,
+                     disc_paths: Sequence[str | Path]) -> np.ndarray:
+    """(n, m) residual matrix, NaN rows where a record has none; m = 0 when none has."""
+    widths = {len(v) for v in rows.values()}
+    if len(widths) > 1:
+        by_width: dict[int, int] = {}
+        for i, v in rows.items():
+            by_width.setdefault(len(v), i)
+        seen = ", ".join(f"{w} in '{disc_paths[i]}'" for w, i in sorted(by_width.items()))
+        raise PipelineError(
+            f"the discrepancy records' distance vectors differ in length ({seen}): the "
+            "model interfaces of these solves have different numbers of nodes (another mesh) "
+            "or the measure's points changed. Rerun the discrepancy jobs of one setup.")
+    m = widths.pop() if widths else 0
+    R = np.full((n, m), np.nan)
+    for i, v in rows.items():
+        R[i] = v
+    return R
 
 
 def gather(run_paths: Sequence[str | Path], disc_paths: Sequence[str | Path],
@@ -436,13 +476,15 @@ def gather(run_paths: Sequence[str | Path], disc_paths: Sequence[str | Path],
     failed), ``is_train`` (first ``n_train`` points; the rest are held out for
     the convergence study; ``n_train=None``: all), ``reason`` (str per point),
     ``bound (n,)``: the largest value the point's Gaussian log-likelihood can take,
-    -n/2 log(2 pi sigma_N^2) summed over snapshots (NaN for failed runs).
+    -n/2 log(2 pi sigma_N^2) summed over snapshots (NaN for failed runs),
+    ``residuals (n, m)``: each point's residual vector in noise units
+    (:func:`record_residuals`), what an output emulator is trained on.
     """
     rows = gather_rows(run_paths, disc_paths, targets)
     n = len(rows["loglik"])
     write_training(out_path, rows["X"], rows["loglik"], rows["D"], rows["status"],
                    rows["reason"], names, n if n_train is None else n_train, bound=rows["bound"],
-                   n_measurements=rows["n_measurements"])
+                   n_measurements=rows["n_measurements"], residuals=rows["residuals"])
 
 
 def record_bound(rec: Mapping[str, Any]) -> float:
@@ -584,6 +626,9 @@ def train_surrogate(training_path: str | Path, surrogate: Mapping[str, Any],
     _check_distinct(X, finite, tab["names"])
     space = _space(parameters)
     bound = loglik_bound(tab, train_mask)
+    if surrogate["target"] == "outputs":
+        _train_emulator(tab, train_mask, surrogate, space, bound, training_path, out_path)
+        return
     try:
         prev = None if previous is None else GPSurrogate.load(previous, device="cpu")
         gp = fit_round(X, L, dict(surrogate), space.bounds, bound=bound, previous=prev)
@@ -603,6 +648,45 @@ def train_surrogate(training_path: str | Path, surrogate: Mapping[str, Any],
     gp.save(out_path)
     log.info("GP surrogate on %d points (%d excluded): %s", gp.n_train, gp.n_excluded,
              gp.hyperparameters)
+
+
+def _train_emulator(tab: Mapping[str, Any], use: np.ndarray, surrogate: Mapping[str, Any],
+                    space, bound: float | None, training_path: str | Path,
+                    out_path: str | Path) -> None:
+    """``surrogate.target: outputs``: the emulator of the residual vectors and the
+    likelihood computed from it (:mod:`bayescalib.inference.emulator`)."""
+    from bayescalib.inference.emulator import EmulatedLikelihood, fit_output_emulator
+
+    R = np.asarray(tab["residuals"], float)[use]
+    if R.shape[1] == 0:
+        raise PipelineError(
+            f"surrogate.target is 'outputs' but the training table '{training_path}' holds no "
+            "residual vectors (it was gathered before they were recorded): delete it and "
+            "the discrepancy records of this measure, then rerun (the solves are kept)")
+    if bound is None:
+        raise PipelineError(
+            f"surrogate.target is 'outputs' but the training table '{training_path}' records "
+            "no likelihood bound: gather it again")
+    opts = surrogate["outputs"]
+    try:
+        em = fit_output_emulator(tab["X"][use], R, space.bounds,
+                                 energy_tol=opts["energy_tol"],
+                                 max_components=opts["max_components"], kernel=opts["kernel"],
+                                 restarts=surrogate["restarts"], seed=surrogate["seed"],
+                                 inputs=surrogate["inputs"], nugget_floor=opts["nugget_floor"])
+    except (RuntimeError, ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:
+        raise PipelineError(
+            f"the output emulator cannot be fitted to the {int(np.isfinite(R).all(1).sum())} "
+            f"residual vectors of '{training_path}' ({R.shape[1]} outputs): "
+            f"{type(exc).__name__}: {exc}. Try more surrogate.restarts (now "
+            f"{surrogate['restarts']}) or a larger surrogate.outputs.nugget_floor (now "
+            f"{opts['nugget_floor']:g}).") from None
+    lik = EmulatedLikelihood(em, np.zeros(R.shape[1]), offset=bound)
+    lik.save(out_path)
+    log.info("output emulator on %d points (%d excluded): %d of %d outputs' principal "
+             "directions, discarded %.3g (noise units^2 per point), log inputs %s",
+             lik.n_train, lik.n_excluded, em.n_components, R.shape[1], em.discarded,
+             em.log_inputs)
 
 
 def _full_search(surrogate_path: str | Path) -> bool:
@@ -684,13 +768,13 @@ def smc(surrogate_path: str | Path, smc_cfg: Mapping[str, Any],
     holds the same content, those particles are copied instead of sampled again
     (:func:`_reuse`; their history's ``time_s`` is the earlier run's).
     """
+    from bayescalib.inference.emulator import load_surrogate
     from bayescalib.inference.posterior import write_particles_h5
     from bayescalib.inference.smc import smc_from_config
-    from bayescalib.inference.surrogate import GPSurrogate
 
     if _reuse(surrogate_path, reuse, out_path, "smc"):
         return
-    gp = _read_checked(surrogate_path, GPSurrogate.load, "GP surrogate")
+    gp = _read_checked(surrogate_path, load_surrogate, "surrogate")
     gp.threads = max(1, int(threads))
     space = _space(parameters)
 
@@ -706,18 +790,19 @@ def acquire(round_index: int, training_path: str | Path, surrogate_path: str | P
     """Active design, end of round ``round_index``: trust check, posterior change,
     stop rule and the next batch (:func:`bayescalib.inference.active.acquire_round`), as JSON."""
     from bayescalib.inference.active import acquire_round
+    from bayescalib.inference.emulator import EmulatedLikelihood, load_surrogate
     from bayescalib.inference.posterior import read_particles_h5
-    from bayescalib.inference.surrogate import GPSurrogate
 
     tab = _read_checked(training_path, read_training, "training table")
-    gp = _read_checked(surrogate_path, GPSurrogate.load, "GP surrogate")
+    gp = _read_checked(surrogate_path, load_surrogate, "surrogate")
     res = _read_checked(particles_path, read_particles_h5, "SMC particle file")
     previous = None if previous_path is None else \
         _read_checked(previous_path, read_json, "active round record")
     try:
         rec = acquire_round(int(round_index), tab["X"], tab["loglik"], gp, res.particles,
                             res.weights, res.log_evidence, _space(parameters), active, previous,
-                            check)
+                            check,
+                            acquisition="draws" if isinstance(gp, EmulatedLikelihood) else "select")
     except ValueError as exc:
         raise PipelineError(f"active round {round_index}: {exc}. Delete results/<study>/active "
                             "and the runs of the active rounds, then rerun.") from None
@@ -731,10 +816,10 @@ def marginalize(particles_path: str | Path, surrogate_path: str | Path,
                 posterior_cfg: Mapping[str, Any], parameters: Sequence[Mapping[str, Any]],
                 seed: int, out_json: str | Path, out_netcdf: str | Path) -> dict[str, Any]:
     """Posterior summaries (JSON) and the ArviZ NetCDF export."""
+    from bayescalib.inference.emulator import load_surrogate
     from bayescalib.inference.posterior import read_particles_h5, summarize, write_netcdf
-    from bayescalib.inference.surrogate import GPSurrogate
 
-    gp = _read_checked(surrogate_path, GPSurrogate.load, "GP surrogate")
+    gp = _read_checked(surrogate_path, load_surrogate, "surrogate")
     space = _space(parameters)
     result = _read_checked(particles_path, read_particles_h5, "SMC particle file")
     summary = summarize(result, space, loglik=lambda X: gp.predict(X),
@@ -843,8 +928,8 @@ def posterior_check(sample_runs: Sequence[str | Path], obs_path: str | Path, mea
     posteriors. Writes ``out_path`` (JSON: the check's numbers keyed by parameter name,
     in the user's units) and returns it.
     """
+    from bayescalib.inference.emulator import load_surrogate
     from bayescalib.inference.importance import importance_check
-    from bayescalib.inference.surrogate import GPSurrogate
 
     names = [p["name"] for p in parameters]
     targets = [p.get("target") or p["name"] for p in parameters]
@@ -856,7 +941,7 @@ def posterior_check(sample_runs: Sequence[str | Path], obs_path: str | Path, mea
         X.append([float(rec["parameters"][t]) for t in targets])
         L.append(-math.inf if rec.get("loglik") is None else float(rec["loglik"]))
     X_arr, L_arr = np.asarray(X, float).reshape(-1, len(names)), np.asarray(L, float)
-    gp = _read_checked(surrogate_path, GPSurrogate.load, "surrogate")
+    gp = _read_checked(surrogate_path, load_surrogate, "surrogate")
     mu = gp.predict(X_arr)
     res = importance_check(X_arr, L_arr, mu, min_ess_fraction=check["min_ess_fraction"],
                            shift_tol=check["shift_tol"], sd_tol=check["sd_tol"],

@@ -57,7 +57,7 @@ def training_rows(training: str | Path) -> dict[str, Any]:
 
     tab = read_training(training)
     use = tab["is_train"].astype(bool)
-    return {**{k: tab[k][use] for k in _ROW_KEYS},
+    return {**{k: tab[k][use] for k in _ROW_KEYS}, "residuals": tab["residuals"][use],
             "reason": [r for r, u in zip(tab["reason"], use, strict=True) if u]}
 
 
@@ -66,6 +66,13 @@ def _stack(a: Mapping[str, Any], b: Mapping[str, Any]) -> dict[str, Any]:
     out["X"] = np.vstack([np.asarray(a["X"], float).reshape(-1, np.shape(b["X"])[1]),
                           np.asarray(b["X"], float)])
     out["reason"] = list(a["reason"]) + list(b["reason"])
+    # residual vectors: rows without any (m = 0, e.g. reused rows of an older table) are
+    # NaN in the other's width
+    Ra, Rb = (np.asarray(x.get("residuals", np.zeros((len(x["loglik"]), 0))), float)
+              .reshape(len(x["loglik"]), -1 if len(x["loglik"]) else 0) for x in (a, b))
+    m = max(Ra.shape[1], Rb.shape[1])
+    out["residuals"] = np.vstack([R if R.shape[1] == m else np.full((len(R), m), np.nan)
+                                  for R in (Ra, Rb)])
     return out
 
 
@@ -143,7 +150,8 @@ def calibrate_rounds(
     names = [p["name"] for p in parameters]
     d = len(names)
     base = dict(reused) if reused is not None else {
-        **{k: np.zeros(0) for k in _ROW_KEYS}, "X": np.zeros((0, d)), "reason": []}
+        **{k: np.zeros(0) for k in _ROW_KEYS}, "X": np.zeros((0, d)), "reason": [],
+        "residuals": np.zeros((0, 0))}
     n_reused = len(base["loglik"])
     run_paths: list[Path] = []
     disc_paths: list[Path] = []
@@ -171,7 +179,7 @@ def calibrate_rounds(
         training = rd / "training.h5"
         write_training(training, rows["X"], rows["loglik"], rows["D"], rows["status"],
                        rows["reason"], names, len(rows["loglik"]), bound=rows["bound"],
-                       n_measurements=rows["n_measurements"])
+                       n_measurements=rows["n_measurements"], residuals=rows["residuals"])
         train_surrogate(training, surrogate, parameters, rd / "surrogate.h5",
                         previous=None if r == 0 else work / "active" / str(r - 1) / "surrogate.h5")
         smc(rd / "surrogate.h5", round_smc(smc_cfg, active), parameters, rd / "particles.h5")

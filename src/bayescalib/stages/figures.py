@@ -63,12 +63,12 @@ def response_figures(training_path: str | Path, surrogate_path: str | Path,
                      parameters: Sequence[Mapping[str, Any]], plots: Mapping[str, Any],
                      stem: str | Path) -> list[str]:
     """Response surfaces of the GP log-likelihood over two inputs."""
-    from bayescalib.inference.surrogate import GPSurrogate
+    from bayescalib.inference.emulator import load_surrogate
     from bayescalib.plotting import plot_response_surface
 
     space = _space(parameters)
     tab = read_training(training_path)
-    gp = GPSurrogate.load(surrogate_path)
+    gp = load_surrogate(surrogate_path)
     d = space.dim
     if d < 2:
         raise ValueError("response surfaces need at least two inputs")
