@@ -552,3 +552,37 @@ def test_a_round_whose_whole_batch_failed_says_so_and_where_to_look():
             rec["reason"]
         assert "time_limit_s" in rec["reason"]
     assert "n_batch_failed" not in (records[0]["trust"] or {})
+
+
+def test_draws_acquisition_checks_every_round_and_cuts_the_last_to_the_budget():
+    """acquisition 'draws' (the output emulator's rounds): every batch is a check round
+    of posterior_check.draws draws (batch_size when that is 0), from round 0 on, without
+    waiting for the posterior to settle; the last batch takes the solves left, and with
+    fewer than 2 left (no check possible) the run stops NOT converged. A round whose
+    draws confirm the posterior that drew them, which then stays settled, converges."""
+    space, ll, X, gp = _fitted()
+    W = np.full(len(X), 1.0 / len(X))
+    post = (X, W, 0.0, space)
+
+    def rnd(r, Xr, prev, check, **act):
+        return acquire_round(r, Xr, ll(Xr), gp, *post, _active(**act), prev, check,
+                             acquisition="draws")
+
+    rec0 = rnd(0, X, None, _check(draws=6), n_initial=16, batch_size=4, max_solves=40)
+    assert rec0["next"]["kind"] == ["posterior_check"] * 6
+    assert "draws of this posterior are solved next" in rec0["reason"]
+    rec0b = rnd(0, X, None, _check(draws=0), n_initial=16, batch_size=4, max_solves=40)
+    assert rec0b["next"]["kind"] == ["posterior_check"] * 4
+    cut = rnd(0, X, None, _check(draws=6), n_initial=16, batch_size=4, max_solves=19)
+    assert len(cut["next"]["points"]) == 3
+    spent = rnd(0, X, None, _check(draws=6), n_initial=16, batch_size=4, max_solves=17)
+    assert spent["stop"] and not spent["converged"] and "NOT converged" in spent["reason"]
+    # the surrogate is exact where the draws fall (the same particles each round): the
+    # check confirms, the posterior did not move, and the run converges in round 1
+    X1 = np.vstack([X, rec0["next"]["points"]])
+    rec1 = rnd(1, X1, rec0, _check(draws=6), n_initial=16, batch_size=4, max_solves=40)
+    assert rec1["posterior_check"]["round"] == 0 and rec1["posterior_check"]["confirmed"]
+    assert rec1["converged"] and rec1["stop"], rec1["reason"]
+    assert "confirmed by 6 real solves of its draws" in rec1["reason"]
+    with pytest.raises(ValueError, match="acquisition"):
+        acquire_round(0, X, ll(X), gp, *post, _active(), None, _check(), acquisition="ucb")

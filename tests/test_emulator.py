@@ -132,6 +132,39 @@ def test_failed_evaluations_are_left_out_of_the_emulator():
         EmulatedLikelihood(em, np.zeros(3))
 
 
+def test_an_emulator_file_reproduces_its_likelihood_and_is_told_from_a_gp_file(tmp_path):
+    """The file a train_surrogate job writes (kind 'emulator') reads back to the same
+    predictions, bit for bit, and :func:`load_surrogate` tells it from a GP file; the
+    stages' interface (n_train, n_excluded, threads, hyperparameters) is kept."""
+    from bayescalib.inference.emulator import load_surrogate
+    from bayescalib.inference.surrogate import GPSurrogate, fit_gp
+
+    model, bounds, X = _linear_problem(20, seed=2)
+    U = model(X)
+    U[5] = np.nan
+    em = fit_output_emulator(X, U, bounds, inputs="linear", restarts=1)
+    lik = EmulatedLikelihood(em, model(np.array([0.1, -0.4]))[0] + 0.5, offset=-7.0)
+    lik.save(tmp_path / "e.h5")
+    back = load_surrogate(tmp_path / "e.h5", device="cpu")
+    assert isinstance(back, EmulatedLikelihood)
+    G = np.random.default_rng(3).uniform(bounds[:, 0], bounds[:, 1], (50, 2))
+    for a, b in zip(lik.predict(G, return_var=True), back.predict(G, return_var=True),
+                    strict=True):
+        np.testing.assert_array_equal(a, b)
+    assert (back.n_train, back.n_excluded) == (19, 1)
+    back.threads = 2
+    assert back.threads == 2 and all(gp.threads == 2 for gp in back.emulator.components)
+    np.testing.assert_array_equal(back.predict(G), lik.predict(G))
+    hp = back.hyperparameters
+    assert hp["output"] == "outputs" and hp["components"] == em.n_components
+    assert hp["bound"] <= -7.0
+    gp = fit_gp(X[:10], -np.sum(X[:10] ** 2, axis=1), restarts=1, bounds=bounds)
+    gp.save(tmp_path / "g.h5")
+    assert isinstance(load_surrogate(tmp_path / "g.h5", device="cpu"), GPSurrogate)
+    with pytest.raises(ValueError, match="not a bayescalib GP surrogate"):
+        GPSurrogate.load(tmp_path / "e.h5")
+
+
 def _linear_gaussian_study():
     """A 2-D linear least-squares problem whose posterior is Gaussian in closed form
     (flat prior, posterior far inside the box)."""
