@@ -13,6 +13,7 @@ its draws within 60 solves (their posterior was right; the check refused it on 8
 
 from __future__ import annotations
 
+import itertools
 import json
 from pathlib import Path
 
@@ -69,7 +70,7 @@ def test_every_round_solves_draws_of_the_posterior_and_checks_it(emulator_run):
     the verdict rests on the importance check of those draws."""
     rounds = _rounds(emulator_run)
     assert len(rounds) >= 2
-    for prev, rec in zip(rounds, rounds[1:], strict=False):
+    for prev, rec in itertools.pairwise(rounds):
         assert set(prev["next"]["kind"]) == {"posterior_check"}
         assert len(prev["next"]["points"]) == 8
         assert rec["posterior_check"] is not None
