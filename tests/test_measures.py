@@ -223,6 +223,33 @@ def test_rkhs_distance_is_the_l2_distance_of_the_square_root_smoothed_currents(d
     assert self1 == pytest.approx(s11, rel=1e-7)
 
 
+def test_the_rkhs_field_residual_has_norm_d_and_one_length_for_every_model():
+    """residual: field (what the output emulator learns). A model 2 sigma_W from the
+    observed arc lies in the band (8 sigma_W): the grid part holds D^2 to the trapezoid
+    rule's error at spacing 0.75 sigma_W (about 3e-4 relative; tolerance 1e-3) and the
+    last entry is (nearly) 0. A model 10 sigma_W away lies partly outside: the last entry
+    carries the rest, so |r| = D all the same (tolerance 1e-3). Every model gets a
+    vector of the same length (the grid is the observed arc's), and the likelihood's D
+    is the scalar measure's, bit for bit."""
+    obs = arc(R, 81)
+    lengths = set()
+    for offset, inside in ((2 * SW, True), (10 * SW, False)):
+        model = arc(R + offset, 57, a0=0.05)
+        scalar = rkhs(obs=obs, model=model, sigma_w=SW)
+        field = rkhs(obs=obs, model=model, sigma_w=SW, residual="field")
+        assert field.D == scalar.D and field.n == 1
+        r = field.distances
+        lengths.add(r.size)
+        assert np.linalg.norm(r) == pytest.approx(field.D, rel=1e-3)
+        if inside:
+            assert r[-1] < 0.03 * field.D
+        else:
+            assert r[-1] > 0.3 * field.D
+    assert len(lengths) == 1
+    with pytest.raises(MeasureOptionError, match="residual"):
+        rkhs(obs, obs, SW, residual="grid")
+
+
 def test_rkhs_numpy_and_torch_agree():
     a, b = arc(R, 61), arc(R + DR, 400)
     dn = rkhs(a, b, SW, backend="numpy").D

@@ -217,6 +217,9 @@ class Study:
             notes.append(f"{where}: forward_model.warm_start: '{fm['warm_start']}' is a setting of "
                          f"the fsi model; ignored for the {kind} model")
             fm["warm_start"] = "none"
+        rk = cfg["measure"]["rkhs"]
+        if rk["residual"] == "auto":  # the distance vector the output emulator learns
+            rk["residual"] = "field" if cfg["surrogate"]["target"] == "outputs" else "scalar"
         conv = cfg["convergence"]
         if conv["enabled"] and cfg["design"]["strategy"] != "fixed":
             raise ConfigError(

@@ -294,6 +294,9 @@ def rkhs(
     truncate: float | None = None,
     threads: int | None = None,
     max_pairs: float | None = None,
+    residual: str = "scalar",
+    field_band: float = 8.0,
+    field_spacing: float = 0.75,
 ) -> MeasureResult:
     """RKHS surface-current norm (eq:inner_prod_rkhs, eq:surfcurrontriang).
 
@@ -321,12 +324,24 @@ def rkhs(
         Most kernel pairs to evaluate (None: :data:`bayescalib.measures.currents.DEFAULT_MAX_PAIRS`);
         above it the measure is refused before any work.
 
+    residual : {"scalar", "field"}
+        The distance vector: ``[D]``, or the smoothed currents' difference on a band
+        of grid nodes around the observed interface
+        (:func:`bayescalib.measures.currents.field_residual`), whose norm is D; the
+        residual an emulator of the model's outputs learns (``surrogate.target:
+        outputs``). D and the likelihood are the same either way.
+    field_band, field_spacing : float
+        The band's half-width and the grid spacing, in units of sigma_w.
+
     Returns
     -------
     MeasureResult
-        ``distances = [D]``, ``D``, ``n = 1``.
+        ``distances`` (``[D]`` or the field residual), ``D``, ``n = 1``.
     """
     from bayescalib.measures import currents as _rk
+
+    if residual not in ("scalar", "field"):
+        raise MeasureOptionError(f"residual must be 'scalar' or 'field', got {residual!r}")
 
     _check_pair(model, obs)
     if not (isinstance(sigma_w, (int, float)) and np.isfinite(sigma_w) and sigma_w > 0):
@@ -347,6 +362,10 @@ def rkhs(
         )
     except ValueError as exc:
         raise MeasureOptionError(str(exc)) from None
+    if residual == "field":
+        r = _rk.field_residual(model, obs, float(sigma_w), D, spacing=spacing,
+                               band=float(field_band), field_spacing=float(field_spacing))
+        return MeasureResult(distances=r, D=D, n=1)
     return MeasureResult(distances=np.array([D]), D=D, n=1)
 
 
@@ -363,7 +382,7 @@ MEASURES: dict[str, tuple[Any, frozenset[str]]] = {
     "rkhs": (
         rkhs,
         frozenset({"sigma_w", "spacing", "device", "chunk", "backend", "dtype", "truncate", "threads",
-                   "max_pairs"}),
+                   "max_pairs", "residual", "field_band", "field_spacing"}),
     ),
 }
 
