@@ -260,3 +260,17 @@ def test_the_run_lock_holder_is_seen_without_taking_the_lock(tmp_path):
         proc.wait()
     time.sleep(0.1)
     assert run_lock_holder(tmp_path) is None  # released by the kernel with the process
+
+
+def test_the_rkhs_residual_follows_the_surrogate_target_unless_given():
+    """measure.rkhs.residual auto: the field residual where the output emulator learns
+    it (surrogate.target outputs), the scalar [D] otherwise; a given value stays."""
+    def residual(layer):
+        return Study(merge_layers([DEFAULT, layer])).config["measure"]["rkhs"]["residual"]
+
+    assert residual({}) == "scalar"
+    assert residual({"surrogate": {"target": "outputs"}}) == "field"
+    assert residual({"surrogate": {"target": "outputs"},
+                     "measure": {"rkhs": {"residual": "scalar"}}}) == "scalar"
+    with pytest.raises(ConfigError, match="field_band"):
+        Study(merge_layers([DEFAULT, {"measure": {"rkhs": {"field_band": 3}}}]))
