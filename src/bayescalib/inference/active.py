@@ -500,7 +500,7 @@ def acquire_round(r: int, X: np.ndarray, L: np.ndarray, gp, particles: np.ndarra
             float(np.max(err[is_check & region])) if np.any(is_check & region) else None)
         if np.all(kinds == "posterior_check"):
             rec["posterior_check"] = round_check(nxt, L[n - q_prev:], check, space.names,
-                                                 r - 1)
+                                                 r - 1, posterior=previous["posterior"])
         prev_post = {k: np.asarray(v, float) for k, v in previous["posterior"].items()
                      if k in ("mean", "sd", "cov")}
         rec["change"] = posterior_change(prev_post, moments)
@@ -642,19 +642,25 @@ def posterior_draws(particles: np.ndarray, weights: np.ndarray, n: int,
 
 
 def round_check(batch: Mapping[str, Any], L: np.ndarray, check: Mapping[str, Any],
-                names: Sequence[str], checked_round: int) -> dict[str, Any]:
+                names: Sequence[str], checked_round: int,
+                posterior: Mapping[str, Any] | None = None) -> dict[str, Any]:
     """:func:`~bayescalib.inference.importance.importance_check` of a check round: the
     real log-likelihoods ``L`` (q,) of the draws ``batch["points"]`` against the
-    surrogate's ``batch["mean"]`` recorded when they were drawn. The per-parameter lists
-    are keyed by name; ``round`` is the round whose posterior was checked."""
+    surrogate's ``batch["mean"]`` recorded when they were drawn; ``posterior`` (the
+    checked round's record, ``mean`` and ``sd``): the draws must represent it. The
+    per-parameter lists are keyed by name; ``round`` is the round whose posterior was
+    checked."""
     from bayescalib.inference.importance import importance_check
 
     res = importance_check(np.asarray(batch["points"], float), np.asarray(L, float),
                            np.asarray(batch["mean"], float),
                            min_ess_fraction=check["min_ess_fraction"],
                            shift_tol=check["shift_tol"], sd_tol=check["sd_tol"],
-                           max_log_weight_sd=check["max_log_weight_sd"])
-    for key in ("mean_q", "sd_q", "mean_is", "sd_is", "shift_sd", "shift_se", "sd_ratio"):
+                           max_log_weight_sd=check["max_log_weight_sd"],
+                           posterior_mean=None if posterior is None else posterior["mean"],
+                           posterior_sd=None if posterior is None else posterior["sd"])
+    for key in ("mean_q", "sd_q", "mean_is", "sd_is", "shift_sd", "shift_se", "sd_ratio",
+                "draws_shift_sd", "draws_sd_ratio"):
         if key in res:
             res[key] = dict(zip(names, res[key], strict=True))
     return {"round": int(checked_round), **res}
