@@ -27,10 +27,14 @@ to a constant) and checked; coordinates are in units of pi's (main lobe's) sd. C
 
 For each cell (case, d, S; ``--reps`` seeded replicates) the table gives the medians of
 the log-weight sd, the ESS fraction, S times the largest normalized weight (``S wmax``)
-and k (``-``: not estimated), and the rate of refusal by the k test alone and by the
+and k from PSIS's tail (``-``: not estimated; k90 its 90th percentile), and the rate of refusal by the k test alone and by the
 whole check (sd_tol 0.2, the other criteria at their defaults) under the rules:
 
-* ``now``: k >= 0.7 refuses (k estimated from S >= 50: tail M >= 10);
+* ``psis``: k >= 0.7 refuses, k fitted to PSIS's tail M = ceil(min(S/5, 3 sqrt S))
+  (``importance_check`` before issue 17), estimated from S >= 50 draws; every other rule
+  but ``adopted`` and ``M ..`` judges this k;
+* ``adopted``: k >= 0.7 refuses, k as ``importance_check`` now estimates it, from the
+  longer tail M = ceil(min(0.3 S, 3 sqrt S)) (the same as PSIS's from S = 225 on);
 * ``psis-S``: k >= min(1 - 1/log10(S), 0.7) (Vehtari et al. 2024, eq. 13: the sample-size
   dependent threshold of PSIS, 0.41 at S = 50, 0.45 at 64, 0.53 at 128, 0.58 at 256);
 * ``wmax c``: k judged (against 0.7) only when S max_s W_s >= c (W normalized weights;
@@ -130,19 +134,20 @@ def draw(spec: dict, d: int, S: int, rng: np.random.Generator, rep: int
     return X, L, mu
 
 
-def tail_size(S: int) -> int:
-    """PSIS's tail size M = ceil(min(S/5, 3 sqrt S))."""
+def psis_tail_size(S: int) -> int:
+    """PSIS's tail size M = ceil(min(S/5, 3 sqrt S)) (``pareto_k``'s before issue 17)."""
     return math.ceil(min(S / 5.0, 3.0 * math.sqrt(S)))
 
 
 def k_longer_tail(lw: np.ndarray, frac: float, cap: bool = True) -> float:
     """k as ``pareto_k`` estimates it, from a tail of M = ceil(min(frac S, 3 sqrt S))
-    weights (``cap``) or ceil(frac S); judged from the same S >= 50 as now (-inf below)."""
-    from bayescalib.inference.importance import MIN_TAIL, _gpd_shape
+    weights (``cap``) or ceil(frac S); judged from S >= 50 only (-inf below). frac = 0.2:
+    PSIS's tail, ``pareto_k`` before issue 17."""
+    from bayescalib.inference.importance import MIN_DRAWS, MIN_TAIL, _gpd_shape
 
     lw = np.sort(np.asarray(lw, float))
     S = lw.size
-    if tail_size(S) < MIN_TAIL:
+    if S < MIN_DRAWS:
         return -math.inf
     M = math.ceil(min(frac * S, 3.0 * math.sqrt(S)) if cap else frac * S)
     w = np.exp(lw - lw[-1])
@@ -154,19 +159,20 @@ def k_longer_tail(lw: np.ndarray, frac: float, cap: bool = True) -> float:
     return float((n * _gpd_shape(ex) + 10 * 0.5) / (n + 10))
 
 
-#: rules: each maps c = {k, S, lsd, ws, k30, k30u, k40} to "refused by the k test"
+#: rules: each maps c = {k (PSIS's tail), S, lsd, ws, k30 (importance_check's), k30u,
+#: k40} to "refused by the k test"
 RULES: dict[str, object] = {
-    "now": lambda c: c["k"] >= K_REL,
+    "psis": lambda c: c["k"] >= K_REL,
     "psis-S": lambda c: c["k"] >= min(1.0 - 1.0 / math.log10(c["S"]), K_REL),
     "wmax 2": lambda c: c["ws"] >= 2.0 and c["k"] >= K_REL,
     "wmax 3": lambda c: c["ws"] >= 3.0 and c["k"] >= K_REL,
     "lsd 0.3": lambda c: c["lsd"] >= 0.3 and c["k"] >= K_REL,
     "lsd 0.5": lambda c: c["lsd"] >= 0.5 and c["k"] >= K_REL,
-    "tail 20": lambda c: tail_size(c["S"]) >= 20 and c["k"] >= K_REL,
-    "tail 26": lambda c: tail_size(c["S"]) >= 26 and c["k"] >= K_REL,
+    "tail 20": lambda c: psis_tail_size(c["S"]) >= 20 and c["k"] >= K_REL,
+    "tail 26": lambda c: psis_tail_size(c["S"]) >= 26 and c["k"] >= K_REL,
     "k 0.9": lambda c: c["k"] >= 0.9,
     "k 1.0": lambda c: c["k"] >= 1.0,
-    "M 0.3S<=3rtS": lambda c: c["k30"] >= K_REL,
+    "adopted": lambda c: c["k30"] >= K_REL,
     "M 0.4S<=3rtS": lambda c: c["k40"] >= K_REL,
     "M 0.3S": lambda c: c["k30u"] >= K_REL,
     "never": lambda c: False,
@@ -196,8 +202,8 @@ def run_cell(spec: dict, d: int, S: int, reps: int, seed: int = 0) -> dict:
                                   <= 0.2 + 2 * np.asarray(res["shift_se"])))
                   and bool(np.all((ratio <= 1 + SD_TOL) & (ratio >= 1 / (1 + SD_TOL))))
                   and res["log_weight_sd"] <= 1.0)
-        c = {"k": kk, "S": S, "lsd": res["log_weight_sd"], "ws": ws,
-             "k30": k_longer_tail(lw, 0.3), "k40": k_longer_tail(lw, 0.4),
+        c = {"k": k_longer_tail(lw, 0.2), "S": S, "lsd": res["log_weight_sd"], "ws": ws,
+             "k30": kk, "k40": k_longer_tail(lw, 0.4),
              "k30u": k_longer_tail(lw, 0.3, cap=False)}
         for name, rule in RULES.items():
             bad = bool(rule(c))
@@ -206,7 +212,7 @@ def run_cell(spec: dict, d: int, S: int, reps: int, seed: int = 0) -> dict:
         lsds.append(res["log_weight_sd"])
         esss.append(res["ess_fraction"])
         wss.append(ws)
-        ks.append(kk)
+        ks.append(c["k"])
     return {"k": {n: v / reps for n, v in ref_k.items()},
             "all": {n: v / reps for n, v in ref_all.items()},
             "lsd": float(np.median(lsds)), "ess": float(np.median(esss)),
@@ -219,34 +225,35 @@ def tail_table(eps: float = 0.2, S: int = 64, reps: int = 1000) -> None:
     (pi ∝ q exp(-eps h), q = N(0, 1), by quadrature) has a mass beyond 3 sd that is some
     multiple of q's; the k test's refusal rate at S draws (``reps`` replicates, reps / 50
     a function), grouped by that multiple."""
-    from bayescalib.inference.importance import pareto_k
-
     x = np.linspace(-12.0, 12.0, 24_001)
     q = np.exp(-0.5 * x**2)
     q /= q.sum()
     far = np.abs(x) > 3.0
     print(f"\n1-D, error {eps:g} nats, {S} draws: the k test's refusals by how much more "
           f"mass than q pi has beyond 3 sd ({reps} replicates over 50 functions)\n")
-    print("| error | pi / q mass beyond 3 sd | functions | k refusals |")
-    print("|---|---|---|---|")
+    print("| error | pi / q mass beyond 3 sd | functions | k refusals: psis | adopted |")
+    print("|---|---|---|---|---|")
     for kind, fun in (("smooth", _smooth), ("bounded", _bounded)):
         ratio = np.empty(50)
         for j in range(50):
             p = q * np.exp(-eps * fun(1, j)(x[:, None]))
             ratio[j] = (p[far].sum() / p.sum()) / q[far].sum()
         hits = np.zeros(50)
+        hits30 = np.zeros(50)
         n = np.zeros(50)
         for r in range(reps):
             rng = np.random.default_rng([2, S, r])
             _X, L, mu = draw({"case": "right", "kind": kind, "eps": eps}, 1, S, rng, r)
-            k = pareto_k(L - mu)
-            hits[r % 50] += k is not None and k >= K_REL
+            hits[r % 50] += k_longer_tail(L - mu, 0.2) >= K_REL
+            hits30[r % 50] += k_longer_tail(L - mu, 0.3) >= K_REL
             n[r % 50] += 1
         for lo, hi in ((0.0, 1.5), (1.5, 3.0), (3.0, math.inf)):
             sel = (ratio >= lo) & (ratio < hi)
             if sel.any():
                 rate = hits[sel].sum() / n[sel].sum()
-                print(f"| {kind} | {lo:g}-{hi:g} | {int(sel.sum())} | {100 * rate:.0f} % |")
+                rate30 = hits30[sel].sum() / n[sel].sum()
+                print(f"| {kind} | {lo:g}-{hi:g} | {int(sel.sum())} | {100 * rate:.0f} % | "
+                      f"{100 * rate30:.0f} % |")
 
 
 def _fmt_k(v: float) -> str:
