@@ -44,8 +44,8 @@ whole check (sd_tol 0.2, the other criteria at their defaults) under the rules:
 * ``tail m``: k judged only when the tail M = ceil(min(S/5, 3 sqrt S)) has >= m weights
   (a larger ``MIN_TAIL``: m = 20 judges from S = 100, m = 26 from S = 128);
 * ``k t``: a higher threshold, k >= t refuses (t = 0.9, 1.0);
-* ``M f S<=3rtS`` / ``M f S``: k estimated (still from S >= 50 only) from a longer tail,
-  M = ceil(min(f S, 3 sqrt S)) or ceil(f S) weights (PSIS: f = 0.2), against 0.7;
+* ``M f S<=c rtS`` / ``M f S``: k estimated (still from S >= 50 only) from a longer tail,
+  M = ceil(min(f S, c sqrt S)) or ceil(f S) weights (PSIS: f = 0.2, c = 3), against 0.7;
 * ``never``: k not judged (the other criteria alone).
 
 Run::
@@ -139,17 +139,17 @@ def psis_tail_size(S: int) -> int:
     return math.ceil(min(S / 5.0, 3.0 * math.sqrt(S)))
 
 
-def k_longer_tail(lw: np.ndarray, frac: float, cap: bool = True) -> float:
-    """k as ``pareto_k`` estimates it, from a tail of M = ceil(min(frac S, 3 sqrt S))
-    weights (``cap``) or ceil(frac S); judged from S >= 50 only (-inf below). frac = 0.2:
-    PSIS's tail, ``pareto_k`` before issue 17."""
+def k_longer_tail(lw: np.ndarray, frac: float, cap: float | None = 3.0) -> float:
+    """k as ``pareto_k`` estimates it, from a tail of M = ceil(min(frac S, cap sqrt S))
+    weights (ceil(frac S) if ``cap`` is None); judged from S >= 50 only (-inf below).
+    frac = 0.2, cap = 3: PSIS's tail, ``pareto_k`` before issue 17."""
     from bayescalib.inference.importance import MIN_DRAWS, MIN_TAIL, _gpd_shape
 
     lw = np.sort(np.asarray(lw, float))
     S = lw.size
     if S < MIN_DRAWS:
         return -math.inf
-    M = math.ceil(min(frac * S, 3.0 * math.sqrt(S)) if cap else frac * S)
+    M = math.ceil(frac * S if cap is None else min(frac * S, cap * math.sqrt(S)))
     w = np.exp(lw - lw[-1])
     ex = w[S - M:] - w[S - M - 1]
     ex = ex[ex > 0]
@@ -160,7 +160,7 @@ def k_longer_tail(lw: np.ndarray, frac: float, cap: bool = True) -> float:
 
 
 #: rules: each maps c = {k (PSIS's tail), S, lsd, ws, k30 (importance_check's), k30u,
-#: k40} to "refused by the k test"
+#: k305, k40} to "refused by the k test"
 RULES: dict[str, object] = {
     "psis": lambda c: c["k"] >= K_REL,
     "psis-S": lambda c: c["k"] >= min(1.0 - 1.0 / math.log10(c["S"]), K_REL),
@@ -175,6 +175,7 @@ RULES: dict[str, object] = {
     "adopted": lambda c: c["k30"] >= K_REL,
     "M 0.4S<=3rtS": lambda c: c["k40"] >= K_REL,
     "M 0.3S": lambda c: c["k30u"] >= K_REL,
+    "M 0.3S<=5rtS": lambda c: c["k305"] >= K_REL,
     "never": lambda c: False,
 }
 
@@ -204,7 +205,7 @@ def run_cell(spec: dict, d: int, S: int, reps: int, seed: int = 0) -> dict:
                   and res["log_weight_sd"] <= 1.0)
         c = {"k": k_longer_tail(lw, 0.2), "S": S, "lsd": res["log_weight_sd"], "ws": ws,
              "k30": kk, "k40": k_longer_tail(lw, 0.4),
-             "k30u": k_longer_tail(lw, 0.3, cap=False)}
+             "k30u": k_longer_tail(lw, 0.3, cap=None), "k305": k_longer_tail(lw, 0.3, cap=5.0)}
         for name, rule in RULES.items():
             bad = bool(rule(c))
             ref_k[name] += bad

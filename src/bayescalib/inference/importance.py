@@ -22,29 +22,33 @@ are all that is needed to judge q against pi where q puts its mass:
   repairs it. The generalized Pareto fit is the empirical-Bayes estimate of Zhang and
   Stephens (2009, Technometrics 51), shrunk towards 0.5 by a prior worth 10
   observations as in PSIS, to the M = ceil(min(0.3 S, 3 sqrt(S))) largest weights:
-  PSIS's own large-sample tail 3 sqrt(S) (the same M from S = 225 on), with its
-  small-sample cap 0.2 S relaxed to 0.3 S. The shape of a tail of 13 weights (PSIS at
-  64 draws) is too noisy to judge on: its sampling sd is about (1 + k) / sqrt(13) ~ 0.3,
-  and being scale-free it reads any rise of the largest weights, however small, as a
-  tail. benchmarks/bench_pareto_k.py (500 seeded replicates a cell; docs/bench_active.md,
-  "The Pareto-k test at 50-256 draws") measured at 64 draws, PSIS's tail -> this one:
-  right 1-D posteriors refused by k 9 -> 5 % (a bounded smooth surrogate error of 0.2
-  nats; true k < 0), 17 -> 5 % (the sd-ratio study's smooth error, 0.2 nats), 1-3 ->
-  0-1 % (noise errors 0.1-0.6 nats, d = 1 and 7); a missed lobe (20 % of the mass 4 sd
-  away) refused 91 -> 98 %, at 3 sd 74 -> 89 %, a Student-t3 posterior under a Gaussian
-  q of its scale 88 -> 96 %; a q half as wide in one direction: k alone 35 -> 36 %, the
-  whole check 98 % either way. A longer tail still (0.4 S) lost some t3 detection (91
-  -> 79 % at 50 draws); PSIS's sample-size threshold min(1 - 1 / log10(S), 0.7) (0.45
-  at 64 draws) doubled the false refusals (7-D noise, 0.4 nats: 2 -> 12 %), and not
-  judging k when the weights are nearly equal (largest normalized weight below 2 / S,
-  log-weight sd below 0.3 nats) or below 100-128 draws gave the missed lobe away
-  (91 -> 45, 11 and 16 %: a lobe just beyond the draws leaves the weights *more* nearly
-  equal than a right posterior's small error does). With fewer than 50 draws k is not
-  estimated (as before: at 32 draws, 7-10 weights would be fitted, and the smoke study
-  saw k 0.92 on weights with a sd of 0.11 nats), and the check's words say so. From
-  256 draws on M is PSIS's, and so are its refusals: 1-D right posteriors with a smooth
-  error are refused by k in 10-34 % there, partly for real: that error model gives pi
-  up to several times q's mass beyond 3 sd (the benchmark's last table);
+  PSIS's large-sample tail 3 sqrt(S) (the same M as PSIS's from S = 225 on), with its
+  small-sample cap 0.2 S relaxed to 0.3 S (20 weights at 64 draws instead of 13). A
+  shape fitted to 13 weights has a sampling sd of about (1 + k) / sqrt(13) ~ 0.3, and,
+  being scale-free, it reads any rise of the largest weights, however small, as a tail.
+  Measured (benchmarks/bench_pareto_k.py, 500 seeded replicates a cell; docs/
+  bench_active.md, "The Pareto-k test at 50-256 draws"), at 64 draws, PSIS's tail ->
+  this one, refused by k: right posteriors (q = pi, the surrogate off by 0.1-0.6 nats)
+  in 1-D with a bounded smooth error (true k < 0) 9-11 -> 4-9 %, with the sd-ratio
+  study's smooth error 16-23 -> 4-11 %, with noise, and in 7-D, 0-4 -> 0-1 %; a missed
+  lobe (20 % of pi's mass 4 sd from q's) 90-91 -> 98 %, at 3 sd 74-75 -> 88-89 %; a
+  Student-t3 pi under a Gaussian q of its scale 88-89 -> 94-96 %; a q half as wide in
+  one direction 34-35 -> 36 % (the whole check: 97-98 % either way). The candidates
+  not taken: PSIS's sample-size threshold min(1 - 1/log10(S), 0.7) (0.45 at 64 draws)
+  refuses up to 7 times as many right posteriors (7-D, noise 0.4 nats: 2 -> 12 %; 1-D,
+  smooth error 0.2 nats: 17 -> 35 %); not
+  judging k where the weights are nearly equal (largest normalized weight below 2 / S,
+  or log-weight sd below 0.3 nats) or below 100 draws gives the missed lobe away
+  (90-91 -> 44-45, 11-12 and 0 %, the whole check 16-19 %: a lobe just beyond the draws
+  leaves the weights *more* nearly equal, log-weight sd 0.08 nats, than a right
+  posterior's small error does); a threshold of 0.9 or 1.0 cuts the false refusals by
+  a half to two thirds and loses 14-25 points of the 4-sd lobe's detection (21-33 at
+  3 sd). With fewer than ``MIN_DRAWS`` = 50 draws k is not estimated (at 32 draws,
+  the pipeline's default, the smoke study saw k 0.92 on weights of sd 0.11 nats), and
+  the check's words say so. From 225 draws on M is PSIS's, and so are its refusals:
+  1-D right posteriors are refused by k in 9-12 % (bounded error) and 23-34 % (the
+  smooth error, whose pi has up to several times q's mass beyond 3 sd: partly true
+  refusals) at 256 draws;
 * the importance-sampling estimates of pi's mean and sd (self-normalized), their
   shift from q's in q's sd, and the Monte Carlo standard error of that shift
   (sd_q / sqrt(ESS) per parameter, the delta-method error of a self-normalized mean).
