@@ -35,8 +35,8 @@ are all that is needed to judge q against pi where q puts its mass:
   Student-t3 pi under a Gaussian q of its scale 88-89 -> 94-96 %; a q half as wide in
   one direction 34-35 -> 36 % (the whole check: 97-98 % either way). The candidates
   not taken: PSIS's sample-size threshold min(1 - 1/log10(S), 0.7) (0.45 at 64 draws)
-  refuses up to 7 times as many right posteriors (7-D, noise 0.4 nats: 2 -> 12 %; 1-D,
-  smooth error 0.2 nats: 17 -> 35 %); not
+  refuses 5-38 % of these right posteriors (PSIS's tail: 0-23 %; 7-D, noise 0.4 nats:
+  2 -> 12 %); not
   judging k where the weights are nearly equal (largest normalized weight below 2 / S,
   or log-weight sd below 0.3 nats) or below 100 draws gives the missed lobe away
   (90-91 -> 44-45, 11-12 and 0 %, the whole check 16-19 %: a lobe just beyond the draws
