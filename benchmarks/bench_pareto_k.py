@@ -27,8 +27,9 @@ to a constant) and checked; coordinates are in units of pi's (main lobe's) sd. C
 
 For each cell (case, d, S; ``--reps`` seeded replicates) the table gives the medians of
 the log-weight sd, the ESS fraction, S times the largest normalized weight (``S wmax``)
-and k from PSIS's tail (``-``: not estimated; k90 its 90th percentile), and the rate of refusal by the k test alone and by the
-whole check (sd_tol 0.2, the other criteria at their defaults) under the rules:
+and k from PSIS's tail (``-``: not estimated; k90 its 90th percentile), and the rate of
+refusal by the k test alone and by the whole check (sd_tol 0.2, the other criteria at
+their defaults) under the rules:
 
 * ``psis``: k >= 0.7 refuses, k fitted to PSIS's tail M = ceil(min(S/5, 3 sqrt S))
   (``importance_check`` before issue 17), estimated from S >= 50 draws; every other rule
