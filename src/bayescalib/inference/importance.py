@@ -93,8 +93,9 @@ TAIL_FRACTION = 0.3
 
 
 def tail_size(S: int) -> int:
-    """Number of largest weights the Pareto shape is fitted to: ceil(min(0.3 S, 3 sqrt S))
-    (PSIS's 3 sqrt S from S = 100 on; module docstring)."""
+    """Number of largest weights the Pareto shape is fitted to: ceil(min(0.3 S, 3 sqrt S)),
+    PSIS's large-sample tail 3 sqrt S from S = 100 on (PSIS's own M from S = 225 on:
+    below, PSIS caps it at 0.2 S; module docstring)."""
     return math.ceil(min(TAIL_FRACTION * S, 3.0 * math.sqrt(S)))
 
 
