@@ -19,18 +19,43 @@ are all that is needed to judge q against pi where q puts its mass:
   and Gabry 2024, "Pareto smoothed importance sampling", JMLR 25): k < 0.7 means the
   self-normalized estimates below are reliable; above it, pi has mass that q misses
   (a surrogate posterior too narrow or missing a mode), and no number of draws from q
-  repairs it. The generalized Pareto fit to the M = ceil(min(S / 5, 3 sqrt(S)))
-  largest weights is the empirical-Bayes estimate of Zhang and Stephens (2009,
-  Technometrics 51), shrunk towards 0.5 by a prior worth 10 observations as in PSIS;
-  with fewer than 50 draws (M < 10) it is not estimated: fitted to a handful of nearly
-  equal weights the shape means nothing;
+  repairs it. The generalized Pareto fit is the empirical-Bayes estimate of Zhang and
+  Stephens (2009, Technometrics 51), shrunk towards 0.5 by a prior worth 10
+  observations as in PSIS, to the M = ceil(min(0.3 S, 3 sqrt(S))) largest weights:
+  PSIS's large-sample tail 3 sqrt(S) (the same M as PSIS's from S = 225 on), with its
+  small-sample cap 0.2 S relaxed to 0.3 S (20 weights at 64 draws instead of 13). A
+  shape fitted to 13 weights has a sampling sd of about (1 + k) / sqrt(13) ~ 0.3, and,
+  being scale-free, it reads any rise of the largest weights, however small, as a tail.
+  Measured (benchmarks/bench_pareto_k.py, 500 seeded replicates a cell; docs/
+  bench_active.md, "The Pareto-k test at 50-256 draws"), at 64 draws, PSIS's tail ->
+  this one, refused by k: right posteriors (q = pi, the surrogate off by 0.1-0.6 nats)
+  in 1-D with a bounded smooth error (true k < 0) 9-11 -> 4-9 %, with the sd-ratio
+  study's smooth error 16-23 -> 4-11 %, with noise, and in 7-D, 0-4 -> 0-1 %; a missed
+  lobe (20 % of pi's mass 4 sd from q's) 90-91 -> 98 %, at 3 sd 74-75 -> 88-89 %; a
+  Student-t3 pi under a Gaussian q of its scale 88-89 -> 94-96 %; a q half as wide in
+  one direction 34-35 -> 36 % (the whole check: 97-98 % either way). The candidates
+  not taken: PSIS's sample-size threshold min(1 - 1/log10(S), 0.7) (0.45 at 64 draws)
+  refuses 5-38 % of these right posteriors (PSIS's tail: 0-23 %; 7-D, noise 0.4 nats:
+  2 -> 12 %); not
+  judging k where the weights are nearly equal (largest normalized weight below 2 / S,
+  or log-weight sd below 0.3 nats) or below 100 draws gives the missed lobe away
+  (90-91 -> 44-45, 11-12 and 0 %, the whole check 16-19 %: a lobe just beyond the draws
+  leaves the weights *more* nearly equal, log-weight sd 0.08 nats, than a right
+  posterior's small error does); a threshold of 0.9 or 1.0 cuts the false refusals by
+  a half to two thirds and loses 14-25 points of the 4-sd lobe's detection (21-33 at
+  3 sd). With fewer than ``MIN_DRAWS`` = 50 draws k is not estimated (at 32 draws,
+  the pipeline's default, the smoke study saw k 0.92 on weights of sd 0.11 nats), and
+  the check's words say so. From 225 draws on M is PSIS's, and so are its refusals:
+  1-D right posteriors are refused by k in 9-12 % (bounded error) and 23-34 % (the
+  smooth error, whose pi has up to several times q's mass beyond 3 sd: partly true
+  refusals) at 256 draws;
 * the importance-sampling estimates of pi's mean and sd (self-normalized), their
   shift from q's in q's sd, and the Monte Carlo standard error of that shift
   (sd_q / sqrt(ESS) per parameter, the delta-method error of a self-normalized mean).
 
 Draws whose solve failed carry no log-likelihood; they are counted and left out
 (a failure inside the posterior is reported by the caller). A check is *confirmed*
-when k < 0.7 (or was not estimable), ESS / S >= ``min_ess_fraction``, every mean
+when k < 0.7 (or was not estimated), ESS / S >= ``min_ess_fraction``, every mean
 shift is within ``shift_tol`` sd plus twice its Monte Carlo error, every sd ratio
 within a factor 1 + ``sd_tol`` and the log-weights' sd is at most
 ``max_log_weight_sd`` nats: then pi and q agree where q lives, as far as S solves can
@@ -53,14 +78,25 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["importance_check", "pareto_k"]
+__all__ = ["importance_check", "pareto_k", "tail_size"]
 
 #: PSIS threshold on the Pareto shape above which importance-sampling estimates are unreliable
 K_RELIABLE = 0.7
-#: smallest tail size for which the Pareto shape is estimated (S >= 50 draws): from a
-#: tail of 7 (32 draws) the fitted shape of nearly equal weights came out anywhere up to
-#: 0.9 (the smoke study: log-weight sd 0.11 nats, ESS 99 %, k 0.92)
+#: fewest draws from which the Pareto shape is estimated: from a tail of 7 (32 draws) the
+#: fitted shape of nearly equal weights came out anywhere up to 0.9 (the smoke study:
+#: log-weight sd 0.11 nats, ESS 99 %, k 0.92)
+MIN_DRAWS = 50
+#: fewest positive exceedances a Pareto shape is fitted to
 MIN_TAIL = 10
+#: fraction of the draws the tail holds at most (PSIS: 0.2; module docstring)
+TAIL_FRACTION = 0.3
+
+
+def tail_size(S: int) -> int:
+    """Number of largest weights the Pareto shape is fitted to: ceil(min(0.3 S, 3 sqrt S)),
+    PSIS's large-sample tail 3 sqrt S from S = 100 on (PSIS's own M from S = 225 on:
+    below, PSIS caps it at 0.2 S; module docstring)."""
+    return math.ceil(min(TAIL_FRACTION * S, 3.0 * math.sqrt(S)))
 
 
 def _gpd_shape(excess: np.ndarray) -> float:
@@ -98,15 +134,16 @@ def pareto_k(log_weights: np.ndarray) -> float | None:
     Returns
     -------
     float or None
-        The shape k of a generalized Pareto fit to the M = ceil(min(S/5, 3 sqrt(S)))
-        largest weights above the next largest, shrunk as in PSIS:
-        (M k + 10 * 0.5) / (M + 10). None when M < ``MIN_TAIL`` (too few draws) or the
-        tail is flat (all its weights equal: k = -inf in the limit, reported as None).
+        The shape k of a generalized Pareto fit to the M = :func:`tail_size` (S) =
+        ceil(min(0.3 S, 3 sqrt(S))) largest weights above the next largest, shrunk as in
+        PSIS: (M k + 10 * 0.5) / (M + 10). None when S < ``MIN_DRAWS`` (too few draws) or
+        the tail is flat (fewer than ``MIN_TAIL`` of its weights above the next largest,
+        or all equal: k = -inf in the limit, reported as None).
     """
     lw = np.sort(np.asarray(log_weights, float))
     S = lw.size
-    M = math.ceil(min(S / 5.0, 3.0 * math.sqrt(S)))
-    if M < MIN_TAIL or S < M + 1:
+    M = tail_size(S)
+    if S < MIN_DRAWS or S < M + 1:
         return None
     w = np.exp(lw - lw[-1])
     excess = w[S - M:] - w[S - M - 1]
@@ -220,8 +257,15 @@ def importance_check(X: np.ndarray, loglik: np.ndarray, surrogate_mean: np.ndarr
         sd_ratio=ratio.tolist(), confirmed=confirmed,
         min_ess_fraction=float(min_ess_fraction), shift_tol=float(shift_tol),
         sd_tol=float(sd_tol), max_log_weight_sd=float(max_log_weight_sd))
+    if k is not None:
+        k_words = f"Pareto k {k:.2f}"
+    elif S < MIN_DRAWS:
+        k_words = (f"Pareto k not judged (its tail is estimated from {MIN_DRAWS} draws on, "
+                   f"{S} solved)")
+    else:
+        k_words = "Pareto k not judged (the largest weights are equal: no tail)"
     head = (f"{S} real solves of posterior draws: log-weight sd {lsd:.2g} nats, ESS "
-            f"{100 * ess_frac:.0f} %, Pareto k {'-' if k is None else f'{k:.2f}'}, largest "
+            f"{100 * ess_frac:.0f} %, {k_words}, largest "
             f"mean shift {np.max(np.abs(shift)):.2g} sd (MC error {np.max(shift_se):.2g}), sd "
             f"ratio {np.min(ratio):.2f}-{np.max(ratio):.2f}")
     if confirmed:
