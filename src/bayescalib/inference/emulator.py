@@ -466,7 +466,8 @@ def calibrate_outputs(outputs, y: np.ndarray, space, *, offset: float = 0.0,
                                "sd": mom["sd"].tolist()}
         if pending is not None:
             D, mu = pending
-            chk = importance_check(D, L[-len(D):], mu, **(check or {}))
+            chk = importance_check(D, L[-len(D):], mu, posterior_mean=prev["mean"],
+                                   posterior_sd=prev["sd"], **(check or {}))
             change = posterior_change(prev, mom)
             rec.update(check=chk["words"], confirmed=bool(chk["confirmed"]),
                        log_weight_sd=chk.get("log_weight_sd"), shift_sd=change["shift_sd"],
