@@ -324,8 +324,9 @@ def rkhs(
         Most kernel pairs to evaluate (None: :data:`bayescalib.measures.currents.DEFAULT_MAX_PAIRS`);
         above it the measure is refused before any work.
 
-    residual : {"scalar", "field"}
-        The distance vector: ``[D]``, or the smoothed currents' difference on a band
+    residual : {"scalar", "field", "auto"}
+        The distance vector: ``[D]`` (``auto``: a study resolves it by its
+        ``surrogate.target``; alone, the scalar), or the smoothed currents' difference on a band
         of grid nodes around the observed interface
         (:func:`bayescalib.measures.currents.field_residual`), whose norm is D; the
         residual an emulator of the model's outputs learns (``surrogate.target:
@@ -340,8 +341,8 @@ def rkhs(
     """
     from bayescalib.measures import currents as _rk
 
-    if residual not in ("scalar", "field"):
-        raise MeasureOptionError(f"residual must be 'scalar' or 'field', got {residual!r}")
+    if residual not in ("auto", "scalar", "field"):
+        raise MeasureOptionError(f"residual must be 'scalar', 'field' or 'auto', got {residual!r}")
 
     _check_pair(model, obs)
     if not (isinstance(sigma_w, (int, float)) and np.isfinite(sigma_w) and sigma_w > 0):
