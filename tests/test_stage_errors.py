@@ -280,3 +280,33 @@ def test_observations_in_other_units_are_a_unit_slip_not_a_misfit(tmp_path, scal
     rec = stages.discrepancy(truth, obs, "rkhs", {"sigma_w": 0.005},
                                {"sigma_n2": 5e-4}, tmp_path / "d.json")
     assert rec["D"] == pytest.approx(0.0, abs=1e-9)
+
+
+def test_the_output_emulator_refuses_a_table_without_residual_vectors(tmp_path):
+    """surrogate.target outputs on a table gathered from records without distance
+    vectors (an older run): a clear error naming the table and what to delete; the
+    solves are kept."""
+    X = _points()
+    tab = _table(tmp_path, X, list(-np.arange(8.0)))
+    with pytest.raises(PipelineError, match="holds no residual vectors") as info:
+        _train(tab, tmp_path, target="outputs")
+    assert str(tab) in str(info.value) and "solves are kept" in str(info.value)
+    _assert_clean(info)
+    assert all((tmp_path / "runs" / f"{i}.h5").is_file() for i in range(8))
+
+
+def test_gather_refuses_residual_vectors_of_different_lengths(tmp_path):
+    """Residual vectors of one measure must have one length (the same model interface
+    and measure setup): otherwise gather names the records and lengths."""
+    X = _points(3)
+    _table(tmp_path, X, [-1.0, -2.0, -3.0])
+    runs = [tmp_path / "runs" / f"{i}.h5" for i in range(3)]
+    discs = [tmp_path / "disc" / f"{i}.json" for i in range(3)]
+    for i, m in enumerate((5, 5, 7)):
+        stages.write_json(discs[i], {"status": "ok", "loglik": -1.0, "D": 1.0, "sigma_n2": 1e-6,
+                                     "snapshots": [{"n": m, "D": 1.0, "loglik": -1.0,
+                                                    "distances": [0.001] * m}]})
+    with pytest.raises(PipelineError, match=r"differ in length \(5 in .*disc/0.json', 7 in "
+                                            r".*disc/2.json'\)") as info:
+        stages.gather(runs, discs, ["E", "nu"], ["E", "nu"], 3, tmp_path / "t.h5")
+    _assert_clean(info)

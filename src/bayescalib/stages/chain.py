@@ -68,8 +68,7 @@ def _stack(a: Mapping[str, Any], b: Mapping[str, Any]) -> dict[str, Any]:
     out["reason"] = list(a["reason"]) + list(b["reason"])
     # residual vectors: rows without any (m = 0, e.g. reused rows of an older table) are
     # NaN in the other's width
-    Ra, Rb = (np.asarray(x.get("residuals", np.zeros((len(x["loglik"]), 0))), float)
-              .reshape(len(x["loglik"]), -1 if len(x["loglik"]) else 0) for x in (a, b))
+    Ra, Rb = (np.asarray(x["residuals"], float) for x in (a, b))
     m = max(Ra.shape[1], Rb.shape[1])
     out["residuals"] = np.vstack([R if R.shape[1] == m else np.full((len(R), m), np.nan)
                                   for R in (Ra, Rb)])
