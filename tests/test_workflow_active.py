@@ -120,6 +120,11 @@ def test_a_fixed_design_checks_its_final_posterior_with_the_posterior_check_rule
     assert check["n_draws"] == 32 and "round" not in check
     assert check["file"].endswith("rkhs/posterior_check.json")
     assert len(list((done_run / "results/analytic/predictive").glob("*.h5"))) == 32
+    # the draws are judged against the weighted particles they were resampled from
+    assert set(check["draws_shift_sd"]) == set(check["draws_sd_ratio"]) == set(check["sd_q"])
+    assert isinstance(check["representative"], bool)
+    if not check["representative"]:
+        assert not check["confirmed"] and "do not represent" in check["words"]
 
 
 def _planned_jobs(dry_run: str) -> dict[str, int]:

@@ -211,6 +211,7 @@ POSTERIOR_CHECK_JOB = (
     " surrogate {input.surrogate:q} measure_name {params.measure_name:q}"
     " measure {params.measure!r:q} likelihood {params.likelihood!r:q}"
     " parameters {params.parameters!r:q} check {params.check!r:q}"
+    " particles {input.particles:q}"
 )
 PREDICTIVE_JOB = (
     '"$BAYESCALIB_PYTHON" -I -S "$BAYESCALIB_JOB_CLIENT" predictive_solve log {log:q}'

@@ -122,6 +122,7 @@ rule posterior_check:
         samples=expand(f"{R}/predictive/{{k}}.h5", k=range(K_SOLVED)),
         obs=f"{R}/observations/observations.h5",
         surrogate=f"{R}/{study.primary_measure}/surrogate.h5",
+        particles=f"{R}/{study.primary_measure}/particles.h5",
     output:
         f"{R}/{study.primary_measure}/posterior_check.json",
     params:

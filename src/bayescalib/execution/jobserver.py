@@ -228,7 +228,8 @@ def _posterior_check(args: Mapping[str, Any]) -> None:
     setup_logging(args["log"])
     posterior_check(args["samples"], args["obs"], args["measure_name"],
                     _literal(args["measure"]), _literal(args["likelihood"]), args["surrogate"],
-                    _literal(args["parameters"]), _literal(args["check"]), args["out"])
+                    _literal(args["parameters"]), _literal(args["check"]), args["out"],
+                    args["particles"])
 
 
 def _predictive_solve(args: Mapping[str, Any]) -> None:

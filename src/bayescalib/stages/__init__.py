@@ -917,19 +917,23 @@ def summary(study_name: str, parameters: Sequence[Mapping[str, Any]], measures: 
 def posterior_check(sample_runs: Sequence[str | Path], obs_path: str | Path, measure_name: str,
                     measure: Mapping[str, Any], likelihood: Mapping[str, Any],
                     surrogate_path: str | Path, parameters: Sequence[Mapping[str, Any]],
-                    check: Mapping[str, Any], out_path: str | Path) -> dict[str, Any]:
+                    check: Mapping[str, Any], out_path: str | Path,
+                    particles_path: str | Path) -> dict[str, Any]:
     """The final posterior checked by importance sampling with real solves.
 
     ``sample_runs`` are the forward solves of equally weighted draws of the final
-    posterior (the ``predictive_solve`` jobs); each gets its discrepancy and real
-    log-likelihood (records under ``<out>.draws/``), the surrogate's log-likelihood at the
-    same parameters is the one the SMC sampled, and
+    posterior (the ``predictive_solve`` jobs, resampled from ``particles_path``); each
+    gets its discrepancy and real log-likelihood (records under ``<out>.draws/``), the
+    surrogate's log-likelihood at the same parameters is the one the SMC sampled, and
     :func:`bayescalib.inference.importance.importance_check` compares the two
-    posteriors. Writes ``out_path`` (JSON: the check's numbers keyed by parameter name,
+    posteriors, and asks whether the draws represent the weighted particles' mean and sd
+    (a tail the draws missed is not checked by them). Writes ``out_path`` (JSON: the check's numbers keyed by parameter name,
     in the user's units) and returns it.
     """
+    from bayescalib.inference.active import posterior_moments
     from bayescalib.inference.emulator import load_surrogate
     from bayescalib.inference.importance import importance_check
+    from bayescalib.inference.posterior import read_particles_h5
 
     names = [p["name"] for p in parameters]
     targets = [p.get("target") or p["name"] for p in parameters]
@@ -943,16 +947,20 @@ def posterior_check(sample_runs: Sequence[str | Path], obs_path: str | Path, mea
     X_arr, L_arr = np.asarray(X, float).reshape(-1, len(names)), np.asarray(L, float)
     gp = _read_checked(surrogate_path, load_surrogate, "surrogate")
     mu = gp.predict(X_arr)
+    smc = _read_checked(particles_path, read_particles_h5, "SMC particle file")
+    moments = posterior_moments(smc.particles, smc.weights)
     res = importance_check(X_arr, L_arr, mu, min_ess_fraction=check["min_ess_fraction"],
                            shift_tol=check["shift_tol"], sd_tol=check["sd_tol"],
-                           max_log_weight_sd=check["max_log_weight_sd"])
+                           max_log_weight_sd=check["max_log_weight_sd"],
+                           posterior_mean=moments["mean"], posterior_sd=moments["sd"])
     out = {"measure": measure_name, "names": names, **res,
            "draws": [{"parameters": dict(zip(names, x, strict=True)),
                       "loglik": None if not math.isfinite(ll) else ll,
                       "surrogate_loglik": float(m)}
                      for x, ll, m in zip(X_arr.tolist(), L_arr.tolist(), mu.tolist(),
                                          strict=True)]}
-    for key in ("mean_q", "sd_q", "mean_is", "sd_is", "shift_sd", "shift_se", "sd_ratio"):
+    for key in ("mean_q", "sd_q", "mean_is", "sd_is", "shift_sd", "shift_se", "sd_ratio",
+                "draws_shift_sd", "draws_sd_ratio"):
         if key in out:
             out[key] = dict(zip(names, out[key], strict=True))
     write_json(out_path, out)
