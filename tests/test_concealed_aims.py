@@ -155,3 +155,41 @@ def test_the_truth_inside_the_chosen_posterior_is_reported_beside_the_halving(be
     assert far["base parameters' truth within 2 posterior sd (chosen model)"] is False
     # rows without posterior sds (older results) get no such row
     assert "base parameters' truth within 2 posterior sd (chosen model)" not in _met(bench, _row())
+
+
+def test_a_rerun_replaces_its_stored_row_and_keeps_the_others(bench):
+    """The page is made from the stored rows merged with those just tabulated: a case
+    rerun replaces its row (same study, loadings, observations), the others stay, a
+    failed run replaces nothing, and the order is the benchmark's."""
+    old_growth = _row(rms_after_um=2.0)
+    null = _row(study="null", name="concealed_null")
+    images = _row(observations="images", name="concealed_growth_images")
+    stored = [{**r, "loadings": "several", "observations": r.get("observations", "synthetic")}
+              for r in (null, old_growth, images)]
+    new_growth = {**stored[1], "rms_after_um": 1.1}
+    failed_null = {"study": "null", "loadings": "several", "observations": "synthetic",
+                   "verdict": "RUN FAILED"}
+    merged = bench.merge_rows(stored, [new_growth, failed_null])
+    assert [(r["study"], r["observations"]) for r in merged] == [
+        ("growth", "synthetic"), ("growth", "images"), ("null", "synthetic")]
+    assert merged[0]["rms_after_um"] == 1.1
+    assert merged[2]["verdict"] != "RUN FAILED"
+    # a case never measured before is listed even when its run failed
+    first = {**failed_null, "study": "layer"}
+    assert bench.merge_rows(stored, [first])[2]["verdict"] == "RUN FAILED"
+
+
+def test_a_row_names_the_commit_it_was_measured_at(bench, tmp_path):
+    root = tmp_path / "results" / "concealed_growth"
+    (root / "diagnosis").mkdir(parents=True)
+    (root / "diagnosis" / "diagnosis.json").write_text("{}")
+    out = tmp_path / "out"
+    unknown = bench._read_stamp(out, root)
+    assert unknown["commit"] == "unknown" and unknown["date"][:2] == "20"
+    bench._record_stamp(out, root, started=0.0)
+    stamp = bench._read_stamp(out, root)
+    assert stamp["commit"] not in ("", "unknown") and stamp == bench._measured_at()
+    # a reused run (its diagnosis older than the run) keeps its record
+    (out / "measured" / "concealed_growth.json").write_text('{"commit": "abc", "date": "d"}')
+    bench._record_stamp(out, root, started=root.stat().st_mtime + 1e6)
+    assert bench._read_stamp(out, root) == {"commit": "abc", "date": "d"}
