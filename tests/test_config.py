@@ -16,6 +16,29 @@ def test_parse_override_parses_yaml_values():
     assert parse_override("material.law=neo_hooke") == (["material", "law"], "neo_hooke")
     assert parse_override("flag=true") == (["flag"], True)
     assert parse_override("xs=[1, 2]") == (["xs"], [1, 2])
+    # exponents without a dot are numbers on the command line (YAML 1.1 reads text)
+    assert parse_override("physics.attachment.phi=1e-4") == (["physics", "attachment", "phi"],
+                                                           1e-4)
+    assert parse_override("x=2E5") == (["x"], 2e5)
+    assert parse_override("name=e5") == (["name"], "e5")
+
+
+def test_a_number_that_yaml_reads_as_text_gets_an_error_with_the_fix(tmp_path):
+    """In a config file 1e-4 is a string to YAML 1.1 (PyYAML, Snakemake): the error
+    names the key and says how to write it so that it reads as a number."""
+    from bayescalib.study import Study
+
+    cfg = load_yaml(_write(tmp_path / "c.yaml", "likelihood: {sigma_n: 2e-3}\n"))
+    with pytest.raises(ConfigError) as exc:
+        Study(cfg, where="c.yaml")
+    msg = str(exc.value)
+    assert "likelihood.sigma_n" in msg and "'2e-3'" in msg and "write 2.0e-03" in msg
+    assert load_yaml(_write(tmp_path / "d.yaml", "x: 2.0e-03\n"))["x"] == 2e-3
+
+
+def _write(path, text):
+    path.write_text(text)
+    return path
 
 
 @pytest.mark.parametrize("bad", ["novalue", "=3", "a..b=1", ".a=1"])

@@ -184,9 +184,18 @@ def _format_error(err, where: str) -> str:
     if err.validator in {"minimum", "maximum", "exclusiveMinimum", "exclusiveMaximum"}:
         return prefix + f"key '{key}': value {err.instance!r} is out of range ({err.message})"
     if err.validator == "type":
+        hint = ""
+        expected = err.validator_value if isinstance(err.validator_value, list) \
+            else [err.validator_value]
+        if isinstance(err.instance, str) and {"number", "integer"} & set(expected) \
+                and _numeric_text(err.instance):
+            hint = (f": YAML reads {err.instance} as text; write "
+                    f"{_yaml_float(float(err.instance))} (a dot in the number and a sign "
+                    "in the exponent)")
         return (
             prefix
-            + f"key '{key}': value {err.instance!r} has the wrong type (expected {err.validator_value})"
+            + f"key '{key}': value {err.instance!r} has the wrong type (expected "
+            f"{err.validator_value}){hint}"
         )
     return prefix + f"key '{key}': {err.message}"
 
@@ -249,6 +258,23 @@ def _non_finite(obj: Any, path: tuple = ()) -> Iterable[tuple[tuple, float]]:
             yield from _non_finite(v, (*path, i))
 
 
+_NUMBER = re.compile(r"^[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$")
+
+
+def _numeric_text(text: str) -> bool:
+    """True for a number written as YAML 1.2 reads it (``1e-4``, ``2E5``, ``-3.``) that
+    YAML 1.1 (PyYAML, Snakemake) reads as a string."""
+    return bool(_NUMBER.match(text.strip()))
+
+
+def _yaml_float(value: float) -> str:
+    """``value`` written so that YAML 1.1 reads a float (``1.0e-04``)."""
+    mantissa, _, exponent = f"{value:.6e}".partition("e")
+    mantissa = mantissa.rstrip("0")
+    mantissa += "0" if mantissa.endswith(".") else ""
+    return f"{mantissa}e{exponent}"
+
+
 def parse_override(text: str) -> tuple[list[str], Any]:
     """Parse ``KEY=VALUE`` with a dotted key; the value is parsed as YAML.
 
@@ -265,6 +291,8 @@ def parse_override(text: str) -> tuple[list[str], Any]:
         value = yaml.safe_load(raw) if raw.strip() else None
     except yaml.YAMLError:
         value = raw
+    if isinstance(value, str) and _numeric_text(value):  # 1e-4: a number on the command line
+        value = float(value)
     return key.split("."), value
 
 
