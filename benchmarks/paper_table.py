@@ -30,6 +30,9 @@ PAPER: dict[str, tuple[str, dict[str, float], dict[str, float], int]] = {
                       {"E1": 443.0, "nu1": -0.15, "E2": 431.0, "nu2": -0.13, "E3": 637.0,
                        "nu3": -0.14}, 2000),
 }
+# the same study with the paper's fixed design (config/heterogeneous_fixed.yaml)
+PAPER["heterogeneous_fixed"] = (PAPER["heterogeneous"][0] + ", fixed design",
+                                *PAPER["heterogeneous"][1:])
 
 
 def _f(v, nd: int = 4) -> str:

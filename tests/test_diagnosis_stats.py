@@ -245,6 +245,32 @@ def test_two_effects_at_once():
     assert sorted(out["selected"]) == ["a", "b"]
 
 
+def test_a_smaller_second_effect_beside_a_dominant_one_is_selected():
+    """The second effect adds little to the fraction of the whole (the first explains
+    most of it) but explains most of what the first leaves: it is kept."""
+    rng = np.random.default_rng(11)
+    r = 0.04 * SIGS["b"] + 0.01 * SIGS["a"] + rng.normal(0, 0.005, N)
+    out = attribute(r, J, SIGS, np.full(N, 0.005**2))
+    first, second = out["steps"][:2]
+    assert first["candidate"] == "b" and second["candidate"] == "a"
+    assert first["joint_explained"] < 0.95  # else the selection stops after the first
+    assert second["joint_explained"] - first["joint_explained"] < 0.1  # the old rule's cut
+    assert second["explained_fraction"] >= 0.5
+    assert out["selected"] == ["b", "a"]
+
+
+def test_a_second_effect_is_seldom_claimed_where_there_is_one():
+    """One hidden effect and noise: a second candidate is selected in at most the
+    Bonferroni level's share of noise seeds (alpha 5 %: at most 5 % + 3 binomial sd of
+    200 seeds = 9.6 %)."""
+    rng = np.random.default_rng(12)
+    claimed = 0
+    for _ in range(200):
+        r = J @ rng.normal(0, 0.01, 2) + 0.05 * SIGS["b"] + rng.normal(0, 0.01, N)
+        claimed += len(attribute(r, J, SIGS, V)["selected"]) > 1
+    assert claimed / 200 <= 0.05 + 3 * np.sqrt(0.05 * 0.95 / 200)
+
+
 def test_no_attribution_under_the_null_or_out_of_library():
     rng = np.random.default_rng(6)
     null = attribute(J @ [0.01, 0.01] + rng.normal(0, 0.01, N), J, SIGS, V)
