@@ -65,6 +65,12 @@ def study_table(s: dict) -> str:
     tail = (f"\nSection {sec}; paper: {p_n or '-'} solves (fixed Sobol design). This run: "
             f"{d.get('n_solves', s.get('n_train'))} solves ({d.get('strategy', 'fixed')} design, "
             f"{s.get('n_failed', 0)} failed), {state}, measure {s['measure']}.")
+    check = s.get("posterior_check") or {}
+    if d.get("converged") is None and check.get("words"):
+        verdict = "confirmed" if check.get("confirmed") else "NOT confirmed"
+        tail += (f" Its posterior, checked with real solves of {check.get('n_draws')} of its "
+                 f"draws: {verdict} (log-weight sd {check.get('log_weight_sd', float('nan')):.2g}"
+                 f" nats, ESS {100 * check.get('ess_fraction', float('nan')):.0f} %).")
     if fit:
         tail += f" Fit: {fit['words']}."
     return "\n".join(rows) + "\n" + tail
