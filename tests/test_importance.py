@@ -80,8 +80,32 @@ def test_failed_solves_are_counted_and_left_out():
     res = importance_check(x, L, mu)
     assert res["n_draws"] == 50 and res["n_failed"] == 3
     assert res["confirmed"]
+    assert "3 of 50 draws failed to solve" in res["words"]
     none = importance_check(x[:2], np.array([-np.inf, np.nan]), mu[:2])
     assert not none["confirmed"] and "not possible" in none["words"]
+
+
+def test_a_posterior_that_lies_where_solves_fail_is_not_confirmed():
+    """An exact surrogate everywhere the model solves, but a quarter of its posterior
+    where solves fail: the draws that solve agree perfectly, and still the check refuses,
+    since the surrogate's values where the solves fail are extrapolations nothing checks.
+    The boundary is the share of failed draws against max_failed_fraction (0.1: 3 of 32
+    pass, 4 do not)."""
+    x, L, _ = _gauss_case(1.0, 0.0, 32, 5)
+    mu = L.copy()
+    fails = np.argsort(x[:, 0])[-8:]  # the upper quarter of the posterior cannot be solved
+    L[fails] = -np.inf
+    res = importance_check(x, L, mu)
+    assert res["n_failed"] == 8 and res["failed_fraction"] == pytest.approx(0.25)
+    assert res["log_weight_sd"] == pytest.approx(0.0, abs=1e-12)  # the rest is exact
+    assert not res["confirmed"]
+    assert "8 of 32 draws could not be solved" in res["words"]
+    assert "about 25 % of the posterior" in res["words"]
+    for n_fail, confirmed in ((3, True), (4, False)):
+        L3 = mu.copy()
+        L3[fails[:n_fail]] = -np.inf
+        assert importance_check(x, L3, mu)["confirmed"] is confirmed
+    assert importance_check(x, L, mu, max_failed_fraction=0.25)["confirmed"]
 
 
 def test_mismatched_lengths_are_an_error():

@@ -92,7 +92,12 @@ possible, and a mode they hit shows as a large error in the next trust check.
 Failed solves are conditioned on in the same way: the acquisition does not
 return to a point whose solve failed, while the GP itself is fitted on the
 successful solves only (a failure carries no value of the log-likelihood to
-fit).
+fit). The failures mark where the model cannot be solved
+(:mod:`bayescalib.inference.feasibility`): the sampler's likelihood is zero there
+(:meth:`~bayescalib.inference.surrogate.GPSurrogate.loglik`), and each batch gets
+``boundary_points`` that bisect the gaps between failed and successful solves where the
+posterior leans on them (:func:`boundary_points`), since the acquisition, treating the
+failures as known, would not go there.
 
 All functions are pure (arrays in, arrays or plain dicts out) and seeded; the
 Snakemake rules of ``workflow/rules/active.smk`` call :func:`acquire_round` once
@@ -607,9 +612,67 @@ def acquire_round(r: int, X: np.ndarray, L: np.ndarray, gp, particles: np.ndarra
             points, mean, sd = np.vstack([points, C]), np.concatenate([mean, c_mean]), \
                 np.concatenate([sd, c_sd])
             kind += ["check"] * n_check
+        n_edge = min(int(active["boundary_points"]), room - q - n_check)
+        if n_edge > 0 and getattr(gp, "n_failed", 0):
+            B = boundary_points(gp, particles, weights, n_edge)
+            if len(B):
+                b_mean, b_sd = _predict_loglik(gp, B)
+                points, mean, sd = np.vstack([points, B]), np.concatenate([mean, b_mean]), \
+                    np.concatenate([sd, b_sd])
+                kind += ["boundary"] * len(B)
         rec["next"] = {"points": points.tolist(), "mean": mean.tolist(), "sd": sd.tolist(),
                        "score": batch["score"].tolist(), "kind": kind}
     return rec
+
+
+#: boundary points (:func:`boundary_points`): a failed solve and its nearest successful one
+#: closer than this many posterior sd are not bisected further
+BOUNDARY_RESOLUTION_SD = 0.25
+
+
+def boundary_points(gp, particles: np.ndarray, weights: np.ndarray, n: int) -> np.ndarray:
+    """Points that bisect the boundary of the failed region where the posterior meets
+    it, (k, d) in user units, k <= n.
+
+    The region rule (:class:`~bayescalib.inference.feasibility.FailedRegion`) puts the
+    boundary between a successful solve o and a failed one f half way: the true one lies
+    somewhere on the segment, and solving its midpoint m = (f + o) / 2 (user units)
+    halves that uncertainty. The pairs that matter are those the posterior leans on:
+    each particle's nearest successful and nearest failed solve (the surrogate's input
+    coordinates), for the particles at least half as far from that failure as from that
+    success (distance ratio >= 1/2: near the boundary); a pair's weight is the posterior
+    weight of its particles. Kept: the ``n`` heaviest pairs more than
+    :data:`BOUNDARY_RESOLUTION_SD` posterior sd apart. Where successful solves are dense
+    (the posterior's side) and failed ones sparse, the rule's boundary leans into the
+    failed side, and the acquisition, which conditions on failed points as known, never
+    places points there: without these the posterior keeps mass where solves fail.
+    """
+    from scipy.spatial import cKDTree
+
+    P = np.atleast_2d(np.asarray(particles, float))
+    if n < 1 or not getattr(gp, "n_failed", 0):
+        return np.empty((0, P.shape[1]))
+    W = np.asarray(weights, float)
+    W = W / W.sum()
+    F, O = gp.X_failed, gp.X_train
+    U = gp.scale_inputs(P)
+    d_ok, i_ok = cKDTree(gp.scale_inputs(O)).query(U, k=1)
+    d_f, i_f = cKDTree(gp.scale_inputs(F)).query(U, k=1)
+    near = d_ok >= 0.5 * d_f
+    if not near.any():
+        return np.empty((0, P.shape[1]))
+    pairs: dict[tuple[int, int], float] = {}
+    for a, b, w in zip(i_ok[near].tolist(), i_f[near].tolist(), W[near].tolist(), strict=True):
+        pairs[(a, b)] = pairs.get((a, b), 0.0) + w
+    sd = posterior_moments(P, W)["sd"]
+    scale = np.where(sd > 0, sd, 1.0)
+    out = []
+    for (a, b), _w in sorted(pairs.items(), key=lambda kv: (-kv[1], kv[0])):
+        if np.sqrt(np.sum(((F[b] - O[a]) / scale) ** 2)) > BOUNDARY_RESOLUTION_SD:
+            out.append(0.5 * (F[b] + O[a]))
+            if len(out) == n:
+                break
+    return np.asarray(out, float).reshape(-1, P.shape[1])
 
 
 def posterior_draws(particles: np.ndarray, weights: np.ndarray, n: int,
@@ -657,6 +720,7 @@ def round_check(batch: Mapping[str, Any], L: np.ndarray, check: Mapping[str, Any
                            min_ess_fraction=check["min_ess_fraction"],
                            shift_tol=check["shift_tol"], sd_tol=check["sd_tol"],
                            max_log_weight_sd=check["max_log_weight_sd"],
+                           max_failed_fraction=check["max_failed_fraction"],
                            posterior_mean=None if posterior is None else posterior["mean"],
                            posterior_sd=None if posterior is None else posterior["sd"])
     for key in ("mean_q", "sd_q", "mean_is", "sd_is", "shift_sd", "shift_se", "sd_ratio",
@@ -872,7 +936,7 @@ def calibrate(loglik: Callable[[np.ndarray], np.ndarray], space, *, bound: float
     r = 0
     while True:
         gp = fit_round(X, L, cfg["surrogate"], space.bounds, bound=bound, previous=gp)
-        res = smc_from_config(gp.predict, space, smc_round)
+        res = smc_from_config(gp.loglik, space, smc_round)
         rec = acquire_round(r, X, L, gp, res.particles, res.weights, res.log_evidence, space,
                             a, previous, cfg["posterior_check"])
         rounds.append(rec)
@@ -888,9 +952,9 @@ def calibrate(loglik: Callable[[np.ndarray], np.ndarray], space, *, bound: float
                                 np.full(L.shape, float(n_measurements)))
             if gp.selection != "search":  # the result's surrogate: the best choice for all data
                 gp = fit_from_config(X, L, cfg["surrogate"], space.bounds, bound=bound)
-                res = smc_from_config(gp.predict, space, cfg["smc"])
+                res = smc_from_config(gp.loglik, space, cfg["smc"])
             elif smc_round != cfg["smc"]:  # the rounds sampled lighter: the result in full
-                res = smc_from_config(gp.predict, space, cfg["smc"])
+                res = smc_from_config(gp.loglik, space, cfg["smc"])
             return ActiveResult(X, L, gp, res, rounds, fit)
         Xn = np.asarray(rec["next"]["points"], float)
         X = np.vstack([X, Xn])

@@ -261,6 +261,12 @@ class EmulatedLikelihood:
 
     __call__ = predict
 
+    def loglik(self, X: np.ndarray) -> np.ndarray:
+        """The log-likelihood the sampler targets, (M,): :meth:`predict`'s. (The
+        emulator does not keep its failed solves: no feasibility region, unlike
+        :meth:`bayescalib.inference.surrogate.GPSurrogate.loglik`.)"""
+        return self.predict(X)
+
     def plug_in(self, X: np.ndarray) -> np.ndarray:
         """-1/2 |y - u_hat(x)|^2 + offset with the emulator's mean outputs (no
         uncertainty), (M,): the likelihood of the emulated model itself."""

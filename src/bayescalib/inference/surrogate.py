@@ -134,7 +134,9 @@ Training (eq. gploglikeli)
     first a fixed default (s^2 = mean((L - m)^2), l = 0.3), the others drawn
     log-uniformly around it from ``numpy.random.default_rng(seed)``. The best
     evidence wins. Failed forward runs (non-finite L) are excluded before
-    training; their number is kept in ``n_excluded``.
+    training; their number is kept in ``n_excluded``, and the points of those with
+    L = -inf in ``X_failed``: the sampler's log-likelihood (:meth:`GPSurrogate.loglik`)
+    is -inf where they mark the model infeasible (:mod:`bayescalib.inference.feasibility`).
 
 Log-misfit warping (``bound``; the default of the pipeline)
     The Gaussian log-likelihood (eq. loglik) is L = B - Phi with the known
@@ -351,6 +353,9 @@ class GPSurrogate:
         previous round's choice refitted, :func:`fit_round`).
     selection_n : number of training values at the last full search of those choices
         (-1: unknown, e.g. a file written before it was recorded).
+    X_failed : (F, d) design points whose solve failed (finite inputs, L = -inf; NaN
+        marks a failure that says nothing of the model, left out), in user units, or None: with them :meth:`loglik` is -inf where they mark the model
+        infeasible (:mod:`bayescalib.inference.feasibility`).
     """
 
     X_train: np.ndarray
@@ -385,6 +390,7 @@ class GPSurrogate:
     selection: str = _SEARCH
     selection_n: int = -1
     nugget_fitted: bool = False
+    X_failed: np.ndarray | None = None
     _cache: dict[str, Any] = field(default_factory=dict, repr=False)
 
     def __post_init__(self) -> None:
@@ -409,6 +415,10 @@ class GPSurrogate:
             self.mean_top = float(self.mean_top)
         else:
             self.mean_center = self.mean_factor = None
+        if self.X_failed is not None:
+            self.X_failed = np.asarray(self.X_failed, float).reshape(-1, self.dim)
+            if self.X_failed.shape[0] == 0:
+                self.X_failed = None
         if self.chol is None or self.alpha is None:
             self._factorize()
         self.device = _resolve_device(self.device)
@@ -683,6 +693,37 @@ class GPSurrogate:
         g, var_g = self.predict_latent(X, True)
         return self.loglik_from_latent(g), np.exp(2.0 * np.maximum(g, 0.0)) * var_g
 
+    @property
+    def n_failed(self) -> int:
+        """Number of failed design points the surrogate knows of (:attr:`X_failed`)."""
+        return 0 if self.X_failed is None else int(self.X_failed.shape[0])
+
+    def infeasible(self, X: np.ndarray) -> np.ndarray:
+        """Where the failed solves mark the model infeasible, (M,) bool for X (M, d) in
+        user units (:class:`~bayescalib.inference.feasibility.FailedRegion` in the GP's
+        unit-box inputs); all False without failed points."""
+        X = np.atleast_2d(np.asarray(X, float))
+        if self.X_failed is None:
+            return np.zeros(X.shape[0], bool)
+        region = self._cache.get("failed_region")
+        if region is None:
+            from bayescalib.inference.feasibility import FailedRegion
+
+            region = self._cache["failed_region"] = FailedRegion(
+                self.scale_inputs(self.X_train), self.scale_inputs(self.X_failed))
+        return region.contains(self.scale_inputs(X))
+
+    def loglik(self, X: np.ndarray) -> np.ndarray:
+        """The log-likelihood the sampler targets, (M,): the posterior mean of
+        :meth:`predict`, and -inf where the failed solves mark the model infeasible
+        (:meth:`infeasible`; the likelihood is taken as zero where the model cannot be
+        solved, :mod:`bayescalib.inference.feasibility`). Without failed points it is
+        :meth:`predict`'s mean, bitwise."""
+        mean = self.predict(X)
+        if self.X_failed is not None:
+            mean = np.where(self.infeasible(X), -np.inf, mean)
+        return mean
+
     def predict_latent(
         self, X: np.ndarray, return_var: bool = False
     ) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
@@ -794,6 +835,8 @@ class GPSurrogate:
         f.attrs["selection"] = self.selection
         f.attrs["selection_n"] = int(self.selection_n)
         f.attrs["nugget_mode"] = "fit" if self.nugget_fitted else "fixed"
+        if self.X_failed is not None:
+            f.create_dataset("X_failed", data=self.X_failed)
 
     @classmethod
     def load(cls, path: str | Path, device: str = "auto") -> GPSurrogate:
@@ -840,6 +883,8 @@ class GPSurrogate:
             selection_n=int(f.attrs.get("selection_n", -1)),
             # files written before the fitted nugget: the fixed rule
             nugget_fitted=_plain_str(f.attrs.get("nugget_mode", "fixed")) == "fit",
+            # files written before the failed points were kept: none known
+            X_failed=f["X_failed"][()] if "X_failed" in f else None,
         )
 
     def loo_residuals(self) -> np.ndarray:
@@ -1248,6 +1293,7 @@ def fit_gp(
         raise ValueError(f"nugget_floor must be a positive number, got {nugget_floor!r}")
     ok = np.isfinite(y) & np.all(np.isfinite(X), axis=1)
     n_excluded = int((~ok).sum())
+    X_failed = X[np.isneginf(y) & np.all(np.isfinite(X), axis=1)]  # NaN: no value, no region
     X, y = X[ok], y[ok]
     if X.shape[0] < 2:
         raise ValueError(f"need at least 2 finite training values, got {X.shape[0]}")
@@ -1389,6 +1435,7 @@ def fit_gp(
         mean_misfit_min=quad[2],
         mean_top=top,
         nugget_fitted=noise_bounds is not None,
+        X_failed=X_failed,
     )
 
 

@@ -624,6 +624,12 @@ def train_surrogate(training_path: str | Path, surrogate: Mapping[str, Any],
             "needed to train the surrogate: increase design.n_train or narrow the bounds"
         )
     _check_distinct(X, finite, tab["names"])
+    from bayescalib.inference.feasibility import says_nothing_of_the_model
+
+    reasons = [r for r, use in zip(tab["reason"], train_mask, strict=True) if use]
+    machine = np.array([not f and says_nothing_of_the_model(r)
+                        for r, f in zip(reasons, finite, strict=True)], bool)
+    L = np.where(machine, np.nan, L)  # no value and no infeasible region (feasibility)
     space = _space(parameters)
     bound = loglik_bound(tab, train_mask)
     if surrogate["target"] == "outputs":
@@ -646,7 +652,8 @@ def train_surrogate(training_path: str | Path, surrogate: Mapping[str, Any],
             "are extreme."
         ) from None
     gp.save(out_path)
-    log.info("GP surrogate on %d points (%d excluded): %s", gp.n_train, gp.n_excluded,
+    log.info("GP surrogate on %d points (%d excluded, %d of them marking where the model "
+             "cannot be solved): %s", gp.n_train, gp.n_excluded, gp.n_failed,
              gp.hyperparameters)
 
 
@@ -778,7 +785,7 @@ def smc(surrogate_path: str | Path, smc_cfg: Mapping[str, Any],
     gp.threads = max(1, int(threads))
     space = _space(parameters)
 
-    result = smc_from_config(gp.predict, space, smc_cfg)
+    result = smc_from_config(gp.loglik, space, smc_cfg)
     write_particles_h5(out_path, result, space)
     log.info("SMC done: %d steps, log evidence %.4f", result.n_steps, result.log_evidence)
 
@@ -822,7 +829,7 @@ def marginalize(particles_path: str | Path, surrogate_path: str | Path,
     gp = _read_checked(surrogate_path, load_surrogate, "surrogate")
     space = _space(parameters)
     result = _read_checked(particles_path, read_particles_h5, "SMC particle file")
-    summary = summarize(result, space, loglik=lambda X: gp.predict(X),
+    summary = summarize(result, space, loglik=gp.loglik,
                         map_bins=posterior_cfg.get("map_bins"),
                         levels=tuple(posterior_cfg["levels"]))
     write_json(out_json, summary)
@@ -952,6 +959,7 @@ def posterior_check(sample_runs: Sequence[str | Path], obs_path: str | Path, mea
     res = importance_check(X_arr, L_arr, mu, min_ess_fraction=check["min_ess_fraction"],
                            shift_tol=check["shift_tol"], sd_tol=check["sd_tol"],
                            max_log_weight_sd=check["max_log_weight_sd"],
+                           max_failed_fraction=check["max_failed_fraction"],
                            posterior_mean=moments["mean"], posterior_sd=moments["sd"])
     out = {"measure": measure_name, "names": names, **res,
            "draws": [{"parameters": dict(zip(names, x, strict=True)),
