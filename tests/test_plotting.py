@@ -544,6 +544,13 @@ def test_the_rounds_figure_marks_the_random_check_points_apart_from_the_acquired
     assert "chosen for next round" not in lines
     np.testing.assert_array_equal(lines["posterior check's draws, next round"].get_xdata(),
                                   batch[:, 0])
+    # boundary points of the failed region: their own marker, not counted as acquired
+    _, fig = plot_rounds(*args, **kw, batch_kinds=[["acquired"] * 2 + ["boundary"] * 2, None],
+                         return_figure=True)
+    lines = {ln.get_label(): ln for ln in fig.axes[0].get_lines()}
+    assert len(lines["chosen for next round"].get_xdata()) == 2
+    np.testing.assert_array_equal(
+        lines["boundary of the failed region, next round"].get_xdata(), batch[2:, 0])
 
 
 def test_the_rounds_figure_shows_the_posterior_check_and_one_legend_for_all_panels(tmp_path):

@@ -295,6 +295,13 @@ def test_cli_summary_prints_the_run_line_the_table_and_the_rounds(active_run, ca
     out = capsys.readouterr().out
     last = next(ln for ln in proc.stdout.splitlines() if ln.startswith("bayescalib analytic:"))
     assert out.splitlines()[0] == last
+    # the analytic model fails below E = 130 Pa: a failure of the model, which marks where
+    # it cannot be solved (bayescalib.inference.feasibility), and the run line says so
+    s = _summary(tmp)
+    assert s["n_failed_infeasible"] == s["n_failed"] >= 1
+    assert all(f["marks_infeasible"] and f["parameters"]["E"] < 130.0 for f in s["failed_runs"])
+    assert (f"{s['n_failed']} failed ({s['n_failed']} mark where the model cannot be solved: "
+            "the posterior excludes their neighbourhood)") in last
     assert "90% equal-tailed" in out and "active design:" in out
     assert out.count("\n0 ") + out.count("\n0  ") >= 1  # round 0 row
     assert main(["summary", str(tmp / "nowhere")]) == 2
@@ -305,12 +312,14 @@ def test_cli_summary_lists_failed_solves_with_their_reasons(active_run, tmp_path
 
     s = _summary(active_run[0])
     s["failed_runs"] = [{"point": 5, "parameters": {"E": 120.5, "nu": 0.1},
-                         "reason": "Newton did not converge at load step 3"}]
+                         "reason": "Newton did not converge at load step 3",
+                         "marks_infeasible": True}]
     del s["map"]["nu"]  # an uncertain condition has no MAP (marginalized out)
     (tmp_path / "summary.json").write_text(json.dumps(s))
     assert main(["summary", str(tmp_path / "summary.json")]) == 0
     out = capsys.readouterr().out
-    assert "failed solves (1):" in out
+    assert "failed solves (1; 1 mark where the model cannot be solved" in out
     assert next(ln for ln in out.splitlines() if ln.startswith("nu ")).split()[2] == "-"
     row = next(ln for ln in out.splitlines() if ln.startswith("5 "))
     assert "120.5" in row and "Newton did not converge at load step 3" in row
+    assert row.split()[3] == "yes"  # point, E, nu, region

@@ -75,10 +75,16 @@ def run(args: argparse.Namespace) -> int:
         print(f"\n{d.get('reason', '')}")
     failed = s.get("failed_runs") or []
     if failed:
-        print(f"\nfailed solves ({len(failed)}):")
-        rows = [["point", *names, "reason"]]
+        n_region = sum(bool(f.get("marks_infeasible")) for f in failed)
+        print(f"\nfailed solves ({len(failed)}; {n_region} mark where the model cannot be "
+              f"solved, and the posterior excludes their neighbourhood; the others failed "
+              f"for the machine's sake and mark nothing):" if n_region else
+              f"\nfailed solves ({len(failed)}):")
+        rows = [["point", *names, "region", "reason"]]
         for f in failed:
             rows.append([str(f["point"]), *(_fmt(f["parameters"].get(n)) for n in names),
+                         "yes" if f.get("marks_infeasible") else
+                         "no" if "marks_infeasible" in f else "-",  # "-": written before
                          " ".join(str(f["reason"]).split())[:100]])
         _table(rows)
     return 0

@@ -71,8 +71,9 @@ def plot_rounds(
     batch_kinds : sequence of (q,) sequences of str or None, optional
         Per round, what each point of its batch is: ``"acquired"`` (chosen by the
         acquisition), ``"check"`` (a random check point, drawn without the
-        surrogate) or ``"posterior_check"`` (a check round's posterior draw); absent =
-        all acquired.
+        surrogate), ``"boundary"`` (a midpoint between a failed and a successful solve,
+        :func:`bayescalib.inference.active.boundary_points`) or ``"posterior_check"``
+        (a check round's posterior draw); absent = all acquired.
     check : sequence of dict or None, optional
         Per round, the posterior check of the previous round's posterior judged there
         (``log_weight_sd`` in nats, ``confirmed``), None where there was none. Drawn in
@@ -115,9 +116,15 @@ def plot_rounds(
                 if is_check.shape != (len(nb),):
                     raise ValueError(f"plot_rounds: round {r} has {len(nb)} batch points "
                                      f"but {is_check.size} kinds")
-                if np.any(~is_check & ~draw):
-                    ax.plot(*nb[~is_check & ~draw].T, ls="none", marker="x", ms=5,
+                edge = (np.asarray(kinds) == "boundary" if kinds is not None
+                        else np.zeros(len(nb), bool))
+                if np.any(~is_check & ~draw & ~edge):
+                    ax.plot(*nb[~is_check & ~draw & ~edge].T, ls="none", marker="x", ms=5,
                             color=COLORS["map"], label="chosen for next round")
+                if edge.any():
+                    ax.plot(*nb[edge].T, ls="none", marker="s", ms=4, mfc="none",
+                            mec="k", mew=0.8,
+                            label="boundary of the failed region, next round")
                 if draw.any():
                     ax.plot(*nb[draw].T, ls="none", marker="+", ms=6, color=COLORS["map"],
                             label="posterior check's draws, next round")

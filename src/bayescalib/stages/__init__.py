@@ -876,10 +876,14 @@ def summary(study_name: str, parameters: Sequence[Mapping[str, Any]], measures: 
             "fit": fit_check(tab["loglik"][tr], tab["bound"][tr], tab["n_measurements"][tr]),
         }
         if m == measures[0]:
+            from bayescalib.inference.feasibility import says_nothing_of_the_model
+
             failed_runs = [
                 {"point": int(i), "parameters": dict(zip(names, map(float, tab["X"][i]),
                                                          strict=True)),
-                 "reason": tab["reason"][i] or "no reason recorded"}
+                 "reason": tab["reason"][i] or "no reason recorded",
+                 "marks_infeasible": bool(tr[i] and not says_nothing_of_the_model(
+                     tab["reason"][i]))}
                 for i in np.flatnonzero(tab["status"] == 0)]
     primary = per_measure[measures[0]]
     post = posts[measures[0]]
@@ -907,6 +911,7 @@ def summary(study_name: str, parameters: Sequence[Mapping[str, Any]], measures: 
         "log_evidence": primary["log_evidence"],
         "n_train": primary["n_train"],
         "n_failed": primary["n_failed"],
+        "n_failed_infeasible": sum(r["marks_infeasible"] for r in failed_runs),
         "failed_runs": failed_runs,
         "ground_truth": truth if all(v is not None for v in truth.values()) else None,
         "converged": (extra or {}).get("design", {}).get("converged"),
@@ -1058,8 +1063,11 @@ def run_line(summary_json: Mapping[str, Any]) -> str:
     elif check:
         state += ("; POSTERIOR NOT CONFIRMED BY REAL SOLVES of its draws (posterior_check in "
                   "summary.json)")
+    n_region = summary_json.get("n_failed_infeasible") or 0
+    region = (f" ({n_region} mark where the model cannot be solved: the posterior excludes "
+              f"their neighbourhood)") if n_region else ""
     return (f"bayescalib {summary_json['study']}: {', '.join(parts)}; {state}; "
-            f"{n_solves} solves, {n_failed} failed")
+            f"{n_solves} solves, {n_failed} failed{region}")
 
 
 def front_page(summary_path: str | Path) -> dict[str, Any] | None:
