@@ -152,6 +152,16 @@ def test_an_emulator_file_reproduces_its_likelihood_and_is_told_from_a_gp_file(t
                     strict=True):
         np.testing.assert_array_equal(a, b)
     assert (back.n_train, back.n_excluded) == (19, 1)
+    # the failed solve marks where the model cannot be solved, through the file too
+    assert back.n_failed == lik.n_failed == 1
+    assert np.isneginf(back.loglik(X[5:6])).all() and np.isneginf(lik.loglik(X[5:6])).all()
+    np.testing.assert_array_equal(back.loglik(G), lik.loglik(G))
+    ok = ~lik.emulator.components[0].infeasible(G)
+    np.testing.assert_array_equal(lik.loglik(G)[ok], lik.predict(G)[ok])
+    # a failure that says nothing of the model (a time limit) marks nothing
+    none = fit_output_emulator(X, U, bounds, inputs="linear", restarts=1,
+                               failed=np.zeros(len(X), bool))
+    assert EmulatedLikelihood(none, lik.y).n_failed == 0
     back.threads = 2
     assert back.threads == 2 and all(gp.threads == 2 for gp in back.emulator.components)
     np.testing.assert_array_equal(back.predict(G), lik.predict(G))

@@ -166,7 +166,8 @@ def _fit_coordinate(X, a, bounds, log_offset, *, kernel: str, restarts: int, see
 def fit_output_emulator(X: np.ndarray, U: np.ndarray, bounds: np.ndarray, *,
                         energy_tol: float = 1e-2, max_components: int = 30,
                         kernel: str = "matern52", restarts: int = 2, seed: int = 0,
-                        inputs: str = "auto", nugget_floor: float = 1e-6) -> OutputEmulator:
+                        inputs: str = "auto", nugget_floor: float = 1e-6,
+                        failed: np.ndarray | None = None) -> OutputEmulator:
     """Fit the output emulator (module docstring, steps 1-2).
 
     Parameters
@@ -189,6 +190,11 @@ def fit_output_emulator(X: np.ndarray, U: np.ndarray, bounds: np.ndarray, *,
         (both fitted to the leading coordinate; the larger evidence decides for all).
     nugget_floor
         Floor of each coordinate GP's fitted nugget (noise units squared).
+    failed
+        (n,) bool: the rows whose failure marks where the model cannot be solved
+        (:mod:`bayescalib.inference.feasibility`; kept by the first coordinate's GP,
+        ``X_failed``, and used by :meth:`EmulatedLikelihood.loglik`). None: every row
+        with a non-finite output.
     """
     from bayescalib.inference.surrogate import log_input_offsets
 
@@ -197,6 +203,8 @@ def fit_output_emulator(X: np.ndarray, U: np.ndarray, bounds: np.ndarray, *,
     if X.shape[0] != U.shape[0]:
         raise ValueError(f"X has {X.shape[0]} rows and U {U.shape[0]}: one output row per point")
     ok = np.all(np.isfinite(U), axis=1)
+    marks = ~ok if failed is None else np.asarray(failed, bool) & ~ok
+    X_failed = X[marks & np.all(np.isfinite(X), axis=1)]
     X, U = X[ok], U[ok]
     mean, basis, coords, discarded = principal_outputs(U, energy_tol=energy_tol,
                                                        max_components=max_components)
@@ -214,6 +222,7 @@ def fit_output_emulator(X: np.ndarray, U: np.ndarray, bounds: np.ndarray, *,
     comps = [first] + [
         _fit_coordinate(X, coords[:, j], bounds, offsets if use_log else None, **kw)
         for j in range(1, basis.shape[0])]
+    first.X_failed = X_failed if len(X_failed) else None  # the emulator's failed region
     return OutputEmulator(mean=mean, basis=basis, components=comps, discarded=discarded,
                           n_train=int(X.shape[0]), log_inputs=bool(use_log),
                           info={"n_failed": int((~ok).sum())})
@@ -262,10 +271,19 @@ class EmulatedLikelihood:
     __call__ = predict
 
     def loglik(self, X: np.ndarray) -> np.ndarray:
-        """The log-likelihood the sampler targets, (M,): :meth:`predict`'s. (The
-        emulator does not keep its failed solves: no feasibility region, unlike
-        :meth:`bayescalib.inference.surrogate.GPSurrogate.loglik`.)"""
-        return self.predict(X)
+        """The log-likelihood the sampler targets, (M,): :meth:`predict`'s, and -inf
+        where the failed solves mark the model infeasible (kept by the first
+        coordinate's GP, :meth:`bayescalib.inference.surrogate.GPSurrogate.infeasible`)."""
+        L = self.predict(X)
+        first = self.emulator.components[0]
+        if first.X_failed is not None:
+            L = np.where(first.infeasible(X), -np.inf, L)
+        return L
+
+    @property
+    def n_failed(self) -> int:
+        """Failed solves that mark where the model cannot be solved."""
+        return self.emulator.components[0].n_failed
 
     def plug_in(self, X: np.ndarray) -> np.ndarray:
         """-1/2 |y - u_hat(x)|^2 + offset with the emulator's mean outputs (no
@@ -464,7 +482,7 @@ def calibrate_outputs(outputs, y: np.ndarray, space, *, offset: float = 0.0,
     while True:
         em = fit_output_emulator(X, U, space.bounds, seed=seed, **(emulator or {}))
         lik = EmulatedLikelihood(em, y, offset=offset)
-        res = run_smc(lik.predict, space, rng=np.random.default_rng([seed, r, 0xE1]),
+        res = run_smc(lik.loglik, space, rng=np.random.default_rng([seed, r, 0xE1]),
                       **round_smc)
         mom = posterior_moments(res.particles, res.weights)
         rec: dict[str, Any] = {"round": r, "n_solves": len(L), "components": em.n_components,
@@ -499,5 +517,5 @@ def calibrate_outputs(outputs, y: np.ndarray, space, *, offset: float = 0.0,
         Un, Ln = evaluate(D)
         X, U, L = np.vstack([X, D]), np.vstack([U, Un]), np.concatenate([L, Ln])
         r += 1
-    smc = run_smc(lik.predict, space, rng=np.random.default_rng(seed), **final_smc)
+    smc = run_smc(lik.loglik, space, rng=np.random.default_rng(seed), **final_smc)
     return EmulatedCalibration(X, U, L, lik, smc, rounds, converged, reason)

@@ -35,6 +35,12 @@ surrogate is given NaN for it instead of -inf: no value, no region). Every other
 is deterministic in the parameters (an inverted element, Newton diverging, NaN in the
 interface, a user command's error) and marks its point.
 
+The GP surrogate keeps the failed points (``GPSurrogate.X_failed``) and applies the
+region in :meth:`~bayescalib.inference.surrogate.GPSurrogate.loglik`; the output
+emulator keeps them in its first coordinate's GP and applies it in
+:meth:`~bayescalib.inference.emulator.EmulatedLikelihood.loglik`. Every sampler of the
+pipeline targets ``loglik``.
+
 Without failed solves nothing changes: the sampler sees the surrogate's mean, bitwise.
 The SMC (:mod:`bayescalib.inference.smc`) takes ``-inf`` as outside the likelihood's
 support: such particles get weight zero, and a Metropolis move into the region is

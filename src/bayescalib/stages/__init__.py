@@ -675,8 +675,12 @@ def _train_emulator(tab: Mapping[str, Any], use: np.ndarray, surrogate: Mapping[
             f"surrogate.target is 'outputs' but the training table '{training_path}' records "
             "no likelihood bound: gather it again")
     opts = surrogate["outputs"]
+    from bayescalib.inference.feasibility import says_nothing_of_the_model
+
+    marks = np.array([not says_nothing_of_the_model(r)
+                      for r, u in zip(tab["reason"], use, strict=True) if u], bool)
     try:
-        em = fit_output_emulator(tab["X"][use], R, space.bounds,
+        em = fit_output_emulator(tab["X"][use], R, space.bounds, failed=marks,
                                  energy_tol=opts["energy_tol"],
                                  max_components=opts["max_components"], kernel=opts["kernel"],
                                  restarts=surrogate["restarts"], seed=surrogate["seed"],
