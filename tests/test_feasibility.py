@@ -8,7 +8,12 @@ import h5py
 import numpy as np
 import pytest
 
-from bayescalib.inference.feasibility import FailedRegion, failure_radii, says_nothing_of_the_model
+from bayescalib.inference.feasibility import (
+    FailedRegion,
+    failure_radii,
+    marks_infeasible,
+    says_nothing_of_the_model,
+)
 from bayescalib.inference.surrogate import GPSurrogate, fit_gp
 
 
@@ -55,6 +60,9 @@ def test_a_failure_at_the_edge_reaches_no_farther_than_its_nearest_solve():
 ])
 def test_only_failures_that_depend_on_the_parameters_mark_a_region(reason, machine):
     assert says_nothing_of_the_model(reason) is machine
+    # a solved point marks nothing, whatever its reason field holds
+    np.testing.assert_array_equal(marks_infeasible([False, True], [reason, reason]),
+                                  [not machine, False])
 
 
 def _misfit(X):

@@ -54,7 +54,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["FailedRegion", "failure_radii", "says_nothing_of_the_model"]
+__all__ = ["FailedRegion", "failure_radii", "marks_infeasible", "says_nothing_of_the_model"]
 
 #: failure reasons (run records, bayescalib.models.forward and the FSI solver) that
 #: depend on the machine, not on the parameters
@@ -66,6 +66,17 @@ def says_nothing_of_the_model(reason: str) -> bool:
     dead process, a command not started), so that its point is not marked infeasible."""
     text = str(reason).lower()
     return any(key in text for key in _MACHINE_FAILURES)
+
+
+def marks_infeasible(solved: np.ndarray, reasons: list[str]) -> np.ndarray:
+    """Which design points mark where the model cannot be solved, (n,) bool: those whose
+    solve failed (``solved`` False) for a reason that is not the machine's
+    (:func:`says_nothing_of_the_model`)."""
+    solved = np.asarray(solved, bool).reshape(-1)
+    if len(reasons) != solved.size:
+        raise ValueError(f"marks_infeasible: {solved.size} points and {len(reasons)} reasons")
+    return np.array([not ok and not says_nothing_of_the_model(r)
+                     for ok, r in zip(solved.tolist(), reasons, strict=True)], bool)
 
 
 def failure_radii(U_ok: np.ndarray, U_failed: np.ndarray) -> np.ndarray:

@@ -624,12 +624,11 @@ def train_surrogate(training_path: str | Path, surrogate: Mapping[str, Any],
             "needed to train the surrogate: increase design.n_train or narrow the bounds"
         )
     _check_distinct(X, finite, tab["names"])
-    from bayescalib.inference.feasibility import says_nothing_of_the_model
+    from bayescalib.inference.feasibility import marks_infeasible
 
     reasons = [r for r, use in zip(tab["reason"], train_mask, strict=True) if use]
-    machine = np.array([not f and says_nothing_of_the_model(r)
-                        for r, f in zip(reasons, finite, strict=True)], bool)
-    L = np.where(machine, np.nan, L)  # no value and no infeasible region (feasibility)
+    # a failure for the machine's sake: no value and no infeasible region (feasibility)
+    L = np.where(~finite & ~marks_infeasible(finite, reasons), np.nan, L)
     space = _space(parameters)
     bound = loglik_bound(tab, train_mask)
     if surrogate["target"] == "outputs":
@@ -675,10 +674,10 @@ def _train_emulator(tab: Mapping[str, Any], use: np.ndarray, surrogate: Mapping[
             f"surrogate.target is 'outputs' but the training table '{training_path}' records "
             "no likelihood bound: gather it again")
     opts = surrogate["outputs"]
-    from bayescalib.inference.feasibility import says_nothing_of_the_model
+    from bayescalib.inference.feasibility import marks_infeasible
 
-    marks = np.array([not says_nothing_of_the_model(r)
-                      for r, u in zip(tab["reason"], use, strict=True) if u], bool)
+    marks = marks_infeasible(np.all(np.isfinite(R), axis=1),
+                             [r for r, u in zip(tab["reason"], use, strict=True) if u])
     try:
         em = fit_output_emulator(tab["X"][use], R, space.bounds, failed=marks,
                                  energy_tol=opts["energy_tol"],
@@ -880,14 +879,14 @@ def summary(study_name: str, parameters: Sequence[Mapping[str, Any]], measures: 
             "fit": fit_check(tab["loglik"][tr], tab["bound"][tr], tab["n_measurements"][tr]),
         }
         if m == measures[0]:
-            from bayescalib.inference.feasibility import says_nothing_of_the_model
+            from bayescalib.inference.feasibility import marks_infeasible
 
+            marks = marks_infeasible(tab["status"] != 0, tab["reason"]) & tr
             failed_runs = [
                 {"point": int(i), "parameters": dict(zip(names, map(float, tab["X"][i]),
                                                          strict=True)),
                  "reason": tab["reason"][i] or "no reason recorded",
-                 "marks_infeasible": bool(tr[i] and not says_nothing_of_the_model(
-                     tab["reason"][i]))}
+                 "marks_infeasible": bool(marks[i])}
                 for i in np.flatnonzero(tab["status"] == 0)]
     primary = per_measure[measures[0]]
     post = posts[measures[0]]
