@@ -82,6 +82,13 @@ ABSORBED = "mismatch absorbed by the base parameters; calibration off, no physic
 MISREGISTERED = ("mismatch explained by a misregistration of the observed interfaces "
                  "(not physics)")
 
+#: the same from one snapshot: a rigid misplacement and physics that moves the interface
+#: nearly as a whole look alike there (a misplacement is the same at every load, a
+#: flow-driven effect is not, and neither is anything at zero load but the rest shape)
+MISREGISTERED_OR_PHYSICS = (
+    "mismatch explained by a misregistration of the observed interfaces, or by physics "
+    "that moves them nearly as a whole (one snapshot: the data cannot tell them apart)")
+
 LN_BF_MIN = math.log(3.0)
 
 #: an extension (or a registration) explains the mismatch when its re-check passes or
@@ -677,8 +684,10 @@ def run_diagnosis(
     refit["in_bounds"] = bool(all(lo[names.index(n)] <= x <= hi[names.index(n)]
                                   for n, x in refit["parameters"].items()))
     untestable = sorted(failed_sig)
+    single = len(obs.labels) == 1
     screen = decide_verdict(check.adequate, attr["selected"], refit, float(cfg["alpha"]),
-                            registration=registration, untestable=untestable)
+                            registration=registration, untestable=untestable,
+                            single_snapshot=single)
     # no candidate is modelled when the base parameters absorb the mismatch, or when a
     # misregistration explains it and the attribution selected no physics
     run_ext = (not check.adequate and screen != ABSORBED
@@ -781,7 +790,7 @@ def run_diagnosis(
     verdict = decide_verdict(check.adequate, attr["selected"], refit, float(cfg["alpha"]),
                              chosen=None if best is None else chosen,
                              modelled=bool(extended), registration=registration,
-                             untestable=untestable)
+                             untestable=untestable, single_snapshot=single)
     out = {
         "verdict": verdict,
         "screening_verdict": screen,
@@ -862,7 +871,7 @@ def reference_noise(base: Any, afters: Sequence[Mapping[str, Any] | None]) -> fl
 def decide_verdict(adequate: bool, selected: Sequence[str], refit: Mapping[str, Any],
                    alpha: float, *, chosen: str | None = None, modelled: bool = False,
                    registration: Mapping[str, Any] | None = None,
-                   untestable: Sequence[str] = ()) -> str:
+                   untestable: Sequence[str] = (), single_snapshot: bool = False) -> str:
     """The diagnosis verdict, in order of precedence.
 
     1. ``"no significant mismatch"``: the predictive check passes.
@@ -872,7 +881,10 @@ def decide_verdict(adequate: bool, selected: Sequence[str], refit: Mapping[str, 
        verdict names both and says that the data cannot tell them apart.
     3. ``"mismatch explained by a misregistration ..."``: a rigid misplacement of the
        observed interfaces explains it, confirmed with real solves (registered
-       observations against the jointly re-fitted base model).
+       observations against the jointly re-fitted base model). "Not physics" only with
+       two snapshots or more (``single_snapshot`` False): one misplacement for every
+       loading, where a flow-driven effect changes with the load. From a single
+       snapshot the verdict is :data:`MISREGISTERED_OR_PHYSICS`.
     4. ``"mismatch attributed to <selected> (not modelled)"``: the linearized
        attribution selected candidates and no extension was calibrated.
     5. ``"mismatch absorbed by the base parameters; ..."``: the re-fit test passes
@@ -892,7 +904,7 @@ def decide_verdict(adequate: bool, selected: Sequence[str], refit: Mapping[str, 
     if chosen:
         return "mismatch explained by " + chosen
     if misregistered:
-        return MISREGISTERED
+        return MISREGISTERED_OR_PHYSICS if single_snapshot else MISREGISTERED
     if selected and not modelled:
         return "mismatch attributed to " + " + ".join(selected) + " (not modelled)"
     if refit.get("in_bounds", False) and float(refit["p_value"]) >= alpha:
@@ -1009,7 +1021,17 @@ def plain_words(d: Mapping[str, Any]) -> list[str]:
                  f"; with the observations registered back and the base parameters re-fitted "
                  f"({refit}), residual RMS {1e3 * chk['residual_rms_mm']:.2f} -> "
                  f"{1e3 * ca['residual_rms_mm']:.2f} um")
-        if reg.get("explains"):
+        if reg.get("explains") and d["verdict"] != MISREGISTERED:
+            single = len((d.get("observed_nodes") or {}).get("n_used") or [0, 0]) == 1
+            lines.append(
+                f"The observed interfaces look misplaced as a whole ({_registration_words(reg)}"
+                f"; {_p_words(reg['p_value'])}{after}): a registration error of the images, "
+                "or physics that moves the interface nearly as a whole; the data cannot "
+                "tell them apart"
+                + (" from one snapshot (a snapshot at zero load or at a second loading "
+                   "would: a misplacement is the same at every load)" if single else "")
+                + ". Check the image origin, pixel size and alignment.")
+        elif reg.get("explains"):
             lines.append(
                 f"The observed interfaces look misplaced as a whole ({_registration_words(reg)}"
                 f"; {_p_words(reg['p_value'])}{after}): a registration error of the images, "
