@@ -632,6 +632,27 @@ def test_a_posterior_cut_by_failed_solves_converges_to_the_posterior_where_the_m
     assert res.check["failed_fraction"] <= 0.1, res.check["words"]
 
 
+def test_boundary_points_bisect_the_gaps_the_posterior_leans_on_and_never_repeat():
+    """One failed solve beside the posterior: the boundary point is the midpoint of it and
+    its nearest success; once that midpoint is a design point (its solve failed for the
+    machine's sake: no value, so the pair is unchanged), it is not proposed again."""
+    from bayescalib.inference.active import boundary_points
+
+    space, ll, X, gp = _fitted()
+    assert boundary_points(gp, X, np.ones(len(X)), 2).shape == (0, 2)  # no failures
+    L = ll(X)
+    f = int(np.argmax(L))  # the failure where the posterior is
+    L[f] = -np.inf
+    gp_f = fit_gp(X, L, bounds=space.bounds, bound=0.0, warp=True, restarts=1)
+    P = X[f] + np.random.default_rng(0).normal(0.0, 0.05, (400, 2))
+    B = boundary_points(gp_f, P, np.ones(len(P)), 1)
+    ok = np.delete(X, f, axis=0)
+    assert B.shape == (1, 2)
+    assert tuple(B[0]) in {tuple(0.5 * (X[f] + x)) for x in ok}  # a failure-success midpoint
+    again = boundary_points(gp_f, P, np.ones(len(P)), 1, exclude=np.vstack([X, B]))
+    assert not any(np.array_equal(b, B[0]) for b in again)
+
+
 def test_without_failed_solves_the_sampled_log_likelihood_is_the_surrogate_mean_bitwise():
     space, ll, X, gp = _fitted()
     assert gp.X_failed is None and gp.n_failed == 0

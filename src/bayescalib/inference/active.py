@@ -613,8 +613,8 @@ def acquire_round(r: int, X: np.ndarray, L: np.ndarray, gp, particles: np.ndarra
                 np.concatenate([sd, c_sd])
             kind += ["check"] * n_check
         n_edge = min(int(active["boundary_points"]), room - q - n_check)
-        if n_edge > 0 and getattr(gp, "n_failed", 0):
-            B = boundary_points(gp, particles, weights, n_edge)
+        if n_edge > 0 and getattr(gp, "X_failed", None) is not None:
+            B = boundary_points(gp, particles, weights, n_edge, exclude=X)
             if len(B):
                 b_mean, b_sd = _predict_loglik(gp, B)
                 points, mean, sd = np.vstack([points, B]), np.concatenate([mean, b_mean]), \
@@ -630,7 +630,8 @@ def acquire_round(r: int, X: np.ndarray, L: np.ndarray, gp, particles: np.ndarra
 BOUNDARY_RESOLUTION_SD = 0.25
 
 
-def boundary_points(gp, particles: np.ndarray, weights: np.ndarray, n: int) -> np.ndarray:
+def boundary_points(gp, particles: np.ndarray, weights: np.ndarray, n: int,
+                    exclude: np.ndarray | None = None) -> np.ndarray:
     """Points that bisect the boundary of the failed region where the posterior meets
     it, (k, d) in user units, k <= n.
 
@@ -646,11 +647,14 @@ def boundary_points(gp, particles: np.ndarray, weights: np.ndarray, n: int) -> n
     (the posterior's side) and failed ones sparse, the rule's boundary leans into the
     failed side, and the acquisition, which conditions on failed points as known, never
     places points there: without these the posterior keeps mass where solves fail.
+    A midpoint already among ``exclude`` (the design so far: its solve failed for the
+    machine's sake, so the pair is still there) is skipped, since design points may
+    not repeat.
     """
     from scipy.spatial import cKDTree
 
     P = np.atleast_2d(np.asarray(particles, float))
-    if n < 1 or not getattr(gp, "n_failed", 0):
+    if n < 1 or getattr(gp, "X_failed", None) is None:
         return np.empty((0, P.shape[1]))
     W = np.asarray(weights, float)
     W = W / W.sum()
@@ -666,10 +670,13 @@ def boundary_points(gp, particles: np.ndarray, weights: np.ndarray, n: int) -> n
         pairs[(a, b)] = pairs.get((a, b), 0.0) + w
     sd = posterior_moments(P, W)["sd"]
     scale = np.where(sd > 0, sd, 1.0)
+    seen = set() if exclude is None else {tuple(x) for x in np.atleast_2d(exclude).tolist()}
     out = []
     for (a, b), _w in sorted(pairs.items(), key=lambda kv: (-kv[1], kv[0])):
-        if np.sqrt(np.sum(((F[b] - O[a]) / scale) ** 2)) > BOUNDARY_RESOLUTION_SD:
-            out.append(0.5 * (F[b] + O[a]))
+        m = 0.5 * (F[b] + O[a])
+        if np.sqrt(np.sum(((F[b] - O[a]) / scale) ** 2)) > BOUNDARY_RESOLUTION_SD \
+                and tuple(m.tolist()) not in seen:
+            out.append(m)
             if len(out) == n:
                 break
     return np.asarray(out, float).reshape(-1, P.shape[1])
