@@ -202,8 +202,8 @@ def _files_study(tmp_path, entries, **obs):
 def test_observation_files_are_checked_before_any_job(tmp_path):
     """A missing, unsupported or implausible observation file is a config error that
     names the key and the file, raised when the study is read (before any solve)."""
-    good = tmp_path / "scan.csv"
-    good.write_text("x,y\n0.0,0.0\n0.5,0.2\n1.0,0.0\n")
+    good = tmp_path / "scan.csv"  # on the default colony (half-ellipse 0.6 mm x 0.4 mm at x = 1)
+    good.write_text("x,y\n0.7,0.0\n0.8,0.298\n1.0,0.4\n1.2,0.298\n1.3,0.0\n")
     Study(_files_study(tmp_path, [{"path": str(good)}]))  # a readable file passes
     cases = [
         ([{"path": str(tmp_path / "missing.csv")}], "observations.files[0]", "does not exist"),

@@ -26,6 +26,14 @@ from bayescalib.config import ConfigError, round_smc, sorted_keys, validate
 __all__ = ["ConfigError", "Study", "StudyBusyError", "hold_run_lock"]
 
 
+def _entry_at(cfg: Mapping[str, Any], key: str) -> Mapping[str, Any]:
+    """The observation file entry a key such as ``observations.files[2]`` names."""
+    obs = cfg["observations"]
+    if key == "observations.reference":
+        return obs["reference"]
+    return obs["files"][int(key[key.index("[") + 1 : key.index("]")])]
+
+
 class StudyBusyError(RuntimeError):
     """Another process is running the same study (same results folder)."""
 
@@ -270,16 +278,127 @@ class Study:
             raise ConfigError(f"{where}: {exc}") from None
         Study._check_loadings(cfg, where)
         if cfg["forward_model"]["type"] == "fsi":
+            notes += Study._resolve_geometry(cfg, where)
             Study._check_boxes(cfg, where)
         Study._check_hidden(cfg, where)
-        Study._check_observation_files(cfg, where)
+        observed = Study._check_observation_files(cfg, where)
+        notes += Study._check_registration(cfg, where, observed)
         Study._check_diagnose(cfg, where)
         return notes
 
     @staticmethod
-    def _check_observation_files(cfg: dict[str, Any], where: str) -> None:
+    def _resolve_geometry(cfg: dict[str, Any], where: str) -> list[str]:
+        """``geometry.shape: scan``: read the colony from its recording now, check that
+        it can be meshed, and fill ``geometry.outline`` with its interface, so every
+        solve depends on the points (a changed scan reruns them) and none reads the
+        file. Returns a note saying which colony was taken and how."""
+        from bayescalib.geometry.outline import OutlineError, check_colony
+        from bayescalib.io.colony import read_colony
+        from bayescalib.io.observations import ObservationError
+        from bayescalib.models.fsi.model import MESH_PRESETS
+
+        fsi = validate(cfg["forward_model"]["fsi"], "fsi")  # the section's values, defaults in
+        geo = fsi["geometry"]
+        key = f"{where}: forward_model.fsi.geometry"
+        if geo["shape"] != "scan":
+            if geo.get("scan"):
+                raise ConfigError(f"{key}.scan is given but geometry.shape is "
+                                  f"'{geo['shape']}': set shape: scan to model the scanned colony")
+            return []
+        if not geo.get("scan"):
+            raise ConfigError(f"{key}.scan is required with shape: scan (the recording at zero "
+                              "flow whose colony the model meshes)")
+        if geo.get("outline"):
+            raise ConfigError(f"{key}.outline is filled from geometry.scan with shape: scan; "
+                              "leave it out")
+        try:
+            colony = read_colony(geo["scan"], where=f"{key}.scan")
+        except ObservationError as exc:
+            raise ConfigError(f"{where}: {exc}" if not str(exc).startswith(where) else str(exc)) \
+                from None
+        mesh = {**MESH_PRESETS[fsi["mesh"]["preset"]],
+                **{k: v for k, v in fsi["mesh"].items() if v is not None}}
+        try:
+            check_colony(colony.interface, channel_length=float(geo["length"]),
+                         channel_height=float(geo["channel_height"]),
+                         min_gap=2.0 * float(mesh["h_interface"]), name=f"{key}.scan")
+        except OutlineError as exc:
+            raise ConfigError(f"{where}: {exc}") from None
+        cfg["forward_model"]["fsi"]["geometry"]["outline"] = [
+            [round(float(x), 9), round(float(y), 9)] for x, y in colony.interface]
+        i = colony.info
+        return [f"{key}.scan: the model's biofilm is the colony of '{i['source']}' ({i['colony']}; "
+                f"x = {i['x_range_mm'][0]:.4g} to {i['x_range_mm'][1]:.4g} mm, "
+                f"{i['height_mm']:.4g} mm high, smoothed at {i['smoothing_mm'] * 1e3:.3g} um)"]
+
+    @staticmethod
+    def _check_registration(cfg: dict[str, Any], where: str, observed: dict[str, Any]) -> list[str]:
+        """Every observed interface lies where the model's undeformed biofilm is, at its
+        scale: a flow moves the interface by a fraction of the colony's height and its
+        feet barely; a wrong origin or unit moves or scales it as a whole. Refused when
+        the observed x-extent is not within a factor 2 of the model's (units), or when
+        its nodes lie on average more than a quarter of the colony's height from the
+        model's undeformed interface (placement); both before any solve."""
+        import numpy as np
+
+        from bayescalib.geometry.outline import placement
+        from bayescalib.io.observations import UNITS
+
+        if not observed:
+            return []
+        if cfg["forward_model"]["type"] == "fsi":
+            from bayescalib.models.fsi.geometry import reference_interface
+
+            ref = reference_interface(validate(cfg["forward_model"]["fsi"], "fsi")["geometry"])
+            what = "the model's undeformed biofilm"
+        elif "observations.reference" in observed:
+            ref = observed["observations.reference"].points
+            what = "observations.reference"
+        else:
+            return []  # a python/command model's reference is known only from a solve
+        height = float(np.ptp(ref[:, 1])) or 1.0
+        notes = []
+        for key, iface in observed.items():
+            if iface.dim != 2 or (key == "observations.reference" and what != "the model's "
+                                  "undeformed biofilm"):
+                continue
+            entry = dict(_entry_at(cfg, key))
+            units = entry.get("units") or "mm"
+            p = placement(iface.points, ref)
+            if not 0.5 <= p.extent_ratio <= 2.0:
+                hint = ""
+                for u, fu in UNITS.items():
+                    if u != units and 0.5 <= p.extent_ratio * fu / UNITS[units] <= 2.0:
+                        hint = f"; the sizes agree if the file is in {u} (units: {u})"
+                        break
+                raise ConfigError(
+                    f"{where}: {key} ('{entry['path']}'): the observed interface is "
+                    f"{p.extent_ratio:.3g} times as wide as {what} "
+                    f"({np.ptp(iface.points[:, 0]):.4g} mm against {np.ptp(ref[:, 0]):.4g} mm, "
+                    f"read as {units}): check {key}.units"
+                    + (" and pixel_size" if entry.get("pixel_size") is not None else "") + hint)
+            if p.mean_distance > 0.25 * height:
+                dx, dy = p.offset
+                fix = ""
+                if entry.get("origin") is not None:
+                    f = UNITS[units]
+                    fix = (f"; with origin [{entry['origin'][0] - dx / f:.6g}, "
+                           f"{entry['origin'][1] - dy / f:.6g}] {units} it would lie in place")
+                elif entry.get("pixel_size") is not None:
+                    fix = f"; {key}.origin is not given"
+                raise ConfigError(
+                    f"{where}: {key} ('{entry['path']}'): the observed interface lies "
+                    f"{p.mean_distance:.3g} mm (mean distance of its nodes) from {what}, "
+                    f"whose height is {height:.3g} mm: a flow moves it by a fraction of that. "
+                    f"It is offset by about ({dx:.3g}, {dy:.3g}) mm: check {key}.origin and "
+                    f"{key}.units{fix}")
+        return notes
+
+    @staticmethod
+    def _check_observation_files(cfg: dict[str, Any], where: str) -> dict[str, Any]:
         """Observation files exist, can be read and (text and VTK files, which are
-        cheap to read) hold an interface that fits the domain: known before any job."""
+        cheap to read) hold an interface that fits the domain: known before any job.
+        Returns the interfaces read, by config key."""
         from bayescalib.io.observations import (
             CSV_SUFFIXES,
             IMAGE_SUFFIXES,
@@ -290,7 +409,8 @@ class Study:
 
         obs = cfg["observations"]
         if obs["source"] != "files":
-            return
+            return {}
+        observed: dict[str, Any] = {}
         entries = [(f"observations.files[{k}]", e) for k, e in enumerate(obs.get("files") or [])]
         if not entries:
             raise ConfigError(f"{where}: observations.files is empty: list at least one "
@@ -323,9 +443,10 @@ class Study:
             opts = {k: e[k] for k in ("units", "pixel_size", "origin", "drop_border", "floor")
                     if e.get(k) is not None}
             try:
-                read_interface(path, domain=obs.get("domain"), **opts)
+                observed[key] = read_interface(path, domain=obs.get("domain"), **opts)
             except ObservationError as exc:
                 raise ConfigError(f"{where}: {key}: {exc}") from None
+        return observed
 
     @staticmethod
     def _check_diagnose(cfg: dict[str, Any], where: str) -> None:

@@ -49,7 +49,7 @@ import numpy as np
 
 from bayescalib.geometry.interface import Interface
 
-__all__ = ["load_mask", "mask_contour", "pixel_grid", "render_mask", "render_scan",
+__all__ = ["load_mask", "mask_contour", "read_mask", "pixel_grid", "render_mask", "render_scan",
            "segment_scan"]
 
 
@@ -74,6 +74,12 @@ def load_mask(path: str | Path) -> np.ndarray:
     if not np.isfinite(img).all():
         raise _MaskError("image contains NaN/inf values")
     return img > 0.5 * top if top > 0 else np.zeros(img.shape, dtype=bool)
+
+
+def read_mask(path: str | Path, *, image: str = "auto",
+              segmentation: dict | None = None) -> tuple[np.ndarray, dict]:
+    """A biofilm mask from an image file, and what was done (``{"kind": "mask"}``)."""
+    return load_mask(path), {"kind": "mask"}
 
 
 def mask_contour(

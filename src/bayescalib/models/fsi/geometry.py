@@ -6,9 +6,14 @@ biofilm patch attached to the floor. Shapes:
 * ``half_ellipse`` — the upper half of an ellipse with semi-axes ``width/2`` and
   ``height`` centred at ``(centre, 0)`` (exact OpenCascade ellipse; default
   0.6 mm wide, 0.4 mm high at x = 1 mm);
-* ``polyline`` — an arbitrary closed outline ``[[x, y], ...]`` in mm (e.g. a segmented
-  OCT shape); the part below the floor ``y = 0`` is cut off, so the outline may start
-  and end on or below the floor.
+* ``polyline`` — an arbitrary closed outline ``[[x, y], ...]`` in mm, in either
+  orientation (it is made counterclockwise: OpenCascade triangulates no face whose
+  wire runs clockwise); the part below the floor ``y = 0`` is cut off, so the outline
+  may start and end on or below the floor; every point is a mesh vertex;
+* ``scan`` — the colony of a recording at zero flow (``geometry.scan``: a mask, a raw
+  B-scan or an outline file; :mod:`bayescalib.io.colony`): its interface, smoothed at
+  a stated length, is one spline edge from foot to foot, so the observed zero-flow
+  interface is the model's reference by construction.
 
 Heterogeneous split (6-parameter case, paper Sec. 4.5): with
 ``subdomains.enabled`` the biofilm is cut by two horizontal lines at
@@ -85,11 +90,15 @@ def _outline_face(geometry: dict[str, Any]):
         full = Face(Wire([Ellipse(gp_Ax2d(gp_Pnt2d(xc, 0), axis), major, minor).Edge()]))
         lo, hi = xc - a, xc + a
     elif geometry["shape"] == "polyline":
+        from bayescalib.geometry.outline import OutlineError, counterclockwise
+
         pts = np.asarray(geometry["outline"], dtype=float)
         if pts.ndim != 2 or pts.shape[1] != 2 or len(pts) < 3:
             raise ValueError("geometry.outline: need at least 3 points [x, y] (mm)")
-        if np.allclose(pts[0], pts[-1]):
-            pts = pts[:-1]
+        try:  # OpenCascade triangulates no face whose wire runs clockwise
+            pts = counterclockwise(pts)
+        except OutlineError as exc:
+            raise ValueError(f"geometry.outline: {exc}") from None
         wp = WorkPlane().MoveTo(*pts[0])
         for p in pts[1:]:
             wp.LineTo(*p)
@@ -100,11 +109,90 @@ def _outline_face(geometry: dict[str, Any]):
             raise ValueError("geometry.outline must lie inside the channel, above the floor")
         if pts[:, 1].min() > 1e-12:
             raise ValueError("geometry.outline must reach the floor (some points with y <= 0)")
+    elif geometry["shape"] == "scan":
+        full, lo, hi, b = _scan_face(scan_interface(geometry))
+        if lo <= 0 or hi >= L or b >= float(geometry["channel_height"]):
+            raise ValueError(f"geometry.scan: the colony (x = {lo:.4g} to {hi:.4g} mm, "
+                             f"{b:.4g} mm high) must lie inside the channel")
     else:
         raise ValueError(f"geometry.shape: unknown shape '{geometry['shape']}'")
     below = WorkPlane().MoveTo(lo - 1.0, -10.0).Rectangle(hi - lo + 2.0, 10.0).Face()
     patch = full - below
     return patch, lo, hi, b
+
+
+def scan_interface(geometry: dict[str, Any]) -> np.ndarray:
+    """The undeformed interface of ``shape: scan`` (mm, foot to foot).
+
+    A study fills ``geometry.outline`` with it when it is read (so the solves depend
+    on the points, not on the file's name); a config used on its own (the CLI) reads
+    ``geometry.scan`` here.
+    """
+    if geometry.get("outline"):
+        return np.asarray(geometry["outline"], dtype=float)
+    from bayescalib.io.colony import read_colony
+
+    if not geometry.get("scan"):
+        raise ValueError("geometry.scan is required for shape: scan (the zero-flow recording)")
+    return read_colony(geometry["scan"], where="geometry.scan").interface
+
+
+def reference_interface(geometry: dict[str, Any], n: int = 200) -> np.ndarray:
+    """The model's undeformed interface from the geometry section alone (no mesh).
+
+    Parameters
+    ----------
+    geometry : dict
+        Validated ``geometry`` section (mm); for ``shape: scan`` with its outline
+        filled (or the scan readable).
+    n : int
+        Points of the half-ellipse.
+
+    Returns
+    -------
+    ndarray, shape (m, 2)
+        From the upstream foot to the downstream foot, mm (what the mesh's interface
+        approximates).
+    """
+    from bayescalib.geometry.outline import counterclockwise, interface_above_floor
+
+    shape = geometry["shape"]
+    if shape == "half_ellipse":
+        t = np.linspace(np.pi, 0.0, n)
+        a, b, xc = 0.5 * float(geometry["width"]), float(geometry["height"]), float(geometry["centre"])
+        return np.column_stack([xc + a * np.cos(t), b * np.sin(t)])
+    if shape == "polyline":
+        return interface_above_floor(counterclockwise(np.asarray(geometry["outline"], dtype=float)),
+                                     floor=0.0, closed=True)
+    return scan_interface(geometry)
+
+
+def _scan_face(interface: np.ndarray):
+    """OpenCascade face of a colony whose interface (foot to foot, mm) came from a scan.
+
+    The interface is one spline edge through the points (no mesh vertex at every
+    traced point); its two ends are moved just below the floor and joined by a
+    rectangle below it, so the cut at y = 0 places the feet where the spline
+    crosses the floor. The wire runs counterclockwise (see :func:`counterclockwise`).
+    """
+    from netgen.occ import WorkPlane, gp_Pnt2d
+
+    p = np.asarray(interface, dtype=float)
+    if p.ndim != 2 or p.shape[1] != 2 or len(p) < 4:
+        raise ValueError("geometry.outline: a scanned interface needs at least 4 points (mm)")
+    height = float(p[:, 1].max())
+    if height <= 0:
+        raise ValueError("geometry.outline: the scanned interface lies below the floor")
+    eps, depth = 1e-3 * height, 0.1 * height
+    p = p.copy()
+    p[0, 1] = min(p[0, 1], -eps)
+    p[-1, 1] = min(p[-1, 1], -eps)
+    # counterclockwise: below the upstream foot, along under the colony, up to the
+    # downstream foot, over the top back to the upstream foot (the interface reversed)
+    wp = WorkPlane().MoveTo(p[0, 0], -depth).LineTo(p[-1, 0], -depth).LineTo(*p[-1])
+    wp = wp.Spline([gp_Pnt2d(float(x), float(y)) for x, y in p[-2::-1]])
+    full = wp.Close().Face()
+    return full, float(p[:, 0].min()), float(p[:, 0].max()), height
 
 
 def build_mesh(geometry: dict[str, Any], mesh_cfg: dict[str, Any]) -> BiofilmMesh:

@@ -1,0 +1,225 @@
+"""The model's undeformed colony read from a recording at zero (or the lowest) flow.
+
+``forward_model.fsi.geometry.shape: scan`` takes the biofilm's undeformed shape
+from ``geometry.scan``: a segmented mask or a raw greyscale B-scan (``.png``,
+``.tif``), or an outline file (CSV, VTK) of the zero-flow interface. This module
+reads the file and returns the fluid–biofilm interface above the substrate in mm,
+smoothed at a stated length and resampled, by the steps of
+:mod:`bayescalib.geometry.outline`:
+
+* image: the mask (:func:`bayescalib.geometry.imaging.read_mask`: a mask as it is,
+  a raw scan segmented), the substrate removed (pixels whose centre lies at or
+  below the floor, so colonies are not joined through it), the colony chosen
+  (``colony``: an x-range in the scan's units, else the largest; the choice is
+  reported), its boundary traced with sub-pixel accuracy, cut at the floor,
+  smoothed (``smoothing``, default two pixel sizes) and resampled;
+* outline file: a closed outline (either orientation; the part above the floor is
+  kept) or an open interface from foot to foot (either direction; its ends must lie
+  on the floor), smoothed only when ``smoothing`` is given.
+
+The floor is ``floor`` (in the scan's units), or for an image without one the
+bottom edge of the image. The flow cell's floor is y = 0 in the model: a floor
+farther than two pixels (or 10 um) from it means the origin does not put the
+substrate where the model has it, and the scan is refused with the origin that
+would.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from bayescalib.geometry import outline as ol
+from bayescalib.io.observations import (
+    CSV_SUFFIXES,
+    IMAGE_SUFFIXES,
+    UNITS,
+    VTK_SUFFIXES,
+    ObservationError,
+    read_interface,
+)
+
+__all__ = ["Colony", "read_colony"]
+
+#: a floor this far from y = 0 (mm) is a misplaced scan, not a tolerance (also >= 2 pixels)
+FLOOR_TOL_MM = 0.01
+
+
+@dataclass
+class Colony:
+    """The undeformed colony taken from a recording.
+
+    Attributes
+    ----------
+    interface : ndarray, shape (n, 2)
+        Fluid–biofilm interface in mm, from the upstream foot to the downstream one,
+        smoothed and resampled.
+    info : dict
+        What was done, in plain values: ``source`` (file), ``kind`` (mask, scan or
+        outline), ``floor_mm``, ``pixel_size_mm`` (images), ``smoothing_mm``,
+        ``spacing_mm``, ``area_mm2``, ``length_mm``, ``colony`` (the choice in
+        words) and ``n_colonies``.
+    """
+
+    interface: np.ndarray
+    info: dict[str, Any] = field(default_factory=dict)
+
+
+def _fail(where: str, msg: str) -> ObservationError:
+    return ObservationError(msg if msg.startswith(where) else f"{where}: {msg}")
+
+
+def read_colony(scan: Mapping[str, Any], *, where: str = "geometry.scan") -> Colony:
+    """Read the undeformed colony from the file a ``geometry.scan`` section names.
+
+    Parameters
+    ----------
+    scan : mapping
+        ``path``; ``units`` (m, mm, um: of coordinates, ``pixel_size``, ``origin``,
+        ``floor``, ``colony`` and ``smoothing``); for images ``pixel_size`` and
+        ``origin`` (required: the centre of the bottom-left pixel) and optionally
+        ``image`` and ``segmentation`` (:func:`bayescalib.geometry.imaging.read_mask`);
+        ``floor`` (number or None); ``colony`` ([lo, hi] x-range or None);
+        ``smoothing`` (None: two pixels for images, none for outline files).
+    where : str
+        The config key, for messages.
+
+    Returns
+    -------
+    Colony
+
+    Raises
+    ------
+    ObservationError
+        Naming ``where`` and the file: unreadable file, no colony, a colony cut by
+        the image border, a floor away from y = 0, an open outline whose ends are
+        not on the floor.
+    """
+    path = Path(scan["path"])
+    units = scan.get("units") or "mm"
+    if units not in UNITS:
+        raise _fail(where, f"unknown units {units!r}; use one of {', '.join(UNITS)}")
+    f = UNITS[units]
+    suffix = path.suffix.lower()
+    if not path.is_file():
+        raise _fail(where, f"'{path}' does not exist" + (
+            f" (relative paths are read from {Path.cwd()})" if not path.is_absolute() else ""))
+    smoothing = scan.get("smoothing")
+    colony = scan.get("colony")
+    floor = scan.get("floor")
+    if suffix in IMAGE_SUFFIXES:
+        return _colony_from_image(path, scan, f, units, where)
+    if suffix not in CSV_SUFFIXES | VTK_SUFFIXES:
+        known = sorted(CSV_SUFFIXES | VTK_SUFFIXES | IMAGE_SUFFIXES)
+        raise _fail(where, f"'{path}' is not a supported file (suffixes: {', '.join(known)})")
+    if colony is not None:
+        raise _fail(where, "colony (an x-range choosing one of several colonies) applies to "
+                    "images; an outline file holds one colony")
+    try:
+        iface = read_interface(path, units=units)
+    except ObservationError as exc:
+        raise _fail(where, str(exc)) from None
+    if iface.dim != 2 or not iface.is_chain():
+        raise _fail(where, f"'{path}' must hold one ordered 2D curve (the zero-flow interface "
+                    "or the colony's closed outline)")
+    y_f = 0.0 if floor is None else float(floor) * f
+    closed = iface.n_cells == iface.n_points
+    try:
+        pts = ol.interface_above_floor(iface.points, floor=y_f, closed=closed)
+    except ol.OutlineError as exc:
+        raise _fail(where, f"'{path}': {exc}") from None
+    height = float(pts[:, 1].max() - y_f)
+    if not closed:
+        off = np.abs(pts[[0, -1], 1] - y_f)
+        if off.max() > max(FLOOR_TOL_MM, 0.05 * height):
+            raise _fail(where, (
+                f"'{path}': the interface's ends lie at y = {pts[0, 1]:.4g} and "
+                f"{pts[-1, 1]:.4g} mm, not on the floor (y = {y_f:g} mm): an open outline of "
+                "the zero-flow interface runs from foot to foot on the substrate (or give the "
+                "colony's closed outline)"))
+    info = {"source": str(path), "kind": "outline", "n_colonies": 1,
+            "colony": "one colony in the outline file"}
+    return _finish(pts, y_f, None if smoothing is None else float(smoothing) * f, None,
+                   info, where)
+
+
+def _colony_from_image(path: Path, scan: Mapping[str, Any], f: float, units: str,
+                       where: str) -> Colony:
+    from bayescalib.geometry import imaging
+
+    if scan.get("pixel_size") is None:
+        raise _fail(where, f"pixel_size is required for the image '{path}' (the size of one "
+                    f"pixel, in {units})")
+    if scan.get("origin") is None:
+        raise _fail(where, (
+            f"origin is required for the image '{path}': the position (x, y) of the centre of "
+            f"its bottom-left pixel in the flow cell, in {units}, so that the substrate lies "
+            "at y = 0 and the colony where it is in the channel"))
+    s = float(scan["pixel_size"]) * f
+    x0, y0 = (float(v) * f for v in scan["origin"])
+    try:
+        mask, seg = imaging.read_mask(path, image=scan.get("image") or "auto",
+                                      segmentation=scan.get("segmentation"))
+    except (ValueError, OSError) as exc:
+        raise _fail(where, f"'{path}': {exc}") from None
+    h, w = mask.shape
+    floor = scan.get("floor")
+    if floor is None:
+        y_f = y0 - 0.5 * s  # the bottom edge of the image
+    elif isinstance(floor, str):
+        y_f = imaging.find_floor(mask, s, (x0, y0)) if hasattr(imaging, "find_floor") else None
+        if y_f is None:
+            raise _fail(where, f"'{path}': floor: {floor!r} is not supported here; give the "
+                        f"substrate's y in {units}")
+    else:
+        y_f = float(floor) * f
+    if abs(y_f) > max(FLOOR_TOL_MM, 2.0 * s):
+        raise _fail(where, (
+            f"'{path}': the substrate lies at y = {y_f:.4g} mm in the scan's coordinates "
+            f"(origin {list(scan['origin'])} {units}), but the flow cell's floor is y = 0: "
+            f"with origin [{x0 / f:.6g}, {(y0 - y_f) / f:.6g}] {units} it would be"))
+    rows_y = y0 + (h - 1 - np.arange(h)) * s
+    work = mask.copy()
+    work[rows_y <= y_f, :] = False
+    cols = None
+    if scan.get("colony") is not None:
+        lo, hi = (float(v) * f for v in scan["colony"])
+        cols = ((lo - x0) / s, (hi - x0) / s)
+    try:
+        comp, choice = ol.select_colony(work, columns=cols, name=f"'{path}'")
+        traced = imaging.mask_contour(comp, s, (x0, y0), drop_border=False, floor=y_f,
+                                      name=str(path))
+        pts = ol.interface_above_floor(traced.points, floor=y_f, closed=False)
+    except (ol.OutlineError, ValueError) as exc:
+        raise _fail(where, str(exc)) from None
+    smoothing = scan.get("smoothing")
+    info = {"source": str(path), "kind": seg.get("kind", "mask"), "n_colonies": choice.n_colonies,
+            "colony": choice.words, "pixel_size_mm": s,
+            "colony_columns": list(choice.x_ranges[choice.index])}
+    return _finish(pts, y_f, 2.0 * s if smoothing is None else float(smoothing) * f, s,
+                   info, where)
+
+
+def _finish(pts: np.ndarray, y_f: float, smoothing: float | None, pixel: float | None,
+            info: dict[str, Any], where: str) -> Colony:
+    """Smooth, resample and describe the interface."""
+    sm = float(smoothing or 0.0)
+    pts = ol.extend_to_floor(pts, y_f, reach=max(2.0 * (pixel or 0.0), sm, 1e-9))
+    length = float(np.sum(np.linalg.norm(np.diff(pts, axis=0), axis=1)))
+    if sm > 0:
+        pts = ol.smooth_curve(pts, sm)
+    # the mesh takes a spline through these points: spacing of the smoothing length
+    # (a pixel at least), at most 400 points along the interface
+    spacing = max(sm, pixel or 0.0, length / 400.0)
+    if spacing > 0 and pts.shape[0] > 3:
+        pts = ol.resample_curve(pts, spacing)
+    info.update(floor_mm=float(y_f), smoothing_mm=sm, spacing_mm=float(spacing),
+                area_mm2=ol.polygon_area(pts), length_mm=float(
+                    np.sum(np.linalg.norm(np.diff(pts, axis=0), axis=1))),
+                x_range_mm=[float(pts[:, 0].min()), float(pts[:, 0].max())],
+                height_mm=float(pts[:, 1].max() - y_f))
+    return Colony(pts, info)
