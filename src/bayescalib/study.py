@@ -390,7 +390,7 @@ class Study:
                     f"{where}: {key} ('{entry['path']}'): the observed interface lies "
                     f"{p.mean_distance:.3g} mm (mean distance of its nodes) from {what}, "
                     f"whose height is {height:.3g} mm: a flow moves it by a fraction of that. "
-                    f"It is offset by about ({dx:.3g}, {dy:.3g}) mm: check {key}.origin and "
+                    f"It is offset by about ({dx:+.3f}, {dy:+.3f}) mm: check {key}.origin and "
                     f"{key}.units{fix}")
         return notes
 

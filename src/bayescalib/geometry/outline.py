@@ -235,9 +235,17 @@ def interface_above_floor(points: np.ndarray, *, floor: float = 0.0, closed: boo
         edges = np.diff(np.r_[0, keep.astype(int), 0])
         starts, ends = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
         k = int(np.argmax(ends - starts))
-        p = p[starts[k] : ends[k]]
-        if p.shape[0] < 3:
+        n = p.shape[0]
+        run = p[starts[k] : ends[k]]
+        if run.shape[0] < 3:
             raise OutlineError("fewer than 3 outline points lie above the floor")
+        # the feet: where the outline crosses y = floor + tol into and out of the run
+        y_c = floor + tol
+        feet = []
+        for a, b in ((p[(starts[k] - 1) % n], run[0]), (run[-1], p[ends[k] % n])):
+            w = (y_c - a[1]) / (b[1] - a[1]) if b[1] != a[1] else 0.0
+            feet.append(a + w * (b - a))
+        p = np.vstack([feet[0], run, feet[1]])
     if p[0, 0] > p[-1, 0]:
         p = p[::-1]
     return p.copy()

@@ -1,0 +1,240 @@
+"""The model's undeformed biofilm from a recording (geometry.shape: scan).
+
+Specification: a colony traced from a scan keeps its area and interface length
+within a pixel; the order and orientation a tracer gives do not matter; with
+several colonies the user's choice (or the largest) is taken and said; what cannot
+be meshed or is misplaced is refused when the study is read, naming the key and
+the fix; the extracted shape meshes and solves.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.special import ellipe
+
+from bayescalib.config import ConfigError
+from bayescalib.geometry import outline as ol
+from bayescalib.geometry.imaging import pixel_grid, render_mask
+from bayescalib.io.colony import read_colony
+from bayescalib.io.observations import ObservationError, write_interface_csv, write_mask_png
+from bayescalib.geometry.interface import Interface
+from bayescalib.study import Study
+
+S = 0.004  # pixel size, mm (4 um, an OCT B-scan's)
+
+
+def _arc_colony(r_of_t, centre=1.0, n=4000):
+    """Interface x = c + r(t) cos t, y = r(t) sin t, t from pi to 0 (foot to foot)."""
+    t = np.linspace(np.pi, 0.0, n)
+    r = r_of_t(t)
+    return np.column_stack([centre + r * np.cos(t), r * np.sin(t)])
+
+
+def _ellipse(a, b):
+    t = np.linspace(np.pi, 0.0, 4000)
+    return np.column_stack([1.0 + a * np.cos(t), b * np.sin(t)])
+
+
+def _exact(curve):
+    """Area above the floor and interface length of a dense analytic curve."""
+    closed = np.vstack([curve, curve[:1]])
+    return ol.polygon_area(curve), float(np.sum(np.linalg.norm(np.diff(curve, axis=0), axis=1))), closed
+
+
+def _mask_file(tmp_path, curves, name="scan.png", margin=0.05):
+    """A noiseless mask (area fraction > 1/2) of one or more colonies on the image's
+    bottom edge (the floor y = 0); returns the scan entry."""
+    pts = np.vstack(curves)
+    shape, origin = pixel_grid(np.array([pts.min(axis=0), pts.max(axis=0)]), S, margin=margin,
+                               floor=0.0)
+    mask = np.zeros(shape, dtype=bool)
+    for c in curves:
+        mask |= render_mask(c, pixel_size=S, origin=origin, shape=shape,
+                            rng=np.random.default_rng(0), psf_sigma=0.0, looks=None, noise=0.0,
+                            smooth=0.0, threshold=0.5, min_size=0)
+    path = tmp_path / name
+    write_mask_png(path, mask, pixel_size=S, origin=origin)
+    return {"path": str(path), "units": "mm", "pixel_size": S, "origin": list(origin)}
+
+
+LOBED = lambda t: 0.28 * (1 + 0.12 * np.cos(3 * t + 0.5))  # noqa: E731
+
+
+@pytest.mark.parametrize("curve", [
+    _ellipse(0.25, 0.25),                  # semicircle
+    _ellipse(0.2, 0.4),                    # tall
+    _ellipse(0.35, 0.2),                   # wide
+    _arc_colony(LOBED),                    # three lobes, asymmetric
+], ids=["semicircle", "tall", "wide", "lobed"])
+def test_a_traced_colony_keeps_its_area_and_interface_length_within_a_pixel(tmp_path, curve):
+    """Tolerances: interface length within one pixel (the staircase of the raw trace
+    adds 6-8 pixels; the default smoothing of two pixels removes it), area within a
+    band of half a pixel along the interface (the trace is sub-pixel accurate)."""
+    area, length, _ = _exact(curve)
+    colony = read_colony(_mask_file(tmp_path, [curve]))
+    assert abs(colony.info["length_mm"] - length) <= S, (colony.info["length_mm"], length)
+    assert abs(colony.info["area_mm2"] - area) <= 0.5 * length * S
+    assert colony.info["smoothing_mm"] == pytest.approx(2 * S)
+    p = colony.interface
+    assert p[0, 0] < p[-1, 0] and p[0, 1] == pytest.approx(0.0) and p[-1, 1] == pytest.approx(0.0)
+
+
+def test_the_semicircle_reference_is_exact():
+    area, length, _ = _exact(_ellipse(0.25, 0.25))
+    assert area == pytest.approx(np.pi * 0.25**2 / 2, rel=1e-5)
+    assert length == pytest.approx(np.pi * 0.25, rel=1e-5)
+    a, b = 0.35, 0.2
+    assert _exact(_ellipse(a, b))[1] == pytest.approx(2 * a * ellipe(1 - (b / a) ** 2), rel=1e-5)
+
+
+def test_the_order_and_orientation_of_an_outline_file_do_not_matter(tmp_path):
+    curve = _arc_colony(LOBED, n=300)
+    floor = np.array([[curve[-1, 0], -0.02], [curve[0, 0], -0.02]])
+    closed = np.vstack([curve, floor])  # clockwise: over the top, back under the floor
+    got = []
+    for k, pts in enumerate([closed, closed[::-1], np.roll(closed, 37, axis=0)]):
+        path = tmp_path / f"outline{k}.csv"
+        write_interface_csv(path, Interface.polyline(pts, closed=True))
+        got.append(read_colony({"path": str(path)}).interface)
+    for k, pts in enumerate([curve, curve[::-1]]):  # an open interface, either direction
+        path = tmp_path / f"open{k}.csv"
+        write_interface_csv(path, Interface.polyline(pts))
+        got.append(read_colony({"path": str(path)}).interface)
+    for g in got[1:]:
+        assert g.shape == got[0].shape and np.allclose(g, got[0], atol=1e-9)
+    assert got[0][0, 0] < got[0][-1, 0]
+
+
+def test_polygon_orientation_is_normalized():
+    sq = np.array([[0, 0], [1, 0], [1, 1], [0, 1]], dtype=float)
+    assert ol.signed_area(sq) == pytest.approx(1.0)
+    assert ol.signed_area(ol.counterclockwise(sq[::-1])) == pytest.approx(1.0)
+    assert ol.counterclockwise(np.vstack([sq, sq[:1]])).shape == (4, 2)
+
+
+def test_with_two_colonies_the_largest_or_the_named_one_is_modelled(tmp_path):
+    big = _ellipse(0.2, 0.3)
+    small = np.column_stack([1.55 + 0.1 * np.cos(np.linspace(np.pi, 0, 400)),
+                             0.12 * np.sin(np.linspace(np.pi, 0, 400))])
+    entry = _mask_file(tmp_path, [big, small])
+    colony = read_colony(entry)
+    assert colony.info["n_colonies"] == 2 and "largest" in colony.info["colony"]
+    assert colony.interface[:, 0].max() < 1.25
+    picked = read_colony({**entry, "colony": [1.4, 1.7]})
+    assert picked.interface[:, 0].min() > 1.4 and "x-range" in picked.info["colony"]
+    with pytest.raises(ObservationError, match="no colony lies in the given x-range"):
+        read_colony({**entry, "colony": [0.1, 0.2]})
+
+
+def test_a_colony_cut_by_the_image_border_is_refused(tmp_path):
+    entry = _mask_file(tmp_path, [_ellipse(0.25, 0.3)], margin=0.0)
+    with pytest.raises(ObservationError, match="(left|right).*border.*field of view"):
+        read_colony(entry)
+
+
+def test_a_substrate_away_from_the_floor_is_refused_with_the_origin_that_fits(tmp_path):
+    entry = _mask_file(tmp_path, [_ellipse(0.25, 0.3)])
+    wrong = {**entry, "origin": [entry["origin"][0], entry["origin"][1] + 0.1]}
+    with pytest.raises(ObservationError) as exc:
+        read_colony(wrong)
+    msg = str(exc.value)
+    assert "geometry.scan" in msg and "y = 0.1" in msg
+    assert f"{entry['origin'][1]:.6g}" in msg  # the origin that puts the substrate at y = 0
+    with pytest.raises(ObservationError, match="origin is required"):
+        read_colony({k: v for k, v in entry.items() if k != "origin"})
+
+
+def test_outlines_the_mesh_cannot_resolve_are_refused():
+    """Gaps narrower than two interface elements (min_gap) cannot be meshed."""
+    ok = ol.resample_curve(_ellipse(0.3, 0.4), 0.005)
+    ol.check_colony(ok, channel_length=2.0, channel_height=1.0, min_gap=0.07)
+    # a mushroom: its cap overhangs the floor with a 30 um fluid gap under it
+    mushroom = ol.resample_curve(np.array([
+        [0.9, 0.0], [0.9, 0.03], [0.6, 0.03], [0.55, 0.1], [0.7, 0.3], [1.0, 0.35],
+        [1.3, 0.3], [1.45, 0.1], [1.4, 0.03], [1.1, 0.03], [1.1, 0.0]]), 0.005)
+    # a crevice 20 um wide and 0.2 mm deep between two lobes
+    pinched = ol.resample_curve(np.array([
+        [0.7, 0.0], [0.7, 0.3], [0.99, 0.3], [0.99, 0.1], [1.01, 0.1], [1.01, 0.3],
+        [1.3, 0.3], [1.3, 0.0]]), 0.005)
+    for bad, words in [
+        (mushroom, "overhang.*fluid gap"),
+        (pinched, "nearly touches itself"),
+        (ol.resample_curve(_ellipse(0.3, 0.4) + [0.8, 0.0], 0.005), "outside the channel"),
+        (ol.resample_curve(_ellipse(0.3, 1.2), 0.005), "channel top"),
+    ]:
+        with pytest.raises(ol.OutlineError, match=words):
+            ol.check_colony(bad, channel_length=2.0, channel_height=1.0, min_gap=0.07)
+
+
+def _scan_study(entry, tmp_path, files=None, **geometry):
+    cfg = {
+        "study": "scan_geometry", "results_dir": str(tmp_path / "results"),
+        "parameters": [
+            {"name": "E", "unit": "Pa", "target": "material.E",
+             "prior": {"type": "uniform", "lo": 100.0, "hi": 800.0}},
+            {"name": "nu", "unit": "-", "target": "material.nu",
+             "prior": {"type": "uniform", "lo": -0.5, "hi": 0.45}},
+        ],
+        "forward_model": {"type": "fsi", "fsi": {
+            "geometry": {"shape": "scan", "scan": entry, **geometry},
+            "mesh": {"preset": "coarse"}}},
+        "observations": {"source": "files", "files": files or []},
+    }
+    return Study(cfg, where="mine.yaml")
+
+
+def test_a_scan_study_meshes_the_scanned_colony_and_checks_observations_against_it(tmp_path):
+    curve = _arc_colony(LOBED)
+    entry = _mask_file(tmp_path, [curve])
+    obs = tmp_path / "loaded.csv"
+    write_interface_csv(obs, Interface.polyline(curve[::40] + [0.0, 0.0]))
+    study = _scan_study(entry, tmp_path, files=[{"path": str(obs)}])
+    geo = study.config["forward_model"]["fsi"]["geometry"]
+    assert len(geo["outline"]) > 50 and any("colony of" in n for n in study.notes)
+    # the same recording 0.5 mm off (an origin left out) is refused, naming the offset
+    off = tmp_path / "off.csv"
+    write_interface_csv(off, Interface.polyline(curve[::40] - [0.5, 0.0]))
+    with pytest.raises(ConfigError) as exc:
+        _scan_study(entry, tmp_path, files=[{"path": str(off)}])
+    assert "observations.files[0].origin" in str(exc.value) and "(-0.501, +0.000)" in str(exc.value)
+    # in um read as mm: refused as a scale mismatch naming the unit that fits
+    um = tmp_path / "um.csv"
+    write_interface_csv(um, Interface.polyline(curve[::40] * 1000.0))
+    with pytest.raises(ConfigError, match=r"observations.files\[0\].units.*in um"):
+        _scan_study(entry, tmp_path, files=[{"path": str(um)}])
+    with pytest.raises(ConfigError, match=r"geometry.scan is required"):
+        _scan_study(None, tmp_path, files=[{"path": str(obs)}])
+
+
+def test_the_half_ellipse_study_refuses_an_image_placed_half_a_millimetre_off(tmp_path):
+    """The trial that found it: a mask of the default colony with its origin left out."""
+    entry = _mask_file(tmp_path, [_ellipse(0.3, 0.4)])
+    cfg_files = [{"path": entry["path"], "pixel_size": S, "origin": [0.0, 0.0]}]
+    cfg = {
+        "study": "misplaced", "results_dir": str(tmp_path / "results"),
+        "parameters": [{"name": "E", "unit": "Pa", "target": "material.E",
+                        "prior": {"type": "uniform", "lo": 100.0, "hi": 800.0}}],
+        "observations": {"source": "files", "files": cfg_files},
+    }
+    with pytest.raises(ConfigError, match=r"observations.files\[0\].*offset by about \(-0.70"):
+        Study(cfg)
+    cfg["observations"]["files"][0]["origin"] = entry["origin"]
+    Study(cfg)
+
+
+def test_the_mesh_of_a_scanned_colony_follows_it_and_solves(tmp_path):
+    from bayescalib.models.fsi.model import FSIModel
+
+    curve = _arc_colony(LOBED)
+    entry = _mask_file(tmp_path, [curve])
+    colony = read_colony(entry)
+    model = FSIModel({"geometry": {"shape": "scan", "scan": entry}, "mesh": {"preset": "coarse"}})
+    result = model.solve({"material.E": 400.0, "material.nu": 0.3})
+    assert result.status == "ok", result.reason
+    ref = Interface.polyline(colony.interface)
+    from bayescalib.geometry.projection import closest_points
+
+    d, _, _ = closest_points(result.interface_reference, ref)
+    assert np.max(np.abs(d)) < 0.25 * S  # the mesh's interface nodes lie on the traced one
+    assert result.interface_reference[0, 0] == pytest.approx(colony.interface[0, 0], abs=S)
