@@ -64,6 +64,9 @@ R = study.root
 from bayescalib.stages import front_page
 
 config["front_page"] = front_page(f"{R}/summary.json")
+# what the captions may speak of: a ground truth only where every parameter has one,
+# and the fields figure's solve (the ground truth's, or the posterior mean's on real data)
+config["report_flags"] = {"ground_truth": study.has_ground_truth, "synthetic": study.synthetic}
 
 
 onstart:

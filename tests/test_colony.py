@@ -177,7 +177,7 @@ def _scan_study(entry, tmp_path, files=None, **geometry):
              "prior": {"type": "uniform", "lo": -0.5, "hi": 0.45}},
         ],
         "forward_model": {"type": "fsi", "fsi": {
-            "geometry": {"shape": "scan", "scan": entry, **geometry},
+            "geometry": {"shape": "scan", **({"scan": entry} if entry else {}), **geometry},
             "mesh": {"preset": "coarse"}}},
         "observations": {"source": "files", "files": files or []},
     }

@@ -136,6 +136,73 @@ def test_a_box_the_fsi_model_cannot_solve_is_refused_before_any_solve(k, change,
         Study({**DEFAULT, "parameters": params})
 
 
+def _with_param(k: int, **change) -> dict:
+    params = [dict(p) for p in DEFAULT["parameters"]]
+    params[k] = {**params[k], **change}
+    return {**DEFAULT, "parameters": params}
+
+
+def test_a_modulus_in_kpa_is_refused_with_its_numbers_in_pa():
+    """The fsi model reads material.E in Pa: a prior written in kPa would be read as
+    Pa (a biofilm a thousand times softer). The study is refused, naming the key, the
+    target and its unit, and the error gives the parameter's numbers in Pa to paste."""
+    cfg = _with_param(0, unit="kPa", prior={"type": "uniform", "lo": 0.1, "hi": 0.8},
+                      bounds=[0.1, 0.8], ground_truth=0.4)
+    with pytest.raises(ConfigError) as exc:
+        Study(cfg)
+    text = str(exc.value)
+    assert "parameters[0].unit: 'kPa'" in text and "material.E in Pa" in text
+    assert ("{name: E, unit: Pa, target: material.E, prior: {type: uniform, lo: 100, hi: 800}, "
+            "bounds: [100, 800], ground_truth: 400}") in text
+
+
+@pytest.mark.parametrize("k, unit, message", [
+    (0, "-", r"parameters\[0\].unit: '-' .*material.E in Pa .*names none.*write unit: Pa"),
+    (1, "Pa", r"parameters\[1\].unit: 'Pa' .*material.nu as a dimensionless number"),
+    (0, "Pa s", r"parameters\[0\].unit: 'Pa s' .*material.E in Pa: write unit: Pa"),
+])
+def test_a_unit_that_is_not_the_targets_is_refused(k, unit, message):
+    """A unit of another kind (or none, the default) for a target with a unit cannot be
+    converted: the error says which unit to write."""
+    with pytest.raises(ConfigError, match=message):
+        Study(_with_param(k, unit=unit))
+
+
+def test_an_inflow_rate_in_um2_per_s_is_refused_with_its_prior_in_mm2_per_s():
+    cfg = deep_merge(DEFAULT, {"parameters": DEFAULT["parameters"] + [{
+        "name": "V_in", "unit": "um^2/s", "target": "inflow.rate", "uncertain": True,
+        "prior": {"type": "beta", "a": 2.6, "b": 1.4, "lo": 0.0, "hi": 1.1e8},
+        "ground_truth": 8.8e7}]})
+    with pytest.raises(ConfigError, match=(
+            r"parameters\[2\].unit: 'um\^2/s' .*inflow.rate in mm\^2/s.*x 1e-06.*"
+            r"prior: \{type: beta, lo: 0, hi: 110, a: 2.6, b: 1.4\}, uncertain: true, "
+            r"ground_truth: 88\}")):
+        Study(cfg)
+
+
+@pytest.mark.parametrize("k, unit", [(0, "Pa"), (0, "N/m^2"), (1, "-"), (1, ""), (1, "1")])
+def test_the_targets_unit_however_spelled_is_accepted(k, unit):
+    Study(_with_param(k, unit=unit))
+
+
+def test_a_physics_phi_has_the_candidates_unit():
+    """The permeability's phi is read in um^2 (bayescalib.models.fsi.physics): mm^2 is
+    refused with the numbers in um^2; a python model's unit is a free label."""
+    fsi = deep_merge(DEFAULT, {"forward_model": {"fsi": {"physics": {
+        "permeability": {"enabled": True}}}}})
+    perm = {"name": "k", "unit": "mm^2", "target": "physics.permeability.phi",
+            "prior": {"type": "uniform", "lo": 0.0, "hi": 2.0e-4}, "ground_truth": 1.0e-4}
+    with pytest.raises(ConfigError, match=r"parameters\[2\].unit: 'mm\^2' .*In um\^2 "
+                                          r"\(x 1000000\).*lo: 0, hi: 200\}.*ground_truth: 100"):
+        Study({**fsi, "parameters": DEFAULT["parameters"] + [perm]})
+    Study({**fsi, "parameters": DEFAULT["parameters"] + [
+        {**perm, "unit": "um^2", "prior": {"type": "uniform", "lo": 0.0, "hi": 200.0},
+         "ground_truth": 100.0}]})
+    python = deep_merge(DEFAULT, {"forward_model": {
+        "type": "python", "python": {"function": "bayescalib.models.analytic:interface"}}})
+    Study(deep_merge(python, {"parameters": _with_param(0, unit="kPa")["parameters"]}))
+
+
 def test_run_lock_is_exclusive_and_dies_with_its_holder(tmp_path):
     import subprocess
     import sys

@@ -278,6 +278,9 @@ class Study:
             raise ConfigError(f"{where}: {exc}") from None
         Study._check_loadings(cfg, where)
         if cfg["forward_model"]["type"] == "fsi":
+            from bayescalib.models.units import check_fsi_units
+
+            check_fsi_units(cfg["parameters"], where)  # before the boxes: the unit is the cause
             notes += Study._resolve_geometry(cfg, where)
             Study._check_boxes(cfg, where)
         Study._check_hidden(cfg, where)
@@ -628,6 +631,17 @@ class Study:
             for p in self.config["parameters"]
             if p.get("ground_truth") is not None
         }
+
+    @property
+    def has_ground_truth(self) -> bool:
+        """Whether every parameter has a ground truth (synthetic data, or files made
+        from known values): only then do figures, captions and summary.json show one."""
+        return all(p.get("ground_truth") is not None for p in self.config["parameters"])
+
+    @property
+    def synthetic(self) -> bool:
+        """Whether the observations are synthetic (a forward solve at the ground truth)."""
+        return self.config["observations"]["source"] == "synthetic"
 
     def ground_truth_point(self) -> dict[str, Any]:
         """Inputs of the ground-truth solve: the ground truth plus ``observations.hidden``

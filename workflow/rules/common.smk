@@ -17,6 +17,10 @@ def _observe_inputs(wildcards):
 
 
 FIELDS = study.config["plots"]["fields"] and study.config["forward_model"]["type"] == "fsi"
+# synthetic data: a forward solve at the ground truth makes them (rule ground_truth,
+# whose fields the fields figure shows); real data have none: the fields figure shows
+# the solve at the posterior mean (rule posterior_mean_solve)
+SYNTHETIC = study.synthetic
 
 
 # ---- Active design: rounds, their records and points
@@ -248,13 +252,19 @@ FIG_POSTERIOR_JOB = (
 FIG_INTERFACES_JOB = (
     '"$BAYESCALIB_PYTHON" -I -S "$BAYESCALIB_JOB_CLIENT" fig_interfaces log {log:q}'
     " obs {input.obs:q} plots {params.plots!r:q} stem {params.stem:q}"
-    + (" truth {input.truth:q}"
-       if study.config["observations"].get("source", "synthetic") == "synthetic" else "")
+    + (" truth {input.truth:q}" if SYNTHETIC else "")
     + " samples [ {input.samples:q} ]"
 )
 FIG_FIELDS_JOB = (
     '"$BAYESCALIB_PYTHON" -I -S "$BAYESCALIB_JOB_CLIENT" fig_fields log {log:q}'
     " vtu {input.vtu:q} run {input.run:q} plots {params.plots!r:q} stem {params.stem:q}"
+    + ("" if SYNTHETIC else " at posterior_mean parameters {params.parameters!r:q}")
+)
+# the solve at the posterior mean, with its fields (real data: the fields figure)
+POSTERIOR_MEAN_JOB = (
+    '"$BAYESCALIB_PYTHON" -I -S "$BAYESCALIB_JOB_CLIENT" posterior_mean_solve log {log:q}'
+    " out {output.run:q} vtu {output.vtu:q} posterior {input.posterior:q}"
+    " parameters {params.parameters!r:q} forward_model {params.forward_model!r:q}"
 )
 FIG_ROUNDS_JOB = (
     '"$BAYESCALIB_PYTHON" -I -S "$BAYESCALIB_JOB_CLIENT" fig_rounds log {log:q}'

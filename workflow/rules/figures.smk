@@ -146,11 +146,7 @@ rule fig_interfaces:
     input:
         obs=f"{R}/observations/observations.h5",
         samples=expand(f"{R}/predictive/{{k}}.h5", k=range(K)),
-        **(
-            {"truth": f"{R}/observations/ground_truth_run.h5"}
-            if study.config["observations"].get("source", "synthetic") == "synthetic"
-            else {}
-        ),
+        **({"truth": f"{R}/observations/ground_truth_run.h5"} if SYNTHETIC else {}),
     output:
         report(
             shown([f"{R}/figures/interfaces.{ext}" for ext in FMT]),
@@ -169,22 +165,49 @@ rule fig_interfaces:
         FIG_INTERFACES_JOB
 
 
+rule posterior_mean_solve:
+    # real data (no ground truth to show): the calibrated model's fields, solved at the
+    # posterior mean of the primary measure
+    conda:
+        "../envs/bayescalib.yaml"
+    input:
+        posterior=f"{R}/{study.primary_measure}/posterior.json",
+    output:
+        run=f"{R}/posterior_mean/run.h5",
+        vtu=f"{R}/posterior_mean/fields.vtu",
+    params:
+        forward_model=study.forward_section(),
+        parameters=study.config["parameters"],
+    log:
+        f"{R}/logs/posterior_mean_solve.log",
+    benchmark:
+        f"{R}/benchmarks/posterior_mean_solve.tsv"
+    threads: 1
+    resources:
+        runtime=30,
+        mem_mb=2000,
+    shell:
+        POSTERIOR_MEAN_JOB
+
+
 rule fig_fields:
     conda:
         "../envs/bayescalib.yaml"
     input:
-        vtu=f"{R}/observations/ground_truth.vtu",
-        run=f"{R}/observations/ground_truth_run.h5",
+        # synthetic data: the solve at the ground truth; real data: at the posterior mean
+        vtu=f"{R}/observations/ground_truth.vtu" if SYNTHETIC else f"{R}/posterior_mean/fields.vtu",
+        run=f"{R}/observations/ground_truth_run.h5" if SYNTHETIC else f"{R}/posterior_mean/run.h5",
     output:
         report(
             shown([f"{R}/figures/fields.{ext}" for ext in FMT]),
             caption="../report/fields.rst",
-            category="Ground truth fields",
+            category="Ground truth fields" if SYNTHETIC else "Fields at the posterior mean",
         ),
         kept([f"{R}/figures/fields.{ext}" for ext in FMT]),
     params:
         plots=study.config["plots"],
         stem=lambda wc, output: os.path.splitext(output[0])[0],
+        **({} if SYNTHETIC else {"parameters": study.config["parameters"]}),
     log:
         f"{R}/logs/fig_fields.log",
     benchmark:

@@ -3,29 +3,32 @@
 # (synthetic case) and the observations section only.
 
 
-rule ground_truth:
-    conda:
-        "../envs/bayescalib.yaml"
-    output:
-        run=f"{R}/observations/ground_truth_run.h5",
-        **({"vtu": f"{R}/observations/ground_truth.vtu"} if FIELDS else {}),
-    params:
-        forward_model=study.forward_section(),
-        point=study.ground_truth_point(),
-    benchmark:
-        f"{R}/benchmarks/ground_truth.tsv"
-    log:
-        f"{R}/logs/ground_truth.log",
-    threads: 1
-    # the observations gate every discrepancy: made first, so that the discrepancies run
-    # beside the solves (with the priorities of the rules after the SMC and none here,
-    # Snakemake ran these two after all solves)
-    priority: 40
-    resources:
-        runtime=30,
-        mem_mb=2000,
-    script:
-        "../../scripts/ground_truth.py"
+# real data (observations.source: files) have no ground truth and no solve at it
+if SYNTHETIC:
+
+    rule ground_truth:
+        conda:
+            "../envs/bayescalib.yaml"
+        output:
+            run=f"{R}/observations/ground_truth_run.h5",
+            **({"vtu": f"{R}/observations/ground_truth.vtu"} if FIELDS else {}),
+        params:
+            forward_model=study.forward_section(),
+            point=study.ground_truth_point(),
+        benchmark:
+            f"{R}/benchmarks/ground_truth.tsv"
+        log:
+            f"{R}/logs/ground_truth.log",
+        threads: 1
+        # the observations gate every discrepancy: made first, so that the discrepancies run
+        # beside the solves (with the priorities of the rules after the SMC and none here,
+        # Snakemake ran these two after all solves)
+        priority: 40
+        resources:
+            runtime=30,
+            mem_mb=2000,
+        script:
+            "../../scripts/ground_truth.py"
 
 
 rule observe:
@@ -42,6 +45,6 @@ rule observe:
     log:
         f"{R}/logs/observe.log",
     threads: 1
-    priority: 40  # as ground_truth
+    priority: 40  # as ground_truth (synthetic data)
     script:
         "../../scripts/observe.py"

@@ -243,6 +243,15 @@ def _predictive_solve(args: Mapping[str, Any]) -> None:
     solve_point(_literal(args["forward_model"]), point, args["out"])
 
 
+def _posterior_mean_solve(args: Mapping[str, Any]) -> None:
+    from bayescalib.stages import setup_logging
+    from bayescalib.stages.figures import solve_at_posterior_mean
+
+    setup_logging(args["log"])
+    solve_at_posterior_mean(args["posterior"], _literal(args["parameters"]),
+                            _literal(args["forward_model"]), args["out"], args["vtu"])
+
+
 def _fig_response(args: Mapping[str, Any]) -> None:
     from bayescalib.stages import setup_logging
     from bayescalib.stages.figures import response_figures
@@ -283,7 +292,9 @@ def _fig_fields(args: Mapping[str, Any]) -> None:
     from bayescalib.stages.figures import field_figure
 
     setup_logging(args["log"])
-    field_figure(args["vtu"], args["run"], _literal(args["plots"]), args["stem"])
+    field_figure(args["vtu"], args["run"], _literal(args["plots"]), args["stem"],
+                 at=args.get("at") or None,
+                 parameters=_literal(args["parameters"]) if "parameters" in args else None)
 
 
 def _fig_rounds(args: Mapping[str, Any]) -> None:
@@ -298,12 +309,13 @@ def _fig_rounds(args: Mapping[str, Any]) -> None:
 
 #: stage name -> function of the job's arguments (strings, or lists of paths, as
 #: formatted by the rule's shell command and read by :func:`parse_args`). Per point:
-#: solve, discrepancy, predictive_solve; per round (active design) and per measure:
-#: gather, train_surrogate, smc, acquire, marginalize; the figures.
+#: solve, discrepancy, predictive_solve, posterior_mean_solve; per round (active design)
+#: and per measure: gather, train_surrogate, smc, acquire, marginalize; the figures.
 STAGES: dict[str, Callable[[Mapping[str, Any]], None]] = {
     "solve": _solve,
     "discrepancy": _discrepancy,
     "predictive_solve": _predictive_solve,
+    "posterior_mean_solve": _posterior_mean_solve,
     "posterior_check": _posterior_check,
     "gather": _gather,
     "train_surrogate": _train_surrogate,

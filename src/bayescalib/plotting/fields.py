@@ -18,7 +18,7 @@ from matplotlib.tri import LinearTriInterpolator, Triangulation
 from ._checks import PathsLike, as_array, as_paths, as_points, finish
 from .style import COLORS, paper_style
 
-__all__ = ["plot_fields"]
+__all__ = ["plot_failed_solve", "plot_fields"]
 
 
 def _check_triangles(triangles, n_points: int) -> np.ndarray:
@@ -167,6 +167,41 @@ def plot_fields(
         axes[-1].set_xlabel("x [mm]")
         if title:
             fig.suptitle(title)
+        return finish(fig, out_paths, dpi, return_figure)
+
+
+def plot_failed_solve(paths: PathsLike, title: str, reason: str, *, dpi: float = 200,
+                      return_figure: bool = False):
+    """The place of a field figure whose solve failed: its title and the reason.
+
+    Parameters
+    ----------
+    paths : path or sequence of paths
+        Output files; format from the suffix.
+    title : str
+        What the fields would have shown (e.g. the solve's parameter values).
+    reason : str
+        Why there are no fields, in plain words (wrapped to the figure's width).
+    dpi : float
+        Raster resolution [dots per inch].
+    return_figure : bool
+        Also return the Figure.
+
+    Returns
+    -------
+    list of pathlib.Path
+        Written files, or ``(paths, Figure)`` if ``return_figure``.
+    """
+    import textwrap
+
+    out_paths = as_paths(paths)
+    with paper_style():
+        fig = Figure(figsize=(6.0, 2.0))
+        ax = fig.add_subplot(1, 1, 1)
+        ax.set_axis_off()
+        ax.text(0.5, 0.5, textwrap.fill(str(reason), 80), ha="center", va="center",
+                fontsize=8, transform=ax.transAxes)
+        fig.suptitle(title)
         return finish(fig, out_paths, dpi, return_figure)
 
 

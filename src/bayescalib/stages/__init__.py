@@ -916,7 +916,8 @@ def summary(study_name: str, parameters: Sequence[Mapping[str, Any]], measures: 
         "n_failed": primary["n_failed"],
         "n_failed_infeasible": sum(r["marks_infeasible"] for r in failed_runs),
         "failed_runs": failed_runs,
-        "ground_truth": truth if all(v is not None for v in truth.values()) else None,
+        # only where every parameter has one (real data: no ground truth, no key)
+        **({"ground_truth": truth} if all(v is not None for v in truth.values()) else {}),
         "converged": (extra or {}).get("design", {}).get("converged"),
         "fit": primary["fit"],
         "measures": per_measure,
@@ -1076,8 +1077,9 @@ def run_line(summary_json: Mapping[str, Any]) -> str:
 def front_page(summary_path: str | Path) -> dict[str, Any] | None:
     """The key numbers of a finished study for the report's front page: the run line,
     whether it converged and why, and per parameter MAP, mean, sd, the 90 % equal-tailed
-    interval and the ground truth (strings, in the user's units). None before the
-    study has a summary.json (or when it cannot be read)."""
+    interval and, where the study has one (``truth_known``), the ground truth (strings,
+    in the user's units). None before the study has a summary.json (or when it cannot
+    be read)."""
     path = Path(summary_path)
     if not path.is_file():
         return None
@@ -1097,12 +1099,13 @@ def front_page(summary_path: str | Path) -> dict[str, Any] | None:
         lohi = (ci.get(n) or {}).get("0.9")
         rows.append([n, p.get("unit", "-"), fmt(s["map"].get(n)), fmt(s["posterior_mean"].get(n)),
                      fmt((s.get("posterior_sd") or {}).get(n)),
-                     "-" if not lohi else f"[{fmt(lohi[0])}, {fmt(lohi[1])}]",
-                     fmt(truth.get(n))])
+                     "-" if not lohi else f"[{fmt(lohi[0])}, {fmt(lohi[1])}]"]
+                    + ([fmt(truth.get(n))] if truth else []))
     design = s.get("design") or {}
     fit = s.get("fit") or {}
     check = s.get("posterior_check") or {}
     return {"line": run_line(s), "reason": design.get("reason", ""), "rows": rows,
+            "truth_known": bool(truth),
             "converged": design.get("converged"), "measure": s.get("measure"),
             "fit": fit.get("words", ""), "fit_consistent": fit.get("consistent"),
             "check": check.get("words", ""), "check_confirmed": check.get("confirmed")}

@@ -12,7 +12,8 @@ plot setting reruns only the figures:
   PM, Gaussian and Laplace approximations; particles; 1-D marginals; pair
   marginals; parallel axes (paper Figs. sc_posteriors_twodim, 6D figures).
 * :func:`interface_figure` -- undeformed, observed and posterior-sample interfaces.
-* :func:`field_figure` -- velocity, pressure and displacement of the ground truth.
+* :func:`field_figure` -- velocity, pressure and displacement of the ground truth (synthetic
+  data) or of the solve at the posterior mean (:func:`solve_at_posterior_mean`).
 * :func:`rounds_figure` -- active design: posterior and solves per round, stop-rule checks.
 """
 
@@ -271,18 +272,82 @@ def read_vtu_fields(path: str | Path) -> dict[str, np.ndarray]:
     return out
 
 
+def posterior_mean_point(posterior_path: str | Path,
+                         parameters: Sequence[Mapping[str, Any]]) -> dict[str, float]:
+    """The posterior mean of a study (its ``posterior.json``), keyed by target: the
+    values at which the fields of the calibrated model are solved."""
+    mean = read_json(posterior_path)["mean"]
+    return {(p.get("target") or p["name"]): float(mean[p["name"]]) for p in parameters}
+
+
+def solve_at_posterior_mean(posterior_path: str | Path, parameters: Sequence[Mapping[str, Any]],
+                            forward_model: Mapping[str, Any], out_path: str | Path,
+                            vtu_path: str | Path) -> None:
+    """Forward solve at the posterior mean with its fields (the fsi model's VTU), the
+    same solve as every other (:func:`bayescalib.models.forward.solve_point`).
+
+    A failed solve leaves its run record (with the reason) and an empty ``vtu_path``;
+    :func:`field_figure` then draws the reason instead of the fields.
+    """
+    from bayescalib.models.forward import solve_point
+
+    point = posterior_mean_point(posterior_path, parameters)
+    res = solve_point(forward_model, point, out_path, extra_outputs={"vtu": str(vtu_path)})
+    if res.status != "ok" or not Path(vtu_path).is_file():
+        Path(vtu_path).write_bytes(b"")
+
+
+def _at_posterior_mean_title(run, parameters: Sequence[Mapping[str, Any]]) -> str:
+    """"Fields at the posterior mean: E = 412 Pa, nu = 0.31" from the run record."""
+    parts = []
+    for p in parameters:
+        v = run.parameters.get(p.get("target") or p["name"])
+        unit = "" if p.get("unit", "-") in ("-", "", "1") else f" {p['unit']}"
+        if v is not None:
+            parts.append(f"{p['name']} = {float(v):.4g}{unit}")
+    return "Fields at the posterior mean" + (f": {', '.join(parts)}" if parts else "")
+
+
 def field_figure(vtu_path: str | Path, run_path: str | Path, plots: Mapping[str, Any],
-                 stem: str | Path) -> list[str]:
-    """Velocity, pressure and displacement fields of the ground truth."""
+                 stem: str | Path, *, at: str | None = None,
+                 parameters: Sequence[Mapping[str, Any]] | None = None) -> list[str]:
+    """Velocity, pressure and displacement fields of one forward solve.
+
+    Parameters
+    ----------
+    vtu_path, run_path
+        The solve's fields (VTU) and run record.
+    plots
+        The ``plots`` section (formats, dpi).
+    stem
+        Output path without suffix.
+    at
+        None: the solve at the ground truth (synthetic data; no title). ``"posterior_mean"``:
+        the solve at the posterior mean (titled so, with its values); when that solve
+        failed the figure says why instead.
+    parameters
+        The ``parameters`` section (names and units of the title), with ``at``.
+    """
     from bayescalib.io.runrecord import read_run
     from bayescalib.plotting import plot_fields
+    from bayescalib.plotting.fields import plot_failed_solve
 
+    title = None
+    if at is not None:
+        if at != "posterior_mean":
+            raise ValueError(f"field_figure: at must be None or 'posterior_mean', got {at!r}")
+        run = read_run(run_path)
+        title = _at_posterior_mean_title(run, parameters or [])
+        if run.status != "ok":
+            return plot_failed_solve(_paths(stem, plots["formats"]), title,
+                                     f"The forward solve at the posterior mean failed: "
+                                     f"{run.reason or 'no reason recorded'}", dpi=plots["dpi"])
     f = read_vtu_fields(vtu_path)
     run = read_run(run_path)
     return plot_fields(
         f["points"], f["triangles"], f["velocity"], f["pressure"], f["displacement"],
         _paths(stem, plots["formats"]), interface=np.asarray(run.interface_current),
-        solid_mask_triangles=f["region"] > 0, dpi=plots["dpi"],
+        solid_mask_triangles=f["region"] > 0, title=title, dpi=plots["dpi"],
     )
 
 
