@@ -180,7 +180,9 @@ def test_the_floor_is_found_as_a_bright_band_or_the_bottom_of_the_foreground(tmp
     d, _, _ = closest_points(c.points, shifted)
     # within a pixel on the colony, 3 where it meets the band's halo
     assert np.sqrt(np.mean(d**2)) < 0.5 * S and np.max(np.abs(d)) < 3 * S
-    assert np.ptp(c.points[:, 0]) > 0.5  # the colony, not a piece of the floor
+    # the colony, not a piece of the floor (its tails thinner than the halo are cut)
+    assert c.points[:, 1].max() == pytest.approx(floor_y + 0.12, abs=S)
+    assert np.ptp(c.points[:, 0]) > 0.4
     # without the cut, the longest contour runs along the substrate
     whole = read_interface(path, pixel_size=S, origin=origin, segmentation=half)
     assert whole.points[:, 1].min() <= ci["floor_mm"] + 0.5 * S
@@ -261,3 +263,114 @@ def test_the_segmentation_uncertainty_is_the_size_of_the_traced_error():
         errs.append(np.sqrt(np.mean(d**2)) / S)
         sig.append(_positional_sigma(img, sm, mask, 1.5)["sigma_px"])
     assert np.mean(sig) == pytest.approx(np.mean(errs), rel=0.35)
+
+
+# ------------------------------------------------ observation store, diagnosis, figure
+def _files_section(tmp_path, n=2):
+    """Two 16-bit scans of a bump (different seeds) as an observations section."""
+    curve = bump()
+    files = []
+    for k in range(n):
+        img, _, origin = _scan(curve, seed=10 + k, looks=4.0)
+        path = tmp_path / f"scan_{k}.tif"
+        io.imsave(path, _to_bits(img, 16), check_contrast=False)
+        files.append({"path": str(path), "label": f"scan_{k}", "load": None, "units": "mm",
+                      "pixel_size": S, "origin": list(origin), "floor": "auto"})
+    return {"source": "files", "files": files, "domain": [[0.0, 2.0], [0.0, 1.0]]}
+
+
+def test_the_segmentation_uncertainty_is_stored_per_snapshot(tmp_path):
+    from bayescalib.io.observation_store import read_observations
+    from bayescalib.stages import observe
+
+    section = _files_section(tmp_path)
+    observe(section, tmp_path / "observations.h5")
+    obs = read_observations(tmp_path / "observations.h5")
+    assert obs.segmentation is not None and len(obs.segmentation) == 2
+    for rec in obs.segmentation:
+        assert rec["kind"] == "scan" and rec["bit_depth"] == 16
+        assert rec["floor"]["method"] == "image bottom" and rec["floor_mm"] is None
+        # 4-look speckle: a few tenths of a pixel
+        assert 0.25 * S < rec["sigma_mm"] < 0.6 * S
+    expected = np.sqrt(np.mean([r["sigma_mm"] ** 2 for r in obs.segmentation]))
+    assert obs.segmentation_sigma() == pytest.approx(expected)
+    # masks (and coordinates) carry none: the diagnosis behaves as before
+    from bayescalib.io.observations import write_mask_png
+
+    mask, _ = read_mask(section["files"][0]["path"])
+    write_mask_png(tmp_path / "mask.png", mask, pixel_size=S, origin=section["files"][0]["origin"])
+    observe({**section, "files": [{**section["files"][0], "path": str(tmp_path / "mask.png")}]},
+            tmp_path / "masks.h5")
+    masks = read_observations(tmp_path / "masks.h5")
+    assert masks.segmentation[0]["kind"] == "mask" and masks.segmentation_sigma() is None
+
+
+def test_the_diagnosis_takes_the_segmentation_uncertainty_as_a_lower_bound():
+    """The data-based noise estimate is kept when it is larger; the segmentation's
+    uncertainty is used, and the source says so, when the estimate falls below it;
+    a given sigma stays given, with the segmentation value reported beside it."""
+    from bayescalib.diagnosis.residuals import predictive_check
+
+    rng = np.random.default_rng(0)
+    x = np.linspace(0.0, 1.0, 200)
+    obs = [Interface.polyline(np.column_stack([x, 0.002 * rng.standard_normal(x.size)]))]
+    draws = [[Interface.polyline(np.column_stack([x, np.full_like(x, 1e-4 * k)]))]
+             for k in (-1, 1)]
+    kw = {"rng": np.random.default_rng(1), "ell": 0.0}
+    base = predictive_check(obs, draws, **kw)
+    assert base.sigma_source == "estimated" and "sigma_segmentation_mm" not in base.to_json()
+    low = predictive_check(obs, draws, segmentation_sigma=0.1 * base.sigma, **kw)
+    assert low.sigma == pytest.approx(base.sigma) and low.sigma_source == "estimated"
+    assert low.to_json()["sigma_segmentation_mm"] == pytest.approx(0.1 * base.sigma)
+    high = predictive_check(obs, draws, segmentation_sigma=3 * base.sigma, **kw)
+    assert high.sigma == pytest.approx(3 * base.sigma)
+    assert high.sigma_source == "segmentation (lower bound)"
+    assert high.to_json()["sigma_data_mm"] == pytest.approx(base.sigma)
+    given = predictive_check(obs, draws, sigma=0.001, segmentation_sigma=0.01, **kw)
+    assert given.sigma == 0.001 and given.sigma_source == "given"
+    assert given.to_json()["sigma_segmentation_mm"] == 0.01
+
+
+def test_the_segmentation_figure_is_drawn_through_the_job_stage(tmp_path):
+    from bayescalib.execution.jobserver import run_stage
+    from bayescalib.stages import observe
+
+    section = _files_section(tmp_path)
+    observe(section, tmp_path / "observations.h5")
+    plots = {"formats": ["png"], "dpi": 50}
+    run_stage("fig_segmentation", {"log": str(tmp_path / "fig.log"),
+                                   "obs": str(tmp_path / "observations.h5"),
+                                   "observations": repr(section), "plots": repr(plots),
+                                   "stem": str(tmp_path / "segmentation")})
+    assert (tmp_path / "segmentation.png").stat().st_size > 5000
+
+
+@pytest.mark.workflow
+def test_a_files_study_with_an_image_plans_the_segmentation_figure(tmp_path):
+    """Dry run: the figure rule is planned, is in rule all (via the figure map of
+    summary.json) only when an observation file is an image."""
+    from _workflow_helpers import setup_study, smk
+
+    section = _files_section(tmp_path, n=1)
+    study = {
+        "study": "scans",
+        "forward_model": {"type": "python", "time_limit_s": 60,
+                          "python": {"function": "bayescalib.models.analytic:interface"}},
+        "parameters": [
+            {"name": "E", "unit": "Pa", "target": "E",
+             "prior": {"type": "uniform", "lo": 100.0, "hi": 800.0}, "bounds": [100.0, 800.0]},
+            {"name": "nu", "unit": "-", "target": "nu",
+             "prior": {"type": "uniform", "lo": -0.8, "hi": 0.45}, "bounds": [-0.8, 0.45]}],
+        "measures": ["cpp"],
+        "likelihood": {"sigma_n": 0.002},
+        "design": {"strategy": "fixed", "n_train": 8, "seed": 1},
+        "plots": {"formats": ["png"], "n_interface_samples": 0, "fields": False},
+        "observations": section,
+    }
+    setup_study(tmp_path, study)
+    out = smk(tmp_path, "-n").stdout
+    assert "rule fig_segmentation:" in out and "results/scans/figures/segmentation.png" in out
+    csv = tmp_path / "c.csv"
+    csv.write_text("x,y\n0.2,0.0\n0.6,0.12\n1.0,0.0\n")
+    setup_study(tmp_path, {**study, "observations": {**section, "files": [{"path": str(csv)}]}})
+    assert "fig_segmentation" not in smk(tmp_path, "-n").stdout

@@ -123,7 +123,7 @@ import numpy as np
 from bayescalib.geometry.interface import Interface
 
 __all__ = ["FLOOR_BRIGHT", "FLOOR_FULL_WIDTH", "FLOOR_MAX_BAND", "MAX_IMAGE_PIXELS",
-           "ImageError", "find_floor", "image_size", "load_mask", "mask_contour", "pixel_grid", "read_mask",
+           "ImageError", "find_floor", "image_size", "load_mask", "mask_contour", "pixel_grid", "read_image", "read_mask",
            "render_mask", "render_scan", "segment_scan", "segmentation_options"]
 
 #: largest image (pixels, width x height) that is decoded: 50 megapixels, ~100 times an
@@ -206,6 +206,26 @@ def segmentation_options(segmentation: Mapping[str, Any] | None = None) -> dict[
         raise ValueError(f"unknown segmentation setting(s) {sorted(extra)}; known: {sorted(opts)}")
     opts.update({k: v for k, v in (segmentation or {}).items() if v is not None})
     return opts
+
+
+def read_image(path: str | Path, max_pixels: int = MAX_IMAGE_PIXELS
+               ) -> tuple[np.ndarray, dict[str, Any]]:
+    """The grey values of an image file, after the header's size check (the first
+    channel of a colour image).
+
+    Returns
+    -------
+    image : ndarray of float, shape (H, W)
+        Grey values in the file's own scale; row 0 is the top.
+    info : dict
+        ``shape`` [H, W], ``bit_depth``, ``dtype``, ``channels``.
+
+    Raises
+    ------
+    ImageError
+        Naming the file: unreadable, above ``max_pixels``, not 2D, NaN/inf.
+    """
+    return _decode(Path(path), max_pixels)
 
 
 def _decode(p: Path, max_pixels: int) -> tuple[np.ndarray, dict[str, Any]]:
@@ -335,12 +355,12 @@ def read_mask(
                              f"(fluid) {where}")
         sigma = _positional_sigma(img, smoothed, mask, float(opts["smooth"]))
     info.update(kind=kind, **seg, foreground_fraction=float(mask.mean()),
-                floor=find_floor(mask, smoothed, float(seg["smooth_px"] or 0.0)), **sigma)
+                floor=find_floor(mask, smoothed, float(seg["smooth_px"] or 0.0), t), **sigma)
     return mask, info
 
 
 def find_floor(mask: np.ndarray, smoothed: np.ndarray | None = None,
-               blur: float = 0.0) -> dict[str, Any]:
+               blur: float = 0.0, threshold: float | None = None) -> dict[str, Any]:
     """The substrate line of a mask (and its smoothed scan), rules (a)-(c) of the module
     docstring.
 
@@ -351,9 +371,13 @@ def find_floor(mask: np.ndarray, smoothed: np.ndarray | None = None,
     smoothed : ndarray of float, shape (H, W), optional
         The smoothed scan (enables rule (a)).
     blur : float
-        Pre-filter sd of the scan, pixels: the bright band's halo above the
-        threshold reaches up to ``ceil(2 blur) + 2`` rows above its half-maximum edge,
-        and the floor is put on the halo's top (the last full-width row within that reach).
+        Pre-filter sd of the scan, pixels (with the point-spread function, the bright
+        band's blur reaches up to ``ceil(3 blur) + 3`` rows above its edge).
+    threshold : float, optional
+        The segmentation threshold (rule (a): the band's halo is the rows above its
+        edge where the fluid columns' median intensity exceeds half-way from the
+        background level to the threshold; the floor is put on the halo's top, so the
+        contour that the halo's speckle makes there is cut too).
 
     Returns
     -------
@@ -377,10 +401,14 @@ def find_floor(mask: np.ndarray, smoothed: np.ndarray | None = None,
             top = r
             while top > 0 and prof[top - 1] > half:
                 top -= 1
-            # the band's blurred halo segmented as foreground: the mask's contour runs on it
-            reach = top - (int(np.ceil(2.0 * blur)) + 2)
-            while top > 0 and top - 1 >= reach and full[top - 1]:
-                top -= 1
+            # the band's blurred halo, partly segmented as foreground: the contour runs on it
+            reach = top - (int(np.ceil(3.0 * blur)) + 3)
+            fluid = ~m[max(reach - 1, 0)]
+            if threshold is not None and fluid.mean() >= 0.05:
+                halo = np.median(smoothed[:, fluid], axis=1)
+                level = back + 0.5 * (float(threshold) - back)
+                while top > 0 and top - 1 >= reach and halo[top - 1] > level:
+                    top -= 1
             return {"method": "bright band", "row": top - 0.5}
     rows = np.flatnonzero(m.any(axis=1))
     if rows.size == 0:
