@@ -20,7 +20,7 @@ import sys
 #: the same set as bayescalib.execution.jobserver.ROUND_STAGES (tested)
 ROUND_STAGES = frozenset({"train_surrogate", "smc", "acquire", "marginalize", "fig_response",
                           "fig_convergence", "fig_posterior", "fig_interfaces", "fig_fields",
-                          "fig_rounds", "summary", "posterior_check"})
+                          "fig_rounds", "fig_segmentation", "summary", "posterior_check"})
 
 
 def _connect(path):

@@ -98,7 +98,7 @@ def test_seeds_read(seeds, tmp_path):
     for suffix, data in seeds.items():
         p = tmp_path / f"ok{'.vtp' if suffix == '3d' else suffix}"
         p.write_bytes(data)
-        assert _check(p, pixel_size=0.01) is not None, suffix
+        assert _check(p, pixel_size=0.01, origin=(0.005, 0.005)) is not None, suffix
 
 
 SUFFIXES = [".csv", ".vtp", ".vtu", ".vtk", ".png", ".tif"]
@@ -110,7 +110,7 @@ def test_random_bytes(tmp_path, suffix, data):
     CASES["random bytes"] = CASES.get("random bytes", 0) + 1
     p = tmp_path / f"random{suffix}"
     p.write_bytes(data)
-    _check(p, pixel_size=0.01)
+    _check(p, pixel_size=0.01, origin=(0.005, 0.005))
 
 
 @FUZZ
@@ -134,7 +134,7 @@ def test_damaged_valid_files(seeds, tmp_path, suffix, data):
     CASES["damaged valid files"] = CASES.get("damaged valid files", 0) + 1
     p = tmp_path / f"damaged{'.vtp' if suffix == '3d' else suffix}"
     p.write_bytes(bytes(raw))
-    _check(p, pixel_size=0.01)
+    _check(p, pixel_size=0.01, origin=(0.005, 0.005))
 
 
 CELL = st.one_of(

@@ -179,14 +179,15 @@ def test_floor_biofilm_mask_drops_border(tmp_path):
     rows, cols = np.mgrid[0:n, 0:n]
     mask = (cols - 60) ** 2 + (rows - (n - 1)) ** 2 <= 35**2  # half disc on the bottom edge
     io.imsave(tmp_path / "floor.tif", mask.astype(np.uint8), check_contrast=False)
-    c = read_interface(tmp_path / "floor.tif", pixel_size=1.0)
+    c = read_interface(tmp_path / "floor.tif", pixel_size=1.0, origin=(0, 0))
     assert c.n_cells == c.n_points - 1  # open: the part along the floor is dropped
     assert c.points[:, 1].min() >= -0.01 and np.all(c.normals[:, 1][c.centres[:, 1] > 10] > -1e-9)
     # upstream -> downstream ordering, normals into the fluid (pointing up at the top)
     top = np.abs(c.centres[:, 0] - 60) < 5
     assert np.mean(c.normals[top, 1]) > 0.9
     assert c.points[0, 0] < c.points[-1, 0]
-    closed = read_interface(tmp_path / "floor.tif", pixel_size=1.0, drop_border=False)
+    closed = read_interface(tmp_path / "floor.tif", pixel_size=1.0, origin=(0, 0),
+                            drop_border=False)
     assert closed.n_cells == closed.n_points
 
 
@@ -199,10 +200,10 @@ def test_floor_inside_image_is_dropped(tmp_path):
     mask = ((cols - 50) ** 2 + (rows - 80) ** 2 <= 30**2) & (rows <= 80)
     io.imsave(tmp_path / "inner.png", (mask * 255).astype(np.uint8), check_contrast=False)
     s = 0.01
-    full = read_interface(tmp_path / "inner.png", pixel_size=s)
+    full = read_interface(tmp_path / "inner.png", pixel_size=s, origin=(0, 0))
     assert full.n_cells == full.n_points  # closed around the base
     y_floor = (n - 1 - 80) * s  # row 80 in mm (origin at the bottom-left pixel centre)
-    c = read_interface(tmp_path / "inner.png", pixel_size=s, floor=y_floor)
+    c = read_interface(tmp_path / "inner.png", pixel_size=s, origin=(0, 0), floor=y_floor)
     assert c.n_cells == c.n_points - 1
     assert c.points[:, 1].min() > y_floor + 0.5 * s
     # the kept arc spans the patch: from near x = 20 px to x = 80 px, ordered upstream -> downstream
@@ -210,21 +211,23 @@ def test_floor_inside_image_is_dropped(tmp_path):
     top = np.abs(c.centres[:, 0] - 0.5) < 0.05
     assert np.mean(c.normals[top, 1]) > 0.9
     with pytest.raises(ObservationError, match="inner.png.*floor"):
-        read_interface(tmp_path / "inner.png", pixel_size=s, floor=10.0)
+        read_interface(tmp_path / "inner.png", pixel_size=s, origin=(0, 0), floor=10.0)
 
 
 def test_image_bad_input(tmp_path):
     from skimage import io
 
     io.imsave(tmp_path / "empty.png", np.zeros((20, 20), np.uint8), check_contrast=False)
-    with pytest.raises(ObservationError, match="empty.png.*no foreground"):
-        read_interface(tmp_path / "empty.png", pixel_size=0.01)
+    with pytest.raises(ObservationError, match="empty.png.*single grey value.*all black"):
+        read_interface(tmp_path / "empty.png", pixel_size=0.01, origin=(0, 0))
     io.imsave(tmp_path / "disc.png", (disc_mask() * 255).astype(np.uint8), check_contrast=False)
     with pytest.raises(ObservationError, match="disc.png.*pixel size"):
-        read_interface(tmp_path / "disc.png")
+        read_interface(tmp_path / "disc.png", origin=(0, 0))
+    with pytest.raises(ObservationError, match="disc.png.*origin.*bottom-left pixel"):
+        read_interface(tmp_path / "disc.png", pixel_size=0.01)
     write(tmp_path / "junk.png", "not an image")
     with pytest.raises(ObservationError, match="junk.png"):
-        read_interface(tmp_path / "junk.png", pixel_size=0.01)
+        read_interface(tmp_path / "junk.png", pixel_size=0.01, origin=(0, 0))
 
 
 # ----------------------------------------------------------------------------- noise, sets

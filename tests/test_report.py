@@ -48,6 +48,7 @@ CATEGORY = {
     "interfaces": "Interfaces",
     "fields": "Ground truth fields",
     "rounds": "Active design",
+    "segmentation": "Observations",
 }
 
 

@@ -3,6 +3,7 @@ the cache contract needs, and bad studies fail with errors naming the key."""
 
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from bayescalib.config import ConfigError, deep_merge, load_yaml, merge_layers
@@ -289,6 +290,79 @@ def test_observation_files_are_checked_before_any_job(tmp_path):
     with pytest.raises(ConfigError, match=r"observations.files\[0\]"):
         Study(_files_study(tmp_path, [{"path": str(good), "units": "m"}],
                           domain=[[-1.0, 2.0], [-0.5, 1.0]]))
+
+
+def test_images_are_read_and_segmented_when_the_study_is_read(tmp_path):
+    """An image must state its origin (no silent (0, 0)); an all-black or all-white image,
+    or a scan whose segmentation finds no biofilm, is a config error naming the key and
+    the file, raised when the study is read; a good scan passes, and its extent is
+    checked against observations.domain like a coordinate file's."""
+    from skimage import io
+
+    rows, cols = np.mgrid[0:60, 0:200]
+    rng = np.random.default_rng(0)
+    scan = np.clip(40 + 120 * (rows > 45 - 8 * np.exp(-((cols - 100) / 30.0) ** 2))
+                   + 10 * rng.standard_normal(rows.shape), 0, 255).astype(np.uint8)
+    io.imsave(tmp_path / "scan.png", scan, check_contrast=False)
+    for name, value in (("black.png", 0), ("white.png", 255)):
+        io.imsave(tmp_path / name, np.full((30, 40), value, np.uint8), check_contrast=False)
+    good = {"path": str(tmp_path / "scan.png"), "pixel_size": 5.0, "units": "um",
+            "origin": [2.5, 2.5]}
+    Study(_files_study(tmp_path, [good], domain=[[0.0, 2.0], [0.0, 1.0]]))
+    cases = [
+        ({**good, "origin": None}, "observations.files[0].origin",
+         "centre of the bottom-left pixel"),
+        ({**good, "path": str(tmp_path / "black.png")}, "observations.files[0]",
+         "black.png: the image has a single grey value"),
+        ({**good, "path": str(tmp_path / "white.png")}, "observations.files[0]",
+         "all black or all white"),
+        ({**good, "segmentation": {"threshold": 254}}, "observations.files[0]",
+         "scan.png: the segmentation of the scan finds no foreground"),
+        ({**good, "units": "mm"}, "observations.files[0]", "unit mismatch"),
+    ]
+    for entry, key, problem in cases:
+        with pytest.raises(ConfigError) as exc:
+            Study(_files_study(tmp_path, [entry], domain=[[0.0, 2.0], [0.0, 1.0]]),
+                  where="mine.yaml")
+        msg = str(exc.value)
+        assert msg.startswith("mine.yaml: ") and key in msg and problem in msg, msg
+    # the segmentation keys are validated by the schema
+    with pytest.raises(ConfigError, match="threshold"):
+        Study(_files_study(tmp_path, [{**good, "segmentation": {"threshold": "median"}}]))
+    with pytest.raises(ConfigError, match="image"):
+        Study(_files_study(tmp_path, [{**good, "image": "photo"}]))
+
+
+def test_reading_three_scans_adds_little_to_reading_the_study(tmp_path):
+    """The study reads and segments every image before any job: for three 600 x 300
+    scans this must stay small (measured ~0.1 s on a shared core; bound 2 s)."""
+    import time
+
+    from skimage import io
+
+    rows, cols = np.mgrid[0:300, 0:600]
+    rng = np.random.default_rng(1)
+    entries = []
+    for k in range(3):
+        film = rows > 250 - 60 * np.exp(-((cols - 300 - 20 * k) / 90.0) ** 2)
+        img = 8000 + 20000 * film * rng.gamma(4.0, 0.25, film.shape) \
+            + 800 * rng.standard_normal(film.shape)
+        io.imsave(tmp_path / f"s{k}.tif", np.clip(img, 0, 65535).astype(np.uint16),
+                  check_contrast=False)
+        entries.append({"path": str(tmp_path / f"s{k}.tif"), "pixel_size": 0.005,
+                        "origin": [0.0025, 0.0025]})
+    csvs = []
+    for k in range(3):
+        (tmp_path / f"c{k}.csv").write_text("x,y\n0.0,0.0\n0.5,0.2\n1.0,0.0\n")
+        csvs.append({"path": str(tmp_path / f"c{k}.csv")})
+    t0 = time.perf_counter()
+    Study(_files_study(tmp_path, csvs))
+    t1 = time.perf_counter()
+    Study(_files_study(tmp_path, entries))
+    t2 = time.perf_counter()
+    added = (t2 - t1) - (t1 - t0)
+    print(f"three 600 x 300 scans add {added:.3f} s to reading the study")
+    assert added < 2.0
 
 
 @pytest.mark.parametrize("argv, runs", [

@@ -22,6 +22,13 @@ FIELDS = study.config["plots"]["fields"] and study.config["forward_model"]["type
 # the solve at the posterior mean (rule posterior_mean_solve)
 SYNTHETIC = study.synthetic
 
+# the observation files that are images (a mask or a raw scan): the segmentation figure
+IMAGE_FILES = [
+    e["path"] for e in (study.config["observations"].get("files") or [])
+    if study.config["observations"].get("source") == "files"
+    and os.path.splitext(e["path"])[1].lower() in (".png", ".tif", ".tiff")
+]
+
 
 # ---- Active design: rounds, their records and points
 
@@ -266,6 +273,11 @@ POSTERIOR_MEAN_JOB = (
     " out {output.run:q} vtu {output.vtu:q} posterior {input.posterior:q}"
     " parameters {params.parameters!r:q} forward_model {params.forward_model!r:q}"
 )
+FIG_SEGMENTATION_JOB = (
+    '"$BAYESCALIB_PYTHON" -I -S "$BAYESCALIB_JOB_CLIENT" fig_segmentation log {log:q}'
+    " obs {input.obs:q} observations {params.observations!r:q}"
+    " plots {params.plots!r:q} stem {params.stem:q}"
+)
 FIG_ROUNDS_JOB = (
     '"$BAYESCALIB_PYTHON" -I -S "$BAYESCALIB_JOB_CLIENT" fig_rounds log {log:q}'
     " training {input.training:q} parameters {params.parameters!r:q}"
@@ -342,6 +354,8 @@ def figure_map():
         out["interfaces"] = _fig("interfaces")
     if FIELDS:
         out["fields"] = _fig("fields")
+    if IMAGE_FILES:
+        out["segmentation"] = _fig("segmentation")
     return out
 
 

@@ -189,6 +189,30 @@ rule posterior_mean_solve:
     shell:
         POSTERIOR_MEAN_JOB
 
+rule fig_segmentation:
+    conda:
+        "../envs/bayescalib.yaml"
+    input:
+        obs=f"{R}/observations/observations.h5",
+        images=IMAGE_FILES,
+    output:
+        report(
+            shown([f"{R}/figures/segmentation.{ext}" for ext in FMT]),
+            caption="../report/segmentation.rst",
+            category="Observations",
+        ),
+        kept([f"{R}/figures/segmentation.{ext}" for ext in FMT]),
+    params:
+        observations=study.config["observations"],
+        plots=study.config["plots"],
+        stem=lambda wc, output: os.path.splitext(output[0])[0],
+    log:
+        f"{R}/logs/fig_segmentation.log",
+    benchmark:
+        f"{R}/benchmarks/figures/segmentation.tsv"
+    shell:
+        FIG_SEGMENTATION_JOB
+
 
 rule fig_fields:
     conda:

@@ -70,7 +70,14 @@ Noise model of the replicates (``noise_model``):
 Noise level ``sigma``: given (the known observation noise), or estimated from the
 residual by the difference-based MAD estimator ``1.4826 median|dy - median dy| /
 sqrt(2)`` (differences of neighbouring residuals cancel a smooth mismatch), floored at
-``noise_floor`` (the mesh error of the interface, ~1e-4 mm). (Second differences
+``noise_floor`` (the mesh error of the interface, ~1e-4 mm) and, for interfaces
+segmented from raw scans, at the segmentation's own positional uncertainty
+(``segmentation_sigma``, :mod:`bayescalib.geometry.imaging`: the image noise over the
+intensity gradient across the contour, with the pixel quantisation): the residual cannot
+be less noisy than the tracing of the data, and a data-based estimate from ~100 thinned
+nodes can come out low by chance. ``sigma_source`` is then ``"segmentation (lower
+bound)"``, and both values are reported (``sigma_data_mm``, ``sigma_segmentation_mm``).
+(Second differences
 ``y_(j-1) - 2 y_j + y_(j+1)`` of white noise have variance ``6 sigma^2`` and cancel the
 linear part of a smooth mismatch.)
 """
@@ -411,6 +418,9 @@ class PredictiveCheck:
         Fraction of nodes whose observed residual lies in the pointwise band.
     noise_lag
         Arc length (mm) of the differences the noise estimate used (when estimated).
+    sigma_data, sigma_segmentation
+        When a segmentation uncertainty was given: the data-based estimate (mm; None
+        when ``sigma`` was given) and the segmentation's positional uncertainty (mm).
     noise_model
         Noise model of the replicates (:data:`NOISE_MODELS`).
     noise_pool
@@ -440,12 +450,17 @@ class PredictiveCheck:
     noise_model: str = "gaussian"
     noise_pool: dict | None = None
     rms_spread: dict | None = None
+    sigma_data: float | None = None
+    sigma_segmentation: float | None = None
 
     def to_json(self) -> dict:
         """Plain-value summary (no per-node arrays)."""
+        seg = ({} if self.sigma_segmentation is None else
+               {"sigma_data_mm": self.sigma_data,
+                "sigma_segmentation_mm": self.sigma_segmentation})
         return {
             "adequate": bool(self.adequate), "alpha": self.alpha,
-            "sigma_mm": self.sigma, "sigma_source": self.sigma_source,
+            "sigma_mm": self.sigma, "sigma_source": self.sigma_source, **seg,
             "noise_lag_mm": self.noise_lag,
             "noise_model": {"name": self.noise_model,
                             **({"pool": self.noise_pool} if self.noise_pool else {})},
@@ -519,6 +534,7 @@ def predictive_check(
     n_noise: int = 64,
     noise_lag: float = 0.0,
     noise_model: str = "gaussian",
+    segmentation_sigma: float | None = None,
     rng: np.random.Generator,
 ) -> PredictiveCheck:
     """Posterior predictive check of interfaces (see the module docstring).
@@ -551,6 +567,11 @@ def predictive_check(
         ``gaussian`` (i.i.d. normal noise of sd ``sigma`` per node) or ``bootstrap``
         (resampled leave-one-out rough residuals, :func:`noise_pool`; needs
         ``ell > 0``); see the module docstring.
+    segmentation_sigma
+        Positional uncertainty of the observed interfaces from their segmentation (mm;
+        raw scans, :meth:`bayescalib.io.observation_store.StoredObservations.segmentation_sigma`):
+        a lower bound of an estimated ``sigma`` (the source says when it binds);
+        reported beside a given one. None: none (masks, coordinates, synthetic data).
     rng
         Random generator (replicates).
     """
@@ -574,12 +595,14 @@ def predictive_check(
         per.append((obs_pts, y, o))
     smooth_ops = [smoother(arc_length(obs_pts), ell) for obs_pts, _, _ in per]
     pool = pool_info = None
+    data_sigma: float | None = None
     if noise_model == "bootstrap":
         pool = noise_pool([y - o.mean(axis=0) for _, y, o in per],
                           [arc_length(p) for p, _, _ in per], ell)
         rms = float(np.sqrt(np.mean(pool**2)))
         if sigma is None:
-            sig, source = float(max(rms, noise_floor)), "estimated"
+            sig, source = _estimated_sigma(rms, noise_floor, segmentation_sigma)
+            data_sigma = rms
         else:
             sig, source = float(max(sigma, noise_floor)), "given"
         # (a residual without a rough part, e.g. noise-free data: Gaussian at the floor)
@@ -589,7 +612,8 @@ def predictive_check(
     elif sigma is None:
         ests = [estimate_noise(y - o.mean(axis=0), lag=_lag_nodes(obs_pts, noise_lag))
                 for obs_pts, y, o in per]
-        sig, source = float(max(np.median(ests), noise_floor)), "estimated"
+        data_sigma = float(np.median(ests))
+        sig, source = _estimated_sigma(data_sigma, noise_floor, segmentation_sigma)
     else:
         sig, source = float(max(sigma, noise_floor)), "given"
 
@@ -670,4 +694,15 @@ def predictive_check(
         rms=float(np.sqrt(np.mean(allr**2))),
         coverage=float(np.mean(np.abs(allz) <= c_pw)), noise_lag=float(noise_lag),
         noise_model=noise_model, noise_pool=pool_info, rms_spread=spread,
+        sigma_data=data_sigma if segmentation_sigma is not None else None,
+        sigma_segmentation=None if segmentation_sigma is None else float(segmentation_sigma),
     )
+
+
+def _estimated_sigma(data: float, noise_floor: float,
+                     segmentation: float | None) -> tuple[float, str]:
+    """The estimated noise sd (mm) and its source: the data-based estimate, floored at
+    ``noise_floor`` and at the segmentation's positional uncertainty (when known)."""
+    if segmentation is not None and segmentation > max(data, noise_floor):
+        return float(segmentation), "segmentation (lower bound)"
+    return float(max(data, noise_floor)), "estimated"

@@ -223,6 +223,7 @@ def _check_from_particles(tag: str, particles: str | Path, targets: Sequence[str
                              ell=cfg["smoothing"], alpha=cfg["alpha"], n_noise=cfg["n_noise"],
                              noise_lag=cfg["noise_lag_mm"],
                              noise_model=cfg["noise_model_name"],
+                             segmentation_sigma=cfg.get("segmentation_sigma_mm"),
                              rng=np.random.default_rng(int(cfg["seed"]) + 1))
     draws = {"X": X, "ok": np.array([r.ok for r in runs]), "curves": curves}
     return check, len(runs) - len(good), draws
@@ -514,6 +515,7 @@ def _registration(modes, r, J, v, C0, obs, obs_pts, check, draws, theta, h, fd, 
         noise_floor=cfg["noise_floor"], ell=cfg["smoothing"], alpha=cfg["alpha"],
         n_noise=cfg["n_noise"], noise_lag=cfg["noise_lag_mm"],
         noise_model=cfg["noise_model_name"],
+        segmentation_sigma=cfg.get("segmentation_sigma_mm"),
         rng=np.random.default_rng(int(cfg["seed"]) + 1))
     out["check_after"] = after.to_json()
     out["explains"] = bool(out["first_order"] and explains_mismatch(out["check_after"], check))
@@ -606,6 +608,8 @@ def run_diagnosis(
     base_design = {k: design.get(k) for k in ("strategy", "n_solves", "converged", "reason")}
     cfg["noise_lag_mm"] = noise_lag(cfg, observations)
     cfg["noise_model_name"] = resolve_noise_model(cfg, observations)
+    # raw scans: the segmentation's positional uncertainty bounds the noise from below
+    cfg["segmentation_sigma_mm"] = obs.segmentation_sigma()
     n_observed = [len(s.points) for s in obs.snapshots]
     obs = thinned_observations(obs, cfg["noise_lag_mm"])
     sigma = cfg["noise_sigma"]

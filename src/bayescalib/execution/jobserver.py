@@ -297,6 +297,15 @@ def _fig_fields(args: Mapping[str, Any]) -> None:
                  parameters=_literal(args["parameters"]) if "parameters" in args else None)
 
 
+def _fig_segmentation(args: Mapping[str, Any]) -> None:
+    from bayescalib.stages import setup_logging
+    from bayescalib.stages.figures import segmentation_figure
+
+    setup_logging(args["log"])
+    segmentation_figure(args["obs"], _literal(args["observations"]), _literal(args["plots"]),
+                        args["stem"])
+
+
 def _fig_rounds(args: Mapping[str, Any]) -> None:
     from bayescalib.stages import setup_logging
     from bayescalib.stages.figures import rounds_figure
@@ -329,13 +338,14 @@ STAGES: dict[str, Callable[[Mapping[str, Any]], None]] = {
     "fig_interfaces": _fig_interfaces,
     "fig_fields": _fig_fields,
     "fig_rounds": _fig_rounds,
+    "fig_segmentation": _fig_segmentation,
 }
 
 #: the stages the round server runs (GPy, ArviZ, Matplotlib); the others go to the point
 #: server. ``scripts/job.py`` holds the same set (it imports nothing of this package).
 ROUND_STAGES = frozenset({"train_surrogate", "smc", "acquire", "marginalize", "fig_response",
                           "fig_convergence", "fig_posterior", "fig_interfaces", "fig_fields",
-                          "fig_rounds", "summary", "posterior_check"})
+                          "fig_rounds", "fig_segmentation", "summary", "posterior_check"})
 
 #: what the point server imports before it accepts jobs (the heavy part of every
 #: per-point job; also the modules a solve or discrepancy imports on its way, so that

@@ -111,6 +111,8 @@ def read_colony(scan: Mapping[str, Any], *, where: str = "geometry.scan") -> Col
     smoothing = scan.get("smoothing")
     colony = scan.get("colony")
     floor = scan.get("floor")
+    if floor is not None and isinstance(floor, str) and suffix not in IMAGE_SUFFIXES:
+        raise _fail(where, f"floor: {floor!r} applies to images; give the substrate's y")
     if suffix in IMAGE_SUFFIXES:
         return _colony_from_image(path, scan, f, units, where)
     if suffix not in CSV_SUFFIXES | VTK_SUFFIXES:
@@ -168,13 +170,11 @@ def _colony_from_image(path: Path, scan: Mapping[str, Any], f: float, units: str
         raise _fail(where, f"'{path}': {exc}") from None
     h, w = mask.shape
     floor = scan.get("floor")
-    if floor is None:
+    if floor == "auto":
+        row = (seg.get("floor") or {}).get("row")
+        y_f = y0 - 0.5 * s if row is None else y0 + (h - 1 - float(row)) * s
+    elif floor is None:
         y_f = y0 - 0.5 * s  # the bottom edge of the image
-    elif isinstance(floor, str):
-        y_f = imaging.find_floor(mask, s, (x0, y0)) if hasattr(imaging, "find_floor") else None
-        if y_f is None:
-            raise _fail(where, f"'{path}': floor: {floor!r} is not supported here; give the "
-                        f"substrate's y in {units}")
     else:
         y_f = float(floor) * f
     if abs(y_f) > max(FLOOR_TOL_MM, 2.0 * s):

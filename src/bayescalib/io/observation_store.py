@@ -4,7 +4,9 @@ Layout (lengths in mm)::
 
     /snapshots/<k>/points   (n_k, d)   ordered interface nodes of snapshot k
     /snapshots/<k>/cells    (m_k, d)   segments (d = 2) or triangles (d = 3)
-        attrs: label (str), load (float, NaN if unknown)
+        attrs: label (str), load (float, NaN if unknown),
+               segmentation (JSON, optional: how an image snapshot was segmented,
+               with sigma_mm, the segmentation's positional uncertainty, mm)
     /reference/points, /reference/cells   optional undeformed interface
     attrs: units = "mm", n_snapshots, format_version, complete = 1 (written last)
 
@@ -45,6 +47,11 @@ class StoredObservations:
         Undeformed interface (no-flow scan or the model's reference), if known.
     meta
         JSON-serializable provenance (source, noise level, seed, files).
+    segmentation
+        Per snapshot, what :func:`bayescalib.io.observations.read_interface_info` said
+        about an image (kind mask/scan, threshold, floor, ``sigma_mm``: the
+        segmentation's positional uncertainty of the interface in mm, None for
+        masks), or None (coordinate files, synthetic data); None: none at all.
     """
 
     snapshots: list[Interface]
@@ -52,12 +59,25 @@ class StoredObservations:
     loads: list[float | None]
     reference: Interface | None = None
     meta: dict[str, Any] = field(default_factory=dict)
+    segmentation: list[dict[str, Any] | None] | None = None
 
     def __post_init__(self) -> None:
         if not self.snapshots:
             raise ValueError("an observation set needs at least one snapshot")
         if not (len(self.snapshots) == len(self.labels) == len(self.loads)):
             raise ValueError("snapshots, labels and loads must have the same length")
+        if self.segmentation is not None and len(self.segmentation) != len(self.snapshots):
+            raise ValueError(f"{len(self.segmentation)} segmentation record(s) for "
+                             f"{len(self.snapshots)} snapshot(s)")
+
+    def segmentation_sigma(self) -> float | None:
+        """The segmentation's positional uncertainty of the observed interfaces, mm: the
+        root mean square of ``sigma_mm`` over the snapshots segmented from raw scans
+        (:mod:`bayescalib.geometry.imaging`), or None when no snapshot has one (masks,
+        coordinate files, synthetic data)."""
+        vals = [float(r["sigma_mm"]) for r in (self.segmentation or [])
+                if r and r.get("sigma_mm") is not None]
+        return float(np.sqrt(np.mean(np.square(vals)))) if vals else None
 
 
 def _write_iface(group, iface: Interface) -> None:
@@ -86,6 +106,9 @@ def write_observations(path: str | Path, obs: StoredObservations) -> None:
             _write_iface(g, iface)
             g.attrs["label"] = str(label)
             g.attrs["load"] = float("nan") if load is None else float(load)
+            seg = obs.segmentation[k] if obs.segmentation is not None else None
+            if seg is not None:
+                g.attrs["segmentation"] = json.dumps(seg, sort_keys=True)
         if obs.reference is not None:
             _write_iface(f.create_group("reference"), obs.reference)
         f.attrs["units"] = "mm"
@@ -114,7 +137,7 @@ def read_observations(path: str | Path) -> StoredObservations:
             if int(f.attrs.get("complete", 0)) != 1:
                 raise ValueError(f"observation file '{p}' is incomplete (interrupted write?)")
             n = int(f.attrs["n_snapshots"])
-            snaps, labels, loads = [], [], []
+            snaps, labels, loads, segs = [], [], [], []
             for k in range(n):
                 g = f["snapshots"][str(k)]
                 label = str(g.attrs["label"])
@@ -122,9 +145,11 @@ def read_observations(path: str | Path) -> StoredObservations:
                 labels.append(label)
                 load = float(g.attrs["load"])
                 loads.append(load)
+                seg = g.attrs.get("segmentation")
+                segs.append(None if seg is None else json.loads(str(seg)))
             ref = _read_iface(f["reference"], "reference") if "reference" in f else None
             meta = json.loads(str(f.attrs.get("meta", "{}")))
     except (OSError, KeyError) as exc:
         raise ValueError(f"observation file '{p}' is unreadable or corrupt: {exc}") from None
     return StoredObservations(snaps, labels, [None if math.isnan(x) else x for x in loads],
-                              ref, meta)
+                              ref, meta, segs if any(x is not None for x in segs) else None)

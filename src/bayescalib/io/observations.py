@@ -13,12 +13,21 @@ Sources (all coordinates end up in mm):
   polyline cells give a 2D polyline (all z equal), polygon / triangle / strip
   cells a 3D triangulated surface. Points not used by any cell are dropped; a
   set of segments forming one path is re-ordered into an ordered curve;
-* segmented image (``.png``, ``.tif``, ``.tiff``): see :mod:`bayescalib.geometry.imaging`.
+* image (``.png``, ``.tif``, ``.tiff``): a binary mask or a raw greyscale scan
+  (e.g. an OCT B-scan) segmented here, read by
+  :func:`bayescalib.geometry.imaging.read_mask` and traced by
+  :func:`bayescalib.geometry.imaging.mask_contour`. ``pixel_size`` and ``origin``
+  (the centre of the bottom-left pixel) are required; ``floor`` may be ``"auto"``.
+  :func:`read_interface_info` also returns what the segmentation did (threshold,
+  floor found, its positional uncertainty in mm).
 
 Every reader checks its input and raises :class:`ObservationError` naming the
 file and the problem: missing file, empty or single-point curve, NaN/inf,
-duplicate consecutive points, self-intersecting curve (2D), mask without
-foreground, and, when an expected ``domain`` (bounding box) is given, an
+duplicate consecutive points, self-intersecting curve (2D), image without
+foreground or background (all black, all white, or a scan whose segmentation finds
+no biofilm or no fluid), image larger than
+:data:`bayescalib.geometry.imaging.MAX_IMAGE_PIXELS` pixels (refused from its header,
+before decoding), and, when an expected ``domain`` (bounding box) is given, an
 extent that does not fit it (a typical sign of a unit mismatch, e.g. a curve
 2000 units wide in a 2 mm channel read as mm).
 
@@ -30,9 +39,10 @@ from __future__ import annotations
 import csv
 import itertools
 import re
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -46,6 +56,7 @@ __all__ = [
     "add_noise",
     "check_domain",
     "read_interface",
+    "read_interface_info",
     "read_points",
     "write_interface_csv",
     "write_interface_vtk",
@@ -399,28 +410,44 @@ def _read_vtk(path: Path, units: str, where: str) -> Interface:
 
 
 # ---------------------------------------------------------------------------- image
-def _read_image(path: Path, pixel_size, origin, drop_border: bool, floor, units: str, where: str) -> Interface:
+def _read_image(path: Path, pixel_size, origin, drop_border: bool, floor, units: str,
+                where: str, image: str = "auto",
+                segmentation: Mapping[str, Any] | None = None) -> tuple[Interface, dict[str, Any]]:
     from bayescalib.geometry import imaging
 
     if pixel_size is None:
         raise ObservationError(f"{where}: an image needs a pixel size (pixel_size, in {units})")
+    if origin is None:
+        raise ObservationError(
+            f"{where}: an image needs its origin: the position (x, y) of the centre of the "
+            f"bottom-left pixel, in {units} (there is no default: (0, 0) would put the image "
+            "half a pixel and its whole offset away from the model)")
     f = _unit_factor(units, where)
-    org = (0.0, 0.0) if origin is None else tuple(float(v) * f for v in origin)
+    org = tuple(float(v) * f for v in origin)
     if len(org) != 2:
         raise ObservationError(f"{where}: origin must be two numbers (x, y), got {origin}")
+    if floor is not None and floor != "auto" and isinstance(floor, str):
+        raise ObservationError(f"{where}: floor must be a number, 'auto' or null, got {floor!r}")
     try:
-        mask = imaging.load_mask(path)
-    except imaging._MaskError as exc:
-        raise ObservationError(f"{where}: {exc}") from None
+        mask, info = imaging.read_mask(path, image=image, segmentation=segmentation)
+    except ValueError as exc:  # ImageError, bad settings
+        msg = str(exc)
+        raise ObservationError(msg if msg.startswith(where) else f"{where}: {msg}") from None
     except Exception as exc:  # noqa: BLE001 - decoders raise anything on a broken file
         raise ObservationError(
             f"{where}: cannot read the image ({type(exc).__name__}: {exc})"
         ) from None
+    s = float(pixel_size) * f
+    h = int(mask.shape[0])
+    floor_mm = None
+    if floor == "auto":
+        row = info["floor"]["row"]
+        floor_mm = None if row is None else org[1] + (h - 1 - float(row)) * s
+    elif floor is not None:
+        floor_mm = float(floor) * f
     try:
-        return imaging.mask_contour(
-            mask, float(pixel_size) * f, org, drop_border=drop_border,
-            floor=None if floor is None else float(floor) * f, name=where,
-        )
+        curve = imaging.mask_contour(mask, s, org, drop_border=drop_border, floor=floor_mm,
+                                     name=where)
     except InterfaceError as exc:
         raise ObservationError(str(exc)) from None
     except ValueError as exc:
@@ -428,6 +455,13 @@ def _read_image(path: Path, pixel_size, origin, drop_border: bool, floor, units:
         raise ObservationError(msg if msg.startswith(where) else f"{where}: {msg}") from None
     except OSError as exc:
         raise ObservationError(f"{where}: cannot read the image ({exc})") from None
+    mm = {"pixel_size_mm": s, "origin_mm": list(org),
+          "floor_mm": floor_mm, "floor_source": "auto" if floor == "auto" else
+          ("given" if floor is not None else "none"),
+          "sigma_mm": None if info["sigma_px"] is None else float(info["sigma_px"]) * s,
+          "sigma_noise_mm": None if info["sigma_noise_px"] is None
+          else float(info["sigma_noise_px"]) * s}
+    return curve, {**info, **mm}
 
 
 # ---------------------------------------------------------------------------- API
@@ -438,10 +472,12 @@ def read_interface(
     pixel_size: float | None = None,
     origin: Sequence[float] | None = None,
     drop_border: bool = True,
-    floor: float | None = None,
+    floor: float | str | None = None,
+    image: str = "auto",
+    segmentation: Mapping[str, Any] | None = None,
     domain: Sequence[Sequence[float]] | None = None,
 ) -> Interface:
-    """Read an interface from CSV, VTK or a mask image, in mm.
+    """Read an interface from CSV, VTK or an image (mask or raw scan), in mm.
 
     Parameters
     ----------
@@ -452,12 +488,17 @@ def read_interface(
     pixel_size : float, optional
         Image pixel size (required for images).
     origin : (float, float), optional
-        Image: position of the centre of the bottom-left pixel (default (0, 0)).
+        Image: position of the centre of the bottom-left pixel (required for images).
     drop_border : bool
         Image: drop the boundary along the image border/floor (see
         :mod:`bayescalib.geometry.imaging`).
-    floor : float, optional
-        Image: y of the floor (in ``units``); the contour part on it is dropped.
+    floor : float or "auto", optional
+        Image: y of the floor (in ``units``), or ``"auto"`` (found in the image,
+        :func:`bayescalib.geometry.imaging.find_floor`); the contour part on it is dropped.
+    image : {"auto", "mask", "scan"}
+        Image: a binary mask or a raw scan to segment (auto: two grey values = mask).
+    segmentation : mapping, optional
+        Image: segmentation settings of a scan (``smooth``, ``threshold``, ``min_size``).
     domain : sequence of (min, max) per axis in mm, optional
         Expected bounding box; an interface that does not fit raises (unit check).
 
@@ -465,6 +506,36 @@ def read_interface(
     ------
     ObservationError
         Naming the file and the problem.
+    """
+    return read_interface_info(path, units=units, pixel_size=pixel_size, origin=origin,
+                               drop_border=drop_border, floor=floor, image=image,
+                               segmentation=segmentation, domain=domain)[0]
+
+
+def read_interface_info(
+    path: str | Path,
+    *,
+    units: str = "mm",
+    pixel_size: float | None = None,
+    origin: Sequence[float] | None = None,
+    drop_border: bool = True,
+    floor: float | str | None = None,
+    image: str = "auto",
+    segmentation: Mapping[str, Any] | None = None,
+    domain: Sequence[Sequence[float]] | None = None,
+) -> tuple[Interface, dict[str, Any]]:
+    """:func:`read_interface`, plus what was done to get it.
+
+    Returns
+    -------
+    interface : Interface
+    info : dict
+        ``{"kind": "csv"}`` or ``{"kind": "vtk"}`` for coordinate files; for images
+        the dict of :func:`bayescalib.geometry.imaging.read_mask` (``kind`` "mask" or
+        "scan", threshold, floor found, segmentation uncertainty in pixels) plus
+        ``pixel_size_mm``, ``origin_mm``, ``floor_mm`` (the floor cut at, None: none),
+        ``floor_source`` ("auto", "given", "none"), ``sigma_mm`` and ``sigma_noise_mm``
+        (the segmentation's positional uncertainty of the interface, mm; None for masks).
     """
     p = Path(path)
     where = str(p)
@@ -474,17 +545,19 @@ def read_interface(
         raise ObservationError(f"{where}: not a file")
     suffix = p.suffix.lower()
     _unit_factor(units, where)
+    info: dict[str, Any]
     if suffix in CSV_SUFFIXES:
-        iface = _read_csv(p, units, where)
+        iface, info = _read_csv(p, units, where), {"kind": "csv"}
     elif suffix in VTK_SUFFIXES:
-        iface = _read_vtk(p, units, where)
+        iface, info = _read_vtk(p, units, where), {"kind": "vtk"}
     elif suffix in IMAGE_SUFFIXES:
-        iface = _read_image(p, pixel_size, origin, drop_border, floor, units, where)
+        iface, info = _read_image(p, pixel_size, origin, drop_border, floor, units, where,
+                                  image=image, segmentation=segmentation)
     else:
         known = sorted(CSV_SUFFIXES | VTK_SUFFIXES | IMAGE_SUFFIXES)
         raise ObservationError(f"{where}: unknown interface file type {suffix!r}; use one of {', '.join(known)}")
     check_domain(iface, domain, where, units)
-    return iface
+    return iface, info
 
 
 def write_interface_csv(path: str | Path, interface: Interface) -> None:

@@ -16,6 +16,7 @@ Modules (one figure family each)
 * :mod:`.parallel`    -- parallel-axis plot of particles coloured by density
 * :mod:`.interfaces`  -- interface curves and scalar residuals along the interface
 * :mod:`.fields`      -- velocity, pressure and displacement fields on the mesh
+* :mod:`.segmentation` -- image observations with the interface traced from them
 
 Helpers: :mod:`.style` (rc context, palette, labels), :mod:`.gaussian`
 (probability ellipses); weighted KDE and HPD thresholds come from
@@ -31,6 +32,7 @@ from .marginals import plot_marginals_1d, plot_pair_marginals
 from .parallel import plot_parallel_axes
 from .particles import plot_particles
 from .response import plot_response_surface
+from .segmentation import plot_segmentation
 from .style import axis_label, paper_style
 
 __all__ = [
@@ -49,4 +51,5 @@ __all__ = [
     "plot_parallel_axes",
     "plot_particles",
     "plot_response_surface",
+    "plot_segmentation",
 ]

@@ -208,7 +208,7 @@ def observe(observations: Mapping[str, Any], out_path: str | Path, *,
     """
     from bayescalib.geometry.interface import Interface
     from bayescalib.io.observation_store import StoredObservations, write_observations
-    from bayescalib.io.observations import add_noise, read_interface
+    from bayescalib.io.observations import add_noise, read_interface, read_interface_info
 
     source = observations["source"]
     if source == "synthetic":
@@ -249,13 +249,20 @@ def observe(observations: Mapping[str, Any], out_path: str | Path, *,
              **({"misregistration": misreg} if misreg else {})},
         )
     elif source == "files":
-        snaps, labels, loads = [], [], []
+        snaps, labels, loads, segs = [], [], [], []
         domain = observations.get("domain")
         for entry in observations.get("files", []):
-            iface = read_interface(entry["path"], domain=domain, **_reader_options(entry))
+            iface, info = read_interface_info(entry["path"], domain=domain,
+                                              **_reader_options(entry))
             snaps.append(iface)
             labels.append(entry.get("label") or Path(entry["path"]).stem)
             loads.append(entry.get("load"))
+            segs.append(info if info["kind"] in ("mask", "scan") else None)
+            if info["kind"] == "scan":
+                log.info("%s: scan segmented at %.6g (%s), floor %s, segmentation "
+                         "uncertainty %.3g um", entry["path"], info["threshold"],
+                         info["threshold_method"], info["floor"]["method"],
+                         1e3 * (info["sigma_mm"] or float("nan")))
         if not snaps:
             raise PipelineError("observations.files is empty: list at least one interface file")
         ref = None
@@ -263,7 +270,8 @@ def observe(observations: Mapping[str, Any], out_path: str | Path, *,
             ref_entry = observations["reference"]
             ref = read_interface(ref_entry["path"], domain=domain, **_reader_options(ref_entry))
         stored = StoredObservations(snaps, labels, loads, ref,
-                                    {"source": "files", "files": observations.get("files", [])})
+                                    {"source": "files", "files": observations.get("files", [])},
+                                    segs if any(x is not None for x in segs) else None)
     else:
         raise PipelineError(f"observations.source: unknown source {source!r}")
     write_observations(out_path, stored)
@@ -271,7 +279,9 @@ def observe(observations: Mapping[str, Any], out_path: str | Path, *,
 
 
 def _reader_options(entry: Mapping[str, Any]) -> dict[str, Any]:
-    keys = ("units", "pixel_size", "origin", "drop_border", "floor")
+    """The keyword arguments of :func:`bayescalib.io.observations.read_interface` for one
+    ``observations.files`` entry (the keys given, none of the unset ones)."""
+    keys = ("units", "pixel_size", "origin", "drop_border", "floor", "image", "segmentation")
     return {k: entry[k] for k in keys if entry.get(k) is not None}
 
 

@@ -15,6 +15,8 @@ plot setting reruns only the figures:
 * :func:`field_figure` -- velocity, pressure and displacement of the ground truth (synthetic
   data) or of the solve at the posterior mean (:func:`solve_at_posterior_mean`).
 * :func:`rounds_figure` -- active design: posterior and solves per round, stop-rule checks.
+* :func:`segmentation_figure` -- image observations with the interface traced from them,
+  the floor and the threshold (studies with at least one image among the files).
 """
 
 from __future__ import annotations
@@ -36,6 +38,7 @@ __all__ = [
     "posterior_figures",
     "response_figures",
     "rounds_figure",
+    "segmentation_figure",
 ]
 
 
@@ -244,6 +247,44 @@ def interface_figure(obs_path: str | Path, sample_runs: Sequence[str | Path],
         ref, [np.asarray(s.points) for s in obs.snapshots], samples,
         _paths(stem, plots["formats"]), truth_interface=truth, dpi=plots["dpi"],
     )
+
+
+def segmentation_figure(obs_path: str | Path, observations: Mapping[str, Any],
+                        plots: Mapping[str, Any], stem: str | Path) -> list[str]:
+    """Each image observation in grey with the interface traced from it and its floor.
+
+    The traced interfaces and what the segmentation did (threshold, floor, pixel size,
+    origin, uncertainty) come from ``observations.h5`` (the observe job's record, one
+    per snapshot, in the order of ``observations.files``); the grey values are read
+    again from the image files.
+    """
+    from bayescalib.geometry.imaging import read_image
+    from bayescalib.io.observation_store import read_observations
+    from bayescalib.plotting import plot_segmentation
+
+    obs = read_observations(obs_path)
+    segs = obs.segmentation or [None] * len(obs.snapshots)
+    files = list(observations.get("files") or [])
+    panels = [(k, e, segs[k]) for k, e in enumerate(files)
+              if k < len(segs) and segs[k] is not None]
+    if not panels:
+        raise ValueError(f"{obs_path}: no snapshot was read from an image: no segmentation "
+                         "figure to draw")
+    images, curves, sizes, origins, floors, labels, thr, how, sig = ([] for _ in range(9))
+    for k, entry, seg in panels:
+        images.append(read_image(entry["path"])[0])
+        curves.append(np.asarray(obs.snapshots[k].points))
+        sizes.append(seg["pixel_size_mm"])
+        origins.append(seg["origin_mm"])
+        floors.append(seg.get("floor_mm"))
+        labels.append(f"{obs.labels[k]} ({seg['kind']})")
+        thr.append(seg.get("threshold"))
+        how.append(seg.get("threshold_method"))
+        sig.append(seg.get("sigma_mm"))
+    return plot_segmentation(images, curves, _paths(stem, plots["formats"]),
+                             pixel_sizes=sizes, origins=origins, floors=floors, labels=labels,
+                             thresholds=thr, threshold_methods=how, sigmas=sig,
+                             dpi=plots["dpi"])
 
 
 def read_vtu_fields(path: str | Path) -> dict[str, np.ndarray]:
