@@ -217,7 +217,7 @@ def test_the_half_ellipse_study_refuses_an_image_placed_half_a_millimetre_off(tm
                         "prior": {"type": "uniform", "lo": 100.0, "hi": 800.0}}],
         "observations": {"source": "files", "files": cfg_files},
     }
-    with pytest.raises(ConfigError, match=r"observations.files\[0\].*offset by about \(-0.70"):
+    with pytest.raises(ConfigError, match=r"observations.files\[0\].*offset by about \(-0.65"):
         Study(cfg)
     cfg["observations"]["files"][0]["origin"] = entry["origin"]
     Study(cfg)
