@@ -125,10 +125,8 @@ def plot_segmentation(
 
     with paper_style():
         width = 6.5
-        heights = []
-        for a, s in zip(imgs, sizes, strict=True):
-            h, w = a.shape
-            heights.append(float(np.clip(width * h / max(w, 1), 1.0, 4.0)))
+        heights = [float(np.clip(width * a.shape[0] / max(a.shape[1], 1), 1.0, 4.0))
+                   for a in imgs]
         fig = Figure(figsize=(width, sum(heights) + 0.9 * n + 0.6), layout="constrained")
         axes = fig.subplots(n, 1, squeeze=False, height_ratios=heights)[:, 0]
         for k, ax in enumerate(axes):
