@@ -133,7 +133,7 @@ MAX_IMAGE_PIXELS = 50_000_000
 FLOOR_FULL_WIDTH = 0.9
 #: a bright band is brighter than the biofilm: its row median exceeds the background
 #: level by at least this many times the biofilm's contrast (biofilm minus background)
-FLOOR_BRIGHT = 1.5
+FLOOR_BRIGHT = 1.25
 #: the thickest full-width band taken for a substrate line, as a share of the height
 FLOOR_MAX_BAND = 0.05
 #: distance from the contour (pixels) of the pixels that estimate the noise

@@ -387,8 +387,8 @@ def select_colony(mask: np.ndarray, *, columns: tuple[float, float] | None = Non
             "Use a scan that shows the whole colony")
     words = (f"{len(ids)} colonies in the scan; modelled: the "
              + ("largest" if by == "largest" else "one in the given x-range")
-             + f" (columns {ranges[k][0]}-{ranges[k][1]}, {areas[k]} pixels)") if len(ids) > 1 \
-        else f"one colony in the scan (columns {ranges[0][0]}-{ranges[0][1]}, {areas[0]} pixels)"
+             + f", columns {ranges[k][0]}-{ranges[k][1]}, {areas[k]} pixels") if len(ids) > 1 \
+        else f"one colony in the scan, columns {ranges[0][0]}-{ranges[0][1]}, {areas[0]} pixels"
     return comp, ColonyChoice(k, len(ids), ranges, areas, by, words)
 
 
