@@ -98,6 +98,8 @@ def test_every_readme_command_works_verbatim(scratch):
         if steps == ["pytest"]:
             continue  # the test suite itself: this test is part of it
         line = " && ".join(steps).replace("results/<study>", "results/analytic")
+        if "examples/oct_colony" in line:  # run verbatim by tests/test_oct_example.py
+            continue
         if "slurm_cluster.py" in line and _slurm_missing():
             skipped.append(f"{line} ({_slurm_missing()})")
             continue
