@@ -122,7 +122,8 @@ def _distance_to(curve: Interface, points: np.ndarray) -> np.ndarray:
     p = np.asarray(curve.points)
     a, b = p[:-1], p[1:]
     ab = b - a
-    t = np.clip(np.einsum("mij,ij->mi", points[:, None, :] - a[None], ab) / np.sum(ab * ab, 1), 0, 1)
+    t = np.einsum("mij,ij->mi", points[:, None, :] - a[None], ab) / np.sum(ab * ab, 1)
+    t = np.clip(t, 0.0, 1.0)
     foot = a[None] + t[..., None] * ab[None]
     return np.min(np.linalg.norm(points[:, None, :] - foot, axis=2), axis=1)
 
@@ -133,7 +134,8 @@ def test_committed_example_reads_back_as_described():
     segmented interface within 2 pixels of its truth_<k>.csv (the zero-flow one is the
     colony at rest: the truth of the model's reference mesh)."""
     rec, images = read_recording(EXAMPLE)
-    assert rec["units"] == "um" and [s["loading_factor"] for s in rec["scans"]] == [0.0, 0.5, 1.0, 1.5]
+    assert rec["units"] == "um"
+    assert [s["loading_factor"] for s in rec["scans"]] == [0.0, 0.5, 1.0, 1.5]
     s = rec["pixel_size"] / 1000.0
     origin = np.asarray(rec["origin"]) / 1000.0
     for scan, image in zip(rec["scans"], images, strict=True):

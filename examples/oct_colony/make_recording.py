@@ -89,8 +89,9 @@ def main(argv: list[str] | None = None) -> None:
         "model": {"type": "fsi", "mesh": a.mesh, "geometry": "polyline of the colony outline",
                   "n_interface_nodes": int(res.stats.get("n_interface_nodes", 0)),
                   "ndof": int(res.stats.get("ndof", 0)),
-                  "max_displacement_um": [1000.0 * float(np.max(np.hypot(*(L.current - res.interface_reference).T)))
-                                          for L in res.loadings]},
+                  "max_displacement_um": [
+                      1000.0 * float(np.max(np.hypot(*(L.current - res.interface_reference).T)))
+                      for L in res.loadings]},
     }
     write_recording(a.out, [L.current for L in res.loadings], FACTORS, nominal=100.0,
                     settings=settings, seed=a.seed, metadata=meta)

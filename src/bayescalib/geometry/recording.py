@@ -115,7 +115,8 @@ class ScanSettings:
         return self.rows(self.substrate_thickness) + self.rows(self.below_substrate)
 
 
-def scan_grid(bounds: np.ndarray, settings: ScanSettings) -> tuple[tuple[int, int], tuple[float, float]]:
+def scan_grid(bounds: np.ndarray,
+              settings: ScanSettings) -> tuple[tuple[int, int], tuple[float, float]]:
     """Image grid covering ``bounds`` with the margin, the floor on a pixel edge.
 
     Parameters
