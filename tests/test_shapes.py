@@ -81,7 +81,8 @@ def test_quadrature_is_converged():
     x, w = np.polynomial.legendre.leggauss(1536)
     t, w = 0.5 * (t1 - t0) * x + 0.5 * (t1 + t0), 0.5 * (t1 - t0) * w
     p, d = c.point(t), c.derivative(t)
-    assert c.area == pytest.approx(0.5 * np.sum(w * (p[:, 0] * d[:, 1] - p[:, 1] * d[:, 0])), rel=1e-13)
+    area = 0.5 * np.sum(w * (p[:, 0] * d[:, 1] - p[:, 1] * d[:, 0]))
+    assert c.area == pytest.approx(area, rel=1e-13)
     assert c.perimeter == pytest.approx(np.sum(w * np.hypot(d[:, 0], d[:, 1])), rel=1e-13)
 
 

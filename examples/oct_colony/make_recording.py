@@ -7,7 +7,9 @@ finer mesh than the study uses; each deformed state is drawn as an OCT-like B-sc
 (speckle, point-spread, noise, the bright flow-cell floor below y = 0) and written as a
 16-bit PNG (scan_0.png without flow, scan_1..3.png with flow), with recording.json
 (pixel size, origin, units, flow rates, truth, seeds, mesh) and truth_<k>.csv (the
-noiseless model interfaces, um). The science is in ``bayescalib.geometry.recording``.
+noiseless model interfaces, um). The science is in ``bayescalib.geometry.shapes``
+(the colony), ``bayescalib.models.forward.solve_series`` (the series solve, as a
+study's ground-truth solve) and ``bayescalib.geometry.recording`` (the scans).
 
 Examples
 --------
@@ -31,15 +33,70 @@ import argparse
 import shlex
 import sys
 import time
+from collections.abc import Mapping, Sequence
+from typing import Any
 
 import numpy as np
 
-from bayescalib.geometry.recording import ScanSettings, solve_states, write_recording
+from bayescalib.geometry.recording import ScanSettings, write_recording
 from bayescalib.geometry.shapes import lobed_colony
+from bayescalib.io.runrecord import SolveResult
+from bayescalib.models.forward import FSIForward, solve_series
 
 FACTORS = [0.0, 0.5, 1.0, 1.5]
 #: hidden effects a scan without flow does not absorb (flow-driven)
 HIDDEN = ("layer", "attachment", "stiffening", "inflow_skew", "permeability")
+
+
+def solve_states(
+    outline: np.ndarray,
+    truth: Mapping[str, float],
+    hidden: Mapping[str, Any],
+    factors: Sequence[float],
+    *,
+    nominal: float = 100.0,
+    mesh: str = "fine",
+    time_limit_s: float = 1800.0,
+) -> SolveResult:
+    """Solve the fsi model on a colony at several inflow loadings.
+
+    Parameters
+    ----------
+    outline : array_like, shape (n, 2)
+        Counterclockwise colony outline above the floor, mm (``geometry.shape:
+        polyline``); its points become interface mesh vertices.
+    truth : mapping
+        Model keys and values, e.g. ``{"material.E": 400.0, "material.nu": 0.3}`` (Pa, -).
+    hidden : mapping
+        Hidden-effect keys, e.g. ``{"physics.layer.enabled": True, "physics.layer.phi": 1.5}``.
+    factors : sequence of float
+        Loading factors of the inflow rate (0 = no flow).
+    nominal : float
+        Nominal inflow rate, mm^2/s.
+    mesh : str
+        Mesh preset of the data (``fine``, ``paper``, ``coarse``).
+    time_limit_s : float
+        Wall-clock limit of the whole series, s.
+
+    Returns
+    -------
+    bayescalib.io.runrecord.SolveResult
+        With one :class:`~bayescalib.io.runrecord.LoadingResult` per factor.
+
+    Raises
+    ------
+    RuntimeError
+        If a loading did not converge.
+    """
+    fsi = {"mesh": {"preset": mesh},
+           "geometry": {"shape": "polyline", "outline": np.asarray(outline, dtype=float).tolist()}}
+    model = FSIForward(fsi, time_limit_s=time_limit_s)
+    res = solve_series(model, {**dict(truth), **dict(hidden)},
+                       {"parameter": "inflow.rate", "nominal": float(nominal),
+                        "factors": [float(f) for f in factors]})
+    if not res.ok:
+        raise RuntimeError(f"the data solve failed: {res.reason}")
+    return res
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -89,8 +146,9 @@ def main(argv: list[str] | None = None) -> None:
         "model": {"type": "fsi", "mesh": a.mesh, "geometry": "polyline of the colony outline",
                   "n_interface_nodes": int(res.stats.get("n_interface_nodes", 0)),
                   "ndof": int(res.stats.get("ndof", 0)),
-                  "max_displacement_um": [1000.0 * float(np.max(np.hypot(*(L.current - res.interface_reference).T)))
-                                          for L in res.loadings]},
+                  "max_displacement_um": [
+                      1000.0 * float(np.max(np.hypot(*(L.current - res.interface_reference).T)))
+                      for L in res.loadings]},
     }
     write_recording(a.out, [L.current for L in res.loadings], FACTORS, nominal=100.0,
                     settings=settings, seed=a.seed, metadata=meta)

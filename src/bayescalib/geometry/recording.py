@@ -7,8 +7,10 @@ images. Here it is made from the forward model itself, so that the truth is know
 1. an analytic colony (:mod:`bayescalib.geometry.shapes`) is the reference shape;
 2. the fsi model is solved on it at the true parameters, with a hidden effect the
    calibrated model lacks, at the inflow loadings ``factors x nominal`` by continuation
-   (:func:`solve_states`: the library's series solve,
-   :func:`bayescalib.models.forward.solve_series`), on a finer mesh than a study uses;
+   (the library's series solve, :func:`bayescalib.models.forward.solve_series`, as the
+   ground-truth solve of a study; ``examples/oct_colony/make_recording.py`` does it:
+   this module, in the geometry layer, does not import the models), on a finer mesh
+   than a study uses;
 3. every deformed interface (upstream foot to downstream foot, closed along the floor)
    is drawn into one image grid (:func:`scan_grid`) as an OCT-like B-scan
    (:func:`render_recording_scan`): the biofilm above the floor ``y = 0`` and the bright
@@ -55,7 +57,6 @@ __all__ = [
     "read_recording",
     "render_recording_scan",
     "scan_grid",
-    "solve_states",
     "write_recording",
 ]
 
@@ -115,7 +116,8 @@ class ScanSettings:
         return self.rows(self.substrate_thickness) + self.rows(self.below_substrate)
 
 
-def scan_grid(bounds: np.ndarray, settings: ScanSettings) -> tuple[tuple[int, int], tuple[float, float]]:
+def scan_grid(bounds: np.ndarray,
+              settings: ScanSettings) -> tuple[tuple[int, int], tuple[float, float]]:
     """Image grid covering ``bounds`` with the margin, the floor on a pixel edge.
 
     Parameters
@@ -198,59 +200,6 @@ def encode_counts(image: np.ndarray) -> np.ndarray:
 def decode_counts(counts: np.ndarray) -> np.ndarray:
     """16-bit counts -> intensity (the inverse of :func:`encode_counts` up to rounding)."""
     return np.asarray(counts, dtype=float) / COUNTS_PER_CONTRAST - INTENSITY_OFFSET
-
-
-def solve_states(
-    outline: np.ndarray,
-    truth: Mapping[str, float],
-    hidden: Mapping[str, Any],
-    factors: Sequence[float],
-    *,
-    nominal: float = 100.0,
-    mesh: str = "fine",
-    time_limit_s: float = 1800.0,
-):
-    """Solve the fsi model on a colony at several inflow loadings.
-
-    Parameters
-    ----------
-    outline : array_like, shape (n, 2)
-        Counterclockwise colony outline above the floor, mm (``geometry.shape:
-        polyline``); its points become interface mesh vertices.
-    truth : mapping
-        Model keys and values, e.g. ``{"material.E": 400.0, "material.nu": 0.3}`` (Pa, -).
-    hidden : mapping
-        Hidden-effect keys, e.g. ``{"physics.layer.enabled": True, "physics.layer.phi": 1.5}``.
-    factors : sequence of float
-        Loading factors of the inflow rate (0 = no flow).
-    nominal : float
-        Nominal inflow rate, mm^2/s.
-    mesh : str
-        Mesh preset of the data (``fine``, ``paper``, ``coarse``).
-    time_limit_s : float
-        Wall-clock limit of the whole series, s.
-
-    Returns
-    -------
-    bayescalib.io.runrecord.SolveResult
-        With one :class:`~bayescalib.io.runrecord.LoadingResult` per factor.
-
-    Raises
-    ------
-    RuntimeError
-        If a loading did not converge.
-    """
-    from bayescalib.models.forward import FSIForward, solve_series
-
-    fsi = {"mesh": {"preset": mesh},
-           "geometry": {"shape": "polyline", "outline": np.asarray(outline, dtype=float).tolist()}}
-    model = FSIForward(fsi, time_limit_s=time_limit_s)
-    res = solve_series(model, {**dict(truth), **dict(hidden)},
-                       {"parameter": "inflow.rate", "nominal": float(nominal),
-                        "factors": [float(f) for f in factors]})
-    if not res.ok:
-        raise RuntimeError(f"the data solve failed: {res.reason}")
-    return res
 
 
 def _csv(path: Path, points_um: np.ndarray) -> None:

@@ -217,7 +217,8 @@ class Colony:
     @cached_property
     def bounds(self) -> np.ndarray:
         """``[[xmin, 0], [xmax, ymax]]`` of the part above the floor, mm."""
-        return np.array([[self._extreme(0, 1.0), 0.0], [self._extreme(0, -1.0), self._extreme(1, -1.0)]])
+        return np.array([[self._extreme(0, 1.0), 0.0],
+                         [self._extreme(0, -1.0), self._extreme(1, -1.0)]])
 
     @property
     def width(self) -> float:
@@ -455,7 +456,8 @@ def lobed_colony(
         if not problems:
             return colony
         last = "; ".join(problems)
-    raise ShapeError(f"lobed_colony: no fit colony in {max_tries} draws (seed {seed}); last: {last}")
+    raise ShapeError(f"lobed_colony: no fit colony in {max_tries} draws (seed {seed}); "
+                     f"last: {last}")
 
 
 # -------------------------------------------------------------------- closed forms
