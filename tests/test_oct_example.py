@@ -1,5 +1,7 @@
 """The README's "Calibrate from your own OCT scans": the example's commands, verbatim,
-from its raw B-scans to the report (extended suite: about 20-40 minutes on 2 cores).
+from its raw B-scans to the report (``pytest -m slow``). It is not in the extended
+suite that CI runs until its run time on a quiet machine is measured: under load
+from other work its base calibration took 18 minutes and its diagnosis over 30.
 
 Specification: the study reads the colony of the zero-flow scan as the model's
 biofilm, segments the three loaded scans, calibrates, diagnoses and reports; every
@@ -28,7 +30,7 @@ def _example_commands() -> list[str]:
     return [ln.strip() for ln in block.splitlines() if ln.strip() and not ln.startswith("#")]
 
 
-@pytest.mark.extended
+@pytest.mark.slow  # not yet measured end to end on a quiet machine: see the module docstring
 def test_the_oct_example_runs_from_raw_scans_to_the_report(tmp_path):
     files = subprocess.run(["git", "ls-files"], cwd=REPO, capture_output=True, text=True,
                            check=True).stdout.split()
