@@ -11,11 +11,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from scipy.special import ellipe
 
-from bayescalib.config import ConfigError
+from bayescalib.config import ConfigError, validate
 from bayescalib.geometry import outline as ol
 from bayescalib.geometry.imaging import pixel_grid, render_mask
+from bayescalib.geometry.shapes import ellipse_patch, lobed_colony
 from bayescalib.io.colony import read_colony
 from bayescalib.io.observations import ObservationError, write_interface_csv, write_mask_png
 from bayescalib.geometry.interface import Interface
@@ -32,14 +32,7 @@ def _arc_colony(r_of_t, centre=1.0, n=4000):
 
 
 def _ellipse(a, b):
-    t = np.linspace(np.pi, 0.0, 4000)
-    return np.column_stack([1.0 + a * np.cos(t), b * np.sin(t)])
-
-
-def _exact(curve):
-    """Area above the floor and interface length of a dense analytic curve."""
-    closed = np.vstack([curve, curve[:1]])
-    return ol.polygon_area(curve), float(np.sum(np.linalg.norm(np.diff(curve, axis=0), axis=1))), closed
+    return ellipse_patch(1.0, a, b).interface(4000)
 
 
 def _mask_file(tmp_path, curves, name="scan.png", margin=0.05):
@@ -58,34 +51,35 @@ def _mask_file(tmp_path, curves, name="scan.png", margin=0.05):
     return {"path": str(path), "units": "mm", "pixel_size": S, "origin": list(origin)}
 
 
+def _read(scan):
+    """read_colony on a geometry.scan section validated by the fsi schema (defaults in)."""
+    geo = validate({"geometry": {"shape": "scan", "scan": scan}}, "fsi")["geometry"]
+    return read_colony(geo["scan"])
+
+
 LOBED = lambda t: 0.28 * (1 + 0.12 * np.cos(3 * t + 0.5))  # noqa: E731
 
 
-@pytest.mark.parametrize("curve", [
-    _ellipse(0.25, 0.25),                  # semicircle
-    _ellipse(0.2, 0.4),                    # tall
-    _ellipse(0.35, 0.2),                   # wide
-    _arc_colony(LOBED),                    # three lobes, asymmetric
-], ids=["semicircle", "tall", "wide", "lobed"])
-def test_a_traced_colony_keeps_its_area_and_interface_length_within_a_pixel(tmp_path, curve):
-    """Tolerances: interface length within one pixel (the staircase of the raw trace
-    adds 6-8 pixels; the default smoothing of two pixels removes it), area within a
-    band of half a pixel along the interface (the trace is sub-pixel accurate)."""
-    area, length, _ = _exact(curve)
-    colony = read_colony(_mask_file(tmp_path, [curve]))
-    assert abs(colony.info["length_mm"] - length) <= S, (colony.info["length_mm"], length)
-    assert abs(colony.info["area_mm2"] - area) <= 0.5 * length * S
-    assert colony.info["smoothing_mm"] == pytest.approx(2 * S)
-    p = colony.interface
+@pytest.mark.parametrize("colony", [
+    ellipse_patch(1.0, 0.25, 0.25),          # semicircle
+    ellipse_patch(1.0, 0.2, 0.4),            # tall
+    ellipse_patch(1.0, 0.35, 0.2),           # wide
+    lobed_colony(width=0.8, height=0.38, seed=0),   # the example's: lobes and an overhang
+    lobed_colony(width=0.7, height=0.3, centre=0.95, seed=2),
+], ids=["semicircle", "tall", "wide", "lobed0", "lobed2"])
+def test_a_traced_colony_keeps_its_area_and_interface_length_within_a_pixel(tmp_path, colony):
+    """Exact area and interface length by quadrature of the analytic curve
+    (bayescalib.geometry.shapes). Tolerances: interface length within one pixel (the
+    staircase of the raw trace adds 6-8 pixels; the default smoothing of two pixels
+    removes it), area within a band of half a pixel along the interface (the trace is
+    sub-pixel accurate)."""
+    traced = _read(_mask_file(tmp_path, [colony.interface(4000)]))
+    assert abs(traced.info["length_mm"] - colony.perimeter) <= S, \
+        (traced.info["length_mm"], colony.perimeter)
+    assert abs(traced.info["area_mm2"] - colony.area) <= 0.5 * colony.perimeter * S
+    assert traced.info["smoothing_mm"] == pytest.approx(2 * S)
+    p = traced.interface
     assert p[0, 0] < p[-1, 0] and p[0, 1] == pytest.approx(0.0) and p[-1, 1] == pytest.approx(0.0)
-
-
-def test_the_semicircle_reference_is_exact():
-    area, length, _ = _exact(_ellipse(0.25, 0.25))
-    assert area == pytest.approx(np.pi * 0.25**2 / 2, rel=1e-5)
-    assert length == pytest.approx(np.pi * 0.25, rel=1e-5)
-    a, b = 0.35, 0.2
-    assert _exact(_ellipse(a, b))[1] == pytest.approx(2 * a * ellipe(1 - (b / a) ** 2), rel=1e-5)
 
 
 def test_the_order_and_orientation_of_an_outline_file_do_not_matter(tmp_path):
@@ -96,11 +90,11 @@ def test_the_order_and_orientation_of_an_outline_file_do_not_matter(tmp_path):
     for k, pts in enumerate([closed, closed[::-1], np.roll(closed, 37, axis=0)]):
         path = tmp_path / f"outline{k}.csv"
         write_interface_csv(path, Interface.polyline(pts, closed=True))
-        got.append(read_colony({"path": str(path)}).interface)
+        got.append(_read({"path": str(path)}).interface)
     for k, pts in enumerate([curve, curve[::-1]]):  # an open interface, either direction
         path = tmp_path / f"open{k}.csv"
         write_interface_csv(path, Interface.polyline(pts))
-        got.append(read_colony({"path": str(path)}).interface)
+        got.append(_read({"path": str(path)}).interface)
     for g in got[1:]:
         assert g.shape == got[0].shape and np.allclose(g, got[0], atol=1e-9)
     assert got[0][0, 0] < got[0][-1, 0]
@@ -118,31 +112,31 @@ def test_with_two_colonies_the_largest_or_the_named_one_is_modelled(tmp_path):
     small = np.column_stack([1.55 + 0.1 * np.cos(np.linspace(np.pi, 0, 400)),
                              0.12 * np.sin(np.linspace(np.pi, 0, 400))])
     entry = _mask_file(tmp_path, [big, small])
-    colony = read_colony(entry)
+    colony = _read(entry)
     assert colony.info["n_colonies"] == 2 and "largest" in colony.info["colony"]
     assert colony.interface[:, 0].max() < 1.25
-    picked = read_colony({**entry, "colony": [1.4, 1.7]})
+    picked = _read({**entry, "colony": [1.4, 1.7]})
     assert picked.interface[:, 0].min() > 1.4 and "x-range" in picked.info["colony"]
     with pytest.raises(ObservationError, match="no colony lies in the given x-range"):
-        read_colony({**entry, "colony": [0.1, 0.2]})
+        _read({**entry, "colony": [0.1, 0.2]})
 
 
 def test_a_colony_cut_by_the_image_border_is_refused(tmp_path):
     entry = _mask_file(tmp_path, [_ellipse(0.25, 0.3)], margin=0.0)
     with pytest.raises(ObservationError, match="(left|right).*border.*field of view"):
-        read_colony(entry)
+        _read(entry)
 
 
 def test_a_substrate_away_from_the_floor_is_refused_with_the_origin_that_fits(tmp_path):
     entry = _mask_file(tmp_path, [_ellipse(0.25, 0.3)])
     wrong = {**entry, "origin": [entry["origin"][0], entry["origin"][1] + 0.1]}
     with pytest.raises(ObservationError) as exc:
-        read_colony(wrong)
+        _read(wrong)
     msg = str(exc.value)
     assert "geometry.scan" in msg and "y = 0.1" in msg
     assert f"{entry['origin'][1]:.6g}" in msg  # the origin that puts the substrate at y = 0
     with pytest.raises(ObservationError, match="origin is required"):
-        read_colony({k: v for k, v in entry.items() if k != "origin"})
+        _read({k: v for k, v in entry.items() if k != "origin"})
 
 
 def test_outlines_the_mesh_cannot_resolve_are_refused():
@@ -228,7 +222,7 @@ def test_the_mesh_of_a_scanned_colony_follows_it_and_solves(tmp_path):
 
     curve = _arc_colony(LOBED)
     entry = _mask_file(tmp_path, [curve])
-    colony = read_colony(entry)
+    colony = _read(entry)
     model = FSIModel({"geometry": {"shape": "scan", "scan": entry}, "mesh": {"preset": "coarse"}})
     result = model.solve({"material.E": 400.0, "material.nu": 0.3})
     assert result.status == "ok", result.reason

@@ -28,7 +28,8 @@ from bayescalib.geometry.recording import (
     scan_grid,
     write_recording,
 )
-from bayescalib.geometry.shapes import lobed_colony, polygon_area, polyline_length
+from bayescalib.geometry.outline import curve_length, signed_area
+from bayescalib.geometry.shapes import lobed_colony
 
 EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "oct_colony"
 SETTINGS = ScanSettings()  # 4 um pixels, 4-look speckle, PSF 1 pixel, noise 0.05
@@ -108,10 +109,10 @@ def test_zero_flow_scan_gives_back_the_colony_within_a_pixel(tmp_path):
     band = image[image.shape[0] - back["floor"]["rows_below"]:][1:sub - 1]
     assert band.mean() == pytest.approx(SETTINGS.substrate_intensity, rel=0.1)
     curve = _segment(image, origin, s)
-    area = polygon_area(_closed_on_floor(curve)[::-1])
+    area = signed_area(_closed_on_floor(curve)[::-1])
     assert abs(area - c.area) <= c.perimeter * s, (area, c.area)
-    assert polyline_length(_every(curve, 4 * s)) == pytest.approx(c.perimeter, rel=0.01)
-    assert c.perimeter < polyline_length(curve) < 1.08 * c.perimeter
+    assert curve_length(_every(curve, 4 * s)) == pytest.approx(c.perimeter, rel=0.01)
+    assert c.perimeter < curve_length(curve) < 1.08 * c.perimeter
     truth = Interface.polyline(c.interface(800))
     dist = _distance_to(truth, curve)
     assert dist.max() <= 2 * s, dist.max() / s

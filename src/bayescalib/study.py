@@ -285,7 +285,7 @@ class Study:
             Study._check_boxes(cfg, where)
         Study._check_hidden(cfg, where)
         observed = Study._check_observation_files(cfg, where)
-        notes += Study._check_registration(cfg, where, observed)
+        Study._check_registration(cfg, where, observed)
         Study._check_diagnose(cfg, where)
         return notes
 
@@ -335,7 +335,7 @@ class Study:
                 f"{i['height_mm']:.4g} mm high, smoothed at {i['smoothing_mm'] * 1e3:.3g} um)"]
 
     @staticmethod
-    def _check_registration(cfg: dict[str, Any], where: str, observed: dict[str, Any]) -> list[str]:
+    def _check_registration(cfg: dict[str, Any], where: str, observed: dict[str, Any]) -> None:
         """Every observed interface lies where the model's undeformed biofilm is, at its
         scale: a flow moves the interface by a fraction of the colony's height and its
         feet barely; a wrong origin or unit moves or scales it as a whole. Refused when
@@ -348,7 +348,7 @@ class Study:
         from bayescalib.io.observations import UNITS
 
         if not observed:
-            return []
+            return
         if cfg["forward_model"]["type"] == "fsi":
             from bayescalib.models.fsi.geometry import reference_interface
 
@@ -358,12 +358,10 @@ class Study:
             ref = observed["observations.reference"].points
             what = "observations.reference"
         else:
-            return []  # a python/command model's reference is known only from a solve
+            return  # a python/command model's reference is known only from a solve
         height = float(np.ptp(ref[:, 1])) or 1.0
-        notes = []
         for key, iface in observed.items():
-            if iface.dim != 2 or (key == "observations.reference" and what != "the model's "
-                                  "undeformed biofilm"):
+            if iface.dim != 2 or key == what:  # 3D, or the reference compared with itself
                 continue
             entry = dict(_entry_at(cfg, key))
             units = entry.get("units") or "mm"
@@ -395,7 +393,6 @@ class Study:
                     f"whose height is {height:.3g} mm: a flow moves it by a fraction of that. "
                     f"It is offset by about ({dx:+.3f}, {dy:+.3f}) mm: check {key}.origin and "
                     f"{key}.units{fix}")
-        return notes
 
     @staticmethod
     def _check_observation_files(cfg: dict[str, Any], where: str) -> dict[str, Any]:

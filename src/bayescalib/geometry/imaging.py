@@ -651,9 +651,9 @@ def _occupancy(points: np.ndarray, shape: tuple[int, int],
     # the polygon closes the curve by the chord from its last to its first point; with the
     # foreground on the right of the curve that polygon is traversed clockwise (in x, y);
     # a counter-clockwise one bounds background (e.g. a fluid-filled hole)
-    x, y = points[:, 0], points[:, 1]
-    signed_area = 0.5 * float(np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y))
-    if signed_area > 0:
+    from bayescalib.geometry.outline import signed_area
+
+    if signed_area(points) > 0:
         fine = ~fine
     return fine.reshape(h, k, w, k).mean(axis=(1, 3))
 

@@ -51,6 +51,7 @@ __all__ = [
     "Placement",
     "check_colony",
     "counterclockwise",
+    "curve_length",
     "extend_to_floor",
     "interface_above_floor",
     "placement",
@@ -84,6 +85,12 @@ def signed_area(points: np.ndarray) -> float:
 def polygon_area(points: np.ndarray) -> float:
     """Area of a simple closed polygon, mm^2 (:func:`signed_area` without sign)."""
     return abs(signed_area(points))
+
+
+def curve_length(points: np.ndarray) -> float:
+    """Length of an open polyline, mm. ``points``: (n, 2), in order."""
+    p = np.asarray(points, dtype=float)
+    return float(np.sum(np.linalg.norm(np.diff(p, axis=0), axis=1)))
 
 
 def counterclockwise(points: np.ndarray) -> np.ndarray:

@@ -53,8 +53,6 @@ __all__ = [
     "ellipse_segment_arc_length",
     "ellipse_segment_area",
     "lobed_colony",
-    "polygon_area",
-    "polyline_length",
 ]
 
 #: Gauss-Legendre nodes of the area and perimeter integrals (converged to ~1e-14 for
@@ -486,17 +484,3 @@ def ellipse_segment_arc_length(semi_x: float, semi_y: float, y_centre: float) ->
         return float(2.0 * a * ellipeinc(0.5 * np.pi - t0, 1.0 - b * b / (a * a)))
     m = 1.0 - a * a / (b * b)
     return float(b * (ellipeinc(np.pi - t0, m) - ellipeinc(t0, m)))
-
-
-def polygon_area(points: np.ndarray) -> float:
-    """Signed area of a polygon closed from its last point to its first (shoelace),
-    mm^2 (> 0 counterclockwise). ``points``: (n, 2)."""
-    p = np.asarray(points, dtype=float)
-    x, y = p[:, 0], p[:, 1]
-    return float(0.5 * np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y))
-
-
-def polyline_length(points: np.ndarray) -> float:
-    """Length of an open polyline (not closed), mm. ``points``: (n, 2)."""
-    p = np.asarray(points, dtype=float)
-    return float(np.sum(np.hypot(*np.diff(p, axis=0).T)))

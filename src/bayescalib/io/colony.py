@@ -79,6 +79,7 @@ def read_colony(scan: Mapping[str, Any], *, where: str = "geometry.scan") -> Col
     Parameters
     ----------
     scan : mapping
+        The validated ``geometry.scan`` section (its schema's defaults filled in):
         ``path``; ``units`` (m, mm, um: of coordinates, ``pixel_size``, ``origin``,
         ``floor``, ``colony`` and ``smoothing``); for images ``pixel_size`` and
         ``origin`` (required: the centre of the bottom-left pixel) and optionally
@@ -100,25 +101,21 @@ def read_colony(scan: Mapping[str, Any], *, where: str = "geometry.scan") -> Col
         not on the floor.
     """
     path = Path(scan["path"])
-    units = scan.get("units") or "mm"
-    if units not in UNITS:
-        raise _fail(where, f"unknown units {units!r}; use one of {', '.join(UNITS)}")
+    units = scan["units"]
     f = UNITS[units]
     suffix = path.suffix.lower()
     if not path.is_file():
         raise _fail(where, f"'{path}' does not exist" + (
             f" (relative paths are read from {Path.cwd()})" if not path.is_absolute() else ""))
-    smoothing = scan.get("smoothing")
-    colony = scan.get("colony")
-    floor = scan.get("floor")
-    if floor is not None and isinstance(floor, str) and suffix not in IMAGE_SUFFIXES:
+    floor = scan["floor"]
+    if isinstance(floor, str) and suffix not in IMAGE_SUFFIXES:
         raise _fail(where, f"floor: {floor!r} applies to images; give the substrate's y")
     if suffix in IMAGE_SUFFIXES:
         return _colony_from_image(path, scan, f, units, where)
     if suffix not in CSV_SUFFIXES | VTK_SUFFIXES:
         known = sorted(CSV_SUFFIXES | VTK_SUFFIXES | IMAGE_SUFFIXES)
         raise _fail(where, f"'{path}' is not a supported file (suffixes: {', '.join(known)})")
-    if colony is not None:
+    if scan["colony"] is not None:
         raise _fail(where, "colony (an x-range choosing one of several colonies) applies to "
                     "images; an outline file holds one colony")
     try:
@@ -129,6 +126,11 @@ def read_colony(scan: Mapping[str, Any], *, where: str = "geometry.scan") -> Col
         raise _fail(where, f"'{path}' must hold one ordered 2D curve (the zero-flow interface "
                     "or the colony's closed outline)")
     y_f = 0.0 if floor is None else float(floor) * f
+    if abs(y_f) > FLOOR_TOL_MM:
+        raise _fail(where, (
+            f"'{path}': floor: the substrate lies at y = {y_f:.4g} mm in the file's "
+            "coordinates, but the flow cell's floor is y = 0: shift the outline so that "
+            "the colony sits on y = 0"))
     closed = iface.n_cells == iface.n_points
     try:
         pts = ol.interface_above_floor(iface.points, floor=y_f, closed=closed)
@@ -145,6 +147,7 @@ def read_colony(scan: Mapping[str, Any], *, where: str = "geometry.scan") -> Col
                 "colony's closed outline)"))
     info = {"source": str(path), "kind": "outline", "n_colonies": 1,
             "colony": "one colony in the outline file"}
+    smoothing = scan["smoothing"]
     return _finish(pts, y_f, None if smoothing is None else float(smoothing) * f, None,
                    info, where)
 
@@ -164,12 +167,12 @@ def _colony_from_image(path: Path, scan: Mapping[str, Any], f: float, units: str
     s = float(scan["pixel_size"]) * f
     x0, y0 = (float(v) * f for v in scan["origin"])
     try:
-        mask, seg = imaging.read_mask(path, image=scan.get("image") or "auto",
-                                      segmentation=scan.get("segmentation"))
+        mask, seg = imaging.read_mask(path, image=scan["image"],
+                                      segmentation=scan["segmentation"])
     except (ValueError, OSError) as exc:
         raise _fail(where, f"'{path}': {exc}") from None
     h, w = mask.shape
-    floor = scan.get("floor")
+    floor = scan["floor"]
     if floor == "auto":
         row = (seg.get("floor") or {}).get("row")
         y_f = y0 - 0.5 * s if row is None else y0 + (h - 1 - float(row)) * s
@@ -186,7 +189,7 @@ def _colony_from_image(path: Path, scan: Mapping[str, Any], f: float, units: str
     work = mask.copy()
     work[rows_y <= y_f, :] = False
     cols = None
-    if scan.get("colony") is not None:
+    if scan["colony"] is not None:
         lo, hi = (float(v) * f for v in scan["colony"])
         cols = ((lo - x0) / s, (hi - x0) / s)
     try:
@@ -196,7 +199,7 @@ def _colony_from_image(path: Path, scan: Mapping[str, Any], f: float, units: str
         pts = ol.interface_above_floor(traced.points, floor=y_f, closed=False)
     except (ol.OutlineError, ValueError) as exc:
         raise _fail(where, str(exc)) from None
-    smoothing = scan.get("smoothing")
+    smoothing = scan["smoothing"]
     info = {"source": str(path), "kind": seg.get("kind", "mask"), "n_colonies": choice.n_colonies,
             "colony": choice.words, "pixel_size_mm": s,
             "colony_columns": list(choice.x_ranges[choice.index])}
@@ -209,7 +212,7 @@ def _finish(pts: np.ndarray, y_f: float, smoothing: float | None, pixel: float |
     """Smooth, resample and describe the interface."""
     sm = float(smoothing or 0.0)
     pts = ol.extend_to_floor(pts, y_f, reach=max(2.0 * (pixel or 0.0), sm, 1e-9))
-    length = float(np.sum(np.linalg.norm(np.diff(pts, axis=0), axis=1)))
+    length = ol.curve_length(pts)
     if sm > 0:
         pts = ol.smooth_curve(pts, sm)
     # the mesh takes a spline through these points: spacing of the smoothing length
@@ -218,8 +221,7 @@ def _finish(pts: np.ndarray, y_f: float, smoothing: float | None, pixel: float |
     if spacing > 0 and pts.shape[0] > 3:
         pts = ol.resample_curve(pts, spacing)
     info.update(floor_mm=float(y_f), smoothing_mm=sm, spacing_mm=float(spacing),
-                area_mm2=ol.polygon_area(pts), length_mm=float(
-                    np.sum(np.linalg.norm(np.diff(pts, axis=0), axis=1))),
+                area_mm2=ol.polygon_area(pts), length_mm=ol.curve_length(pts),
                 x_range_mm=[float(pts[:, 0].min()), float(pts[:, 0].max())],
                 height_mm=float(pts[:, 1].max() - y_f))
     return Colony(pts, info)
