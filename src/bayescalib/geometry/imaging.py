@@ -384,7 +384,9 @@ def find_floor(mask: np.ndarray, smoothed: np.ndarray | None = None,
     dict
         ``method`` (``"bright band"``, ``"full-width band"``, ``"foreground bottom"``,
         ``"image bottom"``) and ``row``: the floor's edge position in image rows
-        (half-integer: between two rows; None for ``"image bottom"``).
+        (half-integer: between two rows; None for ``"image bottom"``), where the
+        contour is cut. A bright band adds ``edge_row``: its own top edge (at half its
+        height above the biofilm), the substrate's surface, below ``row`` by the halo.
     """
     m = np.asarray(mask, dtype=bool)
     h = m.shape[0]
@@ -401,6 +403,7 @@ def find_floor(mask: np.ndarray, smoothed: np.ndarray | None = None,
             top = r
             while top > 0 and prof[top - 1] > half:
                 top -= 1
+            edge = top - 0.5  # the band's top edge: half-way from the biofilm to its peak
             # the band's blurred halo, partly segmented as foreground: the contour runs on it
             reach = top - (int(np.ceil(3.0 * blur)) + 3)
             fluid = ~m[max(reach - 1, 0)]
@@ -409,7 +412,7 @@ def find_floor(mask: np.ndarray, smoothed: np.ndarray | None = None,
                 level = back + 0.5 * (float(threshold) - back)
                 while top > 0 and top - 1 >= reach and halo[top - 1] > level:
                     top -= 1
-            return {"method": "bright band", "row": top - 0.5}
+            return {"method": "bright band", "row": top - 0.5, "edge_row": edge}
     rows = np.flatnonzero(m.any(axis=1))
     if rows.size == 0:
         return {"method": "image bottom", "row": None}

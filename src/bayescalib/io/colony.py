@@ -173,13 +173,19 @@ def _colony_from_image(path: Path, scan: Mapping[str, Any], f: float, units: str
         raise _fail(where, f"'{path}': {exc}") from None
     h, w = mask.shape
     floor = scan["floor"]
+    y_cut = None  # where the trace is cut, when above the substrate's surface y_f
     if floor == "auto":
-        row = (seg.get("floor") or {}).get("row")
+        found = seg.get("floor") or {}
+        row = found.get("row")
         y_f = y0 - 0.5 * s if row is None else y0 + (h - 1 - float(row)) * s
+        if found.get("edge_row") is not None:  # a bright band: cut above its halo,
+            y_cut = y_f                          # the feet continued down to its surface
+            y_f = y0 + (h - 1 - float(found["edge_row"])) * s
     elif floor is None:
         y_f = y0 - 0.5 * s  # the bottom edge of the image
     else:
         y_f = float(floor) * f
+    y_cut = y_f if y_cut is None else y_cut
     if abs(y_f) > max(FLOOR_TOL_MM, 2.0 * s):
         raise _fail(where, (
             f"'{path}': the substrate lies at y = {y_f:.4g} mm in the scan's coordinates "
@@ -187,16 +193,16 @@ def _colony_from_image(path: Path, scan: Mapping[str, Any], f: float, units: str
             f"with origin [{x0 / f:.6g}, {(y0 - y_f) / f:.6g}] {units} it would be"))
     rows_y = y0 + (h - 1 - np.arange(h)) * s
     work = mask.copy()
-    work[rows_y <= y_f, :] = False
+    work[rows_y <= y_cut, :] = False
     cols = None
     if scan["colony"] is not None:
         lo, hi = (float(v) * f for v in scan["colony"])
         cols = ((lo - x0) / s, (hi - x0) / s)
     try:
         comp, choice = ol.select_colony(work, columns=cols, name=f"'{path}'")
-        traced = imaging.mask_contour(comp, s, (x0, y0), drop_border=False, floor=y_f,
+        traced = imaging.mask_contour(comp, s, (x0, y0), drop_border=False, floor=y_cut,
                                       name=str(path))
-        pts = ol.interface_above_floor(traced.points, floor=y_f, closed=False)
+        pts = ol.interface_above_floor(traced.points, floor=y_cut, closed=False)
     except (ol.OutlineError, ValueError) as exc:
         raise _fail(where, str(exc)) from None
     smoothing = scan["smoothing"]
