@@ -9,6 +9,9 @@ the fix; the extracted shape meshes and solves.
 
 from __future__ import annotations
 
+import json
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -232,3 +235,26 @@ def test_the_mesh_of_a_scanned_colony_follows_it_and_solves(tmp_path):
     d, _, _ = closest_points(result.interface_reference, ref)
     assert np.max(np.abs(d)) < 0.25 * S  # the mesh's interface nodes lie on the traced one
     assert result.interface_reference[0, 0] == pytest.approx(colony.interface[0, 0], abs=S)
+
+
+def test_the_example_scan_gives_back_its_colony():
+    """The example's zero-flow B-scan (16-bit, 4 um pixels, 4-look speckle, a bright
+    substrate band; examples/oct_colony/README.md) read as the model's geometry:
+    the substrate's surface is found at y = 0 within half a pixel and the traced
+    colony lies within a pixel (RMS) of the noiseless interface it was rendered from,
+    its length within a pixel and its area within half a pixel band."""
+    from bayescalib.geometry.projection import closest_points
+
+    ex = Path(__file__).resolve().parents[1] / "examples" / "oct_colony"
+    rec = json.loads((ex / "recording.json").read_text())
+    scan = {"path": str(ex / "scan_0.png"), "units": rec["units"],
+            "pixel_size": rec["pixel_size"], "origin": rec["origin"], "floor": "auto"}
+    colony = _read(scan)
+    s = rec["pixel_size"] * 1e-3
+    assert abs(colony.info["floor_mm"]) <= 0.5 * s
+    truth = np.loadtxt(ex / "truth_0.csv", delimiter=",", skiprows=1) * 1e-3
+    d, _, _ = closest_points(colony.interface, Interface.polyline(truth))
+    assert np.sqrt(np.mean(d**2)) <= s
+    length, area = rec["colony"]["interface_length_mm"], rec["colony"]["area_mm2"]
+    assert abs(colony.info["length_mm"] - length) <= s
+    assert abs(colony.info["area_mm2"] - area) <= 0.5 * length * s
