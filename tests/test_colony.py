@@ -258,3 +258,19 @@ def test_the_example_scan_gives_back_its_colony():
     length, area = rec["colony"]["interface_length_mm"], rec["colony"]["area_mm2"]
     assert abs(colony.info["length_mm"] - length) <= s
     assert abs(colony.info["area_mm2"] - area) <= 0.5 * length * s
+
+
+def test_a_typed_outline_solves_in_either_orientation():
+    """The trial that found it: a half-ellipse outline listed clockwise stopped the solve
+    with "OCC-Triangulation could not be built"; outlines are now made counterclockwise."""
+    from bayescalib.models.fsi.model import FSIModel
+
+    ccw = ellipse_patch(1.0, 0.3, 0.4).outline(60)
+    refs = []
+    for outline in (ccw, ccw[::-1]):
+        model = FSIModel({"geometry": {"shape": "polyline", "outline": outline.tolist()},
+                          "mesh": {"preset": "coarse"}})
+        result = model.solve({"material.E": 400.0, "material.nu": 0.3})
+        assert result.status == "ok", result.reason
+        refs.append(result.interface_current)
+    assert refs[0].shape == refs[1].shape and np.allclose(refs[0], refs[1], atol=1e-9)
