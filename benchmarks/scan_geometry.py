@@ -65,7 +65,8 @@ def run(folder: Path, geometry: str, work: Path) -> dict:
     proc = subprocess.run(["snakemake", "--cores", "2", "--configfile", str(path)], cwd=ROOT,
                           capture_output=True, text=True)
     wall = time.time() - t0
-    row = {"recording": str(folder), "geometry": geometry, "wall_s": round(wall, 1)}
+    name = str(folder.relative_to(ROOT)) if folder.is_relative_to(ROOT) else str(folder)
+    row = {"recording": name, "geometry": geometry, "wall_s": round(wall, 1)}
     summary = ROOT / "results" / cfg["study"] / "summary.json"
     if proc.returncode != 0 or not summary.is_file():
         lines = (proc.stderr or proc.stdout).strip().splitlines()
@@ -80,6 +81,8 @@ def run(folder: Path, geometry: str, work: Path) -> dict:
     row.update(
         converged=s["design"]["converged"], n_solves=s["design"]["n_solves"],
         fit_consistent=(s.get("fit") or {}).get("consistent"),
+        misfit_ratio=(s["fit"]["misfit_nats"] / s["fit"]["expected_nats"]) if s.get("fit") else None,
+        n_failed=s["n_failed"],
         hidden=json.loads((folder / "recording.json").read_text()).get("hidden") or {},
         params={n: {"truth": truth[t], "mean": s["posterior_mean"][n], "sd": sd[k],
                     "z": (s["posterior_mean"][n] - truth[t]) / sd[k] if sd[k] > 0 else None}
@@ -89,12 +92,13 @@ def run(folder: Path, geometry: str, work: Path) -> dict:
 
 def table(rows: list[dict]) -> str:
     out = ["| recording | hidden effect | geometry | E (Pa): mean +- sd (truth), z | "
-           "nu: mean +- sd (truth), z | fit check | converged (solves) | wall |",
-           "|---|---|---|---|---|---|---|---|"]
+           "nu: mean +- sd (truth), z | fit check (best misfit / expected) | "
+           "converged (solves, failed) |",
+           "|---|---|---|---|---|---|---|"]
     for r in rows:
         if "error" in r:
-            out.append(f"| {r['recording']} | | {r['geometry']} | refused or failed: "
-                       f"{r['error']} | | | | {r['wall_s']} s |")
+            out.append(f"| {Path(r['recording']).name} | | {r['geometry']} | refused or failed: "
+                       f"{r['error']} | | | |")
             continue
         cells = []
         for n in ("E", "nu"):
@@ -105,8 +109,9 @@ def table(rows: list[dict]) -> str:
                            if k.endswith(".phi")) or "none"
         fit = {True: "within the noise", False: "WORSE THAN THE NOISE", None: "-"}[
             r["fit_consistent"]]
-        out.append(f"| {r['recording']} | {hidden} | {r['geometry']} | {cells[0]} | {cells[1]} | "
-                   f"{fit} | {r['converged']} ({r['n_solves']}) | {r['wall_s']:.0f} s |")
+        out.append(f"| {Path(r['recording']).name} | {hidden} | {r['geometry']} | {cells[0]} | "
+                   f"{cells[1]} | {fit} ({r['misfit_ratio']:.3g}) | {r['converged']} "
+                   f"({r['n_solves']}, {r['n_failed']}) |")
     return "\n".join(out)
 
 
@@ -130,7 +135,16 @@ def main(argv: list[str] | None = None) -> int:
         a.json.write_text(json.dumps(rows, indent=1) + "\n")
     if a.out:
         cmd = "python benchmarks/scan_geometry.py " + " ".join(map(str, a.recordings))
-        a.out.write_text(f"<!-- made by: {cmd} -->\n\n{text}\n")
+        intro = __doc__.split("\n\n")[1].replace("\n", " ")
+        a.out.write_text(
+            f"# The model's geometry from the zero-flow scan, against the default half-ellipse\n\n"
+            f"Made by `{cmd}`. {intro} z: (posterior mean - truth) / posterior sd. The fit "
+            "check compares the best solve's misfit with what the likelihood's noise model "
+            "expects (ratio in brackets). Wall: this run's time (a rerun reuses the "
+            f"solves of an earlier one).\n\nThe recordings were made by:\n\n"
+            + "".join(f"- `{json.loads((r / 'recording.json').read_text())['command']}`\n"
+                      for r in a.recordings)
+            + f"\n{text}\n")
     return 0
 
 
