@@ -1,5 +1,5 @@
 """The README's "Calibrate from your own OCT scans": the example's commands, verbatim,
-from its raw B-scans to the report (extended suite; 7 min 25 s on 2 quiet cores,
+from its raw B-scans to the report (extended suite; 12 min on 2 quiet cores,
 the diagnosis included).
 
 Specification: the study reads the colony of the zero-flow scan as the model's
