@@ -100,17 +100,20 @@ onsuccess:
     from bayescalib.execution.jobserver import stop_server
 
     stop_server()  # its log is complete when the run returns
-    # one plain line: the posterior, whether it converged, the solves used
+    # the posterior in one line, then the verdict in at most three short sentences
+    # (the misfit first, when the best fit is worse than the noise; converged or not
+    # and why; what to do); the detail is in summary.json and the report
     from pathlib import Path as _Path
 
     _summary = _Path(R, "summary.json")
     if _summary.is_file():
         from bayescalib.stages import read_json, run_line
+        from bayescalib.stages.verdict import verdict
 
         _s = read_json(_summary)
         print(run_line(_s), flush=True)
-        if (_s.get("design") or {}).get("converged") is False:
-            print(f"WARNING: {_s['design']['reason']}", flush=True)
+        print(verdict(_s), flush=True)
+        print(f"Detail in {_summary} and in the report (snakemake --report).", flush=True)
 
 onerror:
     from bayescalib.execution.jobserver import stop_server

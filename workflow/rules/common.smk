@@ -237,6 +237,7 @@ SUMMARY_JOB = (
     " study {params.study:q} parameters {params.parameters!r:q}"
     " measures {params.measures!r:q} figure_map {params.figure_map!r:q}"
     " root {params.root:q} strategy {params.strategy:q} n_solves {params.n_solves}"
+    " budget {params.budget!r:q}"
     " posterior [ {input.posterior:q} ] training [ {input.training:q} ]"
     " particles [ {input.particles:q} ] active [ {input.active:q} ]"
     " convergence [ {input.convergence:q} ] check [ {input.check:q} ]"

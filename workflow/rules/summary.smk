@@ -25,6 +25,12 @@ rule summary:
         root=lambda wc, output: os.path.dirname(output[0]),
         strategy=study.config["design"]["strategy"],
         n_solves=lambda wc: len(final_points()),
+        # the budget the verdict speaks of (bayescalib.stages.verdict)
+        budget={"max_solves": study.config["design"]["active"]["max_solves"],
+                "check_draws": study.config["posterior_check"]["draws"]
+                or (study.config["design"]["active"]["batch_size"]
+                    if study.config["surrogate"]["target"] == "outputs" else 0)}
+        if study.active else {},
     log:
         f"{R}/logs/summary.log",
     threads: 1

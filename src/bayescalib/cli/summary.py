@@ -1,7 +1,8 @@
 """``bayescalib summary RESULTS_DIR``: a study's result as a table.
 
-Reads ``summary.json`` of a finished study and prints the line the run ended
-with (posterior mean +- sd, converged or not, solves used and failed), a table
+Reads ``summary.json`` of a finished study and prints the lines the run ended
+with (posterior mean +- sd, solves used and failed; the verdict: the misfit when the
+best fit is worse than the noise, converged or not and why, what to do), a table
 per parameter (MAP, posterior mean, sd, equal-tailed credible intervals, ground
 truth when known) and, for the active design, one row per round with its checks.
 """
@@ -37,7 +38,10 @@ def run(args: argparse.Namespace) -> int:
         s = read_json(path)
     except PipelineError as exc:
         raise ValueError(str(exc)) from None
+    from bayescalib.stages.verdict import verdict
+
     print(run_line(s))
+    print(verdict(s))
     names = [p["name"] for p in s["parameters"]]
     units = {p["name"]: p.get("unit", "-") for p in s["parameters"]}
     cov = s["posterior_cov"]

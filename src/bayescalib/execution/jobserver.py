@@ -208,8 +208,9 @@ def _summary(args: Mapping[str, Any]) -> None:
     )
 
     setup_logging(args["log"])
+    budget = _literal(args["budget"]) if "budget" in args else {}
     extra = {"design": design_summary(args["strategy"], args.get("active", []),
-                                      int(args["n_solves"])),
+                                      int(args["n_solves"]), **budget),
              "timings_s": collect_timings(args["root"])}
     if args.get("convergence"):
         extra["gp_convergence"] = list(args["convergence"])

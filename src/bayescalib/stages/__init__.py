@@ -1015,12 +1015,14 @@ def round_check_summary(acquire_paths: Sequence[str | Path]) -> dict[str, Any] |
 
 
 def design_summary(strategy: str, acquire_paths: Sequence[str | Path],
-                   n_solves: int) -> dict[str, Any]:
+                   n_solves: int, max_solves: int | None = None,
+                   check_draws: int | None = None) -> dict[str, Any]:
     """The ``design`` block of summary.json: how the solves were chosen and whether
     the calibration converged (active design), with the per-round history.
 
     A fixed design has no convergence check: ``converged`` is None and the reason
-    says so.
+    says so. ``max_solves`` (design.active.max_solves) and ``check_draws`` (the size of
+    a check round) are the budget the verdict speaks of (active design only).
     """
     from bayescalib.inference.active import history_table
 
@@ -1035,13 +1037,16 @@ def design_summary(strategy: str, acquire_paths: Sequence[str | Path],
     return {"strategy": "active", "n_solves": int(last["n_solves"]),
             "n_failed": int(last["n_failed"]), "n_rounds": len(rounds),
             "converged": bool(last["converged"]), "reason": last["reason"],
+            "max_solves": None if max_solves is None else int(max_solves),
+            "check_draws": None if check_draws is None else int(check_draws),
             "surrogate_output": last.get("surrogate_output"),
             "rounds": history_table(rounds)}
 
 
 def run_line(summary_json: Mapping[str, Any]) -> str:
-    """One plain line for the end of a run: posterior mean +- sd with units,
-    convergence, the absolute fit check, solves used and failed."""
+    """One plain line for the end of a run: posterior mean +- sd with units, solves used
+    and failed. Whether it converged, and whether the best fit is within the noise, is
+    the verdict that follows it (:func:`bayescalib.stages.verdict.verdict`)."""
     names = [p["name"] for p in summary_json["parameters"]]
     units = {p["name"]: p.get("unit", "-") for p in summary_json["parameters"]}
     cov = np.asarray(summary_json["posterior_cov"], float)
@@ -1054,39 +1059,30 @@ def run_line(summary_json: Mapping[str, Any]) -> str:
     design = summary_json.get("design") or {}
     n_solves = design.get("n_solves", summary_json.get("n_train"))
     n_failed = design.get("n_failed", summary_json.get("n_failed"))
-    if design.get("converged") is True:
-        state = "converged"
-    elif design.get("converged") is False:
-        state = "NOT CONVERGED"
-    else:
-        state = "convergence not checked (fixed design)"
-    fit = summary_json.get("fit")
-    if fit is not None:
-        state += ("; best fit within the noise" if fit["consistent"] else
-                  "; BEST FIT WORSE THAN THE NOISE (mode not found, missing physics or "
-                  "sigma_N too small: see fit in summary.json)")
-    check = summary_json.get("posterior_check")
-    if check and check.get("confirmed") and (design.get("converged") is not False
-                                             or "round" not in check):
-        state += (f"; posterior confirmed by {check['n_draws'] - check['n_failed']} real solves "
-                  f"of its draws (log-weight sd {check['log_weight_sd']:.2g} nats)")
-    elif check and check.get("confirmed"):  # active: a check round passed, the posterior moved
-        state += (f"; the posterior of round {check['round']} was confirmed by "
-                  f"{check['n_draws'] - check['n_failed']} real solves of its draws but moved "
-                  f"when they were added")
-    elif check:
-        state += ("; POSTERIOR NOT CONFIRMED BY REAL SOLVES of its draws (posterior_check in "
-                  "summary.json)")
     n_region = summary_json.get("n_failed_infeasible") or 0
     region = (f" ({n_region} mark where the model cannot be solved: the posterior excludes "
               f"their neighbourhood)") if n_region else ""
-    return (f"bayescalib {summary_json['study']}: {', '.join(parts)}; {state}; "
+    return (f"bayescalib {summary_json['study']}: {', '.join(parts)}; "
             f"{n_solves} solves, {n_failed} failed{region}")
+
+
+def _front_figure(s: Mapping[str, Any]) -> str | None:
+    """The figure of the posterior for the report's front page: the primary measure's
+    joint posterior (the marginals with one parameter), as a PNG that exists; None
+    when there is none (PNG not among plots.formats, or not yet drawn)."""
+    figures = s.get("figures") or {}
+    for family in ("joint", "marginals"):
+        for f in figures.get(f"{s.get('measure')}/{family}") or []:
+            if str(f).endswith(".png") and Path(f).is_file():
+                return str(f)
+    return None
 
 
 def front_page(summary_path: str | Path) -> dict[str, Any] | None:
     """The key numbers of a finished study for the report's front page: the run line,
-    whether it converged and why, and per parameter MAP, mean, sd, the 90 % equal-tailed
+    the verdict (:func:`bayescalib.stages.verdict.verdict`), the figure of the posterior
+    (``figure``: a PNG path, or None), whether it converged and why in full, and per
+    parameter MAP, mean, sd, the 90 % equal-tailed
     interval and, where the study has one (``truth_known``), the ground truth (strings,
     in the user's units). None before the study has a summary.json (or when it cannot
     be read)."""
@@ -1114,7 +1110,10 @@ def front_page(summary_path: str | Path) -> dict[str, Any] | None:
     design = s.get("design") or {}
     fit = s.get("fit") or {}
     check = s.get("posterior_check") or {}
-    return {"line": run_line(s), "reason": design.get("reason", ""), "rows": rows,
+    from bayescalib.stages.verdict import verdict
+
+    return {"line": run_line(s), "verdict": verdict(s), "figure": _front_figure(s),
+            "reason": design.get("reason", ""), "rows": rows,
             "truth_known": bool(truth),
             "converged": design.get("converged"), "measure": s.get("measure"),
             "fit": fit.get("words", ""), "fit_consistent": fit.get("consistent"),
