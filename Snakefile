@@ -59,6 +59,16 @@ if workflow.is_main_process:
 
 R = study.root
 
+# the console of this run (the logger plugin the default profile names, in this process):
+# a few lines per round with the solves done of the budget (bayescalib.execution.progress)
+if workflow.is_main_process:
+    from bayescalib.execution.progress import run_plan, set_plan
+
+    set_plan(run_plan(
+        study.name, R, active=study.active,
+        budget=study.config["design"]["active"]["max_solves"] if study.active else study.n_points,
+        units={p["name"]: p.get("unit", "-") for p in study.config["parameters"]}))
+
 # the report's front page reads the study's key numbers from here (workflow.rst);
 # cheap: one small JSON file, read only when it exists
 from bayescalib.stages import front_page

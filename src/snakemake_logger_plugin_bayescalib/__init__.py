@@ -1,78 +1,107 @@
 """Snakemake logger plugin of bayescalib (``snakemake --logger bayescalib``; the default
-profile sets it): Snakemake's own console output, quieter and with the time left.
+profile sets it): a console of a few lines per round instead of one per step.
 
-* The per-job blocks (rule, input, output, wildcards, resources: eight lines per job,
-  thousands in a large study) are not printed; each job's log file under
-  ``results/<study>/logs/`` holds what the job did. Errors, failed jobs with their log
-  (``show-failed-logs``), warnings and the run summary are printed as before.
-  The scheduler's "Select jobs to execute..." is left out too. ``--verbose``, and a
-  dry run (``-n``, read for its jobs), bring all of it back. The jobs themselves print
-  warnings and errors only (their information goes to their log file,
-  :func:`bayescalib.stages.setup_logging`).
-* The progress line carries an estimate of the time left
-  (:func:`bayescalib.execution.progress.progress_line`).
+* Snakemake's per-step output is not printed: the per-job blocks (rule, input, output,
+  wildcards, resources: eight lines per job), the "N of M steps done" line after every
+  step (192 for the default study, its percentage going backwards as active rounds add
+  steps), the banner and the scheduler's chatter. Each job's log file under
+  ``results/<study>/logs/`` holds what the job did, and Snakemake's own log file
+  (named at the end) everything Snakemake said.
+* In their place :class:`bayescalib.execution.progress.RunConsole` prints the study's
+  header, per active round the solves done of the budget (design.active.max_solves),
+  what the stop rule decided and the round's posterior, and at most one line a minute
+  while a stage runs long. The plan of the run comes from the Snakefile
+  (:func:`bayescalib.execution.progress.set_plan`, same process).
+* Kept as before: the job stats table (what this run will do, e.g. after a resume),
+  errors, failed jobs with their log (``show-failed-logs``), warnings, and Snakemake's
+  closing lines. ``--verbose``, and a dry run (``-n``, read for its jobs), bring all of
+  Snakemake's output back. ``--quiet`` settings apply as in Snakemake.
 """
 
 from __future__ import annotations
 
 import logging
 import sys
-import time
 
 from snakemake_interface_logger_plugins.base import LogHandlerBase
 from snakemake_interface_logger_plugins.common import LogEvent
 
-from bayescalib.execution.progress import progress_line
+from bayescalib.execution.progress import RunConsole, get_plan
 
 __all__ = ["LogHandler"]
 
-#: events left out of the console unless --verbose: the per-job start and finish blocks
+#: events left out of the console unless --verbose: the per-job blocks and progress
 _PER_JOB = {LogEvent.JOB_INFO, LogEvent.JOB_STARTED, LogEvent.JOB_FINISHED,
-            LogEvent.SHELLCMD, LogEvent.GROUP_INFO}
+            LogEvent.SHELLCMD, LogEvent.GROUP_INFO, LogEvent.PROGRESS,
+            LogEvent.WORKFLOW_STARTED}
 
-#: scheduler lines without information for the user
-_SCHEDULER_CHATTER = {"Select jobs to execute...", "Execute 1 jobs...",
-                      "DAG of jobs will be updated after completion.",
-                      "Updating checkpoint dependencies."}
+#: Snakemake's lines without information for the user of a run
+_CHATTER = ("Select jobs to execute...", "Execute 1 jobs...", "Building DAG of jobs...",
+            "DAG of jobs will be updated after completion.", "Updating checkpoint dependencies.",
+            "Using shell:", "Provided cores:", "Rules claiming more threads will be scaled down.",
+            "Conda environments: ignored", "Assuming unrestricted shared filesystem usage.")
 
 
 class LogHandler(LogHandlerBase):
-    """Snakemake's console handler with per-job blocks filtered and a time-left estimate."""
+    """Snakemake's console handler with the per-step output replaced by the run's console."""
 
     def __post_init__(self) -> None:
         from snakemake.logging import ColorizingTextHandler, DefaultFilter, DefaultFormatter
 
         cs = self.common_settings
-        t0: list[float | None] = [None]
-        init = time.monotonic()
-
-        class _Formatter(DefaultFormatter):
-            def format_progress(self, msg):  # Snakemake's hook
-                now = time.monotonic()
-                start = t0[0] if t0[0] is not None else init
-                return progress_line(int(msg["done"]), int(msg["total"]), now - start)
-
         self._inner = ColorizingTextHandler(
             nocolor=cs.nocolor, stream=sys.stdout if cs.stdout else sys.stderr,
-            formatter=_Formatter(cs.quiet, cs.show_failed_logs))
-        verbose = bool(cs.verbose) or bool(cs.dryrun)  # a dry run is read for its jobs
+            formatter=DefaultFormatter(cs.quiet, cs.show_failed_logs))
+        self._verbose = bool(cs.verbose) or bool(cs.dryrun)  # a dry run is read for its jobs
+        self._default = DefaultFilter(cs.quiet, cs.debug_dag, cs.verbose, cs.dryrun,
+                                      cs.printshellcmds)
+        self._console: RunConsole | None = None
 
-        def _quiet_jobs(record: logging.LogRecord) -> bool:
-            event = getattr(record, "event", None)
-            if event in (LogEvent.JOB_INFO, LogEvent.JOB_STARTED) and t0[0] is None:
-                t0[0] = time.monotonic()  # the run's first step starts the clock
-            if verbose:
-                return True
-            if event is None and record.getMessage() in _SCHEDULER_CHATTER:
+    def _run_console(self) -> RunConsole | None:
+        if self._console is None and not self._verbose:
+            plan = get_plan()
+            if plan is not None:
+                self._console = RunConsole(plan)
+        return self._console
+
+    def _say(self, lines: list[str]) -> None:
+        if lines:
+            stream = self._inner.stream
+            stream.write("".join(line + "\n" for line in lines))
+            stream.flush()
+
+    def _feed(self, record: logging.LogRecord) -> None:
+        console = self._run_console()
+        if console is None:
+            return
+        event = getattr(record, "event", None)
+        if event == LogEvent.WORKFLOW_STARTED:
+            self._say(console.start())
+        elif event == LogEvent.JOB_INFO:
+            self._say(console.job_info(getattr(record, "jobid", -1),
+                                       getattr(record, "rule_name", ""),
+                                       getattr(record, "wildcards", None),
+                                       getattr(record, "output", None)))
+        elif event == LogEvent.JOB_FINISHED:
+            self._say(console.job_finished(getattr(record, "job_id", -1)))
+
+    def _shown(self, record: logging.LogRecord) -> bool:
+        if self._verbose:
+            return True
+        event = getattr(record, "event", None)
+        if event in _PER_JOB:
+            return False
+        if event in (None, LogEvent.RESOURCES_INFO) and record.levelno <= logging.INFO:
+            msg = record.getMessage().strip()
+            if msg.startswith(_CHATTER):
                 return False
-            return event not in _PER_JOB
-
-        self.addFilter(_quiet_jobs)  # first: it sees the first job start
-        self.addFilter(DefaultFilter(cs.quiet, cs.debug_dag, cs.verbose, cs.dryrun,
-                                     cs.printshellcmds))
+        return True
 
     def emit(self, record: logging.LogRecord) -> None:
-        self._inner.emit(record)
+        # called by handle() under this handler's lock: the console's state is safe
+        self._feed(record)
+        if self._shown(record) and self._default.filter(record):
+            self._inner.emit(record)
 
     @property
     def writes_to_stream(self) -> bool:

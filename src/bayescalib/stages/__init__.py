@@ -96,7 +96,9 @@ def setup_logging(path: str | Path | None) -> None:
     """Send the library's log records to ``path`` (a rule's log file) and stderr.
 
     With a log file (a job of the workflow), the console gets warnings and errors only:
-    a study runs thousands of jobs, and their information is in their logs.
+    a study runs thousands of jobs, and their information is in their logs. Python's
+    warnings (the libraries': GPy's and NumPy's RuntimeWarnings, Matplotlib's, with
+    their site-packages paths) go to the log file only, not to the console.
     """
     root = logging.getLogger("bayescalib")
     root.setLevel(logging.INFO)
@@ -112,6 +114,13 @@ def setup_logging(path: str | Path | None) -> None:
         h.setFormatter(fmt)
         root.addHandler(h)
     if path is not None:
+        logging.captureWarnings(True)
+        warned = logging.getLogger("py.warnings")
+        warned.propagate = False  # not to the console (the root logger's last resort)
+        for h in [h for h in warned.handlers if getattr(h, "_bayescalib_log", False)]:
+            warned.removeHandler(h)  # an earlier job's log in this process
+        warned.addHandler(handlers[-1])
+        handlers[-1]._bayescalib_log = True  # type: ignore[attr-defined]
         # a job of a study (its log under <root>/logs/) marks itself running, so that a
         # new run of the study waits for the orphans of a killed one
         parts = Path(path).resolve().parts
