@@ -161,7 +161,7 @@ def _decision(rec: Mapping[str, Any]) -> str:
     elif rec.get("round") == 0 or not change:
         said = "the first posterior"
     elif not rec.get("settled"):
-        said = f"the posterior moved {_g(change['shift_sd'])} sd"
+        said = f"the posterior moved {_sig(change['shift_sd'], 2)} sd"
     else:
         said = f"the posterior settled ({rec.get('settled_streak', 0)} round(s) in a row)"
     if kinds and all(k == "posterior_check" for k in kinds):
