@@ -167,6 +167,13 @@ def test_joint_posterior(outdir, weighted_gaussian):
                     for t in ax.get_legend().get_texts()}
     assert {"MAP", "posterior mean", "prior", "ground truth", "Gaussian approx. (90 %)",
             "Laplace approx. (90 %)", "KDE HPD regions 50 %, 90 %, 99 %"} <= legend_texts
+    # the hexbin's colour bar lies under the joint panel, across its width, not beside
+    # the right-hand marginal (where it read as that marginal's scale)
+    fig.canvas.draw()
+    cax = next(ax for ax in fig.axes if ax.get_xlabel() == "posterior mass per hexagon [-]")
+    joint = next(ax for ax in fig.axes if ax.get_xlabel() == "E [Pa]" and ax.get_ylabel())
+    cb, jb = cax.get_position(), joint.get_position()
+    assert cb.y1 < jb.y0 and cb.x0 >= jb.x0 - 0.02 and cb.x1 <= jb.x1 + 0.02, (cb, jb)
     # the hexbin shows probability mass: all particles are inside the bounds
     hexbins = [c for ax in fig.axes for c in ax.collections
                if isinstance(c, PolyCollection) and c.get_array() is not None]
@@ -195,14 +202,19 @@ def test_response_surface(outdir):
                                          Xt[Xt[:, 0] <= 150], NAMES, UNITS, paths,
                                          truth=(400, 0.3), return_figure=True)
     _check_files(written, paths)
-    assert {"E [Pa]", "ν [-]", "normalized likelihood [-]", "log-likelihood [-]",
-            "GP std of log-likelihood [-]"} <= _labels(fig)
+    assert {"E [Pa]", "ν [-]", "exp(L - max L) [-]", "L [nats]", "sd of L [nats]"} \
+        <= _labels(fig)
+    # log-likelihoods are in nats, never "[-]"; every panel has a title and both axes
+    assert not any("log-likelihood [-]" in t or "of L [-]" in t for t in _labels(fig))
+    panels = [ax for ax in fig.axes if ax.get_title()]
+    assert [ax.get_title()[:3] for ax in panels] == ["(a)", "(b)", "(c)"]
+    assert all(ax.get_xlabel() == "E [Pa]" and ax.get_ylabel() == "ν [-]" for ax in panels)
     mesh = fig.axes[0].collections[0]
     assert mesh.get_array().max() == pytest.approx(1.0)
     # without std only two panels (plus their colour bars)
     _, fig2 = plot_response_surface(gx, gy, L, None, Xt, None, NAMES, UNITS,
                                     [outdir / "response2.png"], return_figure=True)
-    assert "GP std of log-likelihood [-]" not in _labels(fig2)
+    assert "sd of L [nats]" not in _labels(fig2)
     with pytest.raises(ValueError, match="loglik"):
         plot_response_surface(gx, gy, L.T, None, Xt, None, NAMES, UNITS, [outdir / "x.png"])
 
@@ -298,6 +310,27 @@ def test_parallel_axes(outdir):
                                 show_value_axis=False, return_figure=True)
     assert "log posterior density" in _labels(fig)
     assert len(fig.axes[0].get_xticklabels()) == 4
+
+
+def test_parallel_axes_stop_at_the_prior_box_and_name_its_bounds(outdir):
+    """The axes ran past the box (nu's bound 0.5 unlabelled, lines drawn up to the axes'
+    padding); now each axis spans its bounds only, labels them, and no line leaves it."""
+    rng = np.random.default_rng(6)
+    x = np.column_stack([rng.uniform(100, 800, 400), rng.uniform(-0.8, 0.5, 400)])
+    x[0] = [850.0, 0.6]  # beyond the box: drawn at its edge
+    _, fig = plot_parallel_axes(x, -np.sum(x**2, axis=1) / 1e5, NAMES, UNITS,
+                                [outdir / "parallel_box.png"], values_are_log=True,
+                                bounds=BOUNDS, return_figure=True)
+    ax = fig.axes[0]
+    lc = next(c for c in ax.collections if isinstance(c, LineCollection))
+    ys = np.concatenate([seg[:, 1] for seg in lc.get_segments()])
+    assert ys.min() >= 0.0 and ys.max() <= 1.0
+    axis_lines = [ln for ln in ax.get_lines() if np.ptp(ln.get_xdata()) == 0
+                  and np.ptp(ln.get_ydata()) > 0.5]
+    assert len(axis_lines) == 3  # E, nu and the value axis
+    assert all(tuple(ln.get_ydata()) == (0.0, 1.0) for ln in axis_lines)
+    labels = {t.get_text() for t in ax.texts}
+    assert {"100", "800", "-0.8", "0.5"} <= labels
 
 
 def test_select_lines_keeps_top_and_orders_by_value():

@@ -204,7 +204,10 @@ def plan_set(tmp_path):
 def test_the_plugin_prints_the_runs_lines_in_place_of_snakemakes_per_step_output(plan_set):
     h = _handler()
     for r in (_record("", LogEvent.WORKFLOW_STARTED),
-              _record("Building DAG of jobs..."), _record("Provided cores: 2"),
+              _record("Building DAG of jobs..."),
+              _record("Provided cores: 2", LogEvent.RESOURCES_INFO, cores=2),
+              _record("Rules claiming more threads will be scaled down.",
+                      LogEvent.RESOURCES_INFO),
               _job(3, "solve", ["runs/3.h5"], i="3"), _record("Select jobs to execute..."),
               _record("Finished jobid: 3", LogEvent.JOB_FINISHED, job_id=3),
               _record("", LogEvent.PROGRESS, done=1, total=4),
@@ -218,6 +221,7 @@ def test_the_plugin_prints_the_runs_lines_in_place_of_snakemakes_per_step_output
     assert out == [
         "bayescalib smoke: active design, at most 40 solves (design.active.max_solves). "
         "Each step's log: results/smoke/logs/",
+        "Provided cores: 2",
         "round 0 [0 s]: 8 of 40 solves; the first posterior; 5 more solves next",
         "  posterior: E = 380 +- 65 Pa, nu = 0.179 +- 0.23",
         "job 3 failed",  # errors stay

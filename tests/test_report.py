@@ -96,8 +96,52 @@ def report(done_run, tmp_path_factory):
                     "path": f, "category": CATEGORY[family], "subcategory": measure or "Other",
                     "kind": "image", "caption": _caption_start(family, measure or None),
                 })
-    assert len(expected) == 1 + 7, expected  # summary, response, 5 posterior, interfaces
+    # summary, response, 3 posterior (joint, particles, marginals: no pairs or parallel
+    # axes for two parameters, the joint shows all they would), interfaces
+    assert len(expected) == 1 + 5, expected
+    assert not any(e["path"].endswith(("pairs.png", "parallel.png")) for e in expected)
     return path, expected
+
+
+def test_the_front_page_renders_as_snakemakes_report_renders_it(tmp_path, monkeypatch):
+    """workflow.rst through Jinja with Snakemake's settings (trim_blocks, lstrip_blocks:
+    a newline after a block tag is dropped) and docutils: the verdict, the joint
+    posterior embedded as a data URI, the table with its header row."""
+    import jinja2
+    from docutils.core import publish_parts
+    from PIL import Image
+
+    from bayescalib.stages import front_page
+
+    monkeypatch.chdir(tmp_path)
+    Path("fig").mkdir()
+    Image.new("RGB", (300, 200), (30, 90, 200)).save("fig/joint.png")
+    summary = {
+        "study": "analytic", "measure": "rkhs", "parameters": [{"name": "E", "unit": "Pa"}],
+        "map": {"E": 401.0}, "posterior_mean": {"E": 402.0}, "posterior_sd": {"E": 12.0},
+        "posterior_cov": [[144.0]], "credible_intervals": {"E": {"0.9": [380.0, 420.0]}},
+        "ground_truth": {"E": 400.0}, "n_train": 20, "n_failed": 0,
+        "fit": {"misfit_nats": 600.0, "expected_nats": 0.5, "expected_sd_nats": 0.71,
+                "consistent": False, "words": "the best solve misfits the data"},
+        "design": {"strategy": "active", "n_solves": 20, "n_failed": 0, "converged": True,
+                   "max_solves": 40, "reason": "converged after round 2 with 20 solves",
+                   "rounds": []},
+        "figures": {"rkhs/joint": ["fig/joint.png"]}}
+    Path("summary.json").write_text(json.dumps(summary))
+    fp = front_page("summary.json", embed_figure=True)
+    assert front_page("summary.json")["figure_uri"] is None  # outside a report: no copy
+    env = jinja2.Environment(trim_blocks=True, lstrip_blocks=True)
+    snakemake = type("S", (), {"config": {"study": "analytic", "front_page": fp,
+                                          "report_flags": {"ground_truth": True}}})
+    rst = env.from_string((CAPTIONS / "workflow.rst").read_text()).render(snakemake=snakemake)
+    page = publish_parts(rst, writer="html")["html_body"]
+    assert "System Message" not in page, page[:2000]
+    assert "<strong>Verdict.</strong> The best fit is 1200 times worse than the noise" in page
+    data = base64.b64encode(Path("fig/joint.png").read_bytes()).decode()
+    assert f'src="data:image/png;base64,{data}"' in page
+    assert "<thead" in page and "header-rows" not in page  # the option was read as one
+    assert "<caption>Posterior (rkhs measure): MAP, mean, standard deviation, 90 % " \
+           "equal-tailed interval, ground truth</caption>" in page
 
 
 def test_every_figure_family_has_a_caption():
@@ -113,6 +157,12 @@ def test_report_is_one_html_file_embedding_every_figure_and_the_summary(report, 
     assert text.lstrip().lower().startswith("<!doctype html"), "the report is not an HTML file"
     # Snakemake's report app shows the workflow description and the captions
     assert "Bayesian calibration of the study <strong>analytic</strong>" in text
+    # its front page: the verdict, and the joint posterior embedded in it (an <img> of
+    # the figure's own PNG, beside its entry among the results)
+    summary = json.loads((done_run / "results/analytic/summary.json").read_text())
+    assert "<strong>Verdict.</strong>" in text
+    joint = base64.b64encode((done_run / summary["figures"]["rkhs/joint"][0]).read_bytes())
+    assert text.count(joint.decode()) == 2, "the joint posterior is not on the front page"
     for entry in expected:
         data = (done_run / entry["path"]).read_bytes()
         assert base64.b64encode(data).decode() in text, f"{entry['path']} not embedded"

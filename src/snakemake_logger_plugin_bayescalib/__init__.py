@@ -38,7 +38,7 @@ _PER_JOB = {LogEvent.JOB_INFO, LogEvent.JOB_STARTED, LogEvent.JOB_FINISHED,
 #: Snakemake's lines without information for the user of a run
 _CHATTER = ("Select jobs to execute...", "Execute 1 jobs...", "Building DAG of jobs...",
             "DAG of jobs will be updated after completion.", "Updating checkpoint dependencies.",
-            "Using shell:", "Provided cores:", "Rules claiming more threads will be scaled down.",
+            "Using shell:", "Rules claiming more threads will be scaled down.",
             "Conda environments: ignored", "Assuming unrestricted shared filesystem usage.")
 
 

@@ -345,8 +345,9 @@ def figure_map():
             out[f"{m}/joint"] = _fig("joint", m)
             out[f"{m}/particles"] = _fig("particles", m)
         out[f"{m}/marginals"] = _fig("marginals", m)
-        out[f"{m}/pairs"] = _fig("pairs", m)
-        out[f"{m}/parallel"] = _fig("parallel", m)
+        if DIM >= 3:  # with two parameters the joint figure shows all they would
+            out[f"{m}/pairs"] = _fig("pairs", m)
+            out[f"{m}/parallel"] = _fig("parallel", m)
         if study.config["convergence"]["enabled"]:
             out[f"{m}/convergence"] = _fig("convergence", m)
     if study.active and DIM >= 2:
@@ -364,11 +365,9 @@ def figure_targets():
     return [f for files in figure_map().values() for f in files]
 
 
-_POSTERIOR_FAMILIES = (["joint", "particles"] if DIM >= 2 else []) + [
-    "marginals",
-    "pairs",
-    "parallel",
-]
+# pairs and parallel axes only from three parameters on: for two they repeat the joint
+_POSTERIOR_FAMILIES = (["joint", "particles"] if DIM >= 2 else []) + ["marginals"] + (
+    ["pairs", "parallel"] if DIM >= 3 else [])
 
 
 # ---- Diagnosis

@@ -138,17 +138,20 @@ def plot_joint_posterior(
     lap = _check_gaussian(laplace, "laplace")
 
     with paper_style():
-        fig = Figure(figsize=(5.6, 5.0), layout="constrained")
-        gs = fig.add_gridspec(2, 3, width_ratios=(4.0, 1.1, 0.13), height_ratios=(1.1, 4.0))
+        # the hexbin's colour bar lies under the joint panel it belongs to (beside the
+        # right-hand marginal it read as that marginal's scale), the legend under both
+        fig = Figure(figsize=(5.4, 6.6), layout="constrained")
+        gs = fig.add_gridspec(4, 2, width_ratios=(4.0, 1.1),
+                              height_ratios=(1.1, 4.0, 0.14, 1.0))
         ax = fig.add_subplot(gs[1, 0])
         ax_top = fig.add_subplot(gs[0, 0], sharex=ax)
         ax_right = fig.add_subplot(gs[1, 1], sharey=ax)
-        ax_leg = fig.add_subplot(gs[0, 1:])
-        ax_cb = fig.add_subplot(gs[1, 2])
+        ax_leg = fig.add_subplot(gs[3, :])
+        ax_cb = fig.add_subplot(gs[2, 0])
         ax_leg.axis("off")
 
         hb = draw_hexbin(ax, x, w, b[0], b[1], gridsize=gridsize)
-        cb = fig.colorbar(hb, cax=ax_cb)
+        cb = fig.colorbar(hb, cax=ax_cb, orientation="horizontal")
         cb.set_label("posterior mass per hexagon [-]")
         handles: list = [Patch(facecolor=hb.cmap(0.65), label="posterior (hexbin)")]
 
@@ -220,7 +223,7 @@ def plot_joint_posterior(
             for side in ("top", "right"):
                 a.spines[side].set_visible(False)
         ax_leg.legend(handles=handles, loc="center", frameon=False, fontsize=6.5,
-                      handlelength=1.6, borderaxespad=0.0)
+                      handlelength=1.6, borderaxespad=0.0, ncols=2)
         if title:
             fig.suptitle(title)
         return finish(fig, out_paths, dpi, return_figure)

@@ -3,7 +3,9 @@
 
 Each particle is a polyline through one vertical axis per parameter (and,
 optionally, a last axis with the density value itself). Axes are normalized
-to the parameter bounds; tick labels are in user units. Lines are drawn in
+to the parameter bounds and drawn over them only, their ends labelled with the
+bounds; tick labels are in user units. Values beyond the bounds are drawn at the
+axis' end. Lines are drawn in
 order of increasing density so that the highest-density particles are on top.
 """
 
@@ -146,7 +148,8 @@ def plot_parallel_axes(
         cols.append((v - vlo) / (vhi - vlo))
         axis_ranges.append((vlo, vhi))
         labels.append(value_label)
-    y = np.column_stack(cols)[idx]
+    # inside the box: a value beyond its axis range is drawn at the axis' end
+    y = np.clip(np.column_stack(cols)[idx], 0.0, 1.0)
     m = y.shape[1]
     xs = np.arange(m, dtype=float)
     segs = np.stack([np.broadcast_to(xs, y.shape), y], axis=-1)
@@ -164,10 +167,11 @@ def plot_parallel_axes(
         cb.solids.set_alpha(1.0)
         cb.set_label(value_label)
         for k, (lo, hi) in enumerate(axis_ranges):
-            ax.axvline(k, color="k", lw=0.9, zorder=3)
-            ticks = [t for t in MaxNLocator(5).tick_values(lo, hi)
-                     if lo - 1e-9 * (hi - lo) <= t <= hi + 1e-9 * (hi - lo)]
-            for t in ticks:
+            # each axis spans its range (the prior box) and no further, its ends labelled
+            ax.plot([k, k], [0.0, 1.0], color="k", lw=0.9, zorder=3, solid_capstyle="butt")
+            inner = [t for t in MaxNLocator(5).tick_values(lo, hi)
+                     if lo + 0.08 * (hi - lo) <= t <= hi - 0.08 * (hi - lo)]
+            for t in [lo, *inner, hi]:
                 yy = (t - lo) / (hi - lo)
                 ax.plot([k - 0.04, k], [yy, yy], color="k", lw=0.8, zorder=3)
                 ax.text(k - 0.06, yy, f"{t:.4g}", ha="right", va="center", fontsize=6.5,

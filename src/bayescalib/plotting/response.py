@@ -1,8 +1,9 @@
 """Response surfaces of the GP log-likelihood surrogate over a 2-D design space.
 
-Three panels (paper Figs. "likexamples", "loglikexamples", "stdexamples"):
-the normalized likelihood ``exp(L - max L)``, the log-likelihood L, and the GP
-standard deviation of L. Every panel shows the training inputs (open circles),
+Three panels (paper Figs. "likexamples", "loglikexamples", "stdexamples"), each
+with its title and both axes labelled: the likelihood relative to its maximum,
+``exp(L - max L)``, the log-likelihood L in nats (natural log), and the GP standard
+deviation of L in nats. Every panel shows the training inputs (open circles),
 failed forward-model runs (grey crosses) and optionally the ground truth.
 """
 
@@ -113,17 +114,21 @@ def plot_response_surface(
     if loglik_range is not None and not loglik_range > 0:
         raise ValueError(f"loglik_range: must be positive, got {loglik_range}")
 
-    panels = [(np.exp(L - L.max()), "normalized likelihood [-]", None, None, "neither"),
-              (L, "log-likelihood [-]",
+    # (values, panel title, colour-bar label, vmin, vmax, extend): log-likelihoods are
+    # natural logs, in nats; the likelihood ratio exp(L - max L) has no unit
+    panels = [(np.exp(L - L.max()), "likelihood (surrogate), relative to its maximum",
+               "exp(L - max L) [-]", None, None, "neither"),
+              (L, "log-likelihood L (surrogate mean)", "L [nats]",
                None if loglik_range is None else L.max() - loglik_range, None,
                "neither" if loglik_range is None else "min")]
     if S is not None:
-        panels.append((S, "GP std of log-likelihood [-]", 0.0, None, "neither"))
+        panels.append((S, "surrogate uncertainty: sd of L", "sd of L [nats]", 0.0, None,
+                       "neither"))
 
     with paper_style():
-        fig = Figure(figsize=(3.3 * len(panels), 3.0), layout="constrained")
+        fig = Figure(figsize=(3.4 * len(panels), 3.3), layout="constrained")
         axes = fig.subplots(1, len(panels), sharex=True, sharey=True, squeeze=False)[0]
-        for ax, (Z, label, vmin, vmax, extend) in zip(axes, panels):
+        for k, (ax, (Z, head, label, vmin, vmax, extend)) in enumerate(zip(axes, panels)):
             if vmin is not None:
                 Z = np.maximum(Z, vmin)
             mesh = ax.pcolormesh(gx, gy, Z, shading="gouraud", vmin=vmin, vmax=vmax,
@@ -133,9 +138,9 @@ def plot_response_surface(
             handles = _overlay(ax, Xt, Xf, tr)
             ax.set_xlim(gx[0], gx[-1])
             ax.set_ylim(gy[0], gy[-1])
+            ax.set_title(f"({chr(ord('a') + k)}) {head}", fontsize=8)
             ax.set_xlabel(axis_label(names[0], units[0]))
-        axes[0].set_ylabel(axis_label(names[1], units[1]))
-        for ax in axes[1:]:
+            ax.set_ylabel(axis_label(names[1], units[1]))
             ax.tick_params(labelleft=True)
         if handles:
             leg = fig.legend(handles=handles, loc="outside lower center", ncols=len(handles),

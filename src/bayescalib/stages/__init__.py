@@ -1087,10 +1087,13 @@ def _front_figure(s: Mapping[str, Any]) -> str | None:
     return None
 
 
-def front_page(summary_path: str | Path) -> dict[str, Any] | None:
+def front_page(summary_path: str | Path, embed_figure: bool = False) -> dict[str, Any] | None:
     """The key numbers of a finished study for the report's front page: the run line,
     the verdict (:func:`bayescalib.stages.verdict.verdict`), the figure of the posterior
-    (``figure``: a PNG path, or None), whether it converged and why in full, and per
+    (``figure``: a PNG path, or None; with ``embed_figure``, when a report is made,
+    ``figure_uri``: the PNG as a data URI, which the report's self-contained page shows,
+    in lines of 76 characters: docutils refuses longer lines, and removes the breaks),
+    whether it converged and why in full, and per
     parameter MAP, mean, sd, the 90 % equal-tailed
     interval and, where the study has one (``truth_known``), the ground truth (strings,
     in the user's units). None before the study has a summary.json (or when it cannot
@@ -1121,7 +1124,14 @@ def front_page(summary_path: str | Path) -> dict[str, Any] | None:
     check = s.get("posterior_check") or {}
     from bayescalib.stages.verdict import verdict
 
-    return {"line": run_line(s), "verdict": verdict(s), "figure": _front_figure(s),
+    figure = _front_figure(s)
+    uri = None
+    if figure is not None and embed_figure:
+        import base64
+
+        text = "data:image/png;base64," + base64.b64encode(Path(figure).read_bytes()).decode()
+        uri = [text[k:k + 76] for k in range(0, len(text), 76)]
+    return {"line": run_line(s), "verdict": verdict(s), "figure": figure, "figure_uri": uri,
             "reason": design.get("reason", ""), "rows": rows,
             "truth_known": bool(truth),
             "converged": design.get("converged"), "measure": s.get("measure"),

@@ -132,7 +132,9 @@ def posterior_figures(particles_path: str | Path, posterior_path: str | Path,
     """Joint, particles, 1-D marginals, pair marginals and parallel-axis figures.
 
     ``stems`` maps ``joint``, ``particles``, ``marginals``, ``pairs``,
-    ``parallel`` to output stems (without suffix).
+    ``parallel`` to output stems (without suffix); a family without a stem is not
+    drawn (the workflow draws pairs and parallel axes from three parameters on: for
+    two, the joint figure shows all they would).
     """
     from bayescalib.inference.posterior import read_particles_h5
     from bayescalib.plotting import (
@@ -194,14 +196,16 @@ def posterior_figures(particles_path: str | Path, posterior_path: str | Path,
         X, W, names, units, _paths(stems["marginals"], fmt), prior_pdfs=prior_pdfs,
         map=map_all, mean=mean_all, truth=truth, bounds=b, dpi=dpi,
     )
-    out["pairs"] = plot_pair_marginals(
-        X, W, names, units, _paths(stems["pairs"], fmt), truth=truth, bounds=b, dpi=dpi,
-    )
-    logpost = np.asarray(res.loglik) + np.asarray(res.logprior)
-    out["parallel"] = plot_parallel_axes(
-        X, logpost, names, units, _paths(stems["parallel"], fmt), values_are_log=True,
-        value_name="log posterior density", bounds=b, dpi=dpi,
-    )
+    if "pairs" in stems:
+        out["pairs"] = plot_pair_marginals(
+            X, W, names, units, _paths(stems["pairs"], fmt), truth=truth, bounds=b, dpi=dpi,
+        )
+    if "parallel" in stems:
+        logpost = np.asarray(res.loglik) + np.asarray(res.logprior)
+        out["parallel"] = plot_parallel_axes(
+            X, logpost, names, units, _paths(stems["parallel"], fmt), values_are_log=True,
+            value_name="log posterior density", bounds=b, dpi=dpi,
+        )
     return out
 
 
