@@ -113,14 +113,13 @@ def header_line(plan: Mapping[str, Any]) -> str:
 def _sig(v: float, n: int = 3) -> str:
     """``v`` to ``n`` significant digits, without an exponent where a person reads the
     plain number more easily (122 -> '120' at 2 digits, not '1.2e+02')."""
-    v = float(v)
+    v = float(f"{float(v):.{n}g}")  # rounded first: 9.97 at 2 digits is 10, not 10.0
     if v == 0 or not math.isfinite(v):
         return f"{v:g}"
     mag = math.floor(math.log10(abs(v)))
     if not -3 <= mag < 6:
         return f"{v:.{n}g}"
-    decimals = n - 1 - mag
-    return f"{round(v, decimals):.{max(decimals, 0)}f}"
+    return f"{v:.{max(n - 1 - mag, 0)}f}"
 
 
 def _g(v: float) -> str:

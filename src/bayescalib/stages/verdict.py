@@ -29,6 +29,11 @@ def _g(v: float) -> str:
     return f"{float(v):.3g}"
 
 
+def _sd(v: float) -> str:
+    """A shift in posterior sd, to two digits."""
+    return f"{float(v):.2g}"
+
+
 def _misfit_sentence(fit: Mapping[str, Any]) -> str:
     misfit = float(fit["misfit_nats"])
     expected = float(fit.get("expected_nats") or 0.0)
@@ -42,7 +47,7 @@ def _misfit_sentence(fit: Mapping[str, Any]) -> str:
     else:
         how = "worse than"
     return (f"The best fit is {how} the noise model allows: a misfit of {_g(misfit)} nats "
-            f"where noise alone gives {noise}.")
+            f"where noise alone gives {noise} nats.")
 
 
 def _batch_all_failed(rounds: Sequence[Mapping[str, Any]]) -> int:
@@ -68,10 +73,10 @@ def _not_converged_reason(design: Mapping[str, Any], check: Mapping[str, Any] | 
         of = "" if checked is None else f" of round {checked}"
         return f"real solves of its draws did not confirm the posterior{of}"
     if confirmed is True:
-        return (f"the posterior its check confirmed moved by {_g(last['shift_sd'])} sd when "
+        return (f"the posterior its check confirmed moved by {_sd(last['shift_sd'])} sd when "
                 f"the checked draws were added")
     if last.get("settled") is False and last.get("shift_sd") is not None:
-        return f"the posterior still moved by {_g(last['shift_sd'])} sd in the last round"
+        return f"the posterior still moved by {_sd(last['shift_sd'])} sd in the last round"
     draws = design.get("check_draws")
     if draws and check is not None and check.get("confirmed") is False:
         return (f"the last check (round {check.get('round')}) did not confirm the posterior "
