@@ -165,10 +165,11 @@ def test_the_plan_of_a_resumed_run_says_where_it_starts(tmp_path):
     assert fresh["n_solved"] == 0 and fresh["last_round"] is None
 
 
-def _handler(verbose=False, dryrun=False):
+def _handler(verbose=False, dryrun=False, quiet=()):
     from snakemake_logger_plugin_bayescalib import LogHandler
 
-    settings = SimpleNamespace(printshellcmds=False, nocolor=True, quiet=set(), debug_dag=False,
+    settings = SimpleNamespace(printshellcmds=False, nocolor=True, quiet=set(quiet),
+                               debug_dag=False,
                                verbose=verbose, show_failed_logs=True, stdout=False,
                                dryrun=dryrun)
     h = LogHandler(settings, None)
@@ -234,6 +235,14 @@ def test_the_plugin_prints_the_runs_lines_in_place_of_snakemakes_per_step_output
         hv.handle(r)
     said = hv._inner.stream.getvalue()
     assert "Select jobs to execute..." in said and "1 of 4 steps" in said
+    # --quiet progress: none of the run's lines either
+    from snakemake.settings.enums import Quietness
+
+    hq = _handler(quiet={Quietness.PROGRESS})
+    hq.handle(_record("", LogEvent.WORKFLOW_STARTED))
+    hq.handle(_job(4, "acquire", [str(plan_set)], r="0"))
+    hq.handle(_record("Finished jobid: 4", LogEvent.JOB_FINISHED, job_id=4))
+    assert hq._inner.stream.getvalue() == ""
     # a dry run is read for its jobs: the blocks stay
     hd = _handler(dryrun=True)
     hd.handle(_job(3, "solve", ["runs/3.h5"], i="3"))

@@ -15,7 +15,8 @@ profile sets it): a console of a few lines per round instead of one per step.
 * Kept as before: the job stats table (what this run will do, e.g. after a resume),
   errors, failed jobs with their log (``show-failed-logs``), warnings, and Snakemake's
   closing lines. ``--verbose``, and a dry run (``-n``, read for its jobs), bring all of
-  Snakemake's output back. ``--quiet`` settings apply as in Snakemake.
+  Snakemake's output back. ``--quiet`` settings apply as in Snakemake; ``--quiet
+  progress`` (or ``all``) silences the run's own lines too.
 """
 
 from __future__ import annotations
@@ -56,9 +57,12 @@ class LogHandler(LogHandlerBase):
         self._default = DefaultFilter(cs.quiet, cs.debug_dag, cs.verbose, cs.dryrun,
                                       cs.printshellcmds)
         self._console: RunConsole | None = None
+        # --quiet progress (or all) silences the run's lines too: they are its progress
+        quiet = {getattr(q, "name", str(q)).lower() for q in (cs.quiet or ())}
+        self._silent = bool(quiet & {"progress", "all"})
 
     def _run_console(self) -> RunConsole | None:
-        if self._console is None and not self._verbose:
+        if self._console is None and not self._verbose and not self._silent:
             plan = get_plan()
             if plan is not None:
                 self._console = RunConsole(plan)
