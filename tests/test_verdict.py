@@ -173,3 +173,12 @@ def test_an_earlier_failed_check_and_no_room_for_another():
     assert _short(s)[0] == ("NOT converged: the budget of 30 solves is spent and the last "
                             "check (round 2) did not confirm the posterior and another (16 "
                             "solves) did not fit in the budget.")
+
+
+def test_a_confirmed_check_whose_draws_moved_the_posterior():
+    s = _budget_spent_moving()
+    s["design"]["rounds"][-1]["posterior_check_confirmed"] = True
+    s["posterior_check"] = _check(4, True)
+    assert _short(s)[0] == ("NOT converged: the budget of 40 solves is spent and real solves "
+                            "of its draws confirmed the posterior, but it moved by 0.6 sd "
+                            "when they were added.")

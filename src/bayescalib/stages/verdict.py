@@ -72,9 +72,9 @@ def _not_converged_reason(design: Mapping[str, Any], check: Mapping[str, Any] | 
     if confirmed is False:
         of = "" if checked is None else f" of round {checked}"
         return f"real solves of its draws did not confirm the posterior{of}"
-    if confirmed is True:
-        return (f"the posterior its check confirmed moved by {_sd(last['shift_sd'])} sd when "
-                f"the checked draws were added")
+    if confirmed is True and last.get("shift_sd") is not None:
+        return (f"real solves of its draws confirmed the posterior, but it moved by "
+                f"{_sd(last['shift_sd'])} sd when they were added")
     if last.get("settled") is False and last.get("shift_sd") is not None:
         return f"the posterior still moved by {_sd(last['shift_sd'])} sd in the last round"
     draws = design.get("check_draws")
