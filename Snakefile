@@ -105,12 +105,16 @@ onsuccess:
 
     _summary = _Path(R, "summary.json")
     if _summary.is_file():
-        from bayescalib.stages import read_json, run_line
+        from bayescalib.stages import PipelineError, read_stage_file, run_line
 
-        _s = read_json(_summary)
-        print(run_line(_s), flush=True)
-        if (_s.get("design") or {}).get("converged") is False:
-            print(f"WARNING: {_s['design']['reason']}", flush=True)
+        try:  # a damaged summary is set aside: the next run writes it again
+            _s = read_stage_file(_summary, "study summary")
+        except PipelineError as _exc:
+            print(f"bayescalib: {_exc}", file=sys.stderr, flush=True)
+        else:
+            print(run_line(_s), flush=True)
+            if (_s.get("design") or {}).get("converged") is False:
+                print(f"WARNING: {_s['design']['reason']}", flush=True)
 
 onerror:
     from bayescalib.execution.jobserver import stop_server
