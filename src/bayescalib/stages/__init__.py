@@ -141,7 +141,8 @@ def setup_logging(path: str | Path | None) -> None:
 
 
 # ------------------------------------------------------------------ stage files
-def _set_aside(path: str | Path, problem: str) -> PipelineError:
+def _set_aside(path: str | Path, problem: str, *,
+               rebuilt_by_this_run: bool = False) -> PipelineError:
     """Move a stage output that cannot be used to ``<name>.corrupt`` and say how to
     redo it.
 
@@ -150,7 +151,8 @@ def _set_aside(path: str | Path, problem: str) -> PipelineError:
     next run of the same ``snakemake`` command rebuilds the missing file and what
     depends on it, instead of failing on it again. For run records and discrepancy
     files the gather rule lists the set-aside files as a parameter, so gather reruns
-    too.
+    too. ``rebuilt_by_this_run``: set aside before Snakemake builds its plan, which
+    then rebuilds the file in this run (the message says so).
     """
     p = Path(path)
     aside = p.with_name(p.name + ".corrupt")
@@ -165,10 +167,10 @@ def _set_aside(path: str | Path, problem: str) -> PipelineError:
             where = f"; it was moved to '{aside}'"
         except OSError as exc:  # pragma: no cover - read-only results folder
             where = f"; it could not be moved aside ({exc}): delete it"
-    return PipelineError(
-        f"{problem}{where}. Run the same snakemake command again: it is recomputed, "
-        "and only what depends on it."
-    )
+    then = ("This run recomputes it." if rebuilt_by_this_run else
+            "Run the same snakemake command again: it is recomputed, and only what "
+            "depends on it.")
+    return PipelineError(f"{problem}{where}. {then}")
 
 
 def _json_object(path: Path) -> dict[str, Any]:
@@ -242,15 +244,17 @@ _UNREADABLE = (OSError, KeyError, ValueError, TypeError, EOFError, IndexError,
                zipfile.BadZipFile)
 
 
-def read_stage_file(path: str | Path, kind: str, **options: Any) -> Any:
+def read_stage_file(path: str | Path, kind: str, *, rebuilt_by_this_run: bool = False,
+                    **options: Any) -> Any:
     """Read the stage output ``path``, a file of ``kind`` (a key of :data:`STAGE_FILES`).
 
     The one reader of every file a stage reads from another stage, whatever its format.
     A file that cannot be read (missing, truncated, corrupt, of another kind or layout
     version) is moved aside to ``<name>.corrupt`` (:func:`_set_aside`), so that the next
     run of the same ``snakemake`` command rebuilds it, and what depends on it, instead
-    of failing on it again. ``options`` go to the kind's reader (e.g. ``device`` of a
-    surrogate).
+    of failing on it again (``rebuilt_by_this_run``: read before Snakemake builds its
+    plan, which then rebuilds it in this run; the message says so). ``options`` go to
+    the kind's reader (e.g. ``device`` of a surrogate).
 
     Raises
     ------
@@ -270,7 +274,8 @@ def read_stage_file(path: str | Path, kind: str, **options: Any) -> Any:
         from bayescalib.io.runrecord import RunFileError
 
         why = str(exc) if isinstance(exc, RunFileError) else f"{type(exc).__name__}: {exc}"
-        raise _set_aside(p, f"the {kind} '{p}' cannot be read ({why})") from None
+        raise _set_aside(p, f"the {kind} '{p}' cannot be read ({why})",
+                         rebuilt_by_this_run=rebuilt_by_this_run) from None
 
 
 # -------------------------------------------------------------------------- observe
