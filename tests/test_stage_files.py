@@ -222,3 +222,26 @@ def test_an_unknown_kind_is_a_programming_error_naming_the_kinds(tmp_path):
     with pytest.raises(ValueError, match="unknown kind of stage file 'posterior'.*posterior "
                                          "summary"):
         read_stage_file(tmp_path / "x.json", "posterior")
+
+
+def test_a_truncated_previous_round_surrogate_is_set_aside_not_called_unfittable(tmp_path):
+    """An active round's fit reads the previous round's surrogate: a damaged one is set
+    aside (before, it was reported as a GP that cannot be fitted, on every rerun)."""
+    from bayescalib.config import validate
+    from bayescalib.inference.surrogate import fit_gp
+    from bayescalib.io.training import write_training
+
+    X = np.column_stack([np.linspace(150, 750, 8), np.linspace(-0.7, 0.4, 8)])
+    L = -((X[:, 0] - 400) / 300) ** 2 - ((X[:, 1] - 0.3) / 0.5) ** 2
+    training = tmp_path / "active" / "1" / "training.h5"
+    write_training(training, X, L, L, np.ones(8, bool), [""] * 8, ["E", "nu"], 8,
+                   bound=np.zeros(8))
+    previous = tmp_path / "active" / "0" / "surrogate.h5"
+    fit_gp(X, L, bounds=np.array([[100.0, 800.0], [-0.8, 0.45]]), bound=0.0,
+           restarts=1).save(previous)
+    cut = _truncate(previous)
+    surrogate = validate({"surrogate": {"restarts": 1}}, "inference")["surrogate"]
+    with pytest.raises(PipelineError) as info:
+        stages.train_surrogate(training, surrogate, PARAMETERS,
+                               tmp_path / "active" / "1" / "surrogate.h5", previous=previous)
+    _assert_set_aside(info, previous, "surrogate", cut)
