@@ -56,6 +56,16 @@ if workflow.is_main_process:
             "--unlock or --rerun-incomplete while it runs. Another study can run at the "
             "same time.\n")
         sys.exit(1)
+    # summary.json is read by no job: a damaged one is set aside here, before the plan
+    # is made, so that this run writes it again (a look-only command leaves it)
+    if runs_jobs(sys.argv) and os.path.isfile(f"{study.root}/summary.json"):
+        from bayescalib.stages import PipelineError, read_stage_file
+
+        try:
+            read_stage_file(f"{study.root}/summary.json", "study summary",
+                            rebuilt_by_this_run=True)
+        except PipelineError as _exc:
+            sys.stderr.write(f"bayescalib: {_exc}\n")
 
 R = study.root
 
@@ -118,10 +128,10 @@ onsuccess:
 
     _summary = _Path(R, "summary.json")
     if _summary.is_file():
-        from bayescalib.stages import read_json, run_line
+        from bayescalib.stages import read_stage_file, run_line
         from bayescalib.stages.verdict import verdict
 
-        _s = read_json(_summary)
+        _s = read_stage_file(_summary, "study summary")  # this run wrote or read it
         print(run_line(_s), flush=True)
         print(verdict(_s), flush=True)
         print(f"Detail in {_summary} and in the report (snakemake --report).", flush=True)

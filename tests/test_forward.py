@@ -1,6 +1,7 @@
 """Pluggable forward models: Python callables and external commands, and the
 isolated solve that turns every failure into a recorded failed run."""
 
+import os
 import sys
 import textwrap
 
@@ -78,10 +79,10 @@ def test_command_model_renders_template_runs_and_reads_output(tmp_path):
     tpl = tmp_path / "input.j2"
     tpl.write_text("E={{ E }}\nnu={{ params['nu'] }}\n")
     model = CommandModel(tpl, [sys.executable, str(script), "{input}", "{output}", "{scale}"],
-                         input_name="in.txt", output_name="out.csv", workdir=tmp_path / "w")
+                         input_name="in.txt", output_name="out.csv", workdir=tmp_path / "w.work")
     res = model.solve({"E": 200.0, "nu": 0.25, "scale": 2.0})
     assert res.status == "ok", res.reason
-    assert (tmp_path / "w" / "in.txt").read_text() == "E=200.0\nnu=0.25\n"
+    assert (tmp_path / "w.work" / "in.txt").read_text() == "E=200.0\nnu=0.25\n"
     np.testing.assert_allclose(res.interface_current[-1], [1.0, 1.0])
 
 
@@ -89,7 +90,7 @@ def test_command_model_strict_template_names_the_missing_variable(tmp_path):
     tpl = tmp_path / "input.j2"
     tpl.write_text("E={{ E }} G={{ G }}\n")
     model = CommandModel(tpl, ["true"], input_name="in", output_name="out.csv",
-                         workdir=tmp_path)
+                         workdir=tmp_path / "w.work")
     with pytest.raises(ForwardModelError, match="'G' is undefined"):
         model.render_input({"E": 1.0})
 
@@ -115,7 +116,7 @@ def test_a_template_cannot_reach_python_internals(tmp_path):
     tpl = tmp_path / "t.j2"
     tpl.write_text("{{ E.__class__.__mro__[1].__subclasses__() }}\n")
     model = CommandModel(tpl, ["true"], input_name="in", output_name="out.csv",
-                         workdir=tmp_path)
+                         workdir=tmp_path / "w.work")
     with pytest.raises(ForwardModelError, match="not allowed in a template"):
         model.render_input({"E": 1.0})
 
@@ -124,7 +125,7 @@ def test_command_arguments_take_numbers_only_never_a_shell(tmp_path):
     tpl = tmp_path / "t.j2"
     tpl.write_text("x\n")
     model = CommandModel(tpl, ["echo", "{E}", "; rm -rf {workdir}"], input_name="in",
-                         output_name="out.csv", workdir=tmp_path / "w")
+                         output_name="out.csv", workdir=tmp_path / "w.work")
     argv = model.argv({"E": 3.5}, tmp_path / "in", tmp_path / "out")
     # the value becomes one numeric argument; the ';' stays inside one argv item
     assert argv[:2] == ["echo", "3.5"]
@@ -149,7 +150,7 @@ def test_command_failures_are_recorded_with_log_tail(tmp_path, body, reason):
     tpl = tmp_path / "t.j2"
     tpl.write_text("E={{ E }}\n")
     model = CommandModel(tpl, [sys.executable, str(script), "{input}", "{output}"],
-                         input_name="in", output_name="out.csv", workdir=tmp_path / "w")
+                         input_name="in", output_name="out.csv", workdir=tmp_path / "w.work")
     res = model.solve({"E": 1.0})
     assert res.status == "failed"
     assert reason in res.reason
@@ -162,7 +163,7 @@ def test_command_time_limit(tmp_path):
     tpl = tmp_path / "t.j2"
     tpl.write_text("\n")
     model = CommandModel(tpl, [sys.executable, str(script)], input_name="in",
-                         output_name="out.csv", workdir=tmp_path / "w", time_limit_s=0.5)
+                         output_name="out.csv", workdir=tmp_path / "w.work", time_limit_s=0.5)
     res = model.solve({})
     assert res.status == "failed" and "time limit" in res.reason
 
@@ -283,13 +284,13 @@ def test_command_time_limit_kills_everything_the_command_started(tmp_path):
     tpl = tmp_path / "t.j2"
     tpl.write_text("\n")
     model = CommandModel(tpl, [sys.executable, str(script)], input_name="in",
-                         output_name="out.csv", workdir=tmp_path / "w", time_limit_s=1.5)
+                         output_name="out.csv", workdir=tmp_path / "w.work", time_limit_s=1.5)
     t0 = time.monotonic()
     res = model.solve({})
     assert time.monotonic() - t0 < 10
     assert res.status == "failed" and "time limit of 1.5 s" in res.reason
     assert "solver started a helper" in res.stats["log_tail"]
-    pid = _wait_for(tmp_path / "w" / "grandchild.pid")
+    pid = _wait_for(tmp_path / "w.work" / "grandchild.pid")
     time.sleep(0.2)
     assert not _alive(pid), "the command's child outlived the time limit"
 
@@ -310,13 +311,13 @@ def test_command_dies_with_a_killed_solve_process(tmp_path):
         import sys
         from bayescalib.models.forward import CommandModel
         m = CommandModel({str(tpl)!r}, [sys.executable, {str(script)!r}], input_name="in",
-                         output_name="out.csv", workdir={str(tmp_path / "w")!r},
+                         output_name="out.csv", workdir={str(tmp_path / "w.work")!r},
                          time_limit_s=300)
         m.solve({{}})
     """))
     proc = subprocess.Popen([sys.executable, str(driver)])
     try:
-        pid = _wait_for(tmp_path / "w" / "solver.pid")
+        pid = _wait_for(tmp_path / "w.work" / "solver.pid")
         assert _alive(pid)
         os.kill(proc.pid, signal.SIGKILL)  # e.g. the snakemake job is killed
         proc.wait()
@@ -363,7 +364,7 @@ def test_failed_external_command_is_recorded_with_its_log_tail(tmp_path, body, o
                                                               reason):
     """Through solve_point, as the solve rule runs it: a failed-run record, never a crash."""
     fm = _command_fm(tmp_path, body, output_name, time_limit_s=1)
-    res = solve_point(fm, {"E": 300.0}, tmp_path / "run.h5", workdir=tmp_path / "w",
+    res = solve_point(fm, {"E": 300.0}, tmp_path / "run.h5", workdir=tmp_path / "w.work",
                       grace_s=5.0)
     assert res.status == "failed" and reason in res.reason, res.reason
     rec = read_run(tmp_path / "run.h5")
@@ -374,7 +375,7 @@ def test_failed_external_command_is_recorded_with_its_log_tail(tmp_path, body, o
 
 def test_log_tail_of_a_huge_log_is_its_end(tmp_path):
     fm = _command_fm(tmp_path, "sys.stdout.write('x' * 5_000_000 + 'THE END')\nsys.exit(1)")
-    res = solve_point(fm, {"E": 1.0}, tmp_path / "run.h5", workdir=tmp_path / "w")
+    res = solve_point(fm, {"E": 1.0}, tmp_path / "run.h5", workdir=tmp_path / "w.work")
     assert res.stats["log_tail"].endswith("THE END")
     assert len(res.stats["log_tail"]) <= 2000
 
@@ -401,7 +402,7 @@ def test_command_arguments_and_input_are_numbers_only(tmp_path, values):
     tpl.write_text("{% for k, v in params.items() %}{{ k }}={{ v }}\n{% endfor %}")
     command = ["solver", "--in", "{input}", *[f"{{{k}}}" for k in values], "tail"]
     model = CommandModel(tpl, command, input_name="in", output_name="out.csv",
-                         workdir=tmp_path / "w")
+                         workdir=tmp_path / "w.work")
     try:
         numbers = {k: float(v) for k, v in values.items()}
     except (ValueError, TypeError, OverflowError):
@@ -429,11 +430,151 @@ def test_a_hostile_value_never_reaches_the_command(tmp_path):
     tpl = tmp_path / "t.j2"
     tpl.write_text("E={{ E }}\n")
     model = CommandModel(tpl, [sys.executable, str(script), "{E}", "x;{nu}", "$(id)"],
-                         input_name="in", output_name="out.csv", workdir=tmp_path / "w")
+                         input_name="in", output_name="out.csv", workdir=tmp_path / "w.work")
     model.solve({"E": 250.0, "nu": -0.25})
     import json
 
-    assert json.loads((tmp_path / "w" / "argv.json").read_text()) == ["250.0", "x;-0.25", "$(id)"]
+    assert json.loads((tmp_path / "w.work" / "argv.json").read_text()) == ["250.0", "x;-0.25", "$(id)"]
     with pytest.raises(ValueError):
         model.solve({"E": "250; touch pwned", "nu": 0.1})
-    assert not (tmp_path / "w" / "pwned").exists()
+    assert not (tmp_path / "w.work" / "pwned").exists()
+
+
+# ------------------------------------------------------------- the command's work folder
+MY_SOLVER = """\
+import json, os, sys
+args = dict(zip(sys.argv[1::2], sys.argv[2::2]))
+E = float(open(args["--in"]).read().split("=")[1])
+json.dump(sorted(os.listdir(".")), open("seen.json", "w"))  # what the solve started with
+with open(args["--out"], "w") as fh:
+    fh.write("x,y\\n")
+    for i in range(11):
+        fh.write(f"{i / 10},{100.0 / E * i / 10}\\n")
+"""
+
+
+def _readme_command_example() -> dict:
+    """The README's command-model example (its yaml block of type command)."""
+    import re
+    from pathlib import Path
+
+    import yaml
+
+    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    blocks = [yaml.safe_load(textwrap.dedent(b))
+              for b in re.findall(r"```yaml\n(.*?)```", readme, flags=re.DOTALL)]
+    (example,) = [b for b in blocks if (b.get("forward_model") or {}).get("type") == "command"]
+    return example
+
+
+@pytest.fixture
+def checkout(tmp_path, monkeypatch):
+    """A stand-in checkout as the README's example names it, the current folder: the
+    template under solver/, the solver ``my_solver`` on PATH; returns the validated
+    forward_model section of a study with the example on top of the defaults."""
+    from pathlib import Path
+
+    from bayescalib.config import load_yaml, merge_layers
+    from bayescalib.study import Study
+
+    repo = Path(__file__).resolve().parents[1]
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "solver").mkdir()
+    (tmp_path / "solver" / "input.j2").write_text('E = {{ params["material.E"] }}\n')
+    bin_dir = tmp_path / "bin"
+    bin_dir.mkdir()
+    solver = bin_dir / "my_solver"
+    solver.write_text(f"#!{sys.executable}\n" + MY_SOLVER)
+    solver.chmod(0o755)
+    monkeypatch.setenv("PATH", f"{bin_dir}{os.pathsep}{os.environ['PATH']}")
+    study = Study(merge_layers([load_yaml(repo / "config" / "config.yaml"),
+                                _readme_command_example()]), where="README")
+    return study.forward_section()
+
+
+def test_the_readme_command_example_solves_from_the_checkout(checkout):
+    """The README's placeholders as written ({input}, {output}), the run record under the
+    relative results folder as the workflow names it: the solver finds its input and
+    its output lands where it is read (relative paths failed every solve)."""
+    from pathlib import Path
+
+    res = solve_point(checkout, {"material.E": 250.0, "material.nu": 0.3},
+                      Path("results/demo/runs/0.h5"))
+    assert res.status == "ok", res.reason
+    np.testing.assert_allclose(res.interface_current[-1], [1.0, 0.4])
+    assert Path("results/demo/runs/0.work/input.txt").read_text() == "E = 250.0\n"
+
+
+def test_every_solve_starts_in_a_fresh_empty_work_folder(checkout):
+    import json
+    from pathlib import Path
+
+    work = Path("results/demo/runs/0.work")
+    solve_point(checkout, {"material.E": 250.0}, Path("results/demo/runs/0.h5"))
+    (work / "left_by_the_last_solve.txt").write_text("old")
+    (work / "sub").mkdir()
+    (work / "sub" / "old.csv").write_text("old")
+    res = solve_point(checkout, {"material.E": 500.0}, Path("results/demo/runs/0.h5"))
+    assert res.status == "ok", res.reason
+    # the second solve saw its own input and log only
+    assert json.loads((work / "seen.json").read_text()) == ["input.txt", "solver.log"]
+    np.testing.assert_allclose(res.interface_current[-1], [1.0, 0.2])
+
+
+@pytest.mark.parametrize("where", ["input.txt", "solver.log", "interface.csv"])
+def test_a_link_left_in_the_work_folder_is_never_written_through(checkout, tmp_path, where):
+    """A link left where the model writes its files: the next solve removes it and
+    writes its own file; the file outside is untouched."""
+    from pathlib import Path
+
+    outside = tmp_path / "outside.txt"
+    outside.write_text("keep me")
+    work = Path("results/demo/runs/0.work")
+    solve_point(checkout, {"material.E": 250.0}, Path("results/demo/runs/0.h5"))
+    (work / where).unlink()
+    (work / where).symlink_to(outside)
+    res = solve_point(checkout, {"material.E": 250.0}, Path("results/demo/runs/0.h5"))
+    assert res.status == "ok", res.reason
+    assert outside.read_text() == "keep me"
+    assert not (work / where).is_symlink()
+
+
+def test_a_work_folder_that_is_a_link_is_removed_not_followed(checkout, tmp_path):
+    from pathlib import Path
+
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    (elsewhere / "precious.txt").write_text("keep me")
+    (elsewhere / "input.txt").write_text("keep me")
+    work = Path("results/demo/runs/0.work")
+    work.parent.mkdir(parents=True)
+    work.symlink_to(elsewhere)
+    res = solve_point(checkout, {"material.E": 250.0}, Path("results/demo/runs/0.h5"))
+    assert res.status == "ok", res.reason
+    assert not work.is_symlink() and (work / "input.txt").read_text() == "E = 250.0\n"
+    assert sorted(p.name for p in elsewhere.iterdir()) == ["input.txt", "precious.txt"]
+    assert (elsewhere / "input.txt").read_text() == "keep me"
+
+
+def test_an_output_that_is_a_link_is_not_read(tmp_path):
+    outside = tmp_path / "outside.csv"
+    outside.write_text("x,y\n0,0\n1,1\n")
+    script = tmp_path / "s.py"
+    script.write_text(f"import os, sys\nos.symlink({str(outside)!r}, sys.argv[1])\n")
+    tpl = tmp_path / "t.j2"
+    tpl.write_text("\n")
+    model = CommandModel(tpl, [sys.executable, str(script), "{output}"], input_name="in",
+                         output_name="out.csv", workdir=tmp_path / "w.work")
+    res = model.solve({})
+    assert res.status == "failed" and "'out.csv' is a link" in res.reason
+
+
+def test_a_folder_not_named_work_is_never_emptied(tmp_path):
+    data = tmp_path / "my_data"
+    data.mkdir()
+    (data / "scan.csv").write_text("keep me")
+    tpl = tmp_path / "t.j2"
+    tpl.write_text("\n")
+    with pytest.raises(ForwardModelError, match="my_data.*must be named <name>.work"):
+        CommandModel(tpl, ["true"], input_name="in", output_name="out.csv", workdir=data)
+    assert (data / "scan.csv").read_text() == "keep me"

@@ -236,6 +236,7 @@ def test_a_deleted_intermediate_is_rebuilt_with_everything_built_from_it(done_ru
 @pytest.mark.parametrize("damaged", [
     pytest.param("rkhs/training.h5", marks=pytest.mark.extended),
     "rkhs/particles.h5",
+    "rkhs/posterior.json",  # a JSON output: the same error on every rerun before
     pytest.param("observations/observations.h5", marks=pytest.mark.extended)])
 def test_a_damaged_stage_output_is_set_aside_and_rebuilt(done_run, tmp_path, damaged):
     """One rule for every stage output: the job that finds it damaged moves it aside and
@@ -254,6 +255,24 @@ def test_a_damaged_stage_output_is_set_aside_and_rebuilt(done_run, tmp_path, dam
     assert list(path.parent.glob(path.name + "*.corrupt"))
     _smk(tmp)
     after = json.loads((root / "summary.json").read_text())
+    for key in ("map", "posterior_mean", "posterior_cov", "log_evidence"):
+        assert after[key] == before[key], key
+
+
+def test_a_damaged_summary_is_set_aside_and_written_again(done_run, tmp_path):
+    """summary.json is read by no job: the run sets a damaged one aside before it makes
+    its plan, saying so, and writes it again; a dry run leaves it."""
+    tmp = _copy_run(done_run, tmp_path / "copy")
+    path = tmp / "results" / "analytic" / "summary.json"
+    before = json.loads(path.read_text())
+    path.write_bytes(path.read_bytes()[: path.stat().st_size // 2])
+    assert job_counts(tmp) == {} and path.is_file()  # a dry run moves nothing
+    run = _smk(tmp)
+    said = run.stdout + run.stderr
+    assert f"the study summary '{path.relative_to(tmp)}' cannot be read" in said, said[-3000:]
+    assert "This run recomputes it" in said
+    assert (path.parent / "summary.json.corrupt").is_file()
+    after = json.loads(path.read_text())
     for key in ("map", "posterior_mean", "posterior_cov", "log_evidence"):
         assert after[key] == before[key], key
 

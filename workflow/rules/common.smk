@@ -2,7 +2,6 @@
 # Everything here is cheap at parse time: no design point, round record or file is
 # read until the DAG asks for it (checkpoints are consulted lazily).
 
-import json as _json
 
 
 # ---- Observations
@@ -44,14 +43,17 @@ _ACQUIRE_CACHE = {}
 
 def _read_acquire(r):
     """The record of active round r (runs the checkpoint first when needed); read once
-    per version of the file (point_round reads the records for every design point)."""
+    per version of the file (point_round reads the records for every design point).
+    A record that cannot be read is set aside, so that the next run makes it again
+    (bayescalib.stages.read_stage_file)."""
     import os
+
+    from bayescalib.stages import read_stage_file
 
     path = checkpoints.acquire.get(r=int(r)).output[0]
     key = (path, os.stat(path).st_mtime_ns)
     if key not in _ACQUIRE_CACHE:
-        with open(path) as fh:
-            _ACQUIRE_CACHE[key] = _json.load(fh)
+        _ACQUIRE_CACHE[key] = read_stage_file(path, "active round record")
     return _ACQUIRE_CACHE[key]
 
 
@@ -111,12 +113,10 @@ def point_source(i):
 
 def point_values(i):
     """Values of design point i keyed by target."""
-    src = point_source(i)
-    if src is None:
+    if point_source(i) is None:
         return study.point(int(i))
     r, j = point_round(int(i))
-    with open(src) as fh:
-        return study.point_values(_json.load(fh)["next"]["points"][j])
+    return study.point_values(_read_acquire(r - 1)["next"]["points"][j])
 
 
 def _round_reuse(wildcards, *names):

@@ -57,7 +57,6 @@ cause the chosen model does not contain.
 from __future__ import annotations
 
 import itertools
-import json
 import logging
 import math
 from collections.abc import Mapping, Sequence
@@ -68,7 +67,7 @@ import numpy as np
 
 from bayescalib.diagnosis.extended import CandidateSpec, extended_calibration, joint_name
 from bayescalib.inference.posterior import equal_weight_draws
-from bayescalib.stages import model_interfaces
+from bayescalib.stages import model_interfaces, read_stage_file
 
 __all__ = ["IMAGE_NOISE_LAG_PIXELS", "decide_verdict", "explains_mismatch",
            "noise_lag", "plain_words", "reference_noise", "resolve_candidates", "resolve_noise_model",
@@ -206,7 +205,8 @@ def _check_from_particles(tag: str, particles: str | Path, targets: Sequence[str
     from bayescalib.diagnosis.residuals import predictive_check
     from bayescalib.models.forward import solve_points
 
-    X = equal_weight_draws(particles, int(cfg["n_draws"]), int(cfg["seed"]))
+    X = equal_weight_draws(read_stage_file(particles, "SMC particle file"), int(cfg["n_draws"]),
+                           int(cfg["seed"]))
     points = [{**dict(zip(targets, map(float, x), strict=True)), **switches} for x in X]
     runs = solve_points(fm, points, [work / tag / "draws" / f"{k}.h5" for k in range(len(X))],
                       workers=workers, warm_start=warm_start)
@@ -262,7 +262,6 @@ def _better_confirmed_round(cal: dict[str, Any], after, n_fail_after: int, tag: 
     rechecked : dict or None
         ``{round: residual RMS (mm)}`` of the rounds re-checked (None: no second check).
     """
-    from bayescalib.inference.posterior import read_particles_h5
     from bayescalib.stages import marginalize
 
     rounds = cal.get("rounds") or []
@@ -287,7 +286,8 @@ def _better_confirmed_round(cal: dict[str, Any], after, n_fail_after: int, tag: 
                           rd / "posterior.json", rd / "posterior.nc")
     cal = {**cal, "posterior": summary, "particles": str(rd / "particles.h5"),
            "surrogate": str(rd / "surrogate.h5"), "reported_round": last - 1,
-           "log_evidence": float(read_particles_h5(rd / "particles.h5").log_evidence)}
+           "log_evidence": float(read_stage_file(rd / "particles.h5",
+                                                 "SMC particle file").log_evidence)}
     return cal, alt, n_fail_alt, rechecked
 
 
@@ -587,13 +587,13 @@ def run_diagnosis(
     from bayescalib.diagnosis.residuals import offsets
     from bayescalib.inference.active import history_table
     from bayescalib.inference.parameters import ParameterSpace
-    from bayescalib.inference.posterior import read_particles_h5
-    from bayescalib.io.observation_store import read_observations
     from bayescalib.models.forward import solve_points
 
     work = Path(outdir)
     cfg = dict(diagnose)
-    obs = read_observations(obs_path)
+    obs = read_stage_file(obs_path, "observation set")
+    if warm_start is not None:  # a damaged state is set aside and rebuilt, never solved from
+        read_stage_file(warm_start, "warm-start state")
     n_snap = len(obs.snapshots)
     space = ParameterSpace.from_config(parameters)
     targets = [p.get("target") or p["name"] for p in parameters]
@@ -603,8 +603,8 @@ def run_diagnosis(
              "posterior_cfg": posterior_cfg, "workers": workers, "warm_start": warm_start}
 
     # 0: the study's calibration, as summary.json reports it ------------------------
-    base_evidence = float(read_particles_h5(particles_path).log_evidence)
-    base_summary = json.loads(Path(posterior_path).read_text())
+    base_evidence = float(read_stage_file(particles_path, "SMC particle file").log_evidence)
+    base_summary = read_stage_file(posterior_path, "posterior summary")
     base_design = {k: design.get(k) for k in ("strategy", "n_solves", "converged", "reason")}
     cfg["noise_lag_mm"] = noise_lag(cfg, observations)
     cfg["noise_model_name"] = resolve_noise_model(cfg, observations)

@@ -130,11 +130,14 @@ def _literal(text: str) -> Any:
 
 def _solve(args: Mapping[str, str]) -> None:
     from bayescalib.models.forward import solve_point
-    from bayescalib.stages import setup_logging
+    from bayescalib.stages import read_stage_file, setup_logging
 
     setup_logging(args["log"])
+    base = args.get("base") or None
+    if base is not None:  # a damaged state is set aside and rebuilt, never solved from
+        read_stage_file(base, "warm-start state")
     solve_point(_literal(args["forward_model"]), _literal(args["point"]), args["out"],
-                warm_start=args.get("base") or None)
+                warm_start=base)
 
 
 def _discrepancy(args: Mapping[str, str]) -> None:

@@ -309,15 +309,14 @@ def read_particles_h5(path: str | Path) -> SMCResult:
         )
 
 
-def equal_weight_draws(particles_path: str | Path, n: int, seed: int) -> np.ndarray:
+def equal_weight_draws(result: SMCResult, n: int, seed: int) -> np.ndarray:
     """``n`` equally weighted posterior draws, shape (n, d): a systematic resample of the
-    final SMC particles stored in ``particles_path``, with a generator seeded by ``seed``
-    (the same draws in every job)."""
+    final SMC particles ``result`` (as :func:`read_particles_h5` reads them), with a
+    generator seeded by ``seed`` (the same draws in every job)."""
     from bayescalib.inference.resampling import systematic_resample
 
-    res = read_particles_h5(particles_path)
-    idx = systematic_resample(np.asarray(res.weights), np.random.default_rng(seed), n)
-    return np.asarray(res.particles)[idx]
+    idx = systematic_resample(np.asarray(result.weights), np.random.default_rng(seed), n)
+    return np.asarray(result.particles)[idx]
 
 
 def write_netcdf(

@@ -17,8 +17,10 @@ built in, chosen by ``forward_model.type`` in the study config:
 ``command``
     An external solver (e.g. 4C): a Jinja2 input template is rendered with the
     parameter values (strict undefined variables: a misspelt name is an error),
-    the command is run *without a shell* in a private work directory, and the
-    interface file it writes (CSV or VTK) is read back.
+    the command is run *without a shell* in a private work folder, made fresh and
+    empty for every solve, and the interface file it writes (CSV or VTK) is read
+    back. Its ``{input}``, ``{output}`` and ``{workdir}`` placeholders are absolute
+    paths.
 
 :func:`solve_point` runs one model evaluation in a forked child process with a
 wall-clock limit, so that a crash, a hang or a segmentation fault inside a
@@ -36,6 +38,8 @@ import multiprocessing as mp
 import multiprocessing.connection
 import os
 import re
+import shutil
+import stat
 import subprocess
 import sys
 import time
@@ -196,8 +200,9 @@ _ARG_FIELD = re.compile(r"\{([A-Za-z_][A-Za-z0-9_.]*)\}")
 _PLAIN_NAME = re.compile(r"[A-Za-z0-9_-][A-Za-z0-9_.-]*")
 
 
-def _run_command(argv: list[str], cwd: Path, log: Path, time_limit_s: float) -> tuple[int, str]:
-    """Run ``argv`` (no shell) in its own session with stdout/stderr to ``log``.
+def _run_command(argv: list[str], cwd: Path, log: int, time_limit_s: float) -> tuple[int, str]:
+    """Run ``argv`` (no shell) in its own session with stdout/stderr to the open file
+    descriptor ``log`` (closed here).
 
     Returns the exit status and a failure reason ("" on success). Whatever the
     command leaves running when it ends or when its time limit is reached (an
@@ -207,7 +212,7 @@ def _run_command(argv: list[str], cwd: Path, log: Path, time_limit_s: float) -> 
     import signal
 
     deadline = time.monotonic() + time_limit_s
-    with open(log, "wb") as fh:
+    with open(log, "wb", closefd=True) as fh:
         try:
             proc = subprocess.Popen(argv, cwd=cwd, stdout=fh, stderr=subprocess.STDOUT,
                                     stdin=subprocess.DEVNULL, start_new_session=True,
@@ -234,10 +239,45 @@ def _run_command(argv: list[str], cwd: Path, log: Path, time_limit_s: float) -> 
     return rc, "" if rc == 0 else f"command exited with status {rc}"
 
 
-def _log_tail(path: Path, n: int = 2000) -> str:
-    """Last ``n`` bytes of a log file as text (without reading a huge log whole)."""
+#: flags of every file the command model opens in its work folder: a link there is
+#: never followed (O_NOFOLLOW, where the platform has it)
+_NOFOLLOW = getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_CLOEXEC", 0)
+
+
+def _fresh_folder(path: Path) -> int:
+    """Make ``path`` a new, empty folder and return a file descriptor of it.
+
+    Whatever is at ``path`` goes first, without following a link: a folder with its
+    content (:func:`shutil.rmtree`, which removes links inside a folder and never
+    what they point to), a file or a link itself. The folder is then created anew
+    (``os.mkdir``: it fails if something took the name meanwhile) and opened without
+    following a link.
+    """
     try:
-        with open(path, "rb") as fh:
+        st = os.lstat(path)
+    except FileNotFoundError:
+        pass
+    else:
+        if stat.S_ISDIR(st.st_mode):
+            shutil.rmtree(path)
+        else:
+            os.unlink(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    os.mkdir(path)
+    return os.open(path, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0) | _NOFOLLOW)
+
+
+def _create(folder: int, name: str) -> int:
+    """A new file ``name`` in the folder open as ``folder``, for writing: never an
+    existing file, never through a link."""
+    return os.open(name, os.O_WRONLY | os.O_CREAT | os.O_EXCL | _NOFOLLOW, 0o666, dir_fd=folder)
+
+
+def _log_tail(path: Path, n: int = 2000) -> str:
+    """Last ``n`` bytes of a log file as text (without reading a huge log whole; a
+    link is not followed)."""
+    try:
+        with open(os.open(path, os.O_RDONLY | _NOFOLLOW), "rb") as fh:
             fh.seek(0, os.SEEK_END)
             fh.seek(max(0, fh.tell() - n))
             return fh.read().decode(errors="replace")
@@ -256,12 +296,14 @@ class CommandModel:
         are Python floats, so only numbers reach the file.
     command
         Argument list. ``{input}``, ``{output}``, ``{workdir}`` are replaced
-        by paths; ``{NAME}`` by the number of parameter ``NAME``. No shell is
-        involved, so no value can change the command.
+        by absolute paths; ``{NAME}`` by the number of parameter ``NAME``. No shell
+        is involved, so no value can change the command. It runs with the work
+        folder as its current folder (so the bare file names work as well).
     input_name, output_name
-        File names inside the per-run work directory.
+        File names inside the work folder.
     workdir
-        Directory for the run's files (created).
+        The run's work folder, named ``<something>.work``: every solve removes it
+        and creates it empty (the name guards against emptying any other folder).
     time_limit_s
         Wall-clock limit of the command.
     """
@@ -285,6 +327,11 @@ class CommandModel:
                     "the run's work folder (letters, digits, _ . -; no folder, not solver.log)")
         if input_name == output_name:
             raise ForwardModelError("forward_model.command: input_name and output_name must differ")
+        if Path(workdir).suffix != ".work":
+            raise ForwardModelError(
+                f"command model: the work folder '{workdir}' must be named <name>.work: it "
+                "is deleted and created empty before every solve, and a folder of any other "
+                "name is never deleted")
         # a template renders numbers into a file; it never needs Python's internals
         env = SandboxedEnvironment(undefined=jinja2.StrictUndefined, keep_trailing_newline=True)
         try:
@@ -297,7 +344,7 @@ class CommandModel:
         self.command = list(command)
         self.input_name = input_name
         self.output_name = output_name
-        self.workdir = Path(workdir)
+        self.workdir = Path(os.path.abspath(workdir))
         self.time_limit_s = float(time_limit_s)
         self.units = units
 
@@ -349,20 +396,36 @@ class CommandModel:
         from bayescalib.io.observations import read_interface
 
         t0 = time.perf_counter()
-        self.workdir.mkdir(parents=True, exist_ok=True)
+        text = self.render_input(params)
         inp = self.workdir / self.input_name
         out = self.workdir / self.output_name
-        if out.exists():
-            out.unlink()
-        inp.write_text(self.render_input(params))
-        log = self.workdir / "solver.log"
         argv = self.argv(params, inp, out)
-        rc, reason = _run_command(argv, self.workdir, log, self.time_limit_s)
-        tail = _log_tail(log)
+        try:
+            folder = _fresh_folder(self.workdir)
+        except OSError as exc:
+            raise ForwardModelError(
+                f"command model: the work folder '{self.workdir}' could not be made empty "
+                f"({exc}); remove it by hand") from None
+        try:
+            with open(_create(folder, self.input_name), "w") as fh:
+                fh.write(text)
+            log = _create(folder, "solver.log")
+            rc, reason = _run_command(argv, self.workdir, log, self.time_limit_s)
+            try:
+                found = os.stat(self.output_name, dir_fd=folder, follow_symlinks=False)
+            except FileNotFoundError:
+                found = None
+        finally:
+            os.close(folder)
+        tail = _log_tail(self.workdir / "solver.log")
         wall = time.perf_counter() - t0
         if rc != 0:
             return failed_result(params, reason, wall, log_tail=tail)
-        if not out.is_file() or out.stat().st_size == 0:
+        if found is not None and stat.S_ISLNK(found.st_mode):
+            return failed_result(params, f"the command's output '{out.name}' is a link: it "
+                                         "is not followed (write the file itself)", wall,
+                                 log_tail=tail)
+        if found is None or not stat.S_ISREG(found.st_mode) or found.st_size == 0:
             return failed_result(params, f"command wrote no output file '{out.name}'", wall,
                                  log_tail=tail)
         try:

@@ -25,7 +25,8 @@ import logging
 import math
 import os
 import sys
-from collections.abc import Mapping, Sequence
+import zipfile
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -46,6 +47,7 @@ __all__ = [
     "marginalize",
     "observe",
     "read_json",
+    "read_stage_file",
     "run_line",
     "smc",
     "train_surrogate",
@@ -85,6 +87,9 @@ def write_json(path: str | Path, obj: Any) -> None:
 
 
 def read_json(path: str | Path) -> Any:
+    """A JSON file read only to look at it (the report's front page at parse time,
+    ``bayescalib summary``): a file that cannot be read is left where it is. A stage
+    reads the outputs of other stages through :func:`read_stage_file`."""
     p = Path(path)
     try:
         return json.loads(p.read_text())
@@ -144,14 +149,19 @@ def setup_logging(path: str | Path | None) -> None:
         sys.excepthook = _log_and_raise
 
 
-# ------------------------------------------------------------------ broken inputs
-def _set_aside(path: str | Path, problem: str) -> PipelineError:
-    """Move a corrupt per-point file to ``<name>.corrupt`` and say how to redo it.
+# ------------------------------------------------------------------ stage files
+def _set_aside(path: str | Path, problem: str, *,
+               rebuilt_by_this_run: bool = False) -> PipelineError:
+    """Move a stage output that cannot be used to ``<name>.corrupt`` and say how to
+    redo it.
 
-    The file is the output of an upstream job (a run record, a discrepancy file).
-    The workflow's gather rule lists the set-aside files as a parameter, so the
-    next run of the same ``snakemake`` command recomputes the missing file (that
-    one design point only) and what depends on it, instead of failing on it again.
+    The file is the output of an upstream job. Every stage output is a target of the
+    workflow (``study_outputs``), and the job that failed on it wrote nothing, so the
+    next run of the same ``snakemake`` command rebuilds the missing file and what
+    depends on it, instead of failing on it again. For run records and discrepancy
+    files the gather rule lists the set-aside files as a parameter, so gather reruns
+    too. ``rebuilt_by_this_run``: set aside before Snakemake builds its plan, which
+    then rebuilds the file in this run (the message says so).
     """
     p = Path(path)
     aside = p.with_name(p.name + ".corrupt")
@@ -166,41 +176,115 @@ def _set_aside(path: str | Path, problem: str) -> PipelineError:
             where = f"; it was moved to '{aside}'"
         except OSError as exc:  # pragma: no cover - read-only results folder
             where = f"; it could not be moved aside ({exc}): delete it"
-    return PipelineError(
-        f"{problem}{where}. Run the same snakemake command again: it is recomputed, "
-        "and only what depends on it."
-    )
+    then = ("This run recomputes it." if rebuilt_by_this_run else
+            "Run the same snakemake command again: it is recomputed, and only what "
+            "depends on it.")
+    return PipelineError(f"{problem}{where}. {then}")
 
 
-def _read_run_checked(path: str | Path):
-    """:func:`read_run`, but a missing, truncated or corrupt record is set aside."""
-    from bayescalib.io.runrecord import RunFileError, read_run
+def _json_object(path: Path) -> dict[str, Any]:
+    """A JSON stage output: an object (every stage writes one)."""
+    value = json.loads(path.read_bytes())
+    if not isinstance(value, dict):
+        raise ValueError(f"it holds a JSON {type(value).__name__}, not an object")
+    return value
 
+
+def _run_record(path: Path, **options: Any):
+    from bayescalib.io.runrecord import read_run
+
+    return read_run(path, **options)
+
+
+def _observation_set(path: Path, **options: Any):
+    from bayescalib.io.observation_store import read_observations
+
+    return read_observations(path, **options)
+
+
+def _surrogate(path: Path, **options: Any):
+    from bayescalib.inference.emulator import load_surrogate
+
+    return load_surrogate(path, **options)
+
+
+def _particles(path: Path, **options: Any):
+    from bayescalib.inference.posterior import read_particles_h5
+
+    return read_particles_h5(path, **options)
+
+
+def _warm_start_state(path: Path) -> dict[str, Any]:
+    """The arrays of a warm-start state (``FSIModel.save_state``), read in full."""
+    with np.load(path, allow_pickle=False) as data:
+        return {"state": np.array(data["state"], dtype=float), "key": str(data["key"]),
+                "parameters": json.loads(str(data["parameters"]))}
+
+
+def _vtu_fields(path: Path):
+    from bayescalib.stages.figures import read_vtu_fields
+
+    return read_vtu_fields(path)
+
+
+#: every kind of file a stage reads from another stage: its reader (the one place that
+#: knows each format). JSON: the discrepancy, posterior, convergence, posterior-check,
+#: active-round and study records; HDF5: run records, the observation set, training
+#: tables, surrogates, particles; NumPy: the warm-start state; VTK: the fields.
+STAGE_FILES: dict[str, Callable[..., Any]] = {
+    "run record": _run_record,
+    "observation set": _observation_set,
+    "training table": read_training,
+    "surrogate": _surrogate,
+    "SMC particle file": _particles,
+    "warm-start state": _warm_start_state,
+    "VTU field file": _vtu_fields,
+    "discrepancy record": _json_object,
+    "posterior summary": _json_object,
+    "GP convergence record": _json_object,
+    "posterior check": _json_object,
+    "active round record": _json_object,
+    "study summary": _json_object,
+}
+
+#: what a reader raises on a file it cannot read (a missing, truncated, corrupt file, one
+#: of another kind or layout version, a JSON file cut short or not an object)
+_UNREADABLE = (OSError, KeyError, ValueError, TypeError, EOFError, IndexError,
+               zipfile.BadZipFile)
+
+
+def read_stage_file(path: str | Path, kind: str, *, rebuilt_by_this_run: bool = False,
+                    **options: Any) -> Any:
+    """Read the stage output ``path``, a file of ``kind`` (a key of :data:`STAGE_FILES`).
+
+    The one reader of every file a stage reads from another stage, whatever its format.
+    A file that cannot be read (missing, truncated, corrupt, of another kind or layout
+    version) is moved aside to ``<name>.corrupt`` (:func:`_set_aside`), so that the next
+    run of the same ``snakemake`` command rebuilds it, and what depends on it, instead
+    of failing on it again (``rebuilt_by_this_run``: read before Snakemake builds its
+    plan, which then rebuilds it in this run; the message says so). ``options`` go to
+    the kind's reader (e.g. ``device`` of a surrogate).
+
+    Raises
+    ------
+    PipelineError
+        Naming the file, what it is and why it cannot be read, where it was moved and
+        what to run.
+    """
     try:
-        return read_run(path)
-    except RunFileError as exc:
-        raise _set_aside(path, str(exc)) from None
-
-
-def _read_json_checked(path: str | Path) -> Any:
+        reader = STAGE_FILES[kind]
+    except KeyError:
+        raise ValueError(f"read_stage_file: unknown kind of stage file {kind!r} "
+                         f"(known: {', '.join(STAGE_FILES)})") from None
+    p = Path(path)
     try:
-        return read_json(path)
-    except PipelineError as exc:
-        raise _set_aside(path, str(exc)) from None
+        return reader(p, **options)
+    except _UNREADABLE as exc:
+        from bayescalib.io.runrecord import RunFileError
 
-
-def _read_checked(path: str | Path, reader, what: str):
-    """``reader(path)`` for a stage output (training table, surrogate, particles,
-    posterior, observation set, round record): a file that cannot be read is set aside,
-    so the next identical command rebuilds it (every stage output is a target of the
-    workflow) and what depends on it, instead of failing on it again."""
-    try:
-        return reader(path)
-    except PipelineError as exc:
-        raise _set_aside(path, str(exc)) from None
-    except (OSError, KeyError, ValueError, TypeError, EOFError, IndexError) as exc:
-        raise _set_aside(path, f"the {what} '{path}' cannot be read "
-                               f"({type(exc).__name__}: {exc})") from None
+        why = str(exc) if isinstance(exc, RunFileError) else f"{type(exc).__name__}: {exc}"
+        raise _set_aside(p, f"the {kind} '{p}' cannot be read ({why})",
+                         rebuilt_by_this_run=rebuilt_by_this_run) from None
 
 
 # -------------------------------------------------------------------------- observe
@@ -223,7 +307,7 @@ def observe(observations: Mapping[str, Any], out_path: str | Path, *,
     if source == "synthetic":
         if ground_truth_run is None:
             raise PipelineError("synthetic observations need the ground-truth run record")
-        run = _read_run_checked(ground_truth_run)
+        run = read_stage_file(ground_truth_run, "run record")
         if run.status != "ok":
             raise PipelineError(
                 f"the forward solve at the ground truth failed ({run.reason}); synthetic "
@@ -305,11 +389,10 @@ def discrepancy(run_path: str | Path, obs_path: str | Path, measure_name: str,
     run gives ``loglik = None`` (i.e. -inf: excluded from training).
     """
     from bayescalib.inference.likelihood import gaussian_loglik
-    from bayescalib.io.observation_store import read_observations
     from bayescalib.measures import compute
 
-    run = _read_run_checked(run_path)
-    obs = _read_checked(obs_path, read_observations, "observation set")
+    run = read_stage_file(run_path, "run record")
+    obs = read_stage_file(obs_path, "observation set")
     record: dict[str, Any] = {
         "measure": measure_name,
         "status": run.status,
@@ -428,14 +511,14 @@ def gather_rows(run_paths: Sequence[str | Path], disc_paths: Sequence[str | Path
     reasons: list[str] = []
     res_rows: dict[int, np.ndarray] = {}
     for i, (rp, dp) in enumerate(zip(run_paths, disc_paths, strict=True)):
-        run = _read_run_checked(rp)
+        run = read_stage_file(rp, "run record")
         missing = [t for t in targets if t not in run.parameters]
         if missing:
             raise _set_aside(rp, f"run file '{rp}' has no value for {', '.join(missing)} "
                                  f"(it has {', '.join(sorted(run.parameters)) or 'none'}): "
                                  "it was written for another parameter setup")
         X[i] = [run.parameters[t] for t in targets]
-        rec = _read_json_checked(dp)
+        rec = read_stage_file(dp, "discrepancy record")
         if run.status == "ok" and rec.get("loglik") is not None:
             L[i] = float(rec["loglik"])
             D[i] = float(rec["D"])
@@ -618,14 +701,14 @@ def train_surrogate(training_path: str | Path, surrogate: Mapping[str, Any],
     surrogate searched the discrete choices in full, it is copied instead of fitted again
     (:func:`_reuse`). A round's refit is not reused: the study's surrogate is a full
     search."""
-    from bayescalib.inference.surrogate import GPSurrogate, fit_round
+    from bayescalib.inference.surrogate import fit_round
 
     if reuse and not _full_search(reuse[-1]):
         log.info("train_surrogate: '%s' refitted the previous round's choices: the "
                  "discrete choices are searched in full for the study's surrogate", reuse[-1])
     elif _reuse(training_path, reuse, out_path, "train_surrogate"):
         return
-    tab = _read_checked(training_path, read_training, "training table")
+    tab = read_stage_file(training_path, "training table")
     train_mask = tab["is_train"].astype(bool)
     X, L = tab["X"][train_mask], tab["loglik"][train_mask]
     finite = np.isfinite(L)
@@ -653,8 +736,8 @@ def train_surrogate(training_path: str | Path, surrogate: Mapping[str, Any],
     if surrogate["target"] == "outputs":
         _train_emulator(tab, train_mask, surrogate, space, bound, training_path, out_path)
         return
+    prev = None if previous is None else read_stage_file(previous, "surrogate", device="cpu")
     try:
-        prev = None if previous is None else GPSurrogate.load(previous, device="cpu")
         gp = fit_round(X, L, dict(surrogate), space.bounds, bound=bound, previous=prev)
     except (RuntimeError, ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:
         Lf = L[finite]
@@ -768,7 +851,7 @@ def convergence(training_path: str | Path, surrogate: Mapping[str, Any],
     from bayescalib.inference.convergence import convergence_study
     from bayescalib.inference.surrogate import resolve_ard
 
-    tab = _read_checked(training_path, read_training, "training table")
+    tab = read_stage_file(training_path, "training table")
     tr = tab["is_train"].astype(bool)
     space = _space(parameters)
     res = convergence_study(
@@ -797,13 +880,12 @@ def smc(surrogate_path: str | Path, smc_cfg: Mapping[str, Any],
     holds the same content, those particles are copied instead of sampled again
     (:func:`_reuse`; their history's ``time_s`` is the earlier run's).
     """
-    from bayescalib.inference.emulator import load_surrogate
     from bayescalib.inference.posterior import write_particles_h5
     from bayescalib.inference.smc import smc_from_config
 
     if _reuse(surrogate_path, reuse, out_path, "smc"):
         return
-    gp = _read_checked(surrogate_path, load_surrogate, "surrogate")
+    gp = read_stage_file(surrogate_path, "surrogate")
     gp.threads = max(1, int(threads))
     space = _space(parameters)
 
@@ -819,14 +901,13 @@ def acquire(round_index: int, training_path: str | Path, surrogate_path: str | P
     """Active design, end of round ``round_index``: trust check, posterior change,
     stop rule and the next batch (:func:`bayescalib.inference.active.acquire_round`), as JSON."""
     from bayescalib.inference.active import acquire_round
-    from bayescalib.inference.emulator import EmulatedLikelihood, load_surrogate
-    from bayescalib.inference.posterior import read_particles_h5
+    from bayescalib.inference.emulator import EmulatedLikelihood
 
-    tab = _read_checked(training_path, read_training, "training table")
-    gp = _read_checked(surrogate_path, load_surrogate, "surrogate")
-    res = _read_checked(particles_path, read_particles_h5, "SMC particle file")
+    tab = read_stage_file(training_path, "training table")
+    gp = read_stage_file(surrogate_path, "surrogate")
+    res = read_stage_file(particles_path, "SMC particle file")
     previous = None if previous_path is None else \
-        _read_checked(previous_path, read_json, "active round record")
+        read_stage_file(previous_path, "active round record")
     try:
         rec = acquire_round(int(round_index), tab["X"], tab["loglik"], gp, res.particles,
                             res.weights, res.log_evidence, _space(parameters), active, previous,
@@ -845,12 +926,11 @@ def marginalize(particles_path: str | Path, surrogate_path: str | Path,
                 posterior_cfg: Mapping[str, Any], parameters: Sequence[Mapping[str, Any]],
                 seed: int, out_json: str | Path, out_netcdf: str | Path) -> dict[str, Any]:
     """Posterior summaries (JSON) and the ArviZ NetCDF export."""
-    from bayescalib.inference.emulator import load_surrogate
-    from bayescalib.inference.posterior import read_particles_h5, summarize, write_netcdf
+    from bayescalib.inference.posterior import summarize, write_netcdf
 
-    gp = _read_checked(surrogate_path, load_surrogate, "surrogate")
+    gp = read_stage_file(surrogate_path, "surrogate")
     space = _space(parameters)
-    result = _read_checked(particles_path, read_particles_h5, "SMC particle file")
+    result = read_stage_file(particles_path, "SMC particle file")
     summary = summarize(result, space, loglik=gp.loglik,
                         map_bins=posterior_cfg.get("map_bins"),
                         levels=tuple(posterior_cfg["levels"]))
@@ -874,7 +954,6 @@ def summary(study_name: str, parameters: Sequence[Mapping[str, Any]], measures: 
     model (:func:`bayescalib.inference.likelihood.fit_check`; per measure as well).
     """
     from bayescalib.inference.likelihood import fit_check
-    from bayescalib.inference.posterior import read_particles_h5
 
     names = [p["name"] for p in parameters]
     targets = [p.get("target") or p["name"] for p in parameters]
@@ -883,9 +962,9 @@ def summary(study_name: str, parameters: Sequence[Mapping[str, Any]], measures: 
     failed_runs: list[dict[str, Any]] = []
     for m, pp, tp, parts in zip(measures, posterior_paths, training_paths, particles_paths,
                                 strict=True):
-        post = posts[m] = _read_checked(pp, read_json, "posterior summary")
-        tab = _read_checked(tp, read_training, "training table")
-        res = _read_checked(parts, read_particles_h5, "SMC particle file")
+        post = posts[m] = read_stage_file(pp, "posterior summary")
+        tab = read_stage_file(tp, "training table")
+        res = read_stage_file(parts, "SMC particle file")
         tr = tab["is_train"].astype(bool)
         # one line per measure; the full posterior analysis is in its posterior.json
         per_measure[m] = {
@@ -966,9 +1045,7 @@ def posterior_check(sample_runs: Sequence[str | Path], obs_path: str | Path, mea
     in the user's units) and returns it.
     """
     from bayescalib.inference.active import posterior_moments
-    from bayescalib.inference.emulator import load_surrogate
     from bayescalib.inference.importance import importance_check
-    from bayescalib.inference.posterior import read_particles_h5
 
     names = [p["name"] for p in parameters]
     targets = [p.get("target") or p["name"] for p in parameters]
@@ -980,9 +1057,9 @@ def posterior_check(sample_runs: Sequence[str | Path], obs_path: str | Path, mea
         X.append([float(rec["parameters"][t]) for t in targets])
         L.append(-math.inf if rec.get("loglik") is None else float(rec["loglik"]))
     X_arr, L_arr = np.asarray(X, float).reshape(-1, len(names)), np.asarray(L, float)
-    gp = _read_checked(surrogate_path, load_surrogate, "surrogate")
+    gp = read_stage_file(surrogate_path, "surrogate")
     mu = gp.predict(X_arr)
-    smc = _read_checked(particles_path, read_particles_h5, "SMC particle file")
+    smc = read_stage_file(particles_path, "SMC particle file")
     moments = posterior_moments(smc.particles, smc.weights)
     res = importance_check(X_arr, L_arr, mu, min_ess_fraction=check["min_ess_fraction"],
                            shift_tol=check["shift_tol"], sd_tol=check["sd_tol"],
@@ -1007,7 +1084,7 @@ def posterior_check(sample_runs: Sequence[str | Path], obs_path: str | Path, mea
 def posterior_check_summary(path: str | Path) -> dict[str, Any]:
     """The ``posterior_check`` block of summary.json: the check's file without its
     per-draw records (which stay in the file, named here)."""
-    rec = _read_json_checked(path)
+    rec = read_stage_file(path, "posterior check")
     return {"file": str(path), **{k: v for k, v in rec.items() if k != "draws"}}
 
 
@@ -1017,7 +1094,7 @@ def round_check_summary(acquire_paths: Sequence[str | Path]) -> dict[str, Any] |
     the round whose posterior was checked), with the record it is in; None when the
     rounds ran no check."""
     for path in reversed(list(acquire_paths)):
-        rec = _read_checked(path, read_json, "active round record")
+        rec = read_stage_file(path, "active round record")
         if rec.get("posterior_check") is not None:
             return {"file": str(path), **rec["posterior_check"]}
     return None
@@ -1041,7 +1118,7 @@ def design_summary(strategy: str, acquire_paths: Sequence[str | Path],
                           "checked against solves placed where the posterior lives, so "
                           "nothing says whether this posterior has converged",
                 "rounds": []}
-    rounds = [_read_checked(p, read_json, "active round record") for p in acquire_paths]
+    rounds = [read_stage_file(p, "active round record") for p in acquire_paths]
     last = rounds[-1]
     return {"strategy": "active", "n_solves": int(last["n_solves"]),
             "n_failed": int(last["n_failed"]), "n_rounds": len(rounds),

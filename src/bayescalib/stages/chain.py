@@ -53,9 +53,9 @@ def training_rows(training: str | Path) -> dict[str, Any]:
     """The rows of a training table (:func:`bayescalib.stages.gather`) used for training:
     ``X (m, d)``, ``loglik``, ``D``, ``status``, ``bound``, ``n_measurements`` (m,) and
     ``reason`` (m strings)."""
-    from bayescalib.io.training import read_training
+    from bayescalib.stages import read_stage_file
 
-    tab = read_training(training)
+    tab = read_stage_file(training, "training table")
     use = tab["is_train"].astype(bool)
     return {**{k: tab[k][use] for k in _ROW_KEYS}, "residuals": tab["residuals"][use],
             "reason": [r for r, u in zip(tab["reason"], use, strict=True) if u]}
@@ -128,7 +128,6 @@ def calibrate_rounds(
         new solves) and the paths ``training``, ``surrogate``, ``particles``.
     """
     from bayescalib.config import round_smc, validate
-    from bayescalib.inference.posterior import read_particles_h5
     from bayescalib.io.training import write_training
     from bayescalib.models.forward import solve_points
     from bayescalib.stages import (
@@ -137,6 +136,7 @@ def calibrate_rounds(
         discrepancy,
         gather_rows,
         marginalize,
+        read_stage_file,
         smc,
         train_surrogate,
     )
@@ -201,7 +201,7 @@ def calibrate_rounds(
         smc(final, smc_cfg, parameters, particles)
     summary = marginalize(particles, final, posterior_cfg, parameters,
                           int(smc_cfg["seed"]), work / "posterior.json", work / "posterior.nc")
-    res = read_particles_h5(particles)
+    res = read_stage_file(particles, "SMC particle file")
     n_new = len(run_paths)
     n_failed = int(n_new - np.asarray(rows["status"][n_reused:]).sum())
     log.info("calibration in %s: %d round(s), %d new solves (%d failed), %d reused; %s",

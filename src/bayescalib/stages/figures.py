@@ -27,8 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from bayescalib.io.training import read_training
-from bayescalib.stages import read_json
+from bayescalib.stages import read_stage_file
 
 __all__ = [
     "convergence_figure",
@@ -67,12 +66,11 @@ def response_figures(training_path: str | Path, surrogate_path: str | Path,
                      parameters: Sequence[Mapping[str, Any]], plots: Mapping[str, Any],
                      stem: str | Path) -> list[str]:
     """Response surfaces of the GP log-likelihood over two inputs."""
-    from bayescalib.inference.emulator import load_surrogate
     from bayescalib.plotting import plot_response_surface
 
     space = _space(parameters)
-    tab = read_training(training_path)
-    gp = load_surrogate(surrogate_path)
+    tab = read_stage_file(training_path, "training table")
+    gp = read_stage_file(surrogate_path, "surrogate")
     d = space.dim
     if d < 2:
         raise ValueError("response surfaces need at least two inputs")
@@ -109,7 +107,7 @@ def convergence_figure(convergence_path: str | Path, plots: Mapping[str, Any],
     """GP error over the number of training points."""
     from bayescalib.plotting import plot_gp_convergence
 
-    res = read_json(convergence_path)
+    res = read_stage_file(convergence_path, "GP convergence record")
     n = np.asarray(res["n_train"], float)
     rel = np.asarray(res["rel_error"], float)
     loo = np.asarray(res["loo_rel_error"], float)
@@ -136,7 +134,6 @@ def posterior_figures(particles_path: str | Path, posterior_path: str | Path,
     drawn (the workflow draws pairs and parallel axes from three parameters on: for
     two, the joint figure shows all they would).
     """
-    from bayescalib.inference.posterior import read_particles_h5
     from bayescalib.plotting import (
         plot_joint_posterior,
         plot_marginals_1d,
@@ -146,8 +143,8 @@ def posterior_figures(particles_path: str | Path, posterior_path: str | Path,
     )
 
     space = _space(parameters)
-    res = read_particles_h5(particles_path)
-    post = read_json(posterior_path)
+    res = read_stage_file(particles_path, "SMC particle file")
+    post = read_stage_file(posterior_path, "posterior summary")
     X = np.asarray(res.particles)
     W = np.asarray(res.weights)
     names, units = _labels(space)
@@ -218,7 +215,8 @@ def posterior_draws(particles_path: str | Path, parameters: Sequence[Mapping[str
     """
     from bayescalib.inference.posterior import equal_weight_draws
 
-    x = equal_weight_draws(particles_path, n, seed)[int(k)]
+    x = equal_weight_draws(read_stage_file(particles_path, "SMC particle file"), n,
+                           seed)[int(k)]
     targets = [p.get("target") or p["name"] for p in parameters]
     return {t: float(v) for t, v in zip(targets, x, strict=True)}
 
@@ -227,14 +225,12 @@ def interface_figure(obs_path: str | Path, sample_runs: Sequence[str | Path],
                      plots: Mapping[str, Any], stem: str | Path,
                      ground_truth_run: str | Path | None = None) -> list[str]:
     """Undeformed, observed and posterior-sample interfaces."""
-    from bayescalib.io.observation_store import read_observations
-    from bayescalib.io.runrecord import read_run
     from bayescalib.plotting import plot_interfaces
 
-    obs = read_observations(obs_path)
+    obs = read_stage_file(obs_path, "observation set")
     samples, ref = [], None
     for rp in sample_runs:
-        run = read_run(rp)
+        run = read_stage_file(rp, "run record")
         if run.status == "ok":
             samples.append(np.asarray(run.interface_current))
             ref = np.asarray(run.interface_reference) if ref is None else ref
@@ -244,7 +240,7 @@ def interface_figure(obs_path: str | Path, sample_runs: Sequence[str | Path],
         ref = np.asarray(obs.snapshots[0].points)
     truth = None
     if ground_truth_run is not None:
-        gt = read_run(ground_truth_run)
+        gt = read_stage_file(ground_truth_run, "run record")
         if gt.status == "ok":
             truth = np.asarray(gt.interface_current)
     return plot_interfaces(
@@ -263,10 +259,9 @@ def segmentation_figure(obs_path: str | Path, observations: Mapping[str, Any],
     again from the image files.
     """
     from bayescalib.geometry.imaging import read_image
-    from bayescalib.io.observation_store import read_observations
     from bayescalib.plotting import plot_segmentation
 
-    obs = read_observations(obs_path)
+    obs = read_stage_file(obs_path, "observation set")
     segs = obs.segmentation or [None] * len(obs.snapshots)
     files = list(observations.get("files") or [])
     panels = [(k, e, segs[k]) for k, e in enumerate(files)
@@ -321,7 +316,7 @@ def posterior_mean_point(posterior_path: str | Path,
                          parameters: Sequence[Mapping[str, Any]]) -> dict[str, float]:
     """The posterior mean of a study (its ``posterior.json``), keyed by target: the
     values at which the fields of the calibrated model are solved."""
-    mean = read_json(posterior_path)["mean"]
+    mean = read_stage_file(posterior_path, "posterior summary")["mean"]
     return {(p.get("target") or p["name"]): float(mean[p["name"]]) for p in parameters}
 
 
@@ -373,7 +368,6 @@ def field_figure(vtu_path: str | Path, run_path: str | Path, plots: Mapping[str,
     parameters
         The ``parameters`` section (names and units of the title), with ``at``.
     """
-    from bayescalib.io.runrecord import read_run
     from bayescalib.plotting import plot_fields
     from bayescalib.plotting.fields import plot_failed_solve
 
@@ -381,14 +375,14 @@ def field_figure(vtu_path: str | Path, run_path: str | Path, plots: Mapping[str,
     if at is not None:
         if at != "posterior_mean":
             raise ValueError(f"field_figure: at must be None or 'posterior_mean', got {at!r}")
-        run = read_run(run_path)
+        run = read_stage_file(run_path, "run record")
         title = _at_posterior_mean_title(run, parameters or [])
         if run.status != "ok":
             return plot_failed_solve(_paths(stem, plots["formats"]), title,
                                      f"The forward solve at the posterior mean failed: "
                                      f"{run.reason or 'no reason recorded'}", dpi=plots["dpi"])
-    f = read_vtu_fields(vtu_path)
-    run = read_run(run_path)
+    f = read_stage_file(vtu_path, "VTU field file")
+    run = read_stage_file(run_path, "run record")
     return plot_fields(
         f["points"], f["triangles"], f["velocity"], f["pressure"], f["displacement"],
         _paths(stem, plots["formats"]), interface=np.asarray(run.interface_current),
@@ -426,10 +420,11 @@ def rounds_figure(acquire_paths: Sequence[str | Path], particles_paths: Sequence
     space = _space(parameters)
     if space.dim < 2:
         raise ValueError("the rounds figure needs at least two parameters")
-    recs = [read_json(p) for p in acquire_paths]
+    recs = [read_stage_file(p, "active round record") for p in acquire_paths]
     ix = _shown_pair(space, recs[-1]["posterior"]["sd"])
-    draws = [equal_weight_draws(p, 600, 0)[:, ix] for p in particles_paths]
-    tab = read_training(training_path)
+    draws = [equal_weight_draws(read_stage_file(p, "SMC particle file"), 600, 0)[:, ix]
+             for p in particles_paths]
+    tab = read_stage_file(training_path, "training table")
     X = tab["X"][:, ix]
     failed = X[tab["status"] == 0]
     batches = [np.asarray(r["next"]["points"], float)[:, ix] if "next" in r else None
