@@ -412,6 +412,10 @@ def select_batch(gp, pool: np.ndarray, logprior: np.ndarray, q: int, *, posterio
 
 
 # ------------------------------------------------------------------ one round
+#: basins the round record lists (the largest not held)
+MAX_BASINS_RECORDED = 5
+
+
 def _round_seed(seed: int, r: int) -> np.random.Generator:
     return np.random.default_rng([int(seed), int(r), 0x5EED])
 
@@ -503,12 +507,24 @@ def acquire_round(r: int, X: np.ndarray, L: np.ndarray, gp, particles: np.ndarra
         rec["trust"]["check_errors"] = err[is_check].tolist()
         rec["trust"]["check_max_underprediction"] = (
             float(np.max(err[is_check & region])) if np.any(is_check & region) else None)
-        if np.all(kinds == "posterior_check"):
-            rec["posterior_check"] = round_check(nxt, L[n - q_prev:], check, space.names,
-                                                 r - 1, posterior=previous["posterior"])
+        drawn = kinds == "posterior_check"
+        if drawn.any() and np.all(drawn | (kinds == "probe")):  # a check round (+ probes)
+            draws = {k: np.asarray(nxt[k])[drawn] for k in ("points", "mean", "sd")}
+            rec["posterior_check"] = round_check(draws, L[n - q_prev:][drawn], check,
+                                                 space.names, r - 1,
+                                                 posterior=previous["posterior"])
         prev_post = {k: np.asarray(v, float) for k, v in previous["posterior"].items()
                      if k in ("mean", "sd", "cov")}
         rec["change"] = posterior_change(prev_post, moments)
+    from bayescalib.inference.exploration import audit
+
+    explored = audit(X, L, particles, weights, log_evidence, space)
+    rec["exploration"] = {
+        "unexplored_mass": explored["unexplored_mass"],
+        "fill_distance": explored["fill_distance"],
+        "basins": [b for b in explored["basins"] if not b["is_held"]][:MAX_BASINS_RECORDED],
+    }
+    rec["explored"] = bool(explored["unexplored_mass"] <= stop_cfg["unexplored_mass"])
     settled = rec["change"] is not None and (
         rec["change"]["shift_sd"] <= stop_cfg["shift_tol"]
         and rec["change"]["sd_change"] <= stop_cfg["sd_tol"])
@@ -523,7 +539,7 @@ def acquire_round(r: int, X: np.ndarray, L: np.ndarray, gp, particles: np.ndarra
     # without check rounds (draws: 0) the pointwise trust check stands in for the
     # posterior check, as in the stop rule before it: a round counts when settled and
     # trusted (the diagnosis's calibrations, which check their posteriors themselves)
-    counts = settled and (n_draws > 0 or rec["trusted"])
+    counts = settled and rec["explored"] and (n_draws > 0 or rec["trusted"])
     if pc is None:
         streak = (int(previous.get("settled_streak", 0)) if previous else 0) + 1 \
             if counts else 0
@@ -532,7 +548,7 @@ def acquire_round(r: int, X: np.ndarray, L: np.ndarray, gp, particles: np.ndarra
     rec["settled_streak"] = streak
     budget_left = int(active["max_solves"]) - n
     if pc is not None:
-        rec["converged"] = bool(pc["confirmed"] and settled)
+        rec["converged"] = bool(pc["confirmed"] and settled and rec["explored"])
     else:  # without a posterior check (draws: 0): settled and trusted, patience rounds
         rec["converged"] = n_draws == 0 and streak >= patience
     if draws_only:  # every round checks; the last one with the solves left
@@ -550,7 +566,8 @@ def acquire_round(r: int, X: np.ndarray, L: np.ndarray, gp, particles: np.ndarra
                 f"(log-weight sd {pc['log_weight_sd']:.2g} nats, ESS "
                 f"{100 * pc['ess_fraction']:.0f} %), and it moved by "
                 f"{rec['change']['shift_sd']:.2g} sd (sd change "
-                f"{rec['change']['sd_change']:.2g}) when they were added")
+                f"{rec['change']['sd_change']:.2g}) when they were added; "
+                + _explored_words(rec))
         else:
             rec["reason"] = (
                 f"converged after round {r} with {n} solves: in the last {streak} round(s) "
@@ -559,7 +576,7 @@ def acquire_round(r: int, X: np.ndarray, L: np.ndarray, gp, particles: np.ndarra
                 f"{rec['change']['sd_change']:.3g}) and the surrogate predicted the new "
                 f"solves in the posterior region within {stop_cfg['gp_tol']:g} nats (max "
                 f"error {rec['trust']['max_abs_error']:.3g}); NOT checked with real solves of "
-                f"its draws (posterior_check.draws: 0)")
+                f"its draws (posterior_check.draws: 0); " + _explored_words(rec))
     elif budget_left <= 0 or (draws_only and not check_next):
         rec["stop"] = True
         rec["reason"] = (
@@ -585,13 +602,29 @@ def acquire_round(r: int, X: np.ndarray, L: np.ndarray, gp, particles: np.ndarra
         D = posterior_draws(particles, weights, n_draws,
                             np.random.default_rng([int(active["seed"]), int(r), 0x15C4]),
                             exclude=X)
+        kind = ["posterior_check"] * n_draws
+        if draws_only:  # every round is a check round: the probes ride along
+            from bayescalib.inference.exploration import probe_points
+
+            probes = probe_points(explored, X, space.bounds,
+                                  min(int(active["probes"]), budget_left - n_draws),
+                                  float(stop_cfg["unexplored_mass"]),
+                                  np.random.default_rng([int(active["seed"]), int(r), 0xB451]))
+            D = np.vstack([D, probes])
+            kind += ["probe"] * len(probes)
         mean, sd = _predict_loglik(gp, D)
         rec["next"] = {"points": D.tolist(), "mean": mean.tolist(), "sd": sd.tolist(),
-                       "score": [], "kind": ["posterior_check"] * n_draws}
+                       "score": [], "kind": kind}
     elif not rec["stop"]:
         reserve = n_draws if can_check else 0
         room = budget_left - reserve  # >= 1 here
         rng = _round_seed(active["seed"], r)
+        from bayescalib.inference.exploration import probe_points
+
+        probes = probe_points(explored, X, space.bounds, min(int(active["probes"]), room - 1),
+                              float(stop_cfg["unexplored_mass"]),
+                              np.random.default_rng([int(active["seed"]), int(r), 0xB451]))
+        room -= len(probes)
         pool = candidate_pool(particles, weights, space.bounds, int(active["pool_size"]), rng)
         q = min(int(active["batch_size"]), room)
         n_check = min(int(active["check_points"]), room - q)
@@ -620,6 +653,11 @@ def acquire_round(r: int, X: np.ndarray, L: np.ndarray, gp, particles: np.ndarra
                 points, mean, sd = np.vstack([points, B]), np.concatenate([mean, b_mean]), \
                     np.concatenate([sd, b_sd])
                 kind += ["boundary"] * len(B)
+        if len(probes):
+            p_mean, p_sd = _predict_loglik(gp, probes)
+            points, mean, sd = np.vstack([points, probes]), np.concatenate([mean, p_mean]), \
+                np.concatenate([sd, p_sd])
+            kind += ["probe"] * len(probes)
         rec["next"] = {"points": points.tolist(), "mean": mean.tolist(), "sd": sd.tolist(),
                        "score": batch["score"].tolist(), "kind": kind}
     return rec
@@ -799,6 +837,8 @@ def _why_not(rec: Mapping[str, Any], stop_cfg: Mapping[str, Any], check: Mapping
                      f"surrogate learnt nothing new (their run records give the reasons; a "
                      f"wall-clock time limit points at the machine's load or at "
                      f"forward_model.time_limit_s)")
+    if not rec.get("explored", True):
+        parts.append(_unexplored_words(rec))
     if pc is not None:
         if not pc["confirmed"]:
             parts.append(f"the posterior of round {pc['round']} was NOT confirmed by real "
@@ -833,6 +873,26 @@ def _why_not(rec: Mapping[str, Any], stop_cfg: Mapping[str, Any], check: Mapping
                              f"{under:.3g} nats above the surrogate's prediction: the surrogate "
                              f"posterior is likely too narrow")
     return "; ".join(parts) + "."
+
+
+def _unexplored_words(rec: Mapping[str, Any]) -> str:
+    """Plain words: the basins of the solves that the posterior does not hold."""
+    e = rec["exploration"]
+    b = e["basins"][0]
+    where = ", ".join(f"{n} = {v:.4g}" for n, v in zip(rec["names"], b["peak"], strict=True))
+    more = (f" ({len(e['basins'])} such basins)" if len(e["basins"]) > 1 else "")
+    return (f"the solves rise towards a region the posterior does not hold: a quadratic "
+            f"through the solve of log-likelihood {b['loglik']:.4g} and its neighbours peaks "
+            f"near {where}, where up to {100 * e['unexplored_mass']:.0f} % of the posterior "
+            f"mass could lie{more}; it is probed next")
+
+
+def _explored_words(rec: Mapping[str, Any]) -> str:
+    """Plain words: what the verdict answers for outside the posterior."""
+    e = rec["exploration"]
+    return (f"no basin of the solves outside it could hold more than "
+            f"{100 * e['unexplored_mass']:.2g} % of the mass (modes narrower than the design's "
+            f"spacing, {e['fill_distance']:.2g} of the box at most, are not seen)")
 
 
 # ------------------------------------------------------------- in-process driver
