@@ -282,3 +282,29 @@ def test_every_shipped_study_passes_the_read_checks(layers, monkeypatch):
     tests/data/ (as its header says to layer it) is read without a refusal."""
     monkeypatch.chdir(ROOT)  # their paths are relative to the checkout
     Study(merge_layers(layers))
+
+
+@pytest.mark.parametrize("parameters, surrogate", [
+    (2, {}),
+    (3, {}),  # an inflow rate's box starts at 0: log inputs are a choice too
+    (3, {"kernel": "matern32", "output": "loglik"}),
+    (3, {"frame": "axes", "inputs": "log"}),
+    (2, {"ard": False}),
+])
+def test_the_time_guard_counts_the_candidate_models_a_search_fits(parameters, surrogate):
+    """The GP estimate's count of candidate models (kernel x output x input scale x
+    frame) is that of the search it estimates (the same function decides both)."""
+    from bayescalib.config import validate
+    from bayescalib.inference.parameters import ParameterSpace
+    from bayescalib.inference.surrogate import _search_settings, search_size
+
+    params = load_yaml(ROOT / "config" / "uncertain_inflow.yaml").get("parameters") \
+        if parameters == 3 else DEFAULT["parameters"]
+    cfg = validate(deep_merge({**DEFAULT, "parameters": params}, {"surrogate": surrogate}),
+                   "study")
+    bounds = ParameterSpace.from_config(cfg["parameters"]).bounds
+    rng = np.random.default_rng(0)
+    X = bounds[:, 0] + rng.random((12, len(bounds))) * (bounds[:, 1] - bounds[:, 0])
+    y = -np.sum(((X - X.mean(axis=0)) / X.std(axis=0)) ** 2, axis=1)
+    _, candidates = _search_settings(X, y, cfg["surrogate"], bounds, 0.0)
+    assert search_size(cfg["surrogate"], bounds) == len(candidates) > 0

@@ -284,7 +284,9 @@ class Study:
         computes anything: the python callable importable, callable and taking its
         options (the module is imported now, as a solve imports it); the command's program
         found and its template parsed."""
-        from bayescalib.models.forward import (
+        if fm["type"] not in ("python", "command"):
+            return
+        from bayescalib.models.forward import (  # not for the fsi model: parsing stays cheap
             CommandModel,
             ForwardModelError,
             check_call,
