@@ -308,3 +308,19 @@ def test_the_time_guard_counts_the_candidate_models_a_search_fits(parameters, su
     y = -np.sum(((X - X.mean(axis=0)) / X.std(axis=0)) ** 2, axis=1)
     _, candidates = _search_settings(X, y, cfg["surrogate"], bounds, 0.0)
     assert search_size(cfg["surrogate"], bounds) == len(candidates) > 0
+
+
+def test_the_euclidean_measures_points_file_is_read_when_the_study_is_read(tmp_path):
+    """Every discrepancy job reads measure.euclidean.points: a missing or broken file is
+    refused when the study is read."""
+    good = tmp_path / "points.csv"
+    good.write_text("x,y\n0.8,0.3\n1.0,0.4\n1.2,0.3\n")
+    euclid = {"measures": ["euclidean"], "measure": {"euclidean": {"points": str(good)}}}
+    Study(deep_merge(ANALYTIC, euclid))
+    bad = tmp_path / "bad.csv"
+    bad.write_text("x,y\n0.8,abc\n")
+    for path, problem in ((tmp_path / "missing.csv", "does not exist"),
+                          (bad, "non-numeric value")):
+        msg = _refused(deep_merge(ANALYTIC, {**euclid, "measure": {"euclidean": {
+            "points": str(path)}}}))
+        assert "measure.euclidean.points" in msg and path.name in msg and problem in msg, msg

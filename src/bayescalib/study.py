@@ -26,6 +26,10 @@ from bayescalib.config import ConfigError, round_smc, sorted_keys, validate
 
 __all__ = ["ConfigError", "Study", "StudyBusyError", "hold_run_lock"]
 
+#: most measurement points a ``measure.euclidean.points`` file may hold (each is a line
+#: intersected with every solve's interface; the default rule places 10)
+MAX_MEASUREMENT_POINTS = 10_000
+
 
 def _entry_at(cfg: Mapping[str, Any], key: str) -> Mapping[str, Any]:
     """The observation file entry a key such as ``observations.files[2]`` names."""
@@ -274,6 +278,7 @@ class Study:
             Study._check_boxes(cfg, where)
         Study._check_hidden(cfg, where)
         observed = Study._check_observation_files(cfg, where)
+        Study._check_measure_points(cfg, where)
         Study._check_registration(cfg, where, observed)
         Study._check_diagnose(cfg, where)
         return notes
@@ -598,6 +603,33 @@ class Study:
             if "rkhs" in cfg["measures"] and key != "observations.reference":
                 Study._check_rkhs_cost(cfg, where, key, path, observed[key])
         return observed
+
+    @staticmethod
+    def _check_measure_points(cfg: dict[str, Any], where: str) -> None:
+        """The Euclidean measure's file of measurement points (``measure.euclidean.points``)
+        exists and holds points, when the study is read: every discrepancy job reads it."""
+        from bayescalib.io.observations import ObservationError, count_points, read_points
+
+        path = cfg["measure"]["euclidean"]["points"]
+        if "euclidean" not in cfg["measures"] or path is None:
+            return
+        key = "measure.euclidean.points"
+        p = Path(path)
+        if not p.is_file():
+            raise ConfigError(f"{where}: {key}: '{p}' does not exist"
+                              + (" as a file (it is a folder)" if p.exists() else "")
+                              + (f" (relative paths are read from {Path.cwd()})"
+                                 if not p.is_absolute() else ""))
+        n = count_points(p, limit=MAX_MEASUREMENT_POINTS)
+        if n is not None and n > MAX_MEASUREMENT_POINTS:
+            raise ConfigError(
+                f"{where}: {key}: '{p}' holds more than {MAX_MEASUREMENT_POINTS:,} measurement "
+                "points: each is a line intersected with every solve's interface, and a few "
+                "tens are usual (measure.euclidean.n_points: 10 by default)")
+        try:
+            read_points(p)
+        except (ObservationError, OSError) as exc:
+            raise ConfigError(f"{where}: {key}: {exc}") from None
 
     @staticmethod
     def _check_point_count(cfg: dict[str, Any], where: str, key: str, path: Path) -> None:
