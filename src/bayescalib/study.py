@@ -683,8 +683,8 @@ class Study:
                 f"{where}: {key} ('{path}'): one RKHS distance to this interface would "
                 f"evaluate about {pairs:.3g} kernel pairs ({n_obs:,.0f} elements of it, "
                 f"resampled at {h:g} mm, and about {n_model:,.0f} of a model interface as "
-                f"long), above measure.rkhs.max_pairs = {limit:.3g} (about a minute on one "
-                f"core, for each of the study's solves): the file holds {iface.n_points:,} "
+                f"long), above measure.rkhs.max_pairs = {limit:.3g} (the default, 1e10, is "
+                f"about a minute on one core, for each solve): the file holds {iface.n_points:,} "
                 f"points where {math.ceil(iface.total_measure / h):,} resolve it at "
                 f"{h:g} mm; resample it, or raise measure.rkhs.max_pairs")
 
