@@ -44,7 +44,8 @@ def test_python_model_exception_is_a_failed_run_with_reason():
     [
         ("no_colon", "module:function"),
         ("no_such_module_xyz:f", "cannot import module 'no_such_module_xyz'"),
-        ("bayescalib.models.analytic:nope", "no callable 'nope'"),
+        ("bayescalib.models.analytic:nope", "has no 'nope'"),
+        ("bayescalib.models.analytic:__all__", "'__all__' in module .* is a list, not a function"),
     ],
 )
 def test_python_model_bad_spec_names_the_problem(spec, match):

@@ -158,7 +158,8 @@ def burn(params, **kw):
 """
 
 
-def test_the_ledger_records_each_job_with_the_cpu_time_of_its_solve(tmp_path, base_study):
+def test_the_ledger_records_each_job_with_the_cpu_time_of_its_solve(tmp_path, base_study,
+                                                                    monkeypatch):
     """Each job the server ran is one ledger line: its stage, its output, its exit status
     and its CPU time, including that of the forked, time-limited process the model ran
     in (0.4 s of CPU spent there; the ledger must not see only the job's own
@@ -166,6 +167,7 @@ def test_the_ledger_records_each_job_with_the_cpu_time_of_its_solve(tmp_path, ba
     from bayescalib.execution.jobserver import LEDGER_COLUMNS
 
     (tmp_path / "burning.py").write_text(BURNING)
+    monkeypatch.syspath_prepend(str(tmp_path))  # the study is read where its model imports
     sock, ledger = str(tmp_path / "s.sock"), tmp_path / "jobs.tsv"
     env = {**os.environ, "PYTHONPATH": _path(tmp_path), "OPENBLAS_NUM_THREADS": "1"}
     proc = subprocess.Popen([sys.executable, "-m", "bayescalib.execution.jobserver", "--serve",
@@ -195,8 +197,9 @@ def test_the_ledger_records_each_job_with_the_cpu_time_of_its_solve(tmp_path, ba
 
 @pytest.mark.parametrize("function", ["segfault", "leave"])
 def test_a_crashing_model_is_a_failed_record_and_the_job_succeeds(tmp_path, server, base_study,
-                                                                  function):
+                                                                  function, monkeypatch):
     (tmp_path / "crashing.py").write_text(CRASHING)
+    monkeypatch.syspath_prepend(str(tmp_path))  # the study is read where its model imports
     cfg = json.loads(json.dumps(base_study))
     cfg["forward_model"]["python"] = {"function": f"crashing:{function}"}
     study = Study(cfg)
@@ -206,8 +209,10 @@ def test_a_crashing_model_is_a_failed_record_and_the_job_succeeds(tmp_path, serv
     assert run.status == "failed" and "solver process died" in run.reason
 
 
-def test_a_job_whose_client_goes_away_is_killed_with_its_solve(tmp_path, server, base_study):
+def test_a_job_whose_client_goes_away_is_killed_with_its_solve(tmp_path, server, base_study,
+                                                              monkeypatch):
     (tmp_path / "crashing.py").write_text(CRASHING)
+    monkeypatch.syspath_prepend(str(tmp_path))  # the study is read where its model imports
     cfg = json.loads(json.dumps(base_study))
     cfg["forward_model"]["python"] = {"function": "crashing:hang"}
     cfg["forward_model"]["time_limit_s"] = 300
@@ -224,11 +229,12 @@ def test_a_job_whose_client_goes_away_is_killed_with_its_solve(tmp_path, server,
     assert not (tmp_path / "run.h5").exists()
 
 
-def test_the_server_and_its_jobs_end_when_the_run_is_killed(tmp_path, base_study):
+def test_the_server_and_its_jobs_end_when_the_run_is_killed(tmp_path, base_study, monkeypatch):
     """The run's Snakemake process is killed alone (kill -9 PID): its server notices,
     kills the jobs it runs (and their solves) and exits; nothing is left holding the
     study's job lock."""
     (tmp_path / "crashing.py").write_text(CRASHING)
+    monkeypatch.syspath_prepend(str(tmp_path))  # the study is read where its model imports
     cfg = json.loads(json.dumps(base_study))
     cfg["forward_model"]["python"] = {"function": "crashing:hang"}
     cfg["forward_model"]["time_limit_s"] = 300

@@ -16,6 +16,7 @@ DAG first asks for a point.
 from __future__ import annotations
 
 import copy
+import math
 from collections.abc import Mapping, Sequence
 from functools import cached_property
 from pathlib import Path
@@ -24,6 +25,10 @@ from typing import Any
 from bayescalib.config import ConfigError, round_smc, sorted_keys, validate
 
 __all__ = ["ConfigError", "Study", "StudyBusyError", "hold_run_lock"]
+
+#: most measurement points a ``measure.euclidean.points`` file may hold (each is a line
+#: intersected with every solve's interface; the default rule places 10)
+MAX_MEASUREMENT_POINTS = 10_000
 
 
 def _entry_at(cfg: Mapping[str, Any], key: str) -> Mapping[str, Any]:
@@ -219,6 +224,7 @@ class Study:
                     f"{where}: forward_model.command.template: file "
                     f"'{fm['command']['template']}' does not exist"
                 )
+        Study._check_model(fm, where)
         if fm["warm_start"] == "auto":
             fm["warm_start"] = "prior_centre" if kind == "fsi" else "none"
         elif fm["warm_start"] != "none" and kind != "fsi":
@@ -234,20 +240,6 @@ class Study:
                 f"{where}: convergence.enabled needs design.strategy: fixed (the GP convergence "
                 "study refits on prefixes of a Sobol design and tests on held-out Sobol points)"
             )
-        smc_cfg = cfg["smc"]
-        n_train = cfg["design"]["active"]["max_solves"] \
-            if cfg["design"]["strategy"] == "active" else cfg["design"]["n_train"]
-        n_particles, key = smc_cfg["n_particles"], "smc.n_particles"
-        round_n = (cfg["design"]["active"].get("smc") or {}).get("n_particles", 0)
-        if cfg["design"]["strategy"] == "active" and round_n > n_particles:
-            n_particles, key = round_n, "design.active.smc.n_particles"
-        need = n_particles * (6 * len(cfg["parameters"]) + n_train + 10) * 8 / 2**30
-        if need > smc_cfg["max_memory_gib"]:
-            raise ConfigError(
-                f"{where}: {key} = {n_particles} needs about {need:.3g} GiB "
-                f"with {len(cfg['parameters'])} parameters and up to {n_train} training points, "
-                f"above smc.max_memory_gib = {smc_cfg['max_memory_gib']:g}: use fewer particles "
-                "or raise the limit")
         act = cfg["design"]["active"]
         if cfg["design"]["strategy"] == "active" and act["n_initial"] > act["max_solves"]:
             raise ConfigError(
@@ -259,6 +251,7 @@ class Study:
                 f"{where}: convergence.n_train: largest value {max(conv['n_train'])} exceeds "
                 f"design.n_train = {cfg['design']['n_train']}"
             )
+        Study._check_cost(cfg, where)
         names = [p["name"] for p in cfg["parameters"]]
         obs = cfg["observations"]
         if obs["source"] == "synthetic":
@@ -285,9 +278,122 @@ class Study:
             Study._check_boxes(cfg, where)
         Study._check_hidden(cfg, where)
         observed = Study._check_observation_files(cfg, where)
+        Study._check_measure_points(cfg, where)
         Study._check_registration(cfg, where, observed)
         Study._check_diagnose(cfg, where)
         return notes
+
+    @staticmethod
+    def _check_model(fm: dict[str, Any], where: str) -> None:
+        """What a solve would find wrong with a python or command model before it
+        computes anything: the python callable importable, callable and taking its
+        options (the module is imported now, as a solve imports it); the command's program
+        found and its template parsed."""
+        if fm["type"] not in ("python", "command"):
+            return
+        from bayescalib.models.forward import (  # not for the fsi model: parsing stays cheap
+            CommandModel,
+            ForwardModelError,
+            check_call,
+            check_executable,
+            load_callable,
+        )
+
+        try:
+            if fm["type"] == "python":
+                check_call(load_callable(fm["python"]["function"]),
+                           fm["python"].get("options") or {})
+            elif fm["type"] == "command":
+                c = fm["command"]
+                check_executable(c["command"][0])
+                CommandModel(c["template"], c["command"], input_name=c["input_name"],
+                             output_name=c["output_name"], workdir=".", units=c["units"])
+        except ForwardModelError as exc:
+            raise ConfigError(f"{where}: {exc}") from None
+
+    @staticmethod
+    def _check_cost(cfg: dict[str, Any], where: str) -> None:
+        """The cost of the work, known before any job: the design's size, the estimated
+        time of the GP fits and of one SMC tempering step, and the SMC's memory, each
+        against its limit (:mod:`bayescalib.inference.cost`, ``smc.max_memory_gib``);
+        a study above one is refused naming the key that makes it so."""
+        from bayescalib.config import schema
+        from bayescalib.inference import cost
+
+        design, act, conv = cfg["design"], cfg["design"]["active"], cfg["convergence"]
+        active = design["strategy"] == "active"
+        sizes = [("design.active.max_solves", act["max_solves"])] if active else \
+            [("design.n_train", design["n_train"])] \
+            + ([("design.n_test", design["n_test"])] if conv["enabled"] else [])
+        dg = cfg["diagnose"]
+        if dg["enabled"]:
+            sizes += [(f"diagnose.{k}", dg[k]) for k in ("n_train", "max_solves")
+                      if dg[k] is not None]
+        points = sum(int(v) for k, v in sizes if not k.startswith("diagnose"))
+        worst = max(sizes, key=lambda kv: int(kv[1]))
+        if points > cost.MAX_DESIGN_POINTS or int(worst[1]) > cost.MAX_DESIGN_POINTS:
+            key, value = worst
+            start = cost.gp_fit_seconds(int(value), starts=1, d=len(cfg["parameters"]))
+            raise ConfigError(
+                f"{where}: {key} = {value}: more design points (forward solves) than "
+                f"{cost.MAX_DESIGN_POINTS:,} (bayescalib.inference.cost.MAX_DESIGN_POINTS): "
+                f"a GP fit on {int(value):,} points would take about {cost.duration(start)} "
+                "per optimizer start (its cost grows as n^3). A GP surrogate learns from a "
+                "few hundred to a few thousand solves: use fewer")
+        defaults = schema("inference")["definitions"]
+        design_key, n_top = sizes[0]
+        limit = cost.MAX_GP_HOURS * 3600.0
+        gp = cost.study_gp_seconds(cfg)
+        if gp.seconds > limit:
+            one = cost.study_gp_seconds(cfg, restarts=1)
+            if one.seconds > limit:
+                raise ConfigError(
+                    f"{where}: {design_key} = {n_top}: the GP fits would take about "
+                    f"{cost.duration(one.seconds)} even with surrogate.restarts: 1 ({one.detail}"
+                    + (f"; rounds of design.active.batch_size = {act['batch_size']}" if active
+                       else "") + f"), above the limit of {cost.MAX_GP_HOURS:g} h "
+                    "(bayescalib.inference.cost.MAX_GP_HOURS): use fewer design points"
+                    + (", larger batches" if active else "")
+                    + " or fewer candidate models (surrogate.kernel, output, frame, inputs)")
+            fit = max(1, int(limit // one.seconds))
+            raise ConfigError(
+                f"{where}: surrogate.restarts = {cfg['surrogate']['restarts']}: the GP fits "
+                f"would take about {cost.duration(gp.seconds)} ({gp.detail}), above the "
+                f"limit of {cost.MAX_GP_HOURS:g} h (bayescalib.inference.cost.MAX_GP_HOURS): "
+                "use a few (the schema's default is "
+                f"{defaults['surrogate']['properties']['restarts']['default']}; the limit "
+                f"allows at most {fit:,})")
+        smc_cfg = cfg["smc"]
+        n_particles, key = smc_cfg["n_particles"], "smc.n_particles"
+        round_n = (act.get("smc") or {}).get("n_particles", 0)
+        if active and round_n > n_particles:
+            n_particles, key = round_n, "design.active.smc.n_particles"
+        need = n_particles * (6 * len(cfg["parameters"]) + int(n_top) + 10) * 8 / 2**30
+        if need > smc_cfg["max_memory_gib"]:
+            raise ConfigError(
+                f"{where}: {key} = {n_particles} needs about {need:.3g} GiB "
+                f"with {len(cfg['parameters'])} parameters and up to {n_top} training points "
+                f"({design_key}), above smc.max_memory_gib = {smc_cfg['max_memory_gib']:g}: "
+                "use fewer particles or raise the limit")
+        step_limit = cost.MAX_SMC_STEP_MINUTES * 60.0
+        for section, settings, est in cost.study_smc_steps(cfg):
+            if est.seconds <= step_limit:
+                continue
+            own = (act.get("smc") or {}) if section != "smc" else settings
+            # the setting furthest above the schema's default is named (inherited ones
+            # by their own key)
+            name = max(("n_rej", "n_particles"), key=lambda k: settings[k] / max(
+                1, defaults["smc"]["properties"][k]["default"]))
+            full = f"{section}.{name}" if name in own else f"smc.{name}"
+            fit = max(1, int(settings[name] * step_limit / est.seconds))
+            raise ConfigError(
+                f"{where}: {full} = {settings[name]}: one tempering step of "
+                + ("the active rounds' SMC" if section != "smc" else "SMC")
+                + f" would take about {cost.duration(est.seconds)} ({est.detail}), above "
+                f"the limit of {cost.MAX_SMC_STEP_MINUTES:g} min a step "
+                f"(bayescalib.inference.cost.MAX_SMC_STEP_MINUTES): use fewer (the schema's "
+                f"default is {defaults['smc']['properties'][name]['default']}; the limit "
+                f"allows at most {fit:,})")
 
     @staticmethod
     def _resolve_geometry(cfg: dict[str, Any], where: str) -> list[str]:
@@ -341,43 +447,51 @@ class Study:
         feet barely; a wrong origin or unit moves or scales it as a whole. Refused when
         the observed x-extent is not within a factor 2 of the model's (units), or when
         its nodes lie on average more than a quarter of the colony's height from the
-        model's undeformed interface (placement); both before any solve."""
+        model's undeformed interface (placement); both before any solve.
+
+        A python or command model's geometry is known only from a solve: its files are
+        compared with ``observations.reference`` (units and placement) or, without one,
+        with the first file (units: the snapshots of one colony are of one size), and
+        that one's size with the likelihood's noise (:meth:`_check_scale`)."""
         import numpy as np
 
         from bayescalib.geometry.outline import placement
-        from bayescalib.io.observations import UNITS
+        from bayescalib.io.observations import UNITS, unit_hint
 
+        observed = {k: v for k, v in observed.items() if v.dim == 2}  # 3D: not checked
         if not observed:
             return
+        place = True
         if cfg["forward_model"]["type"] == "fsi":
             from bayescalib.models.fsi.geometry import reference_interface
 
             ref = reference_interface(validate(cfg["forward_model"]["fsi"], "fsi")["geometry"])
             what = "the model's undeformed biofilm"
-        elif "observations.reference" in observed:
-            ref = observed["observations.reference"].points
-            what = "observations.reference"
         else:
-            return  # a python/command model's reference is known only from a solve
+            what = "observations.reference" if "observations.reference" in observed \
+                else next(iter(observed))
+            Study._check_scale(cfg, where, what, observed[what])
+            ref = observed[what].points
+            place = what == "observations.reference"  # snapshots under load move apart
         height = float(np.ptp(ref[:, 1])) or 1.0
         for key, iface in observed.items():
-            if iface.dim != 2 or key == what:  # 3D, or the reference compared with itself
+            if key == what:  # the reference compared with itself
                 continue
             entry = dict(_entry_at(cfg, key))
             units = entry.get("units") or "mm"
-            p = placement(iface.points, ref)
-            if not 0.5 <= p.extent_ratio <= 2.0:
-                hint = ""
-                for u, fu in UNITS.items():
-                    if u != units and 0.5 <= p.extent_ratio * fu / UNITS[units] <= 2.0:
-                        hint = f"; the sizes agree if the file is in {u} (units: {u})"
-                        break
+            ratio = float(np.ptp(iface.points[:, 0])) / (float(np.ptp(ref[:, 0])) or 1.0)
+            if not 0.5 <= ratio <= 2.0:
+                u = unit_hint(ratio, units, 0.5, 2.0)
                 raise ConfigError(
                     f"{where}: {key} ('{entry['path']}'): the observed interface is "
-                    f"{p.extent_ratio:.3g} times as wide as {what} "
+                    f"{ratio:.3g} times as wide as {what} "
                     f"({np.ptp(iface.points[:, 0]):.4g} mm against {np.ptp(ref[:, 0]):.4g} mm, "
                     f"read as {units}): check {key}.units"
-                    + (" and pixel_size" if entry.get("pixel_size") is not None else "") + hint)
+                    + (" and pixel_size" if entry.get("pixel_size") is not None else "")
+                    + (f"; the sizes agree if the file is in {u} (units: {u})" if u else ""))
+            if not place:
+                continue
+            p = placement(iface.points, ref)
             if p.mean_distance > 0.25 * height:
                 dx, dy = p.offset
                 fix = ""
@@ -395,6 +509,34 @@ class Study:
                     f"{key}.units{fix}")
 
     @staticmethod
+    def _check_scale(cfg: dict[str, Any], where: str, key: str, iface: Any) -> None:
+        """An observed interface smaller than the likelihood's noise sd sigma_N (its
+        largest extent, in mm) holds no shape to calibrate on: refused as the unit slip it
+        usually is (a file in metres read as mm), naming the unit in which it would span
+        between 1 and 10^4 sigma_N. Used where the model's geometry is not known before a
+        solve (python and command models); the fsi model's is compared directly."""
+        import numpy as np
+
+        from bayescalib.inference.likelihood import sigma_n2_from_config
+        from bayescalib.io.observations import UNITS, unit_hint
+
+        sigma_n = math.sqrt(sigma_n2_from_config(cfg["likelihood"]))
+        extent = float(np.max(np.ptp(iface.points, axis=0)))
+        if extent >= sigma_n:
+            return
+        entry = dict(_entry_at(cfg, key))
+        units = entry.get("units") or "mm"
+        u = unit_hint(extent / sigma_n, units, 1.0, 1.0e4)
+        raise ConfigError(
+            f"{where}: {key} ('{entry['path']}'): the observed interface spans "
+            f"{extent:.3g} mm (read as {units}), less than the likelihood's noise sd "
+            f"sigma_N = {sigma_n:.3g} mm: an interface smaller than its noise holds no shape "
+            f"to calibrate on, the sign of a unit slip. Check {key}.units"
+            + (" and pixel_size" if entry.get("pixel_size") is not None else "")
+            + (f": in {u} it spans {extent * UNITS[u] / UNITS[units]:.3g} mm (units: {u})"
+               if u else ""))
+
+    @staticmethod
     def _check_observation_files(cfg: dict[str, Any], where: str) -> dict[str, Any]:
         """Observation files exist, can be read and hold an interface that fits the
         domain: known before any job. Images are read and segmented here too (the
@@ -407,6 +549,7 @@ class Study:
             IMAGE_SUFFIXES,
             VTK_SUFFIXES,
             ObservationError,
+            check_shape,
             read_interface,
         )
 
@@ -448,14 +591,102 @@ class Study:
             except OSError as exc:
                 raise ConfigError(f"{where}: {key}.path: '{path}' cannot be read "
                                   f"({exc.strerror or exc})") from None
+            Study._check_point_count(cfg, where, key, path)
             opts = {k: e[k] for k in ("units", "pixel_size", "origin", "drop_border", "floor",
                                       "image", "segmentation")
                     if e.get(k) is not None}
             try:
                 observed[key] = read_interface(path, domain=obs.get("domain"), **opts)
+                check_shape(observed[key], str(path))
             except ObservationError as exc:
                 raise ConfigError(f"{where}: {key}: {exc}") from None
+            if "rkhs" in cfg["measures"] and key != "observations.reference":
+                Study._check_rkhs_cost(cfg, where, key, path, observed[key])
         return observed
+
+    @staticmethod
+    def _check_measure_points(cfg: dict[str, Any], where: str) -> None:
+        """The Euclidean measure's file of measurement points (``measure.euclidean.points``)
+        exists and holds points, when the study is read: every discrepancy job reads it."""
+        from bayescalib.io.observations import ObservationError, count_points, read_points
+
+        path = cfg["measure"]["euclidean"]["points"]
+        if "euclidean" not in cfg["measures"] or path is None:
+            return
+        key = "measure.euclidean.points"
+        p = Path(path)
+        if not p.is_file():
+            raise ConfigError(f"{where}: {key}: '{p}' does not exist"
+                              + (" as a file (it is a folder)" if p.exists() else "")
+                              + (f" (relative paths are read from {Path.cwd()})"
+                                 if not p.is_absolute() else ""))
+        n = count_points(p, limit=MAX_MEASUREMENT_POINTS)
+        if n is not None and n > MAX_MEASUREMENT_POINTS:
+            raise ConfigError(
+                f"{where}: {key}: '{p}' holds more than {MAX_MEASUREMENT_POINTS:,} measurement "
+                "points: each is a line intersected with every solve's interface, and a few "
+                "tens are usual (measure.euclidean.n_points: 10 by default)")
+        try:
+            read_points(p)
+        except (ObservationError, OSError) as exc:
+            raise ConfigError(f"{where}: {key}: {exc}") from None
+
+    @staticmethod
+    def _check_point_count(cfg: dict[str, Any], where: str, key: str, path: Path) -> None:
+        """An observation file of more points than
+        :data:`bayescalib.io.observations.MAX_OBSERVATION_POINTS` is refused from its row
+        (or VTK header) count, before it is read."""
+        from bayescalib.io.observations import MAX_OBSERVATION_POINTS, count_points
+        from bayescalib.measures.currents import default_spacing
+
+        n = count_points(path)
+        if n is None or n <= MAX_OBSERVATION_POINTS:
+            return
+        rk = cfg["measure"]["rkhs"]
+        h = rk["spacing"] or default_spacing(rk["sigma_w"])
+        declared = f"declares {n:,} points, more than" if path.suffix.lower() != ".csv" \
+            else "holds more than"
+        raise ConfigError(
+            f"{where}: {key} ('{path}'): the file {declared} the {MAX_OBSERVATION_POINTS:,} "
+            "points an observed interface may have (bayescalib.io.observations."
+            "MAX_OBSERVATION_POINTS): the study reads every observation file whenever it is "
+            "read, and no measure needs so many"
+            + (f" (the RKHS measure resolves {h:g} mm, measure.rkhs.spacing: "
+               f"{math.ceil(1.0 / h):,} points per mm of interface)"
+               if "rkhs" in cfg["measures"] else "")
+            + f"; resample the interface (e.g. to a point every {h:g} mm)")
+
+    @staticmethod
+    def _check_rkhs_cost(cfg: dict[str, Any], where: str, key: str, path: Path,
+                         iface: Any) -> None:
+        """The RKHS measure's cost guards (``measure.rkhs.max_pairs``, and the most
+        elements :func:`bayescalib.measures.currents.current` resamples into) applied to an
+        observed interface when the study is read, naming its file, instead of in every
+        discrepancy job."""
+        from bayescalib.measures import currents
+
+        rk = cfg["measure"]["rkhs"]
+        sigma_w, spacing = float(rk["sigma_w"]), rk["spacing"]
+        truncate = currents.DEFAULT_TRUNCATE if rk["truncate"] is None else rk["truncate"]
+        h = spacing or currents.default_spacing(sigma_w)
+        pairs, n_obs, n_model = currents.distance_pairs(iface, sigma_w, spacing, truncate)
+        limit = float(rk["max_pairs"])
+        elements = currents.MAX_ELEMENTS
+        if n_obs > elements:
+            raise ConfigError(
+                f"{where}: {key} ('{path}'): the RKHS measure would resample the observed "
+                f"interface into {n_obs:.3g} elements of at most {h:g} mm (measure.rkhs.sigma_w"
+                f" = {sigma_w:g} mm, measure.rkhs.spacing = {spacing}), more than "
+                f"{elements:.3g}: check {key}.units, or use a larger sigma_w or spacing")
+        if pairs > limit:
+            raise ConfigError(
+                f"{where}: {key} ('{path}'): one RKHS distance to this interface would "
+                f"evaluate about {pairs:.3g} kernel pairs ({n_obs:,.0f} elements of it, "
+                f"resampled at {h:g} mm, and about {n_model:,.0f} of a model interface as "
+                f"long), above measure.rkhs.max_pairs = {limit:.3g} (the default, 1e10, is "
+                f"about a minute on one core, for each solve): the file holds {iface.n_points:,} "
+                f"points where {math.ceil(iface.total_measure / h):,} resolve it at "
+                f"{h:g} mm; resample it, or raise measure.rkhs.max_pairs")
 
     @staticmethod
     def _check_diagnose(cfg: dict[str, Any], where: str) -> None:

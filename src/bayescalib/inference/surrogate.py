@@ -1590,6 +1590,48 @@ def resolve_ard(ard: bool | str, dim: int) -> bool:
     return dim >= ARD_FROM_DIM if ard == "auto" else bool(ard)
 
 
+def _discrete_choices(surrogate: dict[str, Any], bounds: np.ndarray, bound: float | None
+                      ) -> tuple[list[str], list[bool], list[np.ndarray | None], list[bool]]:
+    """The values of the surrogate's discrete choices that a full search fits, for a
+    validated ``surrogate`` section and a design box ``bounds`` (d, 2): kernels, outputs
+    (warped: the log-misfit), input scales (None: linear, else the log offsets) and frames
+    (True: the principal frame, computed from the data when there are at least two
+    finite values). ``bound``: the log-likelihood's upper bound (None: unknown)."""
+    d = int(np.shape(bounds)[0])
+    ard = resolve_ard(surrogate["ard"], d)
+    output = surrogate["output"]
+    warps = [False] if bound is None or output == "loglik" else \
+        [True] if output == "log_misfit" else [False, True]
+    if surrogate["kernel"] != "auto":
+        kernels = [surrogate["kernel"]]
+    elif bound is None:  # uncapped: keep the paper's kernel (smoother ones overshoot more)
+        kernels = ["matern32"]
+    else:
+        kernels = list(KERNELS)
+    offsets = log_input_offsets(bounds)
+    inputs_cfg = surrogate["inputs"]
+    if inputs_cfg == "auto" and (not ard or d < LOG_INPUTS_FROM_DIM):
+        inputs_cfg = "linear"  # measured: log inputs cost the 2-D studies solves (LOG_INPUTS_NOTE)
+    scales: list[np.ndarray | None] = \
+        [None] if offsets is None or inputs_cfg == "linear" else \
+        [offsets] if inputs_cfg == "log" else [None, offsets]
+    frame = surrogate["frame"]
+    frames = [False] if not ard or frame == "axes" else \
+        [True] if frame == "principal" else [False, True]
+    return kernels, warps, scales, frames
+
+
+def search_size(surrogate: dict[str, Any], bounds: np.ndarray, *,
+                bound_known: bool = True) -> int:
+    """Number of candidate models a full search of the discrete choices fits
+    (:func:`fit_from_config`), each with ``surrogate["restarts"]`` optimizer starts;
+    known from the settings and the design box alone (the study's time guard,
+    :mod:`bayescalib.inference.cost`)."""
+    kernels, warps, scales, frames = _discrete_choices(
+        surrogate, np.asarray(bounds, float), 0.0 if bound_known else None)
+    return len(kernels) * len(warps) * len(scales) * len(frames)
+
+
 def _search_settings(X: np.ndarray, y: np.ndarray, surrogate: dict[str, Any],
                      bounds: np.ndarray, bound: float | None
                      ) -> tuple[dict[str, Any], list[tuple[str, bool, np.ndarray | None,
@@ -1604,31 +1646,15 @@ def _search_settings(X: np.ndarray, y: np.ndarray, surrogate: dict[str, Any],
           "nugget_factor": surrogate["nugget_factor"], "bound": bound,
           "nugget": surrogate["nugget"], "nugget_floor": surrogate["nugget_floor"],
           "mean": resolve_mean(surrogate.get("mean", "auto"), np.shape(X)[1])}
-    output = surrogate["output"]
-    warps = [False] if bound is None or output == "loglik" else \
-        [True] if output == "log_misfit" else [False, True]
-    if surrogate["kernel"] != "auto":
-        kernels = [surrogate["kernel"]]
-    elif bound is None:  # uncapped: keep the paper's kernel (smoother ones overshoot more)
-        kernels = ["matern32"]
-    else:
-        kernels = list(KERNELS)
-    frame = surrogate["frame"]
-    offsets = log_input_offsets(bounds)
-    inputs_cfg = surrogate["inputs"]
-    if inputs_cfg == "auto" and (not kw["ard"] or np.shape(X)[1] < LOG_INPUTS_FROM_DIM):
-        inputs_cfg = "linear"  # measured: log inputs cost the 2-D studies solves (LOG_INPUTS_NOTE)
-    scales: list[np.ndarray | None] = \
-        [None] if offsets is None or inputs_cfg == "linear" else \
-        [offsets] if inputs_cfg == "log" else [None, offsets]
+    kernels, warps, scales, frames = _discrete_choices(surrogate, bounds, bound)
     Xa, ya = np.asarray(X, float), np.asarray(y, float).reshape(-1)
     ok = np.isfinite(ya) & np.all(np.isfinite(Xa), axis=1)
     inputs: list[tuple[np.ndarray | None, np.ndarray | None]] = []
     for log_offset in scales:
         rotations: list[np.ndarray | None] = [None]
-        if kw["ard"] and frame != "axes" and ok.sum() >= 2:
+        if frames != [False] and ok.sum() >= 2:
             V = principal_frame(Xa[ok], ya[ok], bounds, log_offset)
-            rotations = [V] if frame == "principal" else [None, V]
+            rotations = [V if principal else None for principal in frames]
         inputs += [(log_offset, rotation) for rotation in rotations]
     return kw, [(kernel, warp, log_offset, rotation)
                 for kernel, warp, (log_offset, rotation) in

@@ -50,14 +50,19 @@ from bayescalib.geometry.interface import Interface, InterfaceError, segment_int
 from bayescalib.io._atomic_write import atomic_path
 
 __all__ = [
+    "MAX_OBSERVATION_POINTS",
+    "MIN_INTERFACE_POINTS",
     "UNITS",
     "ObservationError",
     "ObservationSet",
     "add_noise",
     "check_domain",
+    "check_shape",
+    "count_points",
     "read_interface",
     "read_interface_info",
     "read_points",
+    "unit_hint",
     "write_interface_csv",
     "write_interface_vtk",
     "write_mask_png",
@@ -71,8 +76,95 @@ VTK_SUFFIXES = {".vtp", ".vtu", ".vtk"}
 IMAGE_SUFFIXES = {".png", ".tif", ".tiff"}
 
 
+#: most points an observed interface file may hold (CSV rows, VTK points), counted before
+#: the file is read: the study reads every observation file whenever it is read (each
+#: start of the workflow), at about 4 us a CSV row (250,000 rows: 1 s on one core), and
+#: no measure needs that many (the RKHS measure resolves sigma_W / 4: 1.25 um for the
+#: default sigma_W, 800 points per mm of interface)
+MAX_OBSERVATION_POINTS = 250_000
+#: fewest nodes of an observed interface, not all on one straight line: two points (or
+#: points on one line) are a straight segment, no outline of a colony; a study on a
+#: two-point file ran all its solves and then failed in its posterior figure (NaN)
+MIN_INTERFACE_POINTS = 3
+
+
 class ObservationError(ValueError):
     """Bad observation input; the message names the file and the problem."""
+
+
+def unit_hint(ratio: float, units: str, lo: float, hi: float) -> str | None:
+    """The length unit (of :data:`UNITS`, other than ``units``) in which a size that is
+    ``ratio`` times what is expected when read in ``units`` would be between ``lo`` and
+    ``hi`` times it; None when none is. The one rule behind every "the numbers fit if the
+    file is in ..." of the unit checks (:func:`check_domain`,
+    :class:`bayescalib.study.Study`)."""
+    for u, f in UNITS.items():
+        if u != units and units in UNITS and lo <= ratio * f / UNITS[units] <= hi:
+            return u
+    return None
+
+
+def count_points(path: str | Path, limit: int = MAX_OBSERVATION_POINTS) -> int | None:
+    """The number of points an interface file holds, without reading it: the data rows of
+    a CSV (its lines after the first that are neither blank nor comments; counting stops
+    once above ``limit``), the largest point count a VTK header declares; None for an
+    image (its size is guarded from its header by
+    :func:`bayescalib.geometry.imaging.image_size`) or an unknown suffix."""
+    p = Path(path)
+    suffix = p.suffix.lower()
+    if suffix in CSV_SUFFIXES:
+        rows, first, tail = 0, True, b""
+        with open(p, "rb") as fh:
+            while rows <= limit:
+                block = fh.read(1 << 20)
+                if not block:
+                    break
+                lines = (tail + block).split(b"\n")
+                tail = lines.pop()
+                for line in lines:
+                    text = line.strip()
+                    if not text or text.startswith(b"#") or not text.strip(b", \t\r"):
+                        continue
+                    if first:
+                        first = False  # the header row
+                        continue
+                    rows += 1
+        text = tail.strip()
+        if rows <= limit and text and not text.startswith(b"#") and not first:
+            rows += 1
+        return rows
+    if suffix in VTK_SUFFIXES:
+        with open(p, "rb") as fh:
+            head = fh.read(1 << 20)
+        counts = [int(m.group(1) or m.group(2)) for m in _VTK_POINTS.finditer(head)]
+        return max(counts) if counts else None
+    return None
+
+
+def check_shape(interface: Interface, where: str) -> None:
+    """Refuse an observed interface with fewer than :data:`MIN_INTERFACE_POINTS` nodes, or
+    a 2D curve whose nodes all lie on one straight line (no outline to compare a model's
+    with).
+
+    Raises
+    ------
+    ObservationError
+        Naming ``where`` (the file), the number of points and the minimum.
+    """
+    n = interface.n_points
+    why = (f"an observed interface needs at least {MIN_INTERFACE_POINTS} points not all on "
+           "one straight line: fewer (or points on one line) are a straight segment, not the "
+           "outline of a colony (a study on a two-point file ran all its solves, then failed "
+           "drawing its posterior); trace the interface with more points")
+    if n < MIN_INTERFACE_POINTS:
+        raise ObservationError(f"{where}: the interface has {n} point{'s' if n != 1 else ''}: "
+                               + why)
+    if interface.dim == 2:
+        pts = interface.points - interface.points.mean(axis=0)
+        sv = np.linalg.svd(pts, compute_uv=False)
+        if sv[0] == 0 or sv[-1] <= 1e-9 * sv[0]:
+            raise ObservationError(f"{where}: the {n} points of the interface lie on one "
+                                   f"straight line: " + why)
 
 
 def _unit_factor(units: str, where: str) -> float:
@@ -135,11 +227,8 @@ def check_domain(interface: Interface, domain: Sequence[Sequence[float]] | None,
     if np.any(lo < dom[:, 0] - 0.5 * ext) or np.any(hi > dom[:, 1] + 0.5 * ext):
         size = float(np.max(hi - lo))
         ratio = size / float(np.max(ext))
-        hint = ""
-        for u, f in UNITS.items():
-            if u != units and 0.05 < ratio * f / UNITS[units] < 20:
-                hint = f"; the numbers fit if the file is in {u} (units={u!r})"
-                break
+        u = unit_hint(ratio, units, 0.05, 20.0)
+        hint = f"; the numbers fit if the file is in {u} (units={u!r})" if u else ""
         raise ObservationError(
             f"{where}: interface extent {(hi - lo).round(6).tolist()} mm (box {lo.round(6).tolist()} "
             f"to {hi.round(6).tolist()}) does not fit the expected domain {dom.tolist()} mm; "
@@ -299,6 +388,10 @@ _VTK_COUNT = re.compile(
     rb"|CONNECTIVITY|POINT_DATA|CELL_DATA|DIMENSIONS)[ \t]+(\d+)(?:[ \t]+(\d+))?",
     re.MULTILINE,
 )
+
+
+#: the point counts of a VTK header (XML ``NumberOfPoints="n"``, legacy ``POINTS n``)
+_VTK_POINTS = re.compile(rb'NumberOfPoints\s*=\s*"\s*(\d+)|^[ \t]*POINTS[ \t]+(\d+)', re.MULTILINE)
 
 
 def _check_vtk_header(path: Path, where: str) -> None:

@@ -58,7 +58,8 @@ import numpy as np
 
 from bayescalib.geometry.interface import Interface
 
-__all__ = ["band_grid", "current", "current_field", "default_spacing", "field_grid",
+__all__ = ["band_grid", "current", "current_field", "default_spacing", "distance_pairs",
+           "element_count", "field_grid",
            "field_residual", "naive_rkhs_squared", "pair_sum", "rkhs_distance", "rkhs_squared"]
 
 #: sub-element size relative to sigma_W used when no spacing is given
@@ -74,6 +75,9 @@ DEFAULT_TRUNCATE = 11.9
 MIN_EXPONENT = -80.0
 #: torch CPU intra-op threads used by the torch path (see pair_sum)
 DEFAULT_THREADS = 1
+#: most elements :func:`current` resamples an interface into (more: a unit mismatch or a
+#: sigma_W far below the interface's size)
+MAX_ELEMENTS = 2e6
 
 
 def default_spacing(sigma_w: float) -> float:
@@ -81,8 +85,24 @@ def default_spacing(sigma_w: float) -> float:
     return SPACING_FACTOR * float(sigma_w)
 
 
+def element_count(interface: Interface, sigma_w: float, spacing: float | None = None
+                  ) -> float:
+    """Number of elements :func:`current` resamples ``interface`` into (every cell cut
+    into pieces of at most ``spacing`` mm; None: ``sigma_w / 4``; inf: the cells as
+    they are), without resampling."""
+    h = default_spacing(sigma_w) if spacing is None else float(spacing)
+    if math.isinf(h):
+        return float(interface.n_cells)
+    if interface.dim == 2:
+        return float(np.sum(np.ceil(interface.measures / h)))
+    p = interface.points[interface.cells]
+    longest = np.linalg.norm(p - np.roll(p, 1, axis=1), axis=2).max(axis=1)
+    return float(np.sum(np.ceil(longest / h) ** 2))
+
+
 def current(
-    interface: Interface, sigma_w: float, spacing: float | None = None, max_elements: float = 2e6
+    interface: Interface, sigma_w: float, spacing: float | None = None,
+    max_elements: float = MAX_ELEMENTS,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Centres and measure-scaled normals of the (resampled) interface.
 
@@ -108,12 +128,7 @@ def current(
     if not (h > 0):
         raise ValueError(f"RKHS spacing must be > 0 (or inf for no resampling), got {spacing}")
     if not math.isinf(h):
-        if interface.dim == 2:
-            count = float(np.sum(np.ceil(interface.measures / h)))
-        else:
-            p = interface.points[interface.cells]
-            longest = np.linalg.norm(p - np.roll(p, 1, axis=1), axis=2).max(axis=1)
-            count = float(np.sum(np.ceil(longest / h) ** 2))
+        count = element_count(interface, sigma_w, spacing)
         if count > max_elements:
             raise ValueError(
                 f"{interface.name}: resampling to spacing {h:g} mm would give {count:.3g} elements "
@@ -355,9 +370,35 @@ def kernel_pairs(c1: np.ndarray, c2: np.ndarray, sigma_w: float,
     n = len(c1) + len(c2)
     both = np.vstack([np.asarray(c1, float), np.asarray(c2, float)])
     extent = float(np.max(np.ptp(both, axis=0))) if len(both) else 0.0
+    return _pairs(n, extent, sigma_w, truncate)
+
+
+def _pairs(n: float, extent: float, sigma_w: float, truncate: float | None) -> float:
     frac = 1.0 if truncate is None or extent <= 0 else \
         min(1.0, 2.0 * float(truncate) * float(sigma_w) / extent)
     return float(n) * float(n) * frac
+
+
+def distance_pairs(obs: Interface, sigma_w: float, spacing: float | None = None,
+                   truncate: float | None = DEFAULT_TRUNCATE) -> tuple[float, float, float]:
+    """Estimate, before any model interface exists, of the kernel pairs one distance to
+    the observed interface ``obs`` evaluates (:func:`kernel_pairs`): its elements after
+    resampling (:func:`element_count`) plus those of a model interface as long as it and
+    resolved at the spacing, over its extent.
+
+    Returns
+    -------
+    pairs, n_obs, n_model
+        The estimate and the two element counts.
+    """
+    h = default_spacing(sigma_w) if spacing is None else float(spacing)
+    n_obs = element_count(obs, sigma_w, spacing)
+    if obs.dim == 2 and not math.isinf(h):
+        n_model = float(math.ceil(obs.total_measure / h))
+    else:  # a surface: a model mesh like the observed one
+        n_model = n_obs
+    extent = float(np.max(np.ptp(obs.points, axis=0)))
+    return _pairs(n_obs + n_model, extent, sigma_w, truncate), n_obs, n_model
 
 
 def rkhs_distance(

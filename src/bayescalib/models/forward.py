@@ -44,7 +44,7 @@ import subprocess
 import sys
 import time
 import traceback
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from functools import partial
 from pathlib import Path
 from typing import Any, Protocol
@@ -62,7 +62,10 @@ __all__ = [
     "ForwardModel",
     "ForwardModelError",
     "PythonModel",
+    "check_call",
+    "check_executable",
     "failed_result",
+    "load_callable",
     "loading_labels",
     "make_forward_model",
     "solve_point",
@@ -141,6 +144,116 @@ def _result_from_points(params: Mapping[str, float], current: np.ndarray,
     )
 
 
+def load_callable(function: str) -> Callable[..., Any]:
+    """The callable a ``forward_model.python.function`` setting names (``"module:function"``),
+    imported as a solve imports it (the working directory first on ``sys.path``).
+
+    Raises
+    ------
+    ForwardModelError
+        Naming the key and what is wrong: not ``module:function``, a module that cannot be
+        found or fails to import (the error it raised), a name the module does not have
+        (with the closest names it has), or a name that is not callable (its type).
+    """
+    key = "forward_model.python.function"
+    if not isinstance(function, str) or ":" not in function:
+        raise ForwardModelError(f"{key} must look like 'module:function', got {function!r}")
+    mod_name, _, fn_name = function.partition(":")
+    if os.getcwd() not in sys.path:
+        sys.path.insert(0, os.getcwd())
+    try:
+        mod = importlib.import_module(mod_name)
+    except ImportError as exc:
+        raise ForwardModelError(
+            f"{key}: cannot import module '{mod_name}': {exc} (a module is found in the "
+            f"working directory {os.getcwd()} or on the Python path: an installed package "
+            "or PYTHONPATH)") from None
+    except Exception as exc:  # noqa: BLE001 - a module may raise anything while importing
+        raise ForwardModelError(f"{key}: importing module '{mod_name}' failed: "
+                                f"{type(exc).__name__}: {exc}") from None
+    where = f"module '{mod_name}'" + (f" ({mod.__file__})" if getattr(mod, "__file__", None)
+                                      else "")
+    if not hasattr(mod, fn_name):
+        import difflib
+
+        names = [n for n in dir(mod) if not n.startswith("_") and callable(getattr(mod, n))]
+        close = difflib.get_close_matches(fn_name, names, n=3)
+        raise ForwardModelError(
+            f"{key}: {where} has no '{fn_name}'"
+            + (f" (did you mean {', '.join(repr(c) for c in close)}?)" if close else ""))
+    fn = getattr(mod, fn_name)
+    if not callable(fn):
+        raise ForwardModelError(f"{key}: '{fn_name}' in {where} is a {type(fn).__name__}, "
+                                "not a function")
+    return fn
+
+
+def check_call(fn: Callable[..., Any], options: Mapping[str, Any]) -> None:
+    """Check that ``fn(params, **options)`` binds to the callable's signature (a
+    misspelt or unknown option is then known before any solve). A callable whose
+    signature cannot be read is not checked.
+
+    Raises
+    ------
+    ForwardModelError
+        Naming ``forward_model.python.options`` and the argument that does not fit.
+    """
+    import inspect
+
+    try:
+        sig = inspect.signature(fn)
+    except (TypeError, ValueError):
+        return
+    try:
+        sig.bind({}, **dict(options))
+    except TypeError as exc:
+        names = ", ".join(("**" if q.kind is q.VAR_KEYWORD else "*" if q.kind is q.VAR_POSITIONAL
+                           else "") + q.name for q in sig.parameters.values())
+        raise ForwardModelError(
+            f"forward_model.python.options: {sorted(options)} do not fit the model's "
+            f"{getattr(fn, '__name__', 'callable')}({names}), called as "
+            f"function(params, **options): {exc}") from None
+
+
+def check_executable(argv0: str) -> None:
+    """Check that the program a command model runs (its argument list's first word) will
+    be found: a plain name on ``PATH`` (:func:`shutil.which`), an absolute path an
+    executable file. A relative path with a folder in it is refused: the command runs
+    in each solve's own work folder (``runs/<i>.work``), where the path does not lead to
+    it. A first word with a placeholder (``{workdir}/...``) is not checked.
+
+    Raises
+    ------
+    ForwardModelError
+        Naming ``forward_model.command.command[0]``, the value and how to fix it.
+    """
+    import shutil
+
+    key = "forward_model.command.command[0]"
+    if _ARG_FIELD.search(argv0):
+        return
+    if "/" not in argv0:
+        if shutil.which(argv0) is None:
+            raise ForwardModelError(
+                f"{key}: '{argv0}' is not found on PATH ({os.environ.get('PATH', '')}): "
+                "install it, add its folder to PATH, or give its absolute path")
+        return
+    path = Path(argv0)
+    if not path.is_absolute():
+        here = Path.cwd() / path
+        raise ForwardModelError(
+            f"{key}: '{argv0}' is a relative path, but the command runs in each solve's "
+            "work folder (results/<study>/runs/<i>.work), where it does not lead to the "
+            "program: give its absolute path"
+            + (f" ({here.resolve()})" if here.is_file() else ""))
+    if not path.is_file():
+        raise ForwardModelError(f"{key}: '{argv0}' does not exist"
+                                + (" as a file (it is a folder)" if path.exists() else ""))
+    if not os.access(path, os.X_OK):
+        raise ForwardModelError(f"{key}: '{argv0}' is not executable: chmod +x it, or run "
+                                "it through its interpreter (e.g. [python3, script.py, ...])")
+
+
 class PythonModel:
     """Forward model given as a Python callable ``module:function``.
 
@@ -153,25 +266,7 @@ class PythonModel:
     """
 
     def __init__(self, function: str, options: Mapping[str, Any] | None = None):
-        if not isinstance(function, str) or ":" not in function:
-            raise ForwardModelError(
-                f"forward_model.python.function must look like 'module:function', got {function!r}"
-            )
-        mod_name, _, fn_name = function.partition(":")
-        if os.getcwd() not in sys.path:
-            sys.path.insert(0, os.getcwd())
-        try:
-            mod = importlib.import_module(mod_name)
-        except ImportError as exc:
-            raise ForwardModelError(
-                f"forward_model.python.function: cannot import module '{mod_name}': {exc}"
-            ) from None
-        fn = getattr(mod, fn_name, None)
-        if not callable(fn):
-            raise ForwardModelError(
-                f"forward_model.python.function: module '{mod_name}' has no callable '{fn_name}'"
-            )
-        self.function = fn
+        self.function = load_callable(function)
         self.options = dict(options or {})
 
     def solve(self, params: Mapping[str, float]) -> SolveResult:

@@ -1,0 +1,326 @@
+"""What can be known about a study when it is read is known then, before any solve
+(issue 36): bad observation files, a python or command model that cannot run, and
+settings whose cost is out of all proportion are refused by :class:`Study` (which the
+Snakefile builds when it is parsed), each naming the key and the file or value.
+
+One test per problem a probe of the pipeline found only after all the solves had run
+(issue 36, "Observation problems found only after the solves", "A python model whose
+module or function does not exist", "Unbounded cost accepted")."""
+
+from __future__ import annotations
+
+import os
+import struct
+import sys
+import time
+import zlib
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from bayescalib.config import ConfigError, deep_merge, load_yaml, merge_layers
+from bayescalib.study import Study
+
+ROOT = Path(__file__).resolve().parents[1]
+DEFAULT = load_yaml(ROOT / "config" / "config.yaml")  # the fsi model, an active design
+ANALYTIC = load_yaml(ROOT / "tests" / "data" / "analytic_study.yaml")  # a python model
+#: the default colony (half-ellipse 0.6 mm x 0.4 mm at x = 1 mm), in mm
+COLONY_MM = [(0.7, 0.0), (0.8, 0.298), (1.0, 0.4), (1.2, 0.298), (1.3, 0.0)]
+
+
+def _csv(path: Path, points, scale: float = 1.0) -> Path:
+    path.write_text("x,y\n" + "".join(f"{x * scale!r},{y * scale!r}\n" for x, y in points))
+    return path
+
+
+def _files(base: dict, *entries: dict, **observations) -> dict:
+    return deep_merge(base, {"observations": {"source": "files", "files": list(entries),
+                                              **observations}})
+
+
+def _refused(cfg: dict) -> str:
+    with pytest.raises(ConfigError) as exc:
+        Study(cfg, where="mine.yaml")
+    msg = str(exc.value)
+    assert msg.startswith("mine.yaml: "), msg
+    return msg
+
+
+# ------------------------------------------------------------------ observations
+def test_a_file_in_metres_read_as_mm_is_refused_for_a_model_without_known_geometry(tmp_path):
+    """A python model's geometry is known only from a solve; a colony 0.6 mm wide written
+    in metres and read as mm spans 0.6 um, less than the likelihood's noise sd: refused,
+    naming the key's units and the unit in which it fits."""
+    metres = _csv(tmp_path / "scan_m.csv", COLONY_MM, scale=1e-3)
+    Study(_files(ANALYTIC, {"path": str(metres), "units": "m"}))  # stated right: accepted
+    msg = _refused(_files(ANALYTIC, {"path": str(metres)}))
+    assert "observations.files[0]" in msg and "scan_m.csv" in msg, msg
+    assert "Check observations.files[0].units" in msg and "(units: m)" in msg, msg
+    assert "sigma_N" in msg, msg
+
+
+def test_a_snapshot_in_other_units_than_the_first_is_refused(tmp_path):
+    """Without a reference, the snapshots of one colony are compared with the first one:
+    one of them in metres read as mm is 1000 times too small."""
+    mm = _csv(tmp_path / "load_1.csv", COLONY_MM)
+    metres = _csv(tmp_path / "load_2.csv", COLONY_MM, scale=1e-3)
+    loads = {"forward_model": {"loadings": {"parameter": "V", "nominal": 100.0,
+                                            "factors": [1.0, 2.0]}}}
+    Study(deep_merge(_files(ANALYTIC, {"path": str(mm)}, {"path": str(mm)}), loads))
+    msg = _refused(deep_merge(_files(ANALYTIC, {"path": str(mm)}, {"path": str(metres)}), loads))
+    assert "observations.files[1]" in msg and "load_2.csv" in msg, msg
+    assert "as wide as observations.files[0]" in msg and "(units: m)" in msg, msg
+
+
+def test_a_file_in_metres_is_refused_against_the_fsi_models_colony(tmp_path):
+    metres = _csv(tmp_path / "scan_m.csv", COLONY_MM, scale=1e-3)
+    msg = _refused(_files(DEFAULT, {"path": str(metres)}))
+    assert "observations.files[0].units" in msg and "(units: m)" in msg, msg
+
+
+@pytest.mark.parametrize("value", [0, 255])
+def test_an_all_black_or_all_white_mask_is_refused_naming_the_file(tmp_path, value):
+    from skimage import io
+
+    path = tmp_path / f"mask_{value}.png"
+    io.imsave(path, np.full((40, 60), value, np.uint8), check_contrast=False)
+    msg = _refused(_files(ANALYTIC, {"path": str(path), "pixel_size": 0.01,
+                                     "origin": [0.005, 0.005]}))
+    assert "observations.files[0]" in msg and path.name in msg, msg
+    assert "all black or all white" in msg, msg
+
+
+def _png_header(path: Path, width: int, height: int) -> Path:
+    """A PNG whose header declares width x height pixels (its data is one row)."""
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        return (struct.pack(">I", len(data)) + kind + data
+                + struct.pack(">I", zlib.crc32(kind + data) & 0xFFFFFFFF))
+
+    path.write_bytes(b"\x89PNG\r\n\x1a\n"
+                     + chunk(b"IHDR", struct.pack(">IIBBBBB", width, height, 8, 0, 0, 0, 0))
+                     + chunk(b"IDAT", zlib.compress(b"\x00" * (width + 1)))
+                     + chunk(b"IEND", b""))
+    return path
+
+
+@pytest.mark.parametrize("size", [(20_000, 20_000), (10_000, 6_000)])
+def test_a_huge_image_is_refused_from_its_header_before_decoding(tmp_path, size):
+    """A 20000 x 20000 PNG (400 megapixels, above Pillow's own bomb guard) and a
+    10000 x 6000 one (60, below it) are refused from their header, naming the key and
+    the file: nothing is decoded (the data would not decode)."""
+    path = _png_header(tmp_path / "huge.png", *size)
+    t0 = time.perf_counter()
+    msg = _refused(_files(ANALYTIC, {"path": str(path), "pixel_size": 0.001,
+                                     "origin": [0.0005, 0.0005]}))
+    assert time.perf_counter() - t0 < 5.0
+    assert "observations.files[0]" in msg and "huge.png" in msg, msg
+    assert "megapixels" in msg and "refused before decoding" in msg, msg
+
+
+def test_a_file_of_two_million_points_is_refused_from_its_row_count(tmp_path):
+    """A 2,000,000-row CSV is refused from its row count, without parsing it (reading it
+    took 8 s; the study is read at every start of the workflow), naming the key, the file
+    and what the RKHS measure resolves."""
+    path = tmp_path / "dense.csv"
+    path.write_bytes(b"x,y\n" + b"1.0,0.5\n" * 2_000_000)
+    t0 = time.perf_counter()
+    msg = _refused(_files(ANALYTIC, {"path": str(path)}))
+    assert time.perf_counter() - t0 < 2.0
+    assert "observations.files[0]" in msg and "dense.csv" in msg, msg
+    assert "more than the 250,000 points" in msg and "resample" in msg, msg
+
+
+def test_a_file_too_fine_for_the_rkhs_cost_guard_is_refused_naming_it(tmp_path):
+    """Below the row limit, the RKHS measure's own guard (measure.rkhs.max_pairs) is applied
+    to the observed interface when the study is read, naming the file, instead of in every
+    discrepancy job."""
+    t = np.linspace(0.0, np.pi, 20_000)
+    dense = np.column_stack([1.0 - 0.3 * np.cos(t), 0.4 * np.sin(t)])
+    path = _csv(tmp_path / "fine.csv", dense.tolist())
+    cfg = _files(ANALYTIC, {"path": str(path)})
+    Study(cfg)  # 20000 points: within the default limit of 1e10 pairs
+    msg = _refused(deep_merge(cfg, {"measure": {"rkhs": {"max_pairs": 1.0e7}}}))
+    assert "observations.files[0]" in msg and "fine.csv" in msg, msg
+    assert "measure.rkhs.max_pairs" in msg and "kernel pairs" in msg, msg
+    # resolution: a spacing that would resample it into more elements than the measure takes
+    msg = _refused(deep_merge(cfg, {"measure": {"rkhs": {"spacing": 1.0e-7}}}))
+    assert "fine.csv" in msg and "measure.rkhs.spacing" in msg, msg
+
+
+@pytest.mark.parametrize("points, problem", [
+    ([(0.7, 0.0), (1.3, 0.0)], "has 2 points"),
+    ([(0.7, 0.0), (1.0, 0.0), (1.3, 0.0)], "lie on one straight line"),
+])
+def test_a_curve_of_too_few_points_is_refused_with_the_minimum(tmp_path, points, problem):
+    """A two-point CSV was accepted: all solves ran, then the posterior figure failed with
+    NaN. At least 3 points not on one line are needed, and the message says why."""
+    path = _csv(tmp_path / "short.csv", points)
+    for base in (ANALYTIC, DEFAULT):
+        msg = _refused(_files(base, {"path": str(path)}))
+        assert "observations.files[0]" in msg and "short.csv" in msg, msg
+        assert problem in msg and "at least 3 points" in msg, msg
+
+
+# ------------------------------------------------------------------ models
+def _python(function: str, **options) -> dict:
+    return deep_merge(ANALYTIC, {"forward_model": {"python": {"function": function,
+                                                              "options": options}}})
+
+
+@pytest.mark.parametrize("function, problem", [
+    ("no_such_module_xyz:interface", "cannot import module 'no_such_module_xyz'"),
+    ("bayescalib.models.analytic:interfaces", "has no 'interfaces' (did you mean 'interface'"),
+    ("bayescalib.models.analytic:__all__", "'__all__' in module 'bayescalib.models.analytic'"),
+])
+def test_a_python_model_that_cannot_be_called_is_refused(function, problem):
+    """A missing module or function was found by the solves (failed run records, then
+    "the forward solve at the ground truth failed"): now refused when the study is read."""
+    msg = _refused(_python(function))
+    assert "forward_model.python.function" in msg and problem in msg, msg
+
+
+def test_a_python_model_option_its_function_does_not_take_is_refused():
+    Study(_python("bayescalib.models.analytic:interface", fail_below_E=130.0))
+    msg = _refused(_python("bayescalib.models.analytic:interface", fail_below=130.0))
+    assert "forward_model.python.options" in msg and "'fail_below'" in msg, msg
+
+
+def test_a_python_module_that_fails_to_import_is_refused(tmp_path, monkeypatch):
+    (tmp_path / "broken_model_xyz.py").write_text("import no_such_dependency_xyz\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    msg = _refused(_python("broken_model_xyz:interface"))
+    assert "forward_model.python.function" in msg and "no_such_dependency_xyz" in msg, msg
+
+
+def _command(tmp_path: Path, argv: list[str]) -> dict:
+    template = tmp_path / "input.j2"
+    template.write_text("E = {{ E }}\n")
+    return deep_merge(ANALYTIC, {"forward_model": {"type": "command", "command": {
+        "template": str(template), "command": argv}}})
+
+
+def test_a_command_model_whose_program_is_missing_is_refused(tmp_path):
+    """The command's program is looked up when the study is read: a name on PATH, an
+    absolute path to an executable file; a relative path is refused (the command runs in
+    each solve's work folder)."""
+    Study(_command(tmp_path, [sys.executable, "solver.py", "{input}", "{output}"]))
+    Study(_command(tmp_path, [Path(sys.executable).name, "solver.py", "{input}"]))
+    script = tmp_path / "solver.sh"
+    script.write_text("#!/bin/sh\n")
+    script.chmod(0o644)
+    cases = [
+        (["no-such-solver-xyz", "{input}"], "'no-such-solver-xyz' is not found on PATH"),
+        ([str(tmp_path / "missing.sh")], "missing.sh' does not exist"),
+        ([str(script)], "solver.sh' is not executable"),
+        ([os.path.relpath(script)], "is a relative path"),
+    ]
+    for argv, problem in cases:
+        msg = _refused(_command(tmp_path, argv))
+        assert "forward_model.command.command[0]" in msg and problem in msg, msg
+    script.chmod(0o755)
+    Study(_command(tmp_path, [str(script), "{input}"]))
+
+
+# ------------------------------------------------------------------ cost
+@pytest.mark.parametrize("base", [DEFAULT, ANALYTIC], ids=["default", "analytic"])
+def test_a_million_gp_restarts_are_refused_naming_the_key(base):
+    msg = _refused(deep_merge(base, {"surrogate": {"restarts": 1_000_000}}))
+    assert msg.startswith("mine.yaml: surrogate.restarts = 1000000: the GP fits would take"), msg
+    assert "MAX_GP_HOURS" in msg and "the schema's default is 3" in msg, msg
+
+
+@pytest.mark.parametrize("base", [DEFAULT, ANALYTIC], ids=["default", "analytic"])
+def test_ten_million_smc_sweeps_are_refused_naming_the_key(base):
+    msg = _refused(deep_merge(base, {"smc": {"n_rej": 10_000_000}}))
+    assert msg.startswith("mine.yaml: smc.n_rej = 10000000: one tempering step"), msg
+    assert "MAX_SMC_STEP_MINUTES" in msg and "the schema's default is 20" in msg, msg
+
+
+def test_the_active_rounds_smc_is_refused_by_its_own_key():
+    msg = _refused(deep_merge(DEFAULT, {"design": {"active": {"smc": {"n_rej": 10_000_000}}}}))
+    assert msg.startswith("mine.yaml: design.active.smc.n_rej = 10000000"), msg
+
+
+@pytest.mark.parametrize("change, key", [
+    ({"design": {"strategy": "fixed", "n_train": 100_000_000}}, "design.n_train"),
+    ({"design": {"active": {"max_solves": 100_000_000}}}, "design.active.max_solves"),
+    ({"design": {"strategy": "fixed", "n_train": 64, "n_test": 100_000_000},
+      "convergence": {"enabled": True, "n_train": [16, 64]}}, "design.n_test"),
+    # within the design limit, but a GP fit on 10000 points takes days
+    ({"design": {"strategy": "fixed", "n_train": 10_000}}, "design.n_train"),
+])
+def test_a_design_too_large_is_refused_naming_the_design_key(change, key):
+    """The refusal of a design of 1e8 points named smc.n_particles (the SMC's memory);
+    it names the design's key."""
+    msg = _refused(deep_merge(DEFAULT, change))
+    assert msg.startswith(f"mine.yaml: {key} = "), msg
+    assert "smc.n_particles" not in msg, msg
+
+
+def _shipped_studies():
+    cfg = ROOT / "config"
+    studies = {p.stem: [DEFAULT, load_yaml(p)] for p in sorted(cfg.glob("*.yaml"))}
+    hetero = load_yaml(cfg / "heterogeneous.yaml")
+    for name in ("heterogeneous_fixed", "heterogeneous_outputs"):  # layered on heterogeneous
+        studies[name] = [DEFAULT, hetero, load_yaml(cfg / f"{name}.yaml")]
+    common = load_yaml(cfg / "concealed" / "common.yaml")
+    for p in sorted((cfg / "concealed").glob("*.yaml")):
+        if p.stem != "common":
+            studies[f"concealed/{p.stem}"] = [DEFAULT, common, load_yaml(p)]
+    studies["examples/oct_colony"] = [DEFAULT, load_yaml(ROOT / "examples" / "oct_colony" /
+                                                         "study.yaml")]
+    for p in sorted((ROOT / "tests" / "data").glob("*.yaml")):
+        studies[f"tests/data/{p.stem}"] = [load_yaml(p)]
+    return studies
+
+
+@pytest.mark.parametrize("layers", list(_shipped_studies().values()),
+                         ids=list(_shipped_studies()))
+def test_every_shipped_study_passes_the_read_checks(layers, monkeypatch):
+    """The limits are generous: every study of config/, config/concealed/, examples/ and
+    tests/data/ (as its header says to layer it) is read without a refusal."""
+    monkeypatch.chdir(ROOT)  # their paths are relative to the checkout
+    Study(merge_layers(layers))
+
+
+@pytest.mark.parametrize("parameters, surrogate", [
+    (2, {}),
+    (3, {}),  # an inflow rate's box starts at 0: log inputs are a choice too
+    (3, {"kernel": "matern32", "output": "loglik"}),
+    (3, {"frame": "axes", "inputs": "log"}),
+    (2, {"ard": False}),
+])
+def test_the_time_guard_counts_the_candidate_models_a_search_fits(parameters, surrogate):
+    """The GP estimate's count of candidate models (kernel x output x input scale x
+    frame) is that of the search it estimates (the same function decides both)."""
+    from bayescalib.config import validate
+    from bayescalib.inference.parameters import ParameterSpace
+    from bayescalib.inference.surrogate import _search_settings, search_size
+
+    params = load_yaml(ROOT / "config" / "uncertain_inflow.yaml").get("parameters") \
+        if parameters == 3 else DEFAULT["parameters"]
+    cfg = validate(deep_merge({**DEFAULT, "parameters": params}, {"surrogate": surrogate}),
+                   "study")
+    bounds = ParameterSpace.from_config(cfg["parameters"]).bounds
+    rng = np.random.default_rng(0)
+    X = bounds[:, 0] + rng.random((12, len(bounds))) * (bounds[:, 1] - bounds[:, 0])
+    y = -np.sum(((X - X.mean(axis=0)) / X.std(axis=0)) ** 2, axis=1)
+    _, candidates = _search_settings(X, y, cfg["surrogate"], bounds, 0.0)
+    assert search_size(cfg["surrogate"], bounds) == len(candidates) > 0
+
+
+def test_the_euclidean_measures_points_file_is_read_when_the_study_is_read(tmp_path):
+    """Every discrepancy job reads measure.euclidean.points: a missing or broken file is
+    refused when the study is read."""
+    good = tmp_path / "points.csv"
+    good.write_text("x,y\n0.8,0.3\n1.0,0.4\n1.2,0.3\n")
+    euclid = {"measures": ["euclidean"], "measure": {"euclidean": {"points": str(good)}}}
+    Study(deep_merge(ANALYTIC, euclid))
+    bad = tmp_path / "bad.csv"
+    bad.write_text("x,y\n0.8,abc\n")
+    for path, problem in ((tmp_path / "missing.csv", "does not exist"),
+                          (bad, "non-numeric value")):
+        msg = _refused(deep_merge(ANALYTIC, {**euclid, "measure": {"euclidean": {
+            "points": str(path)}}}))
+        assert "measure.euclidean.points" in msg and path.name in msg and problem in msg, msg
