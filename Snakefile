@@ -42,7 +42,7 @@ for _note in study.notes:
 # command that started the run also resumes it (bayescalib.execution.resume).
 if workflow.is_main_process:
     from bayescalib.study import StudyBusyError, runs_jobs
-    from bayescalib.execution.resume import asks_report, claim_run, report_refusal
+    from bayescalib.execution.resume import asks_report, claim_run, report_note, report_refusal
 
     if runs_jobs(sys.argv):
         try:
@@ -56,6 +56,8 @@ if workflow.is_main_process:
         if _refusal is not None:
             sys.stderr.write(f"bayescalib: no report: {_refusal}\n")
             sys.exit(1)
+        if (_note := report_note(study.root, sys.argv)) is not None:
+            sys.stderr.write(f"bayescalib: note: {_note}\n")
 
 R = study.root
 

@@ -82,7 +82,10 @@ def _decode_data_uri(uri: str) -> bytes:
 def report(done_run, tmp_path_factory):
     """(report path, expected entries) for the finished analytic study."""
     path = tmp_path_factory.mktemp("report") / "report.html"
-    smk(done_run, "--report", str(path))
+    made = smk(done_run, "--report", str(path))  # not in done_run: shared, left unmodified
+    # a report outside the study's folder is made, with a note saying where one per study goes
+    assert (f"bayescalib: note: the report goes to {path}, outside results/analytic/"
+            in made.stderr), made.stderr[-2000:]
     summary = json.loads((done_run / "results" / "analytic" / "summary.json").read_text())
     expected = [{
         "path": "results/analytic/summary.json", "category": "Summary", "subcategory": "Other",
@@ -348,7 +351,8 @@ def test_each_figure_is_in_the_report_once_png_and_the_pdf_on_disk(tmp_path, bas
     (tmp_path / "config").mkdir()
     (tmp_path / "config" / "config.yaml").write_text(yaml.safe_dump(study))
     smk(tmp_path)
-    smk(tmp_path, "--report", "results/analytic/report.html")
+    made = smk(tmp_path, "--report", "results/analytic/report.html")
+    assert "bayescalib: note: the report goes to" not in made.stderr  # the study's own path
     text = (tmp_path / "results" / "analytic" / "report.html").read_text()
     # captions carry the study's own numbers
     assert "Shown in numbers: E = " in text and "This study: bayescalib analytic: E = " in text

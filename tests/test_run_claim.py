@@ -17,6 +17,8 @@ from bayescalib.execution.resume import (
     asks_report,
     claim_run,
     configfile_words,
+    report_note,
+    report_path,
     report_refusal,
     stale_snakemake_locks,
 )
@@ -157,3 +159,21 @@ def test_a_report_is_refused_until_the_study_has_finished(tmp_path, monkeypatch)
         live.wait()
     assert said is not None and f"is being run right now (snakemake pid {live.pid}" in said
     assert "Wait for the run to end" in said
+
+
+@pytest.mark.parametrize("argv, path", [
+    (["snakemake", "--cores", "2"], None),
+    (["snakemake", "--report"], "report.html"),  # Snakemake's default: the checkout's root
+    (["snakemake", "--report", "--configfile", "config/a.yaml"], "report.html"),
+    (["snakemake", "--report", "results/a/report.html"], "results/a/report.html"),
+    (["snakemake", "--report=results/report.html"], "results/report.html"),
+])
+def test_the_report_path_is_read_and_one_outside_the_study_noted(argv, path):
+    assert report_path(argv) == path
+    note = report_note("results/a", argv)
+    if path is None or path.startswith("results/a/"):
+        assert note is None
+    else:
+        assert note == (f"the report goes to {path}, outside results/a/: a report of another "
+                        "study made at the same path replaces it; results/a/report.html keeps "
+                        "one per study")

@@ -40,8 +40,8 @@ from bayescalib.study import (
     run_lock_holder,
 )
 
-__all__ = ["asks_report", "claim_run", "configfile_words", "report_refusal",
-           "stale_snakemake_locks"]
+__all__ = ["asks_report", "claim_run", "configfile_words", "report_note", "report_path",
+           "report_refusal", "stale_snakemake_locks"]
 
 #: Snakemake's lock folder, relative to the working directory (FilePersistence)
 SNAKEMAKE_LOCKS = Path(".snakemake") / "locks"
@@ -121,6 +121,30 @@ def claim_run(root: str | Path, name: str, *, locks: str | Path = SNAKEMAKE_LOCK
 def asks_report(argv: Sequence[str]) -> bool:
     """Whether a Snakemake command line (``sys.argv``) asks for the HTML report."""
     return any(a.split("=", 1)[0] == "--report" for a in argv[1:])
+
+
+def report_path(argv: Sequence[str]) -> str | None:
+    """The path a Snakemake command line (``sys.argv``) gives ``--report`` (Snakemake's
+    ``report.html`` for a bare ``--report``), or None without ``--report``."""
+    args = list(argv[1:])
+    for i, a in enumerate(args):
+        key, eq, value = a.partition("=")
+        if key == "--report":
+            if eq:
+                return value
+            nxt = args[i + 1] if i + 1 < len(args) else None
+            return nxt if nxt is not None and not nxt.startswith("-") else "report.html"
+    return None
+
+
+def report_note(root: str | Path, argv: Sequence[str]) -> str | None:
+    """A note when the report goes outside the study's folder (where the report of
+    another study made with the same command would replace it), or None."""
+    path = report_path(argv)
+    if path is None or _under(path, str(root)):
+        return None
+    return (f"the report goes to {path}, outside {root}/: a report of another study made "
+            f"at the same path replaces it; {root}/report.html keeps one per study")
 
 
 def configfile_words(argv: Sequence[str]) -> str:
