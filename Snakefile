@@ -2,7 +2,8 @@
 
 Run the default study:          snakemake --cores 2
 Run another study:              snakemake --cores 2 --configfile config/<study>.yaml
-HTML report:                    snakemake --report results/report.html [--configfile ...]
+Resume after any interruption:  the command that started the run, unchanged
+HTML report:                    snakemake --report results/<study>/report.html [--configfile ...]
 
 Parsing this file is cheap: it validates the config (JSON schema with
 defaults, errors name the offending key) and imports nothing heavy; the Sobol
@@ -35,37 +36,38 @@ except ConfigError as exc:
 for _note in study.notes:
     sys.stderr.write(f"bayescalib: note: {_note}\n")
 
-# A run of this study that is alive answers first, before Snakemake's own lock or
-# incomplete-files checks can suggest --unlock or --rerun-incomplete over a live run.
+# A command that may run jobs makes itself the one run of this study before Snakemake
+# checks its lock or incomplete files: a live run of the study refuses it (never an
+# unlock or a rerun over a live run); a killed run's stale lock is removed, so that the
+# command that started the run also resumes it (bayescalib.execution.resume).
 if workflow.is_main_process:
-    from bayescalib.study import job_lock_holders, run_lock_holder, runs_jobs
+    from bayescalib.study import StudyBusyError, runs_jobs
+    from bayescalib.execution.resume import asks_report, claim_run, report_note, report_refusal
 
-    _holder = run_lock_holder(study.root) if runs_jobs(sys.argv) else None
-    _orphans = job_lock_holders(study.root) if runs_jobs(sys.argv) and _holder is None else None
-    if _orphans is not None:
-        sys.stderr.write(
-            f"bayescalib: jobs of an earlier run of study '{study.name}' are still running "
-            f"(pid {', '.join(map(str, _orphans)) or 'unknown'}): that run was killed and "
-            "left them behind. Wait for them to end (or kill them), then resume; a run "
-            "beside them would redo their work.\n")
-        sys.exit(1)
-    if _holder is not None:
-        sys.stderr.write(
-            f"bayescalib: study '{study.name}' is already being run in this directory "
-            f"({_holder}; lock {study.root}/.run.lock). Wait for that run to end; do not "
-            "--unlock or --rerun-incomplete while it runs. Another study can run at the "
-            "same time.\n")
-        sys.exit(1)
-    # summary.json is read by no job: a damaged one is set aside here, before the plan
-    # is made, so that this run writes it again (a look-only command leaves it)
-    if runs_jobs(sys.argv) and os.path.isfile(f"{study.root}/summary.json"):
-        from bayescalib.stages import PipelineError, read_stage_file
-
+    if runs_jobs(sys.argv):
         try:
-            read_stage_file(f"{study.root}/summary.json", "study summary",
-                            rebuilt_by_this_run=True)
-        except PipelineError as _exc:
-            sys.stderr.write(f"bayescalib: {_exc}\n")
+            for _note in claim_run(study.root, study.name):
+                sys.stderr.write(f"bayescalib: note: {_note}\n")
+        except StudyBusyError as exc:
+            sys.stderr.write(f"bayescalib: {exc}\n")
+            sys.exit(1)
+        # summary.json is read by no job: a damaged one is set aside here, before the
+        # plan is made, so that this run writes it again (a look-only command leaves it)
+        if os.path.isfile(f"{study.root}/summary.json"):
+            from bayescalib.stages import PipelineError, read_stage_file
+
+            try:
+                read_stage_file(f"{study.root}/summary.json", "study summary",
+                                rebuilt_by_this_run=True)
+            except PipelineError as _exc:
+                sys.stderr.write(f"bayescalib: {_exc}\n")
+    elif asks_report(sys.argv):
+        _refusal = report_refusal(study.root, study.name, sys.argv)
+        if _refusal is not None:
+            sys.stderr.write(f"bayescalib: no report: {_refusal}\n")
+            sys.exit(1)
+        if (_note := report_note(study.root, sys.argv)) is not None:
+            sys.stderr.write(f"bayescalib: note: {_note}\n")
 
 R = study.root
 

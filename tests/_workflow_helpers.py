@@ -15,6 +15,43 @@ SNAKEMAKE = [sys.executable, "-m", "snakemake"]
 DATA = Path(__file__).parent / "data"
 
 
+def copy_checkout(dest: Path) -> Path:
+    """A copy of the checkout's tracked files in ``dest``, links kept as links (the
+    ``profiles`` link is how a plain ``snakemake`` in the copy finds the default profile,
+    as in a real clone)."""
+    import shutil
+
+    files = subprocess.run(["git", "ls-files", "-z"], cwd=REPO, capture_output=True, text=True,
+                           check=True).stdout.split("\0")
+    for f in filter(None, files):
+        src, dst = REPO / f, dest / f
+        dst.parent.mkdir(parents=True, exist_ok=True)
+        if src.is_symlink():
+            dst.symlink_to(os.readlink(src))
+        elif src.is_file():
+            shutil.copy2(src, dst)
+    return dest
+
+
+def readme_section_commands(heading: str) -> list[str]:
+    """The shell commands of the README section under the heading ``heading`` (to the
+    next heading): the lines of its ``bash`` blocks, comments dropped."""
+    import re
+
+    text = (REPO / "README.md").read_text()
+    match = re.search(rf"^#{{2,6}} {re.escape(heading)}\n(.*?)(?=^#{{2,6}} |\Z)", text,
+                      flags=re.DOTALL | re.MULTILINE)
+    if match is None:
+        raise AssertionError(f"README.md has no section '{heading}'")
+    out = []
+    for block in re.findall(r"```bash\n(.*?)```", match.group(1), flags=re.DOTALL):
+        for line in block.splitlines():
+            line = re.sub(r"\s+#.*$", "", line).strip()
+            if line and not line.startswith("#"):
+                out.append(line)
+    return out
+
+
 def setup_study(tmp: Path, study: dict) -> Path:
     """Write ``study`` as the config of a workflow run in ``tmp``."""
     (tmp / "config").mkdir(parents=True, exist_ok=True)

@@ -17,7 +17,6 @@ from __future__ import annotations
 import importlib.util
 import os
 import re
-import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -25,7 +24,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-from _workflow_helpers import DATA, REPO
+from _workflow_helpers import DATA, REPO, copy_checkout
 
 pytestmark = pytest.mark.workflow
 
@@ -60,7 +59,14 @@ def _steps(command: str) -> list[str]:
 
 def test_readme_commands_are_found():
     cmds = readme_commands((REPO / "README.md").read_text())
-    assert "snakemake --unlock && snakemake --cores 2 --rerun-incomplete" in cmds
+    # one resume command, naming the study (the one that starts it): no --unlock recipe
+    assert "snakemake --cores 2 --configfile config/smoke.yaml" in cmds
+    assert not any("--unlock" in c or "--rerun-incomplete" in c for c in cmds), cmds
+    # each study's report at its own path
+    reports = [c for c in cmds if c.startswith("snakemake --report")]
+    assert reports and all(re.match(r"snakemake --report results/(\w+)/report\.html "
+                                    r"--configfile \S+/(study|\1)\.yaml$", c) for c in reports), \
+        reports
     assert any(c.endswith("&& pytest") for c in cmds)
     assert any(c.startswith("bayescalib summary") for c in cmds)
 
@@ -68,13 +74,7 @@ def test_readme_commands_are_found():
 @pytest.fixture(scope="module")
 def scratch(tmp_path_factory):
     """A copy of the repository's tracked files with stand-in studies."""
-    root = tmp_path_factory.mktemp("readme")
-    files = subprocess.run(["git", "ls-files"], cwd=REPO, capture_output=True, text=True,
-                           check=True).stdout.split()
-    for f in files:
-        if (REPO / f).is_file():
-            (root / f).parent.mkdir(parents=True, exist_ok=True)
-            shutil.copy2(REPO / f, root / f)
+    root = copy_checkout(tmp_path_factory.mktemp("readme"))
     study = yaml.safe_load((DATA / "analytic_study.yaml").read_text())
     (root / "config" / "config.yaml").write_text(yaml.safe_dump(study))
     for cfg in (root / "config").glob("*.yaml"):
@@ -116,7 +116,7 @@ def test_every_readme_command_works_verbatim(scratch):
             f"README command failed: {line}\n{proc.stdout[-3000:]}\n{proc.stderr[-3000:]}")
         ran.append(line)
     assert (scratch / "results" / "analytic" / "summary.json").is_file()
-    report = (scratch / "results" / "report.html").read_text()
+    report = (scratch / "results" / "uncertain_inflow" / "report.html").read_text()
     # the front page: the result line and the table of key numbers
     assert "<strong>Result.</strong> bayescalib uncertain_inflow: E = " in report
     assert "90 % equal-tailed interval" in report

@@ -1,4 +1,4 @@
-"""The HTML report of a finished study (`snakemake --report results/report.html`).
+"""The HTML report of a finished study (`snakemake --report results/<study>/report.html`).
 
 Snakemake (>= 8) writes the report after the run, as one self-contained HTML
 file: a JavaScript app in which every result is embedded as a base64 data URI.
@@ -82,7 +82,10 @@ def _decode_data_uri(uri: str) -> bytes:
 def report(done_run, tmp_path_factory):
     """(report path, expected entries) for the finished analytic study."""
     path = tmp_path_factory.mktemp("report") / "report.html"
-    smk(done_run, "--report", str(path))
+    made = smk(done_run, "--report", str(path))  # not in done_run: shared, left unmodified
+    # a report outside the study's folder is made, with a note saying where one per study goes
+    assert (f"bayescalib: note: the report goes to {path}, outside results/analytic/"
+            in made.stderr), made.stderr[-2000:]
     summary = json.loads((done_run / "results" / "analytic" / "summary.json").read_text())
     expected = [{
         "path": "results/analytic/summary.json", "category": "Summary", "subcategory": "Other",
@@ -398,8 +401,9 @@ def test_each_figure_is_in_the_report_once_png_and_the_pdf_on_disk(tmp_path, bas
     (tmp_path / "config").mkdir()
     (tmp_path / "config" / "config.yaml").write_text(yaml.safe_dump(study))
     smk(tmp_path)
-    smk(tmp_path, "--report", "report.html")
-    text = (tmp_path / "report.html").read_text()
+    made = smk(tmp_path, "--report", "results/analytic/report.html")
+    assert "bayescalib: note: the report goes to" not in made.stderr  # the study's own path
+    text = (tmp_path / "results" / "analytic" / "report.html").read_text()
     # captions carry the study's own numbers
     assert "Shown in numbers: E = " in text and "This study: bayescalib analytic: E = " in text
     figs = tmp_path / "results" / "analytic" / "figures" / "rkhs"
@@ -407,3 +411,45 @@ def test_each_figure_is_in_the_report_once_png_and_the_pdf_on_disk(tmp_path, bas
         assert (figs / f"{fam}.pdf").stat().st_size > 1000
         assert base64.b64encode((figs / f"{fam}.png").read_bytes()).decode() in text
         assert base64.b64encode((figs / f"{fam}.pdf").read_bytes()).decode()[:4000] not in text
+
+
+def test_a_report_of_an_unfinished_or_live_study_says_so(tmp_path, base_study):
+    """Not Snakemake's "summary.json marked for report but does not exist": the study
+    has not been run, its run has not finished, or it is being run right now, and what
+    to do (no workflow run needed: the refusal comes when the Snakefile is read)."""
+    import subprocess
+    import sys
+
+    import yaml
+
+    (tmp_path / "config").mkdir()
+    (tmp_path / "config" / "config.yaml").write_text(yaml.safe_dump(base_study))
+    report = ("--report", "results/analytic/report.html")
+
+    def said() -> str:
+        proc = smk(tmp_path, *report, check=False, timeout=120)
+        assert proc.returncode != 0
+        assert not (tmp_path / "results" / "analytic" / "report.html").exists()
+        out = proc.stdout + proc.stderr
+        assert "does not exist." not in out and "WorkflowError" not in out, out[-2000:]
+        return out
+
+    assert "bayescalib: no report: study 'analytic' has no results yet" in (out := said())
+    assert "it has not been run" in out and "snakemake --cores 2;" in out
+    (tmp_path / "results" / "analytic" / "runs").mkdir(parents=True)  # an interrupted run
+    out = said()
+    assert "its run has not finished (interrupted or failed)" in out
+    assert "then make the report: snakemake --report results/analytic/report.html" in out
+    live = subprocess.Popen(
+        [sys.executable, "-c", "from bayescalib.study import hold_run_lock; "
+         f"hold_run_lock({str(tmp_path / 'results' / 'analytic')!r}, 'analytic'); "
+         "print('held', flush=True); import time; time.sleep(60)"],
+        stdout=subprocess.PIPE, text=True)
+    try:
+        assert live.stdout.readline().strip() == "held"
+        out = said()
+    finally:
+        live.kill()
+        live.wait()
+    assert f"study 'analytic' is being run right now (snakemake pid {live.pid}" in out
+    assert "Wait for the run to end, then run: snakemake --report" in out

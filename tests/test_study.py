@@ -376,7 +376,7 @@ def test_reading_three_scans_adds_little_to_reading_the_study(tmp_path):
     (["snakemake", "--cores", "2", "--rerun-incomplete"], True),
     (["snakemake", "-n"], False),
     (["snakemake", "-np", "--cores", "2"], False),
-    (["snakemake", "--report", "results/report.html"], False),
+    (["snakemake", "--report", "results/analytic/report.html"], False),
     (["snakemake", "--dry-run"], False),
     (["snakemake", "--lint"], False),
 ])

@@ -1,9 +1,10 @@
 """Reliability of the Snakemake workflow, on the analytic stand-in model.
 
 * a run killed (SIGKILL) while training the GP and again while running the SMC
-  resumes with the README's ``snakemake --unlock && snakemake --cores 2
-  --rerun-incomplete``, redoes no forward solve and ends with the summary of
-  an uninterrupted run (the kill during the solves: tests/test_workflow.py);
+  resumes with the README's resume command, the command that started it (no
+  ``--unlock``, no ``--rerun-incomplete``), redoes no forward solve and ends with the
+  summary of an uninterrupted run (the kill during the solves: tests/test_workflow.py;
+  the README's command verbatim after each kind of interruption: tests/test_resume.py);
 * a run record damaged after the fact is set aside by the first run that reads
   it (which fails, saying so), and the next ``snakemake --cores 2`` re-solves
   that one design point and ends with the same summary;
@@ -121,9 +122,9 @@ def test_killed_during_gp_training_and_smc_resumes_to_the_same_summary(base_stud
     assert len(runs) == 8 and len(discs) == 8
     assert list((tmp / ".snakemake" / "locks").iterdir()), "a hard kill leaves the lock"
 
-    # 2. resume as the README says; kill again as soon as the SMC job has started
-    smk(tmp, "--unlock")
-    proc = start(tmp, "--cores", "2", "--rerun-incomplete", log="resume1.out")
+    # 2. resume as the README says (the same command); kill again as soon as the SMC job
+    # has started
+    proc = start(tmp, "--cores", "2", log="resume1.out")
     wait_for(root / "logs" / "rkhs" / "smc.log", proc)
     kill(proc)
     assert (root / "rkhs" / "surrogate.h5").is_file()
@@ -132,8 +133,7 @@ def test_killed_during_gp_training_and_smc_resumes_to_the_same_summary(base_stud
     assert stats.get("train_surrogate") == 1 and "solve" not in stats, stats
 
     # 3. resume to the end: no solve, no discrepancy redone; the uninterrupted summary
-    smk(tmp, "--unlock")
-    proc = smk(tmp, "--rerun-incomplete")
+    proc = smk(tmp)
     stats = job_stats(proc.stdout + proc.stderr)
     assert stats.get("smc") == 1 and "solve" not in stats and "train_surrogate" not in stats, \
         stats

@@ -167,8 +167,9 @@ def hold_run_lock(root: str | Path, name: str) -> Path:
         fh.close()
         raise StudyBusyError(
             f"study '{name}' is already being run in this directory "
-            f"({holder or 'another process'}; lock {path}). Wait for that run to end; "
-            "another study can run at the same time."
+            f"({holder or 'another process'}; lock {path}). Wait for that run to end (or "
+            "stop it with Ctrl-C), then run its command again to resume; do not --unlock "
+            "or --rerun-incomplete while it runs. Another study can run at the same time."
         ) from None
     fh.seek(0)
     fh.truncate()
