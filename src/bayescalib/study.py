@@ -307,8 +307,9 @@ class Study:
             elif fm["type"] == "command":
                 c = fm["command"]
                 check_executable(c["command"][0])
+                # built, not run: the template parses and the names are valid (no folder made)
                 CommandModel(c["template"], c["command"], input_name=c["input_name"],
-                             output_name=c["output_name"], workdir=".", units=c["units"])
+                             output_name=c["output_name"], workdir="read.work", units=c["units"])
         except ForwardModelError as exc:
             raise ConfigError(f"{where}: {exc}") from None
 
