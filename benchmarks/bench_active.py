@@ -11,6 +11,8 @@ every method:
 * ``ridge2d``: a curved ridge (banana), L = -0.5 (x1/s1)^2 - 0.5 ((x2 - b x1^2)/s2)^2.
 * ``lobe2d``: a main mode and a weak second lobe with another covariance,
   L = log(w1 N1 + w2 N2) + c; its bound B is the log of an upper bound of the mixture.
+* ``bimodal2d``: two narrow modes about 16 sd apart with 73 % and 27 % of the mass
+  (``benchmarks/bench_modes.py``: the verdict must never say converged with one missing).
 * ``sloppy4d``: a 4D Gaussian with a rotated covariance and one sloppy direction.
 * ``hetero7d``: a made-up 7D calibration shaped like the heterogeneous biofilm
   study: stiffnesses E1..E3 (Pa), Poisson ratios nu1..nu3 and an uncertain
@@ -135,7 +137,7 @@ from typing import Any
 import numpy as np
 
 DEFAULT_BUDGET = {2: 64, 4: 100, 7: 200}
-ALL_PROBLEMS = ["ridge2d", "lobe2d", "sloppy4d", "hetero7d"]
+ALL_PROBLEMS = ["ridge2d", "lobe2d", "bimodal2d", "sloppy4d", "hetero7d"]
 ALL_METHODS = ["sobol_gp", "active", "pyvbmc", "gpry"]
 
 #: surrogate.kernel of the active method (--kernel; "auto" fits every kernel each round)
@@ -196,6 +198,8 @@ class Problem:
     # loglik = B - 1/2 |y - outputs(X)|^2 (the ``emulator`` method needs them)
     outputs: Callable[[np.ndarray], np.ndarray] | None = None
     y: np.ndarray | None = None
+    # problems with separated modes: (q, d) points -> (q,) index of the mode each is in
+    component: Callable[[np.ndarray], np.ndarray] | None = None
 
     @property
     def d(self) -> int:
@@ -268,6 +272,34 @@ def make_lobe2d() -> Problem:
 
     prob = Problem("lobe2d", ["x1", "x2"], np.array([[-5.0, 5.0], [-5.0, 5.0]]), loglik, B)
     _grid_reference(prob)
+    return prob
+
+
+def make_bimodal2d() -> Problem:
+    """Two narrow modes, 1.8 apart in a box of 10 x 10 (about 16 sd of either), with 73 %
+    and 27 % of the mass: a Sobol design of 32 points often lands no point near one of
+    them, and the surrogate of the other's bowl predicts it low and confidently."""
+    w1, w2 = 0.73, 0.27
+    m1, S1 = np.array([-1.0, -0.5]), _cov2(0.1, 0.08, 0.3)
+    m2, S2 = np.array([0.6, 0.4]), _cov2(0.08, 0.12, -0.4)
+    peak1 = 1.0 / (2 * np.pi * np.sqrt(np.linalg.det(S1)))
+    peak2 = 1.0 / (2 * np.pi * np.sqrt(np.linalg.det(S2)))
+    B = float(np.log(w1 * peak1 + w2 * peak2))
+
+    def loglik(X):
+        X = np.atleast_2d(X)
+        return np.logaddexp(np.log(w1) + _mvn_logpdf(X, m1, S1),
+                            np.log(w2) + _mvn_logpdf(X, m2, S2))
+
+    def component(X):  # which mode a point belongs to: the larger weighted density
+        X = np.atleast_2d(X)
+        return (np.log(w2) + _mvn_logpdf(X, m2, S2) > np.log(w1) + _mvn_logpdf(X, m1, S1)
+                ).astype(int)
+
+    prob = Problem("bimodal2d", ["x1", "x2"], np.array([[-5.0, 5.0], [-5.0, 5.0]]), loglik, B)
+    _grid_reference(prob)
+    prob.ref_info["modes"] = {"weights": [w1, w2], "means": [m1.tolist(), m2.tolist()]}
+    prob.component = component
     return prob
 
 
@@ -439,6 +471,8 @@ def make_problem(name: str, out: Path, refresh: bool) -> Problem:
         return make_ridge2d()
     if name == "lobe2d":
         return make_lobe2d()
+    if name == "bimodal2d":
+        return make_bimodal2d()
     if name == "sloppy4d":
         return make_sloppy4d()
     if name == "hetero7d":

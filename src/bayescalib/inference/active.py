@@ -518,7 +518,8 @@ def acquire_round(r: int, X: np.ndarray, L: np.ndarray, gp, particles: np.ndarra
         rec["change"] = posterior_change(prev_post, moments)
     from bayescalib.inference.exploration import audit
 
-    explored = audit(X, L, particles, weights, log_evidence, space)
+    explored = audit(X, L, particles, weights, log_evidence, space,
+                     bound=getattr(gp, "bound", None))
     rec["exploration"] = {
         "unexplored_mass": explored["unexplored_mass"],
         "fill_distance": explored["fill_distance"],

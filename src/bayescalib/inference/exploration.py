@@ -135,7 +135,7 @@ def _peak(c: float, g: np.ndarray, P: np.ndarray, u0: np.ndarray,
 
 
 def audit(X: np.ndarray, L: np.ndarray, particles: np.ndarray, weights: np.ndarray,
-          log_evidence: float, space) -> dict[str, Any]:
+          log_evidence: float, space, bound: float | None = None) -> dict[str, Any]:
     """The basins of the solved log-likelihoods and the posterior mass the posterior
     does not hold (the module docstring).
 
@@ -150,6 +150,10 @@ def audit(X: np.ndarray, L: np.ndarray, particles: np.ndarray, weights: np.ndarr
         log Z of that posterior (the SMC estimate: log of the integral of exp(L) p).
     space
         :class:`~bayescalib.inference.parameters.ParameterSpace`: bounds and log-prior.
+    bound
+        The log-likelihood's known upper bound (a perfect fit), or None: no estimated
+        peak exceeds it (a quadratic through few, distant solves can overshoot by
+        thousands of nats).
 
     Returns
     -------
@@ -193,6 +197,8 @@ def audit(X: np.ndarray, L: np.ndarray, particles: np.ndarray, weights: np.ndarr
         radius = float(max(dist[-1], 1e-6))
         P, lam = _concave(H, radius)
         u_star, L_star = _peak(c, g, P, U[i], radius)
+        if bound is not None:
+            L_star = min(L_star, float(bound))
         L_star = max(L_star, float(Lf[i]))  # the peak is at least the solve
         x_star = lo + u_star * width
         log_vol = 0.5 * d * math.log(2 * math.pi) - 0.5 * float(np.log(lam).sum()) + log_box
