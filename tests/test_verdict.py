@@ -182,3 +182,18 @@ def test_a_confirmed_check_whose_draws_moved_the_posterior():
     assert _short(s)[0] == ("NOT converged: the budget of 40 solves is spent and real solves "
                             "of its draws confirmed the posterior, but it moved by 0.6 sd "
                             "when they were added.")
+
+
+def test_a_region_the_posterior_does_not_hold_is_the_reason_it_is_not_converged():
+    """A run stopped with a basin of its solves outside the posterior (the exploration
+    audit) says where, and how much mass could lie there, before any other reason."""
+    rounds = [{"round": 0, "n_solves": 32, "n_failed": 0, "settled": False},
+              {"round": 1, "n_solves": 64, "n_failed": 0, "settled": True, "shift_sd": 0.01,
+               "posterior_check_confirmed": True, "explored": False,
+               "unexplored_mass": 0.73, "unexplored_peak": {"E": 512.0, "nu": 0.31}}]
+    s = {"design": {"strategy": "active", "n_solves": 64, "converged": False,
+                    "max_solves": 64, "check_draws": 32, "rounds": rounds},
+         "fit": {"consistent": True}}
+    text = verdict(s)
+    assert "E = 512, nu = 0.31" in text and "73 %" in text, text
+    assert text.index("region") < text.index("Raise design.active.max_solves"), text

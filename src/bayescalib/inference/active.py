@@ -1050,5 +1050,17 @@ def history_table(rounds: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
             "posterior_check_confirmed": None if pc is None else bool(pc["confirmed"]),
             "log_weight_sd": None if pc is None else pc.get("log_weight_sd"),
             "ess_fraction": None if pc is None else pc.get("ess_fraction"),
+            "explored": rec.get("explored"),
+            "unexplored_mass": (rec.get("exploration") or {}).get("unexplored_mass"),
+            "unexplored_peak": _first_peak(rec),
+            "fill_distance": (rec.get("exploration") or {}).get("fill_distance"),
         })
     return out
+
+
+def _first_peak(rec: Mapping[str, Any]) -> dict[str, float] | None:
+    """The estimated peak of the largest basin the posterior does not hold, by name."""
+    basins = (rec.get("exploration") or {}).get("basins") or []
+    if not basins:
+        return None
+    return dict(zip(rec["names"], basins[0]["peak"], strict=True))

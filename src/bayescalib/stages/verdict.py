@@ -67,6 +67,11 @@ def _not_converged_reason(design: Mapping[str, Any], check: Mapping[str, Any] | 
     if n_failed_batch:
         return (f"all {n_failed_batch} solves of the last batch failed (failed_runs in "
                 f"summary.json gives the reasons)")
+    unexplored = last.get("unexplored_mass")
+    if last.get("explored") is False and last.get("unexplored_peak"):
+        where = ", ".join(f"{k} = {float(v):.4g}" for k, v in last["unexplored_peak"].items())
+        return (f"the solves rise towards a region near {where} that the posterior does not "
+                f"hold, where up to {100 * float(unexplored):.0f} % of its mass could lie")
     confirmed = last.get("posterior_check_confirmed")
     checked = None if check is None else check.get("round")
     if confirmed is False:
