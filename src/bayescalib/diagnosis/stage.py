@@ -115,8 +115,8 @@ MIN_IDENTIFIABLE = 0.05
 
 #: what the user can do about a candidate whose signature solves all failed
 NOT_TESTABLE_ADVICE = ("make the forward model solve with it switched on (the solver's "
-                       "reasons per attempt: diagnosis.json, signature_attempts) and rerun "
-                       "the diagnosis")
+                       "reasons per attempt: diagnosis.json, signature_attempts) and "
+                       "rerun the diagnosis")
 
 #: signature solves tried at the posterior mean after the candidate's step failed
 N_RETRY_STEPS = 3
@@ -803,12 +803,13 @@ def run_diagnosis(
     if registration is not None and registration.get("check_after") is not None:
         registration["explains"] = bool(registration["first_order"] and explains_mismatch(
             registration["check_after"], check, noise_ref))
+    best = choose_extension(extended)
+    # a significant candidate left out by n_extend matters while no extension explains it
     aside = [] if check.adequate else set_aside_candidates(
         attr["ranking"], cands, failed_sig, threshold=float(attr["threshold"]),
         r2_min=float(cfg["r2_min"]), calibrated={m for e in extended for m in e["members"]},
-        n_extend=int(cfg["n_extend"]) if run_ext else None,
+        n_extend=int(cfg["n_extend"]) if run_ext and best is None else None,
         user_candidates=bool(cfg.get("candidates")))
-    best = choose_extension(extended)
     chosen = best["candidate"] if best is not None else "base"
     verdict = decide_verdict(check.adequate, attr["selected"], refit, float(cfg["alpha"]),
                              chosen=None if best is None else chosen,
@@ -1072,7 +1073,8 @@ def set_aside_candidates(ranking: Sequence[Mapping[str, Any]], cands: Sequence[C
       if such a magnitude is possible, :func:`widened_range`);
     * ``"not calibrated"``: significant, plausible and identifiable, but ranked below the
       ``n_extend`` candidates calibrated (advice: raise ``diagnose.n_extend``); only
-      when extensions were calibrated (``n_extend`` not None);
+      where it matters, when extensions were calibrated and none explains the mismatch
+      (the caller passes ``n_extend``; None: none of these);
     * ``"not testable"``: its signature solves failed at every step tried (``failed``).
 
     ``large_share`` marks a significant one that alone explains at least ``r2_min`` of
@@ -1285,7 +1287,7 @@ def _set_aside_words(e: Mapping[str, Any], d: Mapping[str, Any]) -> str:
                 f"extended model with it was calibrated. {advice}.")
     if e["reason"] == "not identifiable":
         base = ", ".join(d.get("posterior_mean") or {}) or "E, nu, ..."
-        return (f"Set aside: {what}. Only {100 * float(e['identifiable_fraction']):.0f} % "
+        return (f"Set aside: {what}. Only {100 * float(e['identifiable_fraction']):.2g} % "
                 f"of its signature is beyond what the base parameters ({base}) can mimic "
                 f"(more than {100 * MIN_IDENTIFIABLE:.0f} % needed; its estimate phi_{name} "
                 f"= {float(e['estimate']):.3g}{u}, {_p_words(float(e['p_value']))}): these "
