@@ -18,10 +18,12 @@
    fails, or always with ``force_extend``), the extended model is calibrated by the
    same active-design chain as the study
    (:func:`~bayescalib.diagnosis.extended.extended_calibration`, which says whether it
-   converged) and compared by its log Bayes factor. One that its budget stopped
-   unconverged is represented by whichever of its last two rounds' posteriors the real
-   solves of step 5 confirm better (:func:`_better_confirmed_round`): the last round's
-   posterior can have moved where no solve has checked the surrogate yet.
+   converged) and compared by its log Bayes factor (then, when the single extensions
+   call for it, the joint model of the best of them: :func:`joint_of_singles`). One
+   that its budget stopped unconverged is represented by whichever of its last two
+   rounds' posteriors the real solves of step 5 confirm better
+   (:func:`_better_confirmed_round`): the last round's posterior can have moved where
+   no solve has checked the surrogate yet.
 5. *Show* — the predictive check is repeated with draws of each extended posterior:
    residual RMS, band coverage and p-values before/after, the posterior of ``phi``,
    and the change of the base parameters' error against the ground truth when known.
