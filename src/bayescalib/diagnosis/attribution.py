@@ -37,7 +37,10 @@ proposal is no verdict: every selected set is calibrated with real solves and ke
 when its Bayes factor and its fit say so (:mod:`bayescalib.diagnosis.stage`). A candidate
 whose one-step estimate ``phi_hat`` lies far outside its plausible range (``ranges``,
 with a margin of half the range's width) is not selected: an effect that needs an
-absurd magnitude is not the cause.
+absurd magnitude is not the cause. It is not hidden either: when such a candidate is
+significant and alone explains at least ``r2_min``, the verdict says so (its estimate
+and the range it leaves) instead of "no candidate explains the mismatch", and the
+diagnosis sets it aside by name (:func:`bayescalib.diagnosis.stage.set_aside_candidates`).
 The selection *explains* the mismatch when together it explains at least ``r2_min`` of
 the residual beyond noise; otherwise the verdict is "no candidate explains the
 mismatch" (a significant but partial fit is reported as such, never as the cause).
@@ -205,16 +208,26 @@ def attribute(
         partial, selected = selected, []
     else:
         partial = []
+    # significant candidates that would explain most of the mismatch at a magnitude
+    # outside their plausible range: never "no candidate explains it" without them
+    aside = [t for t in tests if not plausible(t) and t.p_value < level
+             and t.explained >= r2_min]
     if selected:
         verdict = (f"the mismatch is explained by {' + '.join(selected)} "
                    f"({100 * explained:.0f} % of the residual beyond noise that the base "
                    "parameters cannot absorb)")
-    elif partial:
-        verdict = (f"no candidate explains the mismatch: the best, {' + '.join(partial)}, "
-                   f"is significant but explains only {100 * explained:.0f} % of it")
-        explained = 0.0
     else:
-        verdict = "no candidate explains the mismatch"
+        verdict = ("no candidate within its plausible range explains the mismatch" if aside
+                   else "no candidate explains the mismatch")
+        if partial:
+            verdict += (f": the best, {' + '.join(partial)}, is significant but explains "
+                        f"only {100 * explained:.0f} % of it")
+            explained = 0.0
+        for t in aside:
+            lo, hi = ranges[t.name]
+            verdict += (f"; {t.name} would explain {100 * t.explained:.0f} % of it, but its "
+                        f"estimated magnitude {t.phi_hat:.3g} lies outside its plausible "
+                        f"range [{lo:.3g}, {hi:.3g}]")
     ranking = [{**t.to_json(), "phi_hat_plausible": plausible(t)} for t in tests]
     return {"ranking": ranking, "selected": selected,
             "explained": explained, "threshold": level, "verdict": verdict, "steps": steps}

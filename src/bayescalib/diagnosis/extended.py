@@ -2,8 +2,9 @@
 
 The extended parameter vector is ``(x, theta, phi_1, ..., phi_k)``: the study's
 parameters plus each candidate's ``phi`` with a uniform prior on its range (one
-candidate, or two found together by the attribution, which are then modelled
-together). Because every candidate is nested (``phi = 0`` is the base model exactly),
+candidate, or several modelled together: those the attribution found together, or the
+single extensions that each fit better when none explains the mismatch alone,
+:func:`bayescalib.diagnosis.stage.joint_of_singles`). Because every candidate is nested (``phi = 0`` is the base model exactly),
 every base design point is a valid training point of the extended model at
 ``phi = 0``: the base training table is reused as is (unless the model has a step at
 ``phi = 0+``, as the permeable biofilm has: then it is trained on its own solves),

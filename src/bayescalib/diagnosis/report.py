@@ -85,7 +85,9 @@ def _html(d: Mapping[str, Any]) -> str:
         f"{html.escape(r.get('unit', ''))}</td></tr>"
         for r in d["attribution"]["ranking"])
     ext = "".join(
-        f"<tr><td>{html.escape(e['candidate'])}</td><td>{e['log_bayes_factor']:.2f}</td>"
+        f"<tr><td>{html.escape(e['candidate'])}</td>"
+        f"<td>{html.escape(_ORIGIN.get(e.get('origin', ''), ''))}</td>"
+        f"<td>{e['log_bayes_factor']:.2f}</td>"
         + "<td>" + "<br>".join(f"{html.escape(n)}: {p['mean']:.3g} &plusmn; {p['std']:.2g} "
                                f"{html.escape(p['unit'])}" for n, p in e["phi"].items())
         + "</td>"
@@ -95,6 +97,7 @@ def _html(d: Mapping[str, Any]) -> str:
            if e["check_after"] is not None else
            "<td colspan='3'>not solvable at its posterior draws</td></tr>")
         for e in d["extended"])
+    aside = "".join(_set_aside_row(e) for e in d.get("set_aside") or [])
     words = "".join(f"<p>{html.escape(s)}</p>" for s in d["plain_words"])
     return (
         "<!DOCTYPE html><html><head><meta charset='utf-8'><title>Model-form diagnosis</title>"
@@ -104,8 +107,42 @@ def _html(d: Mapping[str, Any]) -> str:
         "<tr><th>candidate</th><th>score S</th><th>p-value</th><th>explains</th>"
         "<th>not absorbed by E, nu, ...</th><th>estimated phi</th></tr>"
         f"{rows}</table>"
+        + ("<h2>Candidates set aside</h2><p>Not in any extended model, each with what "
+           "could be done about it.</p><table border='1' cellpadding='3'>"
+           "<tr><th>candidate</th><th>why</th><th>estimated phi</th><th>plausible range</th>"
+           "<th>p-value</th><th>explains</th><th>what to do</th></tr>"
+           f"{aside}</table>" if aside else "")
         + ("<h2>Extended models</h2><table border='1' cellpadding='3'><tr><th>candidate</th>"
-           "<th>ln Bayes factor</th><th>phi</th><th>residual RMS after</th>"
+           "<th>calibrated because</th><th>ln Bayes factor</th><th>phi</th>"
+           "<th>residual RMS after</th>"
            f"<th>band coverage after</th><th>explains the mismatch</th></tr>{ext}</table>"
            if ext else "")
         + "</body></html>\n")
+
+
+#: why an extended model was calibrated (``origin`` of its record), for the report
+_ORIGIN = {
+    "ranking": "ranked among the best by the attribution",
+    "attribution": "selected together by the attribution",
+    "joint of singles": "its effects each fit significantly better alone",
+}
+
+
+def _set_aside_row(e: Mapping[str, Any]) -> str:
+    """A candidate set aside as a table row: why, estimate, range, p, share, advice."""
+    p = "" if e.get("p_value") is None else f"{e['p_value']:.2g}"
+    share = ("" if e.get("explained_fraction") is None else
+             f"{100 * e['explained_fraction']:.0f} %")
+    todo = "; ".join(x for x in (e.get("failure"), e["advice"]) if x)
+    return (f"<tr><td>{html.escape(e['candidate'])}</td><td>{html.escape(e['reason'])}</td>"
+            f"<td>{_num(e.get('estimate'), e['unit'])}</td>"
+            f"<td>[{e['range'][0]:.3g}, {e['range'][1]:.3g}] {html.escape(_unit(e['unit']))}"
+            f"</td><td>{p}</td><td>{share}</td><td>{html.escape(todo)}</td></tr>")
+
+
+def _unit(unit: str) -> str:
+    return "" if unit in ("", "-") else unit
+
+
+def _num(x: float | None, unit: str) -> str:
+    return "" if x is None else f"{x:.3g} {html.escape(_unit(unit))}".rstrip()

@@ -18,10 +18,12 @@
    fails, or always with ``force_extend``), the extended model is calibrated by the
    same active-design chain as the study
    (:func:`~bayescalib.diagnosis.extended.extended_calibration`, which says whether it
-   converged) and compared by its log Bayes factor. One that its budget stopped
-   unconverged is represented by whichever of its last two rounds' posteriors the real
-   solves of step 5 confirm better (:func:`_better_confirmed_round`): the last round's
-   posterior can have moved where no solve has checked the surrogate yet.
+   converged) and compared by its log Bayes factor (then, when the single extensions
+   call for it, the joint model of the best of them: :func:`joint_of_singles`). One
+   that its budget stopped unconverged is represented by whichever of its last two
+   rounds' posteriors the real solves of step 5 confirm better
+   (:func:`_better_confirmed_round`): the last round's posterior can have moved where
+   no solve has checked the surrogate yet.
 5. *Show* — the predictive check is repeated with draws of each extended posterior:
    residual RMS, band coverage and p-values before/after, the posterior of ``phi``,
    and the change of the base parameters' error against the ground truth when known.
@@ -38,7 +40,20 @@ A candidate whose signature solve fails at its step is tried again (:func:`retry
 the opposite sign, half steps; then from the solved posterior draw nearest the mean);
 one that no attempt could solve is *not testable* and the verdict names it instead of
 saying that no candidate explains the mismatch. Candidates selected together by the
-attribution are also calibrated together (one extended model with both ``phi``).
+attribution are also calibrated together (one extended model with both ``phi``). The
+attribution sees each effect through its first-order signature only and may not select
+two that are present at once; so when two or more *single* extensions each fit
+significantly better than the base model and none explains the mismatch alone, the
+joint model of the best of them is calibrated too (:func:`joint_of_singles`, up to
+``diagnose.max_effects``; :func:`model_extensions`), and the plain words say why.
+
+Nothing is set aside unseen: every candidate no extended model contains (not
+identifiable, a significant one whose estimated magnitude lies outside its plausible
+range, a significant one ranked below the ``n_extend`` calibrated, one not testable) is
+recorded with its estimate, the range it violates and what the user could do
+(:func:`set_aside_candidates`; ``set_aside`` of diagnosis.json, the plain words and the
+report), and while one of them alone would explain most of the mismatch the verdict
+says so instead of "no candidate explains it".
 
 Not every mismatch is physics: a rigid misregistration of the observed interfaces
 (``diagnose.registration``; :mod:`bayescalib.geometry.registration`) is tested as a
@@ -46,10 +61,11 @@ block of nuisance effects (:func:`~bayescalib.diagnosis.attribution.block_test`)
 when significant, re-checked with the observations registered back (the same draws'
 solves). A mismatch located on the zero-load snapshot is reported as not flow-driven.
 
-The chosen model is, among the extended models whose real forward solves at their
-posterior draws *explain* the mismatch (:func:`explains_mismatch`: the check passes or
-the residual RMS is within :data:`EXPLAINED_RMS` times the noise), the one with the
-largest log Bayes factor, if that exceeds ``ln 3``; otherwise the base model. The
+The chosen model (:func:`choose_extension`) is, among the extended models whose real
+forward solves at their posterior draws *explain* the mismatch
+(:func:`explains_mismatch`: the check passes or the residual RMS is within
+:data:`EXPLAINED_RMS` times the noise), the one with the largest log Bayes factor, if
+that exceeds ``ln 3``; otherwise the base model. The
 verdict (:func:`decide_verdict`) is decided after the modelling, so it never names a
 cause the chosen model does not contain.
 """
@@ -69,10 +85,11 @@ from bayescalib.diagnosis.extended import CandidateSpec, extended_calibration, j
 from bayescalib.inference.posterior import equal_weight_draws
 from bayescalib.stages import model_interfaces, read_stage_file
 
-__all__ = ["IMAGE_NOISE_LAG_PIXELS", "decide_verdict", "explains_mismatch",
-           "noise_lag", "plain_words", "reference_noise", "resolve_candidates", "resolve_noise_model",
-           "retry_steps", "run_diagnosis",
-           "thinned_observations"]
+__all__ = ["IMAGE_NOISE_LAG_PIXELS", "MIN_IDENTIFIABLE", "choose_extension", "decide_verdict",
+           "explains_mismatch", "fits_better", "joint_of_singles", "judge_extensions",
+           "model_extensions", "noise_lag", "plain_words", "reference_noise",
+           "resolve_candidates", "resolve_noise_model", "retry_steps", "run_diagnosis",
+           "set_aside_candidates", "thinned_observations", "widened_range"]
 
 log = logging.getLogger(__name__)
 
@@ -93,6 +110,15 @@ LN_BF_MIN = math.log(3.0)
 #: an extension (or a registration) explains the mismatch when its re-check passes or
 #: its residual RMS is within this factor of the noise sd
 EXPLAINED_RMS = 1.5
+
+#: a candidate at most this fraction of whose signature lies beyond what the base
+#: parameters can mimic (``identifiable_fraction``) is not identifiable: set aside
+MIN_IDENTIFIABLE = 0.05
+
+#: what the user can do about a candidate whose signature solves all failed
+NOT_TESTABLE_ADVICE = ("make the forward model solve with it switched on (the solver's "
+                       "reasons per attempt: diagnosis.json, signature_attempts) and "
+                       "rerun the diagnosis")
 
 #: signature solves tried at the posterior mean after the candidate's step failed
 N_RETRY_STEPS = 3
@@ -681,7 +707,6 @@ def run_diagnosis(
             h, fd, targets, names, (lo, hi), fm, cfg, work, workers, warm_start, sigma)
 
     # 4-5: model and show ------------------------------------------------------------
-    extended = []
     refit = refit_test(r, J, np.full(len(r), check.sigma**2))
     refit["step"] = dict(zip([names[i] for i in fd], refit["step"], strict=True))
     refit["parameters"] = {n: float(theta[names.index(n)] + d) for n, d in refit["step"].items()}
@@ -694,107 +719,104 @@ def run_diagnosis(
                             single_snapshot=single)
     # no candidate is modelled when the base parameters absorb the mismatch, or when a
     # misregistration explains it and the attribution selected no physics
-    run_ext = (not check.adequate and screen != ABSORBED
-               and not (screen == MISREGISTERED and not attr["selected"])) \
-        or bool(cfg["force_extend"])
-    if run_ext and int(cfg["n_extend"]) > 0:
+    run_ext = ((not check.adequate and screen != ABSORBED
+                and not (screen == MISREGISTERED and not attr["selected"]))
+               or bool(cfg["force_extend"])) and int(cfg["n_extend"]) > 0
+    n_new = int(cfg["n_train"] or active["n_initial"])
+    max_new = int(cfg["max_solves"] or active["max_solves"])
+
+    def calibrate(group: list[CandidateSpec]) -> dict[str, Any]:
+        """Calibrate base + ``group`` and re-check it with real solves (steps 4-5); the
+        extension's record, not yet judged (:func:`judge_extensions`)."""
+        name = joint_name(group)
+        cal = extended_calibration(
+            group, fm=fm, parameters=parameters, base_training=training_path,
+            n_new=n_new * len(group), max_new=max_new * len(group),
+            seed=int(cfg["seed"]) + 1, active=active,
+            workdir=work / name.replace(" + ", "+"), **chain)
+        ext_targets = targets + [c.target for c in group]
+        switches = {k: val for c in group for k, val in c.switches.items()}
+        # an extended posterior where the forward model does not solve (the surrogate
+        # interpolates over failed points) cannot be confirmed: recorded, not fatal
+        try:
+            after, n_fail_after, _ = _check_from_particles(
+                name.replace(" + ", "+"), cal["particles"], ext_targets, switches, obs,
+                fm, cfg, work, workers, warm_start,
+                check.sigma if check.sigma_source == "given" else sigma)
+            check_failed = None
+        except PredictiveCheckError as exc:
+            log.warning("%s", exc)
+            after, n_fail_after, check_failed = None, int(cfg["n_draws"]), str(exc)
+        cal, after, n_fail_after, rechecked = _better_confirmed_round(
+            cal, after, n_fail_after, name.replace(" + ", "+"), ext_targets, switches,
+            obs, fm, cfg, work, workers, warm_start,
+            check.sigma if check.sigma_source == "given" else sigma, chain)
+        after, n_fail_after, after_source = _report_check(
+            cal, after, n_fail_after, rechecked, name.replace(" + ", "+"), ext_targets,
+            switches, obs, fm, cfg, work, workers, warm_start,
+            check.sigma if check.sigma_source == "given" else sigma)
+        if after is None and check_failed is None:
+            check_failed = after_source.get("failed")
+        post = cal["posterior"]
+        phi = {c.name: {"mean": float(post["mean"][f"phi_{c.name}"]),
+                        "std": float(post["std"][f"phi_{c.name}"]),
+                        "interval": post["intervals"].get(f"phi_{c.name}"),
+                        "prior": list(c.prior), "unit": c.unit} for c in group}
+        one = phi[group[0].name] if len(group) == 1 else None
+        return {
+            "candidate": name, "members": [c.name for c in group],
+            "summary": "; ".join(c.summary for c in group),
+            "unit": group[0].unit if one else "-",
+            "log_evidence": cal["log_evidence"],
+            "log_bayes_factor": cal["log_evidence"] - base_evidence,
+            "phi": phi,
+            "phi_mean": one["mean"] if one else None,
+            "phi_std": one["std"] if one else None,
+            "phi_prior": one["prior"] if one else None,
+            "phi_interval": one["interval"] if one else None,
+            "n_new_solves": cal["n_new"], "n_reused": cal["n_reused"],
+            "n_failed": cal["n_failed"], "converged": cal["converged"],
+            "reason": cal["reason"], "rounds": history_table(cal["rounds"]),
+            "n_failed_draws_after": int(n_fail_after),
+            "check_after": None if after is None else after.to_json(),
+            "check_after_failed": check_failed,
+            "posterior": {k: post[k] for k in ("names", "mean", "std", "map")},
+            "bias_after": _bias(post, parameters),
+            "particles": cal["particles"],
+            "reported_round": cal.get("reported_round"),
+            "rechecked_rounds": rechecked,
+            "check_after_draws": after_source,
+            "_check": after,
+        }
+
+    groups: list[tuple[list[CandidateSpec], str]] = []
+    if run_ext:
         ranked = [row["candidate"] for row in attr["ranking"]
-                  if row["identifiable_fraction"] > 0.05 and row["phi_hat_plausible"]]
+                  if row["identifiable_fraction"] > MIN_IDENTIFIABLE
+                  and row["phi_hat_plausible"]]
         singles = list(dict.fromkeys(attr["selected"] + ranked))[: int(cfg["n_extend"])]
         by_name = {c.name: c for c in cands}
-        groups = [[by_name[n]] for n in singles]
+        groups = [([by_name[n]], "ranking") for n in singles]
         if len(attr["selected"]) > 1:  # effects found together are modelled together
-            groups.append([by_name[n] for n in attr["selected"]])
-        n_new = int(cfg["n_train"] or active["n_initial"])
-        max_new = int(cfg["max_solves"] or active["max_solves"])
-        for group in groups:
-            name = joint_name(group)
-            cal = extended_calibration(
-                group, fm=fm, parameters=parameters, base_training=training_path,
-                n_new=n_new * len(group), max_new=max_new * len(group),
-                seed=int(cfg["seed"]) + 1, active=active,
-                workdir=work / name.replace(" + ", "+"), **chain)
-            ext_targets = targets + [c.target for c in group]
-            switches = {k: val for c in group for k, val in c.switches.items()}
-            # an extended posterior where the forward model does not solve (the surrogate
-            # interpolates over failed points) cannot be confirmed: recorded, not fatal
-            try:
-                after, n_fail_after, _ = _check_from_particles(
-                    name.replace(" + ", "+"), cal["particles"], ext_targets, switches, obs,
-                    fm, cfg, work, workers, warm_start,
-                    check.sigma if check.sigma_source == "given" else sigma)
-                check_failed = None
-            except PredictiveCheckError as exc:
-                log.warning("%s", exc)
-                after, n_fail_after, check_failed = None, int(cfg["n_draws"]), str(exc)
-            cal, after, n_fail_after, rechecked = _better_confirmed_round(
-                cal, after, n_fail_after, name.replace(" + ", "+"), ext_targets, switches,
-                obs, fm, cfg, work, workers, warm_start,
-                check.sigma if check.sigma_source == "given" else sigma, chain)
-            after, n_fail_after, after_source = _report_check(
-                cal, after, n_fail_after, rechecked, name.replace(" + ", "+"), ext_targets,
-                switches, obs, fm, cfg, work, workers, warm_start,
-                check.sigma if check.sigma_source == "given" else sigma)
-            if after is None and check_failed is None:
-                check_failed = after_source.get("failed")
-            post = cal["posterior"]
-            phi = {c.name: {"mean": float(post["mean"][f"phi_{c.name}"]),
-                            "std": float(post["std"][f"phi_{c.name}"]),
-                            "interval": post["intervals"].get(f"phi_{c.name}"),
-                            "prior": list(c.prior), "unit": c.unit} for c in group}
-            one = phi[group[0].name] if len(group) == 1 else None
-            ext = {
-                "candidate": name, "members": [c.name for c in group],
-                "summary": "; ".join(c.summary for c in group),
-                "unit": group[0].unit if one else "-",
-                "log_evidence": cal["log_evidence"],
-                "log_bayes_factor": cal["log_evidence"] - base_evidence,
-                "phi": phi,
-                "phi_mean": one["mean"] if one else None,
-                "phi_std": one["std"] if one else None,
-                "phi_prior": one["prior"] if one else None,
-                "phi_interval": one["interval"] if one else None,
-                "n_new_solves": cal["n_new"], "n_reused": cal["n_reused"],
-                "n_failed": cal["n_failed"], "converged": cal["converged"],
-                "reason": cal["reason"], "rounds": history_table(cal["rounds"]),
-                "n_failed_draws_after": int(n_fail_after),
-                "check_after": None if after is None else after.to_json(),
-                "check_after_failed": check_failed,
-                "posterior": {k: post[k] for k in ("names", "mean", "std", "map")},
-                "bias_after": _bias(post, parameters),
-                "particles": cal["particles"],
-                "reported_round": cal.get("reported_round"),
-                "rechecked_rounds": rechecked,
-                "check_after_draws": after_source,
-            }
-            ext["improves"] = bool(after is not None and after.rms < check.rms)
-            ext["explains"] = bool(after is not None and explains_mismatch(ext["check_after"],
-                                                                            check))
-            # the Bayes factor comes from GP surrogates: flag it when the real solves at
-            # the extended posterior do not fit better than the base model
-            ext["surrogate_consistent"] = bool(
-                ext["log_bayes_factor"] <= LN_BF_MIN or ext["improves"])
-            ext["_check"] = after
-            extended.append(ext)
-    # one noise level for every re-check: with estimated noise, the least contaminated
-    # estimate (reference_noise); the registration and the extensions judged against it
-    noise_ref = reference_noise(
-        check, [(registration or {}).get("check_after")] + [e["check_after"] for e in extended])
+            groups.append(([by_name[n] for n in attr["selected"]], "attribution"))
+    extended, noise_ref, followup = model_extensions(
+        groups, calibrate, check, registration_after=(registration or {}).get("check_after"),
+        max_effects=int(cfg["max_effects"]), joint_when=str(cfg["joint_of_singles"]))
     if registration is not None and registration.get("check_after") is not None:
         registration["explains"] = bool(registration["first_order"] and explains_mismatch(
             registration["check_after"], check, noise_ref))
-    for e in extended:
-        e["explains"] = bool(e["check_after"] is not None
-                             and explains_mismatch(e["check_after"], check, noise_ref))
-    # the chosen model: among the extensions that the real solves confirm (they explain
-    # the mismatch), the one with the largest log Bayes factor above ln 3
-    confirmed = [e for e in extended if e["explains"] and e["log_bayes_factor"] > LN_BF_MIN]
-    best = max(confirmed, key=lambda e: e["log_bayes_factor"], default=None)
+    best = choose_extension(extended)
+    # a significant candidate left out by n_extend matters while no extension explains it
+    aside = [] if check.adequate else set_aside_candidates(
+        attr["ranking"], cands, failed_sig, threshold=float(attr["threshold"]),
+        r2_min=float(cfg["r2_min"]), calibrated={m for e in extended for m in e["members"]},
+        n_extend=int(cfg["n_extend"]) if run_ext and best is None else None,
+        user_candidates=bool(cfg.get("candidates")))
     chosen = best["candidate"] if best is not None else "base"
     verdict = decide_verdict(check.adequate, attr["selected"], refit, float(cfg["alpha"]),
                              chosen=None if best is None else chosen,
                              modelled=bool(extended), registration=registration,
-                             untestable=untestable, single_snapshot=single)
+                             untestable=untestable, single_snapshot=single, set_aside=aside)
     out = {
         "verdict": verdict,
         "screening_verdict": screen,
@@ -811,6 +833,8 @@ def run_diagnosis(
         "signature_attempts": attempts,
         "posterior_mean": dict(zip(names, map(float, theta), strict=True)),
         "extended": [{k: val for k, val in e.items() if k != "_check"} for e in extended],
+        "joint_of_singles": followup,
+        "set_aside": aside,
         "chosen_model": chosen,
         "bias_before": _bias(base_summary, parameters),
         "base_calibration": base_design,
@@ -872,10 +896,258 @@ def reference_noise(base: Any, afters: Sequence[Mapping[str, Any] | None]) -> fl
                                              if a is not None]))
 
 
+def judge_extensions(extended: Sequence[dict[str, Any]], base: Any,
+                     registration_after: Mapping[str, Any] | None = None) -> float:
+    """Judge each calibrated extension against the base model, in place.
+
+    Sets ``improves`` (its real solves fit better than the base model's), ``explains``
+    (:func:`explains_mismatch` against the one noise level of :func:`reference_noise`,
+    over the base check, the registered observations' re-check ``registration_after``
+    and every extension's) and ``surrogate_consistent`` (a log Bayes factor above
+    ``ln 3`` that the real solves do not confirm is the surrogate's, flagged).
+
+    Returns
+    -------
+    float
+        The reference noise sd (mm).
+    """
+    noise_ref = reference_noise(base, [registration_after]
+                                + [e["check_after"] for e in extended])
+    for e in extended:
+        after = e["check_after"]
+        e["improves"] = bool(after is not None
+                             and float(after["residual_rms_mm"]) < float(base.rms))
+        e["explains"] = bool(after is not None and explains_mismatch(after, base, noise_ref))
+        # the Bayes factor comes from GP surrogates: flag it when the real solves at the
+        # extended posterior do not fit better than the base model
+        e["surrogate_consistent"] = bool(e["log_bayes_factor"] <= LN_BF_MIN or e["improves"])
+    return noise_ref
+
+
+def fits_better(e: Mapping[str, Any]) -> bool:
+    """Whether a judged extension fits significantly better than the base model: its
+    log Bayes factor exceeds ``ln 3`` (:data:`LN_BF_MIN`, the evidence the choice of a
+    model asks for) and its real solves fit better (``improves``)."""
+    return bool(e["log_bayes_factor"] > LN_BF_MIN and e["improves"])
+
+
+def choose_extension(extended: Sequence[Mapping[str, Any]]) -> Mapping[str, Any] | None:
+    """The chosen extension: among those whose real solves explain the mismatch, the
+    one with the largest log Bayes factor, if that exceeds ``ln 3``; None: the base
+    model stays."""
+    confirmed = [e for e in extended if e["explains"] and e["log_bayes_factor"] > LN_BF_MIN]
+    return max(confirmed, key=lambda e: e["log_bayes_factor"], default=None)
+
+
+def joint_of_singles(extended: Sequence[Mapping[str, Any]], *, max_effects: int,
+                     when: str) -> dict[str, Any] | None:
+    """The joint model to calibrate after the single extensions, if any.
+
+    Two effects present at once can each take part of the mismatch: each single
+    extension then fits significantly better than the base model (:func:`fits_better`)
+    and none explains the mismatch alone, while the linearized attribution, which sees
+    each effect through its first-order signature only, may not have selected them
+    together. Then the joint model of the best of them (largest log Bayes factors, up
+    to ``max_effects``) is calibrated too, and chosen or not by evidence and fit like
+    any other (:func:`choose_extension`).
+
+    Parameters
+    ----------
+    extended
+        The judged extensions so far (:func:`judge_extensions`); singles have one member.
+    max_effects
+        Most effects in one model (``diagnose.max_effects``).
+    when
+        ``diagnose.joint_of_singles``: ``"unexplained"`` (none of them explains the
+        mismatch alone), ``"always"`` (also when one does: a second effect may sit beside
+        one that passes the check) or ``"never"``.
+
+    Returns
+    -------
+    dict or None
+        ``candidate`` (:func:`~bayescalib.diagnosis.extended.joint_name` order),
+        ``members``, ``why`` (``"none explains alone"`` or ``"one explains alone"``) and
+        ``singles`` (each single that fits better: ``candidate``, ``log_bayes_factor``,
+        ``residual_rms_mm``, ``explains``, best first); None when no joint model is due
+        (fewer than two fit better, one explains alone under ``"unexplained"``, or that
+        joint model was calibrated already).
+    """
+    if when == "never" or max_effects < 2:
+        return None
+    better = sorted((e for e in extended if len(e["members"]) == 1 and fits_better(e)),
+                    key=lambda e: -float(e["log_bayes_factor"]))
+    if len(better) < 2:
+        return None
+    alone = any(e["explains"] for e in better)
+    if alone and when != "always":
+        return None
+    members = [e["members"][0] for e in better[:max_effects]]
+    if any(set(e["members"]) == set(members) for e in extended):
+        return None  # the attribution selected them together: calibrated already
+    return {"candidate": " + ".join(members), "members": members,
+            "why": "one explains alone" if alone else "none explains alone",
+            "singles": [{"candidate": e["candidate"],
+                         "log_bayes_factor": float(e["log_bayes_factor"]),
+                         "residual_rms_mm": float(e["check_after"]["residual_rms_mm"]),
+                         "explains": bool(e["explains"])} for e in better]}
+
+
+def model_extensions(groups: Sequence[tuple[Sequence[CandidateSpec], str]], calibrate,
+                     base: Any, *, registration_after: Mapping[str, Any] | None,
+                     max_effects: int, joint_when: str
+                     ) -> tuple[list[dict[str, Any]], float, dict[str, Any] | None]:
+    """Calibrate the extended models and judge them (steps 4-5).
+
+    Each group (its candidates and why it is calibrated: ``"ranking"`` for a single
+    candidate of the ranking, ``"attribution"`` for those the attribution selected
+    together) is calibrated by ``calibrate(candidates) -> record`` and judged
+    (:func:`judge_extensions`). When the single extensions call for it
+    (:func:`joint_of_singles`, ``joint_when``: ``diagnose.joint_of_singles``), the joint
+    model of the best of them is calibrated next
+    (origin ``"joint of singles"``) and every extension is judged again (the noise
+    reference may change with its re-check).
+
+    Returns
+    -------
+    extended : list of dict
+        The records of ``calibrate`` with ``origin`` and the judgement.
+    noise_ref : float
+        The reference noise sd, mm.
+    joint : dict or None
+        The joint model calibrated after the singles (:func:`joint_of_singles`).
+    """
+    extended = []
+    for group, origin in groups:
+        extended.append({**calibrate(list(group)), "origin": origin})
+    noise_ref = judge_extensions(extended, base, registration_after)
+    joint = joint_of_singles(extended, max_effects=max_effects, when=joint_when)
+    if joint is not None:
+        by_name = {c.name: c for group, _ in groups for c in group}
+        log.info("%s each fit better than the base model and %s: calibrating %s",
+                 ", ".join(joint["members"]), joint["why"], joint["candidate"])
+        extended.append({**calibrate([by_name[n] for n in joint["members"]]),
+                         "origin": "joint of singles"})
+        noise_ref = judge_extensions(extended, base, registration_after)
+    return extended, noise_ref, joint
+
+
+def _config_key(name: str, cands: Sequence[CandidateSpec], user_candidates: bool) -> str:
+    """Where the prior range of a candidate is set."""
+    if user_candidates:
+        return f"diagnose.candidates[{[c.name for c in cands].index(name)}].prior"
+    return f"diagnose.priors.{name}"
+
+
+def _round_out(x: float, up: bool) -> float:
+    """``x`` rounded outward (up or down) to two significant digits."""
+    if x == 0.0:
+        return 0.0
+    f = 10.0 ** (math.floor(math.log10(abs(x))) - 1)
+    return float((math.ceil(x / f) if up else math.floor(x / f)) * f)
+
+
+def widened_range(prior: Sequence[float], estimate: float) -> list[float]:
+    """A prior range widened to hold ``estimate`` with room to spare: the bound it
+    passes moved to 1.5 times the estimate's distance from the other bound, rounded
+    outward to two significant digits."""
+    lo, hi = (float(x) for x in prior)
+    if estimate > hi:
+        return [lo, _round_out(lo + 1.5 * (estimate - lo), up=True)]
+    if estimate < lo:
+        return [_round_out(hi - 1.5 * (hi - estimate), up=False), hi]
+    return [lo, hi]
+
+
+def set_aside_candidates(ranking: Sequence[Mapping[str, Any]], cands: Sequence[CandidateSpec],
+                         failed: Mapping[str, str], *, threshold: float, r2_min: float,
+                         calibrated: set[str], n_extend: int | None,
+                         user_candidates: bool) -> list[dict[str, Any]]:
+    """Every candidate the diagnosis set aside, each with what the user could do.
+
+    A candidate that no extended model contains is set aside, by ``reason``:
+
+    * ``"not identifiable"``: at most :data:`MIN_IDENTIFIABLE` of its signature is
+      beyond what the base parameters can mimic; these data cannot tell it from them
+      (advice: a snapshot at another loading);
+    * ``"implausible magnitude"``: significant (p below ``threshold``, the attribution's
+      Bonferroni level), but its one-step estimate lies outside its plausible range by
+      more than half the range's width (advice: widen the prior to ``suggested_range``
+      if such a magnitude is possible, :func:`widened_range`);
+    * ``"not calibrated"``: significant, plausible and identifiable, but ranked below the
+      ``n_extend`` candidates calibrated (advice: raise ``diagnose.n_extend``); only
+      where it matters, when extensions were calibrated and none explains the mismatch
+      (the caller passes ``n_extend``; None: none of these);
+    * ``"not testable"``: its signature solves failed at every step tried (``failed``).
+
+    ``large_share`` marks a significant one that alone explains at least ``r2_min`` of
+    the mismatch beyond noise (to first order): the verdict never says that no
+    candidate explains the mismatch while one of those is set aside.
+
+    Returns
+    -------
+    list of dict
+        In the ranking's order (the untestable last): ``candidate``, ``summary``,
+        ``unit``, ``reason``, ``rank``, ``p_value``, ``explained_fraction``,
+        ``identifiable_fraction``, ``estimate`` (the one-step ``phi_hat``), ``range``
+        (its prior), ``large_share``, ``config_key`` (where its range is set),
+        ``advice``; ``suggested_range`` for an implausible magnitude, ``failure`` for
+        an untestable one.
+    """
+    by_name = {c.name: c for c in cands}
+    out = []
+    for rank, row in enumerate(ranking, start=1):
+        name = row["candidate"]
+        if name in calibrated:
+            continue
+        c = by_name[name]
+        significant = float(row["p_value"]) < threshold
+        est = float(row["phi_hat"])
+        key = _config_key(name, cands, user_candidates)
+        entry = {"candidate": name, "summary": c.summary, "unit": c.unit, "rank": rank,
+                 "p_value": float(row["p_value"]),
+                 "explained_fraction": float(row["explained_fraction"]),
+                 "identifiable_fraction": float(row["identifiable_fraction"]),
+                 "estimate": est, "range": [float(x) for x in c.prior],
+                 "large_share": bool(significant
+                                     and float(row["explained_fraction"]) >= r2_min),
+                 "config_key": key}
+        if float(row["identifiable_fraction"]) <= MIN_IDENTIFIABLE:
+            out.append({**entry, "reason": "not identifiable", "advice": (
+                "a snapshot at another loading (forward_model.loadings, with its "
+                "observation) could tell it apart from the base parameters")})
+        elif significant and not row["phi_hat_plausible"]:
+            wide = widened_range(c.prior, est)
+            out.append({**entry, "reason": "implausible magnitude", "suggested_range": wide,
+                        "advice": (
+                            f"if a magnitude of {est:.3g}{_unit(c.unit)} is physically "
+                            f"possible, widen its prior ({key}: [{wide[0]:.3g}, "
+                            f"{wide[1]:.3g}]) and rerun the diagnosis; if not, it only "
+                            "mimics the mismatch, and a snapshot at another loading could "
+                            "tell them apart")})
+        elif significant and n_extend is not None:
+            out.append({**entry, "reason": "not calibrated", "advice": (
+                f"raise diagnose.n_extend (now {n_extend}) to calibrate it")})
+    for name, why in failed.items():
+        c = by_name[name]
+        out.append({"candidate": name, "summary": c.summary, "unit": c.unit, "rank": None,
+                    "p_value": None, "explained_fraction": None,
+                    "identifiable_fraction": None, "estimate": None,
+                    "range": [float(x) for x in c.prior], "large_share": False,
+                    "config_key": _config_key(name, cands, user_candidates),
+                    "reason": "not testable", "failure": why, "advice": NOT_TESTABLE_ADVICE})
+    return out
+
+
+def _unit(unit: str) -> str:
+    """`` <unit>``, or nothing for a dimensionless ``-``."""
+    return "" if unit in ("", "-") else f" {unit}"
+
+
 def decide_verdict(adequate: bool, selected: Sequence[str], refit: Mapping[str, Any],
                    alpha: float, *, chosen: str | None = None, modelled: bool = False,
                    registration: Mapping[str, Any] | None = None,
-                   untestable: Sequence[str] = (), single_snapshot: bool = False) -> str:
+                   untestable: Sequence[str] = (), single_snapshot: bool = False,
+                   set_aside: Sequence[Mapping[str, Any]] = ()) -> str:
     """The diagnosis verdict, in order of precedence.
 
     1. ``"no significant mismatch"``: the predictive check passes.
@@ -895,9 +1167,14 @@ def decide_verdict(adequate: bool, selected: Sequence[str], refit: Mapping[str, 
        (``refit["p_value"] >= alpha``) at a re-fitted point inside the design box
        (``refit["in_bounds"]``; a step that leaves the box is outside the reach of
        the linearization and of the prior, so it proves nothing).
-    6. ``"mismatch located; no tested candidate explains it (not testable: ...)"`` when
-       some candidates could not be evaluated (their signature solves failed), else
-       ``"mismatch located; no candidate explains it"``.
+    6. ``"mismatch located; not explained by the candidates tested (set aside: growth
+       would explain 76 % at a magnitude outside its plausible range ...)"`` when a
+       candidate set aside (:func:`set_aside_candidates`, ``large_share``) alone explains
+       most of it to first order; else ``"mismatch located; no tested candidate
+       explains it (not testable: ...)"`` when some candidates could not be evaluated
+       (their signature solves failed), else ``"mismatch located; no candidate
+       explains it"``. "No candidate explains it" is never said while a candidate that
+       could was set aside or not tested.
     """
     misregistered = registration is not None and bool(registration.get("explains"))
     if adequate:
@@ -913,10 +1190,27 @@ def decide_verdict(adequate: bool, selected: Sequence[str], refit: Mapping[str, 
         return "mismatch attributed to " + " + ".join(selected) + " (not modelled)"
     if refit.get("in_bounds", False) and float(refit["p_value"]) >= alpha:
         return ABSORBED
+    large = [e for e in set_aside if e.get("large_share")]
+    if large:
+        notes = ["set aside: " + "; ".join(
+            f"{e['candidate']} would explain {100 * float(e['explained_fraction']):.0f} % "
+            + _SET_ASIDE_SHORT[e["reason"]] for e in large)]
+        if untestable:
+            notes.append("not testable: " + ", ".join(untestable))
+        return "mismatch located; not explained by the candidates tested (" \
+            + "; ".join(notes) + ")"
     if untestable:
         return ("mismatch located; no tested candidate explains it (not testable: "
                 + ", ".join(untestable) + ")")
     return "mismatch located; no candidate explains it"
+
+
+#: why a candidate that would explain most of the mismatch was set aside, for the verdict
+_SET_ASIDE_SHORT = {
+    "implausible magnitude": "at a magnitude outside its plausible range",
+    "not identifiable": "but cannot be told apart from the base parameters",
+    "not calibrated": "but was not calibrated (diagnose.n_extend)",
+}
 
 
 def _phi_words(e: Mapping[str, Any]) -> str:
@@ -967,6 +1261,66 @@ def _rms_after_words(e: Mapping[str, Any]) -> str:
                   f"bootstrap over draws {1e3 * sp['bootstrap_q16_mm']:.2f}-"
                   f"{1e3 * sp['bootstrap_q84_mm']:.2f} um")
     return words
+
+
+def _ordinal(k: int) -> str:
+    return f"{k}{'th' if 10 <= k % 100 <= 20 else {1: 'st', 2: 'nd', 3: 'rd'}.get(k % 10, 'th')}"
+
+
+def _names(names: Sequence[str]) -> str:
+    """``a``, ``a and b``, ``a, b and c``."""
+    return names[0] if len(names) == 1 else ", ".join(names[:-1]) + " and " + names[-1]
+
+
+def _set_aside_words(e: Mapping[str, Any], d: Mapping[str, Any]) -> str:
+    """One candidate set aside (:func:`set_aside_candidates`), in plain words: why, its
+    estimate, the range or threshold it violates and what the user could do."""
+    name, u = e["candidate"], _unit(e["unit"])
+    lo, hi = e["range"]
+    what = f"{name} ({e['summary']})" if e.get("summary") else name
+    seen = (f"The linearized attribution ranks it {_ordinal(int(e['rank']))} "
+            f"({_p_words(float(e['p_value']))}; alone it would explain "
+            f"{100 * float(e['explained_fraction']):.0f} % of the mismatch beyond noise)")
+    advice = e["advice"][0].upper() + e["advice"][1:]
+    if e["reason"] == "implausible magnitude":
+        return (f"Set aside: {what}. {seen}, but its estimated magnitude, phi_{name} = "
+                f"{float(e['estimate']):.3g}{u}, lies outside its plausible range "
+                f"[{lo:.3g}, {hi:.3g}]{u} by more than half the range's width, so no "
+                f"extended model with it was calibrated. {advice}.")
+    if e["reason"] == "not identifiable":
+        base = ", ".join(d.get("posterior_mean") or {}) or "E, nu, ..."
+        return (f"Set aside: {what}. Only {100 * float(e['identifiable_fraction']):.2g} % "
+                f"of its signature is beyond what the base parameters ({base}) can mimic "
+                f"(more than {100 * MIN_IDENTIFIABLE:.0f} % needed; its estimate phi_{name} "
+                f"= {float(e['estimate']):.3g}{u}, {_p_words(float(e['p_value']))}): these "
+                "data cannot tell it apart from them, so it can neither be blamed nor "
+                f"ruled out, and no extended model with it was calibrated. {advice}.")
+    return (f"Not calibrated: {what}. {seen}, with phi_{name} = "
+            f"{float(e['estimate']):.3g}{u} in its range [{lo:.3g}, {hi:.3g}]{u}, but it "
+            f"ranks below the candidates calibrated. {advice}.")
+
+
+def _joint_words(joint: Mapping[str, Any], d: Mapping[str, Any]) -> str:
+    """Why the joint model of single extensions was calibrated (:func:`joint_of_singles`)."""
+    singles = joint["singles"]
+    base_rms = 1e3 * float(d["check"]["residual_rms_mm"])
+    head = (f"{_names([s['candidate'] for s in singles])} each fit significantly better "
+            "than the base model (log Bayes factors "
+            + ", ".join(f"{s['log_bayes_factor']:.2f}" for s in singles)
+            + f" > ln 3; residual RMS {base_rms:.2f} -> "
+            + ", ".join(f"{1e3 * s['residual_rms_mm']:.2f}" for s in singles) + " um)")
+    if joint["why"] == "one explains alone":
+        why = (f"; {_names([s['candidate'] for s in singles if s['explains']])} explains the "
+               "mismatch alone, but the other may be a second effect beside it")
+    else:
+        why = (", but none explains the mismatch alone" if len(singles) > 2 else
+               ", but neither explains the mismatch alone")
+        why += ": each may carry a part of it"
+    best = ("" if len(joint["members"]) == len(singles) else
+            f" (the {len(joint['members'])} with the largest Bayes factors, "
+            "diagnose.max_effects)")
+    return (head + why + f". So their joint model, base + {joint['candidate']}{best}, was "
+            "calibrated as well, and chosen or not by evidence and fit like the others.")
 
 
 def plain_words(d: Mapping[str, Any]) -> list[str]:
@@ -1068,8 +1422,13 @@ def plain_words(d: Mapping[str, Any]) -> list[str]:
         lines.append(
             f"Not testable: {name}. Its signature solves failed at every step and place "
             f"tried (diagnosis.json: signature_attempts; {why}); "
-            "it can neither be blamed nor ruled out.")
+            f"it can neither be blamed nor ruled out. To test it, {NOT_TESTABLE_ADVICE}.")
+    lines += [_set_aside_words(e, d) for e in d.get("set_aside") or []
+              if e["reason"] != "not testable"]
+    joint = d.get("joint_of_singles")
     for e in d["extended"]:
+        if joint is not None and e["candidate"] == joint["candidate"]:
+            lines.append(_joint_words(joint, d))
         ca = e["check_after"]
         if ca is None:
             lines.append(
