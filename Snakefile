@@ -79,7 +79,7 @@ if workflow.is_main_process:
     set_plan(run_plan(
         study.name, R, active=study.active,
         budget=study.config["design"]["active"]["max_solves"] if study.active else study.n_points,
-        units={p["name"]: p.get("unit", "-") for p in study.config["parameters"]}))
+        units={p["name"]: p["unit"] for p in study.config["parameters"]}))
 
 # the report's front page reads the study's key numbers from here (workflow.rst);
 # cheap: one small JSON file, read only when it exists

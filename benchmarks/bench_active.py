@@ -581,7 +581,8 @@ def run_sobol_gp(prob: Problem, budget: int, seed: int) -> dict[str, Any]:
     space = make_space(prob)
     X = sobol_design(prob.bounds, budget, seed)
     y = f(X)
-    gp = fit_gp(X, y, ard=prob.d > 2, bounds=prob.bounds, restarts=3, seed=seed)
+    gp = fit_gp(X, y, ard=prob.d > 2, bounds=prob.bounds, restarts=3, seed=seed,
+                kernel="matern32", nugget="fixed", mean="constant")
     smc = metric_smc(gp.predict, prob, seed)
     return {
         "samples": smc.particles,

@@ -231,7 +231,7 @@ def _round_stages(root: Path, cfg: dict) -> dict[str, list[float]]:
             runs = [root / "runs" / f"{i}.h5" for i in range(n)]
             disc = [root / "discrepancy" / m / f"{i}.json" for i in range(n)]
             names = [p["name"] for p in cfg["parameters"]]
-            targets = [p.get("target") or p["name"] for p in cfg["parameters"]]
+            targets = [p["target"] for p in cfg["parameters"]]
             # the workflow passes the last round's files (where the tree's code can reuse)
             final = r is None and last is not None and _takes_reuse(stages)
             reuse_train = {"reuse": [last / "training.h5", last / "surrogate.h5"]} if final else {}

@@ -95,7 +95,7 @@ def run_case(prob, X, L, Xt, Lt, A, kernel, seed):
     zb = np.column_stack([Z.min(0), Z.max(0)])  # fixed shift/scale: identity up to translation
     zb[:, 1] = zb[:, 0] + 1.0
     gp = fit_gp(Z, L, ard=True, bounds=zb, restarts=3, seed=seed, bound=prob.B, warp=True,
-                kernel=kernel)
+                kernel=kernel, nugget="fixed", mean="constant")
     err = np.abs(gp.predict(to_z(Xt)) - Lt)
     space = ba.make_space(prob)
     smc = run_smc(lambda Y: gp.predict(to_z(Y)), space, n_particles=4000, n_rej=20, zeta=0.95,

@@ -96,7 +96,7 @@ def main(argv: list[str] | None = None) -> int:
     for label, off in (("log", log_input_offsets(bounds)), ("linear", None)):
         gp = fit_gp(Xa, La, ard=True, bounds=bounds, bound=B, warp=False, kernel="matern52",
                     rotation=principal_frame(Xa, La, bounds, off), log_offset=off, restarts=2,
-                    device="cpu")
+                    device="cpu", nugget="fixed", mean="constant")
         e = np.abs(Lh[region] - gp.predict(Xh[region]))
         smc = smc_from_config(gp.predict, space, smc_cfg)
         W = smc.weights / smc.weights.sum()

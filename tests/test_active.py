@@ -80,7 +80,9 @@ def test_log_misfit_warping_round_trips_and_interpolates_the_training_values():
     B = 10.0
     X = sobol_design(space.bounds, 16, 3)
     L = B - 100.0 * np.sum((X - 0.4) ** 2, axis=1)
-    gp = fit_gp(X, L, bounds=space.bounds, bound=B, warp=True, restarts=1)
+    gp = fit_gp(X, L, bounds=space.bounds, bound=B,
+                warp=True, restarts=1,
+                kernel="matern32", nugget="fixed", mean="constant", ard=False)
     assert gp.warped
     np.testing.assert_allclose(gp.loglik_train, L, rtol=0, atol=1e-9)
     np.testing.assert_allclose(gp.latent_from_loglik(gp.loglik_from_latent(gp.y_train)),
@@ -138,7 +140,8 @@ def _fitted(n=16, seed=0):
     space = _space([(-3, 3), (-3, 3)])
     ll = _gaussian_misfit([0.5, -0.5], np.array([[0.3, 0.1], [0.1, 0.2]]))
     X = sobol_design(space.bounds, n, seed)
-    gp = fit_gp(X, ll(X), bounds=space.bounds, bound=0.0, restarts=1)
+    gp = fit_gp(X, ll(X), bounds=space.bounds, bound=0.0, restarts=1,
+                kernel="matern32", nugget="fixed", mean="constant", ard=False, warp=True)
     return space, ll, X, gp
 
 
@@ -176,7 +179,8 @@ def test_the_exploiting_batch_lies_where_the_posterior_mass_is():
     for seed in range(4):
         rng = np.random.default_rng(seed)
         X = np.vstack([sobol_design(space.bounds, 16, seed), rng.multivariate_normal(m, C, 8)])
-        gp = fit_gp(X, ll(X), bounds=space.bounds, bound=0.0, restarts=1, warp=True)
+        gp = fit_gp(X, ll(X), bounds=space.bounds, bound=0.0, restarts=1,
+                    warp=True, kernel="matern32", nugget="fixed", mean="constant", ard=False)
         res = smc_from_config(gp.predict, space, {**smc, "seed": seed})
         pool = candidate_pool(res.particles, res.weights, space.bounds, 3000,
                               np.random.default_rng(seed))
@@ -377,7 +381,7 @@ def test_random_check_points_catch_a_surrogate_that_is_confident_and_too_narrow(
                    mean + (sd / narrow) * rng.standard_normal((96, d))])
     X = np.clip(X, 0.0, 1.0)
     gp = fit_gp(X, wrong(X), ard=True, bounds=space.bounds, bound=0.0, warp=False,
-                restarts=1, kernel="rbf")
+                restarts=1, kernel="rbf", nugget="fixed", mean="constant")
     smc = smc_from_config(gp.predict, space, validate(
         {"smc": {"n_particles": 2000, "n_rej": 10, "zeta": 0.95}}, "inference")["smc"])
     active = _active(n_initial=32, batch_size=8, check_points=3, max_solves=1000, seed=0)
@@ -480,7 +484,7 @@ def test_a_posterior_too_narrow_is_not_confirmed_and_the_rounds_go_on():
     X = np.clip(np.vstack([sobol_design(space.bounds, 32, 0),
                            mean + (sd / 4.0) * rng.standard_normal((96, d))]), 0.0, 1.0)
     gp = fit_gp(X, wrong(X), ard=True, bounds=space.bounds, bound=0.0, warp=False,
-                restarts=1, kernel="rbf")
+                restarts=1, kernel="rbf", nugget="fixed", mean="constant")
     smc = smc_from_config(gp.predict, space, validate(
         {"smc": {"n_particles": 2000, "n_rej": 10, "zeta": 0.95}}, "inference")["smc"])
     active = _active(n_initial=32, batch_size=8, max_solves=1000, seed=0,
@@ -643,7 +647,9 @@ def test_boundary_points_bisect_the_gaps_the_posterior_leans_on_and_never_repeat
     L = ll(X)
     f = int(np.argmax(L))  # the failure where the posterior is
     L[f] = -np.inf
-    gp_f = fit_gp(X, L, bounds=space.bounds, bound=0.0, warp=True, restarts=1)
+    gp_f = fit_gp(X, L, bounds=space.bounds, bound=0.0,
+                  warp=True, restarts=1,
+                  kernel="matern32", nugget="fixed", mean="constant", ard=False)
     P = X[f] + np.random.default_rng(0).normal(0.0, 0.05, (400, 2))
     B = boundary_points(gp_f, P, np.ones(len(P)), 1)
     ok = np.delete(X, f, axis=0)
@@ -660,7 +666,8 @@ def test_without_failed_solves_the_sampled_log_likelihood_is_the_surrogate_mean_
     np.testing.assert_array_equal(gp.loglik(P), gp.predict(P))
     L = ll(X)
     L[[2, 5]] = -np.inf
-    gp_f = fit_gp(X, L, bounds=space.bounds, bound=0.0, warp=True)
+    gp_f = fit_gp(X, L, bounds=space.bounds, bound=0.0,
+                  warp=True, kernel="matern32", nugget="fixed", mean="constant", ard=False)
     assert gp_f.n_failed == 2 and gp_f.n_excluded == 2
     np.testing.assert_array_equal(gp_f.infeasible(X[[2, 5]]), [True, True])
     assert not gp_f.infeasible(np.delete(X, [2, 5], axis=0)).any()

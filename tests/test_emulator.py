@@ -168,7 +168,8 @@ def test_an_emulator_file_reproduces_its_likelihood_and_is_told_from_a_gp_file(t
     hp = back.hyperparameters
     assert hp["output"] == "outputs" and hp["components"] == em.n_components
     assert hp["bound"] <= -7.0
-    gp = fit_gp(X[:10], -np.sum(X[:10] ** 2, axis=1), restarts=1, bounds=bounds)
+    gp = fit_gp(X[:10], -np.sum(X[:10] ** 2, axis=1), restarts=1, bounds=bounds,
+                kernel="matern32", nugget="fixed", mean="constant", ard=False)
     gp.save(tmp_path / "g.h5")
     assert isinstance(load_surrogate(tmp_path / "g.h5", device="cpu"), GPSurrogate)
     with pytest.raises(ValueError, match="not a bayescalib GP surrogate"):

@@ -75,7 +75,9 @@ def test_the_surrogate_keeps_its_failed_points_through_a_file_and_nan_marks_none
     L = _misfit(X)
     L[[0, 1]] = -np.inf  # the model cannot be solved there
     L[2] = np.nan  # a time limit: no value, no region
-    gp = fit_gp(X, L, bounds=bounds, bound=0.0, warp=True, restarts=1)
+    gp = fit_gp(X, L, bounds=bounds, bound=0.0,
+                warp=True, restarts=1,
+                kernel="matern32", nugget="fixed", mean="constant", ard=False)
     assert gp.n_excluded == 3 and gp.n_failed == 2
     np.testing.assert_array_equal(gp.X_failed, X[[0, 1]])
     assert gp.infeasible(X[[0, 1]]).all() and not gp.infeasible(X[2:]).any()

@@ -60,7 +60,8 @@ def _training(path):
 
 
 def _surrogate(path):
-    gp = fit_gp(X, L, bounds=np.array([[0.0, 1.0]] * 2), bound=0.0, restarts=1, warp=True)
+    gp = fit_gp(X, L, bounds=np.array([[0.0, 1.0]] * 2), bound=0.0, restarts=1,
+                warp=True, kernel="matern32", nugget="fixed", mean="constant", ard=False)
     gp.save(path)
     return GPSurrogate.load(path).predict(X[:3])
 

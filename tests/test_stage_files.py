@@ -191,7 +191,8 @@ def test_a_truncated_hdf5_stage_output_is_set_aside_by_the_response_figure(tmp_p
     write_training(training, X, L, L, np.ones(8, bool), [""] * 8, ["E", "nu"], 8,
                    bound=np.zeros(8))
     fit_gp(X, L, bounds=np.array([[100.0, 800.0], [-0.8, 0.45]]), bound=0.0,
-           restarts=1).save(surrogate)
+           restarts=1,
+           kernel="matern32", nugget="fixed", mean="constant", ard=False, warp=True).save(surrogate)
     path = training if kind == "training table" else surrogate
     cut = _truncate(path)
     with pytest.raises(PipelineError) as info:
@@ -238,7 +239,8 @@ def test_a_truncated_previous_round_surrogate_is_set_aside_not_called_unfittable
                    bound=np.zeros(8))
     previous = tmp_path / "active" / "0" / "surrogate.h5"
     fit_gp(X, L, bounds=np.array([[100.0, 800.0], [-0.8, 0.45]]), bound=0.0,
-           restarts=1).save(previous)
+           restarts=1,
+           kernel="matern32", nugget="fixed", mean="constant", ard=False, warp=True).save(previous)
     cut = _truncate(previous)
     surrogate = validate({"surrogate": {"restarts": 1}}, "inference")["surrogate"]
     with pytest.raises(PipelineError) as info:

@@ -5,7 +5,7 @@ import pytest
 
 from bayescalib.inference.convergence import convergence_study_function
 from bayescalib.inference.design import sobol_design, sobol_test_points
-from bayescalib.inference.surrogate import GPSurrogate, fit_gp
+from bayescalib.inference.surrogate import GPSurrogate, fit_gp, surrogate_settings
 
 BOX = np.array([[100.0, 800.0], [-0.8, 0.5]])
 
@@ -19,7 +19,8 @@ def smooth_loglik(X):
 @pytest.fixture(scope="module")
 def gp64():
     X = sobol_design(BOX, 64, 0)
-    return fit_gp(X, smooth_loglik(X), bounds=BOX, restarts=2, seed=0)
+    return fit_gp(X, smooth_loglik(X), bounds=BOX, restarts=2, seed=0,
+                  kernel="matern32", nugget="fixed", mean="constant", ard=False)
 
 
 def test_recovers_smooth_function(gp64):
@@ -47,7 +48,8 @@ def test_mean_and_nugget_rules(gp64):
     assert len(hp["lengthscale"]) == 1 and hp["ard"] is False
     # non-default factors
     X = gp64.X_train[:20]
-    g2 = fit_gp(X, smooth_loglik(X), bounds=BOX, restarts=1, mean_offset_factor=0.5, nugget_factor=1e-3)
+    g2 = fit_gp(X, smooth_loglik(X), bounds=BOX, restarts=1, mean_offset_factor=0.5,
+                nugget_factor=1e-3, kernel="matern32", nugget="fixed", mean="constant", ard=False)
     r2 = g2.y_train.max() - g2.y_train.min()
     assert g2.mean_const == pytest.approx(g2.y_train.min() - 0.5 * r2)
     assert g2.nugget == pytest.approx(1e-3 * r2)
@@ -71,7 +73,8 @@ def test_fast_predictor_equals_gpy(ard):
     # variance), so both implementations carry absolute round-off ~ s^2 * 1e-13; it is
     # compared to 1e-8 * s^2.
     X = sobol_design(BOX, 80, 1)
-    gp = fit_gp(X, smooth_loglik(X), bounds=BOX, ard=ard, restarts=1)
+    gp = fit_gp(X, smooth_loglik(X), bounds=BOX, ard=ard, restarts=1,
+                kernel="matern32", nugget="fixed", mean="constant")
     Xt = np.random.default_rng(0).uniform(BOX[:, 0], BOX[:, 1], size=(3000, 2))
     mu, var = gp.predict(Xt, return_var=True)
     mg, vg = gp.gpy_predict(Xt, return_var=True)
@@ -117,18 +120,22 @@ def test_failed_runs_are_excluded():
     X = sobol_design(BOX, 40, 2)
     y = smooth_loglik(X)
     y[[3, 7, 11]] = [np.nan, -np.inf, np.inf]
-    gp = fit_gp(X, y, bounds=BOX, restarts=1)
+    gp = fit_gp(X, y, bounds=BOX, restarts=1,
+                kernel="matern32", nugget="fixed", mean="constant", ard=False)
     assert gp.n_excluded == 3 and gp.n_train == 37
     ok = np.isfinite(y)
     assert np.array_equal(gp.X_train, X[ok])
-    ref = fit_gp(X[ok], y[ok], bounds=BOX, restarts=1)
+    ref = fit_gp(X[ok], y[ok], bounds=BOX, restarts=1,
+                 kernel="matern32", nugget="fixed", mean="constant", ard=False)
     assert np.array_equal(ref.predict(X), gp.predict(X))
 
 
 def test_seeded_fit_is_reproducible():
     X = sobol_design(BOX, 30, 3)
-    a = fit_gp(X, smooth_loglik(X), bounds=BOX, restarts=3, seed=5)
-    b = fit_gp(X, smooth_loglik(X), bounds=BOX, restarts=3, seed=5)
+    a = fit_gp(X, smooth_loglik(X), bounds=BOX, restarts=3, seed=5,
+               kernel="matern32", nugget="fixed", mean="constant", ard=False)
+    b = fit_gp(X, smooth_loglik(X), bounds=BOX, restarts=3, seed=5,
+               kernel="matern32", nugget="fixed", mean="constant", ard=False)
     assert a.hyperparameters == b.hyperparameters
 
 
@@ -148,7 +155,12 @@ def test_loo_closed_form_matches_refits(gp64):
 
 
 def test_convergence_study_error_decreases():
-    out = convergence_study_function(smooth_loglik, BOX, [8, 32, 128], n_test=50, restarts=1)
+    # the paper's GP (Matérn 3/2 of L, one length scale, fixed nugget), as a study's
+    # surrogate section gives it
+    paper = surrogate_settings(kernel="matern32", output="loglik", ard=False, nugget="fixed",
+                               restarts=1)
+    out = convergence_study_function(smooth_loglik, BOX, [8, 32, 128], n_test=50,
+                                     surrogate=paper)
     assert out["n_train"] == [8, 32, 128] and out["n_test"] == 50
     e = out["l2_error"]
     assert e[0] > e[1] > e[2]
@@ -164,14 +176,17 @@ def test_scg_optimizer_improves_evidence():
 
     X = sobol_design(BOX, 32, 4)
     y = smooth_loglik(X)
-    scg = fit_gp(X, y, bounds=BOX, optimizer="scg", restarts=1)
-    lbfgsb = fit_gp(X, y, bounds=BOX, optimizer="lbfgsb", restarts=1)
+    scg = fit_gp(X, y, bounds=BOX, optimizer="scg", restarts=1,
+                 kernel="matern32", nugget="fixed", mean="constant", ard=False)
+    lbfgsb = fit_gp(X, y, bounds=BOX, optimizer="lbfgsb", restarts=1,
+                    kernel="matern32", nugget="fixed", mean="constant", ard=False)
     start = _build_gpy(scg.scale_inputs(X), y, scg.mean_const, np.mean((y - scg.mean_const) ** 2),
                        np.array([0.3]), scg.nugget, False)
     assert scg.log_marginal_likelihood > float(start.log_likelihood())
     assert scg.log_marginal_likelihood > lbfgsb.log_marginal_likelihood - 1.0
     with pytest.raises(ValueError, match="optimizer"):
-        fit_gp(X, y, optimizer="adam")
+        fit_gp(X, y, optimizer="adam",
+               kernel="matern32", nugget="fixed", mean="constant", ard=False)
 
 
 @pytest.mark.parametrize("kernel", ["matern32", "matern52", "rbf"])
@@ -190,7 +205,8 @@ def test_every_kernel_predicts_as_gpy_does(kernel, device):
     y = -50.0 * np.sum((X - 0.4) ** 2, axis=1)
     for bound in (None, 0.0):
         gp = fit_gp(X, y, ard=True, restarts=1, kernel=kernel, bound=bound, device=device,
-                    bounds=np.array([[0.0, 1.0], [0.0, 1.0]]), nugget_factor=1e-3)
+                    bounds=np.array([[0.0, 1.0], [0.0, 1.0]]), nugget_factor=1e-3,
+                    nugget="fixed", mean="constant", warp=True)
         Z = rng.uniform(-0.2, 1.2, (300, 2))
         mu, var = gp.predict_latent(Z, return_var=True)
         ref_mu, ref_var = gp.gpy_model().predict_noiseless(gp.scale_inputs(Z))
@@ -224,7 +240,8 @@ from bayescalib.inference import surrogate
 surrogate._GPU_MARKERS = ("/nonexistent/gpu-marker",)
 assert not surrogate.gpu_possible()
 gp = surrogate.fit_gp(np.array([[0.1, 0.2], [0.5, 0.9], [0.8, 0.3], [0.3, 0.6]]),
-                      np.array([-1.0, -2.0, -0.5, -1.5]), restarts=1)
+                      np.array([-1.0, -2.0, -0.5, -1.5]), restarts=1, kernel="matern32",
+                      nugget="fixed", mean="constant", ard=False)
 print(gp.device, "torch" in sys.modules)
 """
 
@@ -259,7 +276,7 @@ def test_fast_mean_is_the_gp_formula_evaluated_directly(kernel, bound):
     rng = np.random.default_rng(7)
     X = BOX[:, 0] + rng.uniform(0.0, 1.0, (50, 2)) * (BOX[:, 1] - BOX[:, 0])
     gp = fit_gp(X, smooth_loglik(X), bounds=BOX, restarts=1, kernel=kernel, bound=bound,
-                device="cpu")
+                device="cpu", nugget="fixed", mean="constant", ard=False, warp=True)
     Z = BOX[:, 0] + rng.uniform(-0.1, 1.1, (3000, 2)) * (BOX[:, 1] - BOX[:, 0])
     c = KERNELS[kernel][0]
     t = c * cdist(gp.scale_inputs(Z) / gp.lengthscale, gp.scale_inputs(gp.X_train) / gp.lengthscale)

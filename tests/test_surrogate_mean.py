@@ -62,7 +62,7 @@ def test_the_quadratic_mean_recovers_the_mode_and_curvature_of_a_gaussian(warp):
     # the Hessian within 1 % (relative Frobenius norm); observed ~1e-5 sd and ~1e-5.
     X = sobol_design(BOX3, 24, 0)
     gp = fit_gp(X, gauss3(X), ard=True, bounds=BOX3, bound=0.0, warp=warp,
-                mean="quadratic", restarts=2, seed=0)
+                mean="quadratic", restarts=2, seed=0, kernel="matern32", nugget="fixed")
     assert gp.mean_function == "quadratic" and gp.warped == warp
     x0, H = _mode_and_hessian(gp)
     assert np.all(np.abs(x0 - MODE3) / SD3 < 0.01)
@@ -78,7 +78,7 @@ def test_the_constant_mean_does_not_recover_the_gaussian_from_the_same_points():
     # Its error at the mode is far larger (observed ~20 nats) than the quadratic's.
     X = sobol_design(BOX3, 24, 0)
     gp = fit_gp(X, gauss3(X), ard=True, bounds=BOX3, bound=0.0, warp=True,
-                mean="constant", restarts=2, seed=0)
+                mean="constant", restarts=2, seed=0, kernel="matern32", nugget="fixed")
     assert abs(gp.predict(MODE3)[0] - 0.0) > 1.0
 
 
@@ -108,7 +108,8 @@ def test_the_quadratic_mean_extrapolates_uphill_toward_an_unseen_mode(warp):
     # the shape: its RMS error there exceeds 1 nat (observed 1.5 and 3.3).
     box, mode, L, X = _unseen_mode_design()
     y = L(X)
-    kw = {"ard": True, "bounds": box, "bound": 0.0, "warp": warp, "restarts": 2, "seed": 0}
+    kw = {"ard": True, "bounds": box, "bound": 0.0, "warp": warp, "restarts": 2, "seed": 0,
+          "kernel": "matern32", "nugget": "fixed"}
     quad = fit_gp(X, y, mean="quadratic", **kw)
     const = fit_gp(X, y, mean="constant", **kw)
     assert y.max() < -10.0
@@ -151,7 +152,8 @@ def rotated_log_quad():
     offsets = np.array([np.nan, np.nan, 0.0])
     V = principal_frame(X, y, BOX3, offsets)
     return fit_gp(X, y, ard=True, bounds=BOX3, bound=0.0, warp=True, mean="quadratic",
-                  rotation=V, log_offset=offsets, restarts=1, seed=0, device="cpu")
+                  rotation=V, log_offset=offsets, restarts=1, seed=0, device="cpu",
+                  kernel="matern32", nugget="fixed")
 
 
 @pytest.mark.parametrize("device", ["cpu", "torch:cpu"])
@@ -194,7 +196,8 @@ def test_a_surrogate_file_of_format_version_2_still_reads_as_a_constant_mean(tmp
     # Version 2 had no mean_function attribute: such a file is a constant-mean surrogate
     # and predicts as it did. A file of a newer version than this reader is refused.
     X = sobol_design(BOX3, 20, 0)
-    gp = fit_gp(X, gauss3(X), ard=True, bounds=BOX3, bound=0.0, restarts=1, device="cpu")
+    gp = fit_gp(X, gauss3(X), ard=True, bounds=BOX3, bound=0.0, restarts=1, device="cpu",
+                kernel="matern32", nugget="fixed", mean="constant", warp=True)
     p = tmp_path / "v2.h5"
     gp.save(p)
     with h5py.File(p, "a") as f:

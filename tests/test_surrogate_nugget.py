@@ -43,7 +43,7 @@ def test_recovers_a_known_noise_variance(noise_sd, kernel):
     X = sobol_design(BOX, 120, 3)
     e = noise_sd * np.random.default_rng(7).standard_normal(X.shape[0])
     gp = fit_gp(X, smooth(X) + e, bounds=BOX, restarts=3, seed=0, nugget="fit",
-                nugget_floor=FLOOR, warp=False, kernel=kernel)
+                nugget_floor=FLOOR, warp=False, kernel=kernel, mean="constant", ard=False)
     assert gp.nugget_fitted
     ratio = gp.nugget / np.mean(e**2)
     assert 0.8 < ratio < 1.25, ratio
@@ -64,7 +64,7 @@ def test_noise_free_values_keep_the_floor(warp):
     B = 0.5
     y = smooth(X)
     gp = fit_gp(X, y, bounds=BOX, restarts=2, seed=0, nugget="fit", nugget_floor=FLOOR,
-                bound=B, warp=warp)
+                bound=B, warp=warp, kernel="matern32", mean="constant", ard=False)
     floor = FLOOR * (math.exp(-2.0 * gp.y_train.min()) if warp else 1.0)
     if warp:
         assert gp.y_train.min() == pytest.approx(math.log1p(B - y.max()), rel=1e-12)
@@ -76,9 +76,10 @@ def test_fixed_nugget_is_unchanged_by_the_option():
     # nugget="fixed" (the default): nugget_factor times the targets' range, bit for bit
     # the surrogate of a call without the new options
     X = sobol_design(BOX, 32, 0)
-    a = fit_gp(X, smooth(X), bounds=BOX, restarts=2, seed=3)
+    a = fit_gp(X, smooth(X), bounds=BOX, restarts=2, seed=3,
+               kernel="matern32", nugget="fixed", mean="constant", ard=False)
     b = fit_gp(X, smooth(X), bounds=BOX, restarts=2, seed=3, nugget="fixed",
-               nugget_floor=0.123)
+               nugget_floor=0.123, kernel="matern32", mean="constant", ard=False)
     assert not a.nugget_fitted and not b.nugget_fitted
     assert a.nugget == b.nugget == pytest.approx(1e-5 * np.ptp(a.y_train), rel=1e-14)
     assert a.variance == b.variance and np.array_equal(a.lengthscale, b.lengthscale)
@@ -144,9 +145,10 @@ def test_refit_rounds_carry_the_fitted_nugget():
 def test_bad_options_are_refused():
     X = sobol_design(BOX, 8, 0)
     with pytest.raises(ValueError, match="nugget"):
-        fit_gp(X, smooth(X), nugget="free")
+        fit_gp(X, smooth(X), nugget="free", kernel="matern32", mean="constant", ard=False)
     with pytest.raises(ValueError, match="nugget_floor"):
-        fit_gp(X, smooth(X), nugget="fit", nugget_floor=0.0)
+        fit_gp(X, smooth(X), nugget="fit", nugget_floor=0.0,
+               kernel="matern32", mean="constant", ard=False)
 
 
 def test_far_points_do_not_raise_the_fitted_nugget():
@@ -168,7 +170,7 @@ def test_far_points_do_not_raise_the_fitted_nugget():
     err = {}
     for mode in ("fixed", "fit"):
         gp = fit_gp(X, y, bounds=box, restarts=2, seed=0, warp=False, kernel="rbf",
-                    nugget=mode, nugget_floor=FLOOR)
+                    nugget=mode, nugget_floor=FLOOR, mean="constant", ard=False)
         err[mode] = np.max(np.abs(gp.predict(Z) - loglik(Z)))
         if mode == "fit":
             assert FLOOR <= gp.nugget <= 1.01 * FLOOR

@@ -33,6 +33,7 @@ __all__ = [
     "ConfigError",
     "apply_overrides",
     "deep_merge",
+    "defaults",
     "load_yaml",
     "merge_layers",
     "parse_override",
@@ -121,6 +122,16 @@ def load_schemas() -> None:
 def schema(name: str) -> dict[str, Any]:
     """The schema ``name`` (e.g. ``"fsi"`` for ``fsi.schema.yaml``)."""
     return copy.deepcopy(_load_schema_file(f"{name}.schema.yaml"))
+
+
+def defaults(schema_name: str, definition: str) -> dict[str, Any]:
+    """The schema's default of each property of ``#/definitions/<definition>`` in schema
+    ``schema_name`` that has one (a deep copy), e.g. ``defaults("inference",
+    "surrogate")["restarts"]``: what a library function taking one such setting as a
+    keyword falls back to, so that the default lives in the schema only."""
+    props = _load_schema_file(f"{schema_name}.schema.yaml")["definitions"][definition]
+    return {k: copy.deepcopy(v["default"]) for k, v in props["properties"].items()
+            if isinstance(v, dict) and "default" in v}
 
 
 def _validator_class():

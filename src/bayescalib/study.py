@@ -200,13 +200,19 @@ class Study:
     @staticmethod
     def _check_consistency(cfg: dict[str, Any], where: str) -> list[str]:
         """Check what the schema cannot; resolve ``auto`` settings; return notes."""
-        from bayescalib.inference.parameters import ParameterError, ParameterSpace
+        from bayescalib.inference.parameters import (
+            ParameterError,
+            ParameterSpace,
+            parameter_target,
+        )
 
         notes: list[str] = []
         try:
             ParameterSpace.from_config(cfg["parameters"])
         except ParameterError as exc:
             raise ConfigError(f"{where}: parameters: {exc}") from None
+        for p in cfg["parameters"]:  # from here on every parameter has its target
+            p["target"] = parameter_target(p)
         fm = cfg["forward_model"]
         kind = fm["type"]
         if kind == "python" and "function" not in fm["python"]:
@@ -240,6 +246,12 @@ class Study:
             raise ConfigError(
                 f"{where}: convergence.enabled needs design.strategy: fixed (the GP convergence "
                 "study refits on prefixes of a Sobol design and tests on held-out Sobol points)"
+            )
+        if conv["enabled"] and cfg["surrogate"]["target"] != "loglik":
+            raise ConfigError(
+                f"{where}: convergence.enabled needs surrogate.target: loglik (the GP "
+                "convergence study refits the study's GP of the log-likelihood on prefixes of "
+                "its design; the output emulator has no such study)"
             )
         act = cfg["design"]["active"]
         if cfg["design"]["strategy"] == "active" and act["n_initial"] > act["max_solves"]:
@@ -367,8 +379,8 @@ class Study:
                 f"allows at most {fit:,})")
         smc_cfg = cfg["smc"]
         n_particles, key = smc_cfg["n_particles"], "smc.n_particles"
-        round_n = (act.get("smc") or {}).get("n_particles", 0)
-        if active and round_n > n_particles:
+        round_n = act["smc"].get("n_particles")  # optional: the rounds' own particles
+        if active and round_n is not None and round_n > n_particles:
             n_particles, key = round_n, "design.active.smc.n_particles"
         need = n_particles * (6 * len(cfg["parameters"]) + int(n_top) + 10) * 8 / 2**30
         if need > smc_cfg["max_memory_gib"]:
@@ -381,7 +393,7 @@ class Study:
         for section, settings, est in cost.study_smc_steps(cfg):
             if est.seconds <= step_limit:
                 continue
-            own = (act.get("smc") or {}) if section != "smc" else settings
+            own = act["smc"] if section != "smc" else settings
             # the setting furthest above the schema's default is named (inherited ones
             # by their own key)
             name = max(("n_rej", "n_particles"), key=lambda k: settings[k] / max(
@@ -720,7 +732,7 @@ class Study:
             return
         if len(set(factors)) != len(factors):
             raise ConfigError(f"{where}: forward_model.loadings.factors: duplicate factors in {factors}")
-        targets = [p.get("target") or p["name"] for p in cfg["parameters"]]
+        targets = [p["target"] for p in cfg["parameters"]]
         if fm["type"] == "fsi":
             if ld["parameter"] != "inflow.rate":
                 raise ConfigError(f"{where}: forward_model.loadings.parameter: the fsi model "
@@ -732,9 +744,9 @@ class Study:
                 "target of a calibrated parameter"
             )
         obs = cfg["observations"]
-        if obs.get("source") == "files" and len(obs.get("files", [])) != len(factors):
+        if obs["source"] == "files" and len(obs["files"]) != len(factors):
             raise ConfigError(
-                f"{where}: observations.files has {len(obs.get('files', []))} file(s) but "
+                f"{where}: observations.files has {len(obs['files'])} file(s) but "
                 f"forward_model.loadings.factors has {len(factors)} loadings: give one "
                 "snapshot per loading, in the same order"
             )
@@ -754,7 +766,7 @@ class Study:
         fsi = cfg["forward_model"]["fsi"]
         boxes = ParameterSpace.from_config(cfg["parameters"]).bounds
         for k, (par, box) in enumerate(zip(cfg["parameters"], boxes, strict=True)):
-            target = par.get("target") or par["name"]
+            target = par["target"]
             for end, value in zip(("lower", "upper"), box, strict=True):
                 trial = copy.deepcopy(fsi)
                 try:
@@ -850,8 +862,8 @@ class Study:
         return sobol_design(self.space.bounds, self.n_sobol, self.config["design"]["seed"])
 
     def targets(self) -> list[str]:
-        """Forward-model config key set by each parameter (its name if no target)."""
-        return [p.get("target") or p["name"] for p in self.config["parameters"]]
+        """Forward-model config key set by each parameter (its name if none was given)."""
+        return [p["target"] for p in self.config["parameters"]]
 
     def point(self, i: int) -> dict[str, float]:
         """Values of Sobol design point ``i < n_sobol`` keyed by target (plain floats)."""
@@ -866,7 +878,7 @@ class Study:
     def ground_truth(self) -> dict[str, float]:
         """Ground-truth values keyed by target (for synthetic observations)."""
         return {
-            (p.get("target") or p["name"]): float(p["ground_truth"])
+            p["target"]: float(p["ground_truth"])
             for p in self.config["parameters"]
             if p.get("ground_truth") is not None
         }
@@ -904,6 +916,6 @@ class Study:
         for other in ("fsi", "python", "command"):
             if other != kind:
                 fm.pop(other, None)
-        if fm.get("loadings", {}).get("factors") == [1.0]:
+        if fm["loadings"]["factors"] == [1.0]:
             fm.pop("loadings")  # a single loading: nothing for the solve to depend on
         return fm

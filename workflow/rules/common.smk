@@ -8,11 +8,11 @@
 
 def _observe_inputs(wildcards):
     obs = study.config["observations"]
-    if obs.get("source", "synthetic") == "synthetic":
+    if study.synthetic:
         return {"run": f"{R}/observations/ground_truth_run.h5"}
     # the files themselves: a changed observation file makes a new observation set
     files = [e["path"] for e in obs["files"]]
-    return {"files": files + ([obs["reference"]["path"]] if obs.get("reference") else [])}
+    return {"files": files + ([obs["reference"]["path"]] if obs["reference"] else [])}
 
 
 FIELDS = study.config["plots"]["fields"] and study.config["forward_model"]["type"] == "fsi"
@@ -23,8 +23,8 @@ SYNTHETIC = study.synthetic
 
 # the observation files that are images (a mask or a raw scan): the segmentation figure
 IMAGE_FILES = [
-    e["path"] for e in (study.config["observations"].get("files") or [])
-    if study.config["observations"].get("source") == "files"
+    e["path"] for e in study.config["observations"]["files"]
+    if not study.synthetic
     and os.path.splitext(e["path"])[1].lower() in (".png", ".tif", ".tiff")
 ]
 

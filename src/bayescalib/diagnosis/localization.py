@@ -95,12 +95,12 @@ def _per_snapshot(fm: Mapping[str, Any], points: Sequence[Mapping[str, float]],
     segments per point (``None`` for a point with no loading solved) and the reason per
     point and loading (``""`` where it converged).
     """
-    from bayescalib.models.forward import loading_labels, solve_points
+    from bayescalib.models.forward import loading_factors, loading_labels, solve_points
 
     # not with_suffix: a target's name has dots (base_at_truth_fd_material.E)
     runs = solve_points(fm, points, [Path(f"{s}.h5") for s in stems])
     loadings = fm.get("loadings") or {}
-    factors = [float(f) for f in loadings.get("factors", [])]
+    factors = loading_factors(fm)
     n_snap = max(1, len(factors))
     curves = [_curves(r) if r.ok else [None] * n_snap for r in runs]
     segments = [r.segments if r.ok else None for r in runs]
@@ -167,7 +167,7 @@ def effect_regions(fm: Mapping[str, Any], truth: Mapping[str, float],
     """
     from bayescalib.diagnosis.residuals import offsets
     from bayescalib.geometry.interface import Interface
-    from bayescalib.models.forward import loading_labels
+    from bayescalib.models.forward import loading_factors, loading_labels
 
     out_dir = Path(out_dir)
     steps: dict[str, float] = {}
@@ -187,7 +187,7 @@ def effect_regions(fm: Mapping[str, Any], truth: Mapping[str, float],
     scored = [s for s, c in enumerate(curves[0]) if c is not None]
     if not scored:
         return None
-    factors = [float(f) for f in (fm.get("loadings") or {}).get("factors", [])]
+    factors = loading_factors(fm)
     labels = loading_labels(factors) if len(factors) > 1 else ["nominal"]
     excluded = {labels[s]: reasons[0][s] for s in range(len(gts)) if s not in scored}
     fd = [(k, h) for k, h in enumerate(steps.values(), start=1)

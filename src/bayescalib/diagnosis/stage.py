@@ -140,8 +140,8 @@ def resolve_candidates(fm: Mapping[str, Any], diagnose: Mapping[str, Any]) -> li
     if given:
         return [CandidateSpec(name=c["name"], target=c["target"], step=float(c["step"]),
                               prior=(float(c["prior"][0]), float(c["prior"][1])),
-                              unit=c.get("unit", "-"), switches=dict(c.get("switches") or {}),
-                              summary=c.get("summary", ""))
+                              unit=c["unit"], switches=dict(c["switches"]),
+                              summary=c["summary"])
                 for c in given]
     if fm.get("type") != "fsi":
         raise ValueError("diagnose.candidates: list the candidate effects of a python or "
@@ -550,7 +550,9 @@ def _registration(modes, r, J, v, C0, obs, obs_pts, check, draws, theta, h, fd, 
 
 def _zero_load_label(fm: Mapping[str, Any], labels: Sequence[str]) -> str | None:
     """Label of the snapshot observed at zero load (loading factor 0), if any."""
-    factors = (fm.get("loadings") or {}).get("factors") or []
+    from bayescalib.models.forward import loading_factors
+
+    factors = loading_factors(fm)
     if len(factors) != len(labels):
         return None
     return next((lab for f, lab in zip(factors, labels, strict=True) if float(f) == 0.0), None)
@@ -622,7 +624,7 @@ def run_diagnosis(
         read_stage_file(warm_start, "warm-start state")
     n_snap = len(obs.snapshots)
     space = ParameterSpace.from_config(parameters)
-    targets = [p.get("target") or p["name"] for p in parameters]
+    targets = [p["target"] for p in parameters]
     names = [p["name"] for p in parameters]
     chain = {"obs_path": obs_path, "measure_name": measure_name, "measure": measure,
              "likelihood": likelihood, "surrogate": surrogate, "smc_cfg": smc_cfg,

@@ -1,10 +1,11 @@
 """Convergence of the GP surrogate over the number of training points (paper Sec. 3.2).
 
-For each n in ``n_train_list`` the GP (Matérn 3/2, constant mean and fixed
-nugget of eq. posterior_gp) is trained on the first n points of the Sobol
-design -- the prefix property of :mod:`bayescalib.inference.design` makes the designs
-nested -- and its mean is compared with the true log-likelihood at ``n_test``
-held-out *later* points of the same Sobol sequence (indices
+For each n in ``n_train_list`` the surrogate is fitted to the first n points of the
+Sobol design by one fit function (the study's: :func:`~bayescalib.inference.surrogate.
+fit_from_config` with its ``surrogate`` section, so that the GP measured is the GP the
+study calibrates with) -- the prefix property of :mod:`bayescalib.inference.design`
+makes the designs nested -- and its mean is compared with the true log-likelihood at
+``n_test`` held-out *later* points of the same Sobol sequence (indices
 n_max .. n_max + n_test):
 
     l2_error  = || mean(X_test) - L(X_test) ||_2                (vector 2-norm)
@@ -22,13 +23,13 @@ number is reported as ``n_test_failed``.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
 import numpy as np
 
 from bayescalib.inference.design import sobol_design, sobol_test_points
-from bayescalib.inference.surrogate import fit_gp
+from bayescalib.inference.surrogate import GPSurrogate, fit_from_config, surrogate_settings
 
 __all__ = ["convergence_study", "convergence_study_function"]
 
@@ -39,7 +40,7 @@ def convergence_study(
     X_test: np.ndarray,
     y_test: np.ndarray,
     n_train_list: Sequence[int],
-    **fit_kwargs: Any,
+    fit: Callable[[np.ndarray, np.ndarray], GPSurrogate],
 ) -> dict[str, list]:
     """GP error against held-out data for nested training sets.
 
@@ -52,15 +53,16 @@ def convergence_study(
         (n_test, d), (n_test,) held-out later Sobol points and their true L.
     n_train_list
         Increasing training sizes, each <= n_max.
-    **fit_kwargs
-        Passed to :func:`bayescalib.inference.surrogate.fit_gp` (ard, optimizer, restarts,
-        seed, bounds, mean_offset_factor, nugget_factor, nugget, nugget_floor).
+    fit
+        ``fit(X[:n], y[:n])`` -> the surrogate of n points (the study's:
+        :func:`~bayescalib.inference.surrogate.fit_from_config` with its settings).
 
     Returns
     -------
     dict of lists (one entry per n): ``n_train``, ``n_used``, ``n_excluded``,
     ``l2_error``, ``rmse``, ``rel_error``, ``loo_rmse``, ``loo_rel_error``,
-    and the scalar ``n_test``, ``n_test_failed``.
+    ``surrogate`` (the fitted GP's hyperparameters, what was chosen included), and the
+    scalar ``n_test``, ``n_test_failed``.
     """
     X = np.asarray(X, float)
     y = np.asarray(y, float)
@@ -72,13 +74,14 @@ def convergence_study(
         raise ValueError("no finite test values")
     spread = float(np.linalg.norm(yt - yt.mean())) or 1.0
     out: dict[str, Any] = {k: [] for k in (
-        "n_train", "n_used", "n_excluded", "l2_error", "rmse", "rel_error", "loo_rmse", "loo_rel_error"
+        "n_train", "n_used", "n_excluded", "l2_error", "rmse", "rel_error", "loo_rmse",
+        "loo_rel_error", "surrogate"
     )}
     for n in n_train_list:
         n = int(n)
         if n > X.shape[0]:
             raise ValueError(f"n_train = {n} exceeds the training pool ({X.shape[0]} points)")
-        gp = fit_gp(X[:n], y[:n], **fit_kwargs)
+        gp = fit(X[:n], y[:n])
         err = gp.predict(Xt) - yt
         l2 = float(np.linalg.norm(err))
         loo = gp.loo_residuals()
@@ -92,6 +95,7 @@ def convergence_study(
         out["rel_error"].append(l2 / spread)
         out["loo_rmse"].append(float(np.sqrt(np.mean(loo**2))))
         out["loo_rel_error"].append(float(np.linalg.norm(loo)) / tr_spread)
+        out["surrogate"].append(gp.hyperparameters)
     out["n_test"] = int(y_test.size)
     out["n_test_failed"] = int((~ok).sum())
     return out
@@ -102,18 +106,24 @@ def convergence_study_function(
     bounds: np.ndarray,
     n_train_list: Sequence[int],
     *,
+    surrogate: Mapping[str, Any] | None = None,
+    bound: float | None = None,
     n_test: int = 100,
     design_seed: int = 0,
-    **fit_kwargs: Any,
 ) -> dict[str, list]:
     """:func:`convergence_study` for a cheap vectorized ``loglik`` (X (M, d) -> (M,)).
 
     Builds the Sobol training pool (first max(n_train_list) points) and the
-    ``n_test`` later points of the same sequence, evaluates ``loglik`` on both,
-    and scales GP inputs by ``bounds`` unless ``fit_kwargs`` says otherwise.
+    ``n_test`` later points of the same sequence, evaluates ``loglik`` on both, and
+    fits :func:`~bayescalib.inference.surrogate.fit_from_config` with the validated
+    ``surrogate`` section (None: the schema's defaults,
+    :func:`~bayescalib.inference.surrogate.surrogate_settings`), the design box
+    ``bounds`` and the log-likelihood's upper bound ``bound`` (None: unknown).
     """
+    settings = dict(surrogate_settings() if surrogate is None else surrogate)
     n_max = int(max(n_train_list))
     X = sobol_design(bounds, n_max, design_seed)
     Xt = sobol_test_points(bounds, n_max, n_test, design_seed)
-    fit_kwargs.setdefault("bounds", bounds)
-    return convergence_study(X, loglik(X), Xt, loglik(Xt), n_train_list, **fit_kwargs)
+    return convergence_study(
+        X, loglik(X), Xt, loglik(Xt), n_train_list,
+        fit=lambda Xn, yn: fit_from_config(Xn, yn, settings, bounds, bound=bound))

@@ -189,7 +189,7 @@ def design_sizes(design: Mapping[str, Any]) -> list[int]:
         return [int(design["n_train"])]
     act = design["active"]
     n, top = int(act["n_initial"]), int(act["max_solves"])
-    step = max(1, int(act["batch_size"]) + int(act.get("check_points", 0)))
+    step = max(1, int(act["batch_size"]) + int(act["check_points"]))
     if n >= top:
         return [min(n, top)]
     rounds = math.ceil((top - n) / step)

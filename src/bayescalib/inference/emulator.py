@@ -158,7 +158,7 @@ def _fit_coordinate(X, a, bounds, log_offset, *, kernel: str, restarts: int, see
     # fit_gp's constant mean is min(y) - f (max(y) - min(y)); f = min(y) / range puts it
     # at 0, the coordinates' mean (they are centred)
     return fit_gp(X, a, ard=True, restarts=restarts, seed=seed, bounds=bounds,
-                  mean_offset_factor=float(a.min()) / span, kernel=kernel,
+                  mean="constant", mean_offset_factor=float(a.min()) / span, kernel=kernel,
                   log_offset=log_offset, nugget="fit", nugget_floor=nugget_floor,
                   device="cpu")
 

@@ -43,6 +43,8 @@ from typing import Any
 
 import numpy as np
 
+from bayescalib.config import defaults
+
 __all__ = [
     "LogNormal",
     "Normal",
@@ -52,6 +54,7 @@ __all__ = [
     "Prior",
     "ScaledBeta",
     "Uniform",
+    "parameter_target",
     "prior_from_config",
 ]
 
@@ -560,10 +563,11 @@ class ParameterSpace:
     def from_config(cls, entries: Sequence[Mapping[str, Any]]) -> ParameterSpace:
         """Build a space from the ``parameters`` config section (a list of mappings).
 
-        Each entry: ``name``, ``unit`` (default "-"), ``prior`` ``{type, ...}``,
+        Each entry: ``name``, ``unit``, ``prior`` ``{type, ...}``,
         ``bounds`` [lo, hi] (optional for uniform/beta priors: defaults to the
-        prior's lo/hi), ``uncertain`` (default False), ``target``,
-        ``ground_truth``.
+        prior's lo/hi), ``uncertain``, ``target`` (:func:`parameter_target`),
+        ``ground_truth``; a key left out takes the schema's default
+        (``inference.schema.yaml``, ``definitions/parameter``).
         """
         if not isinstance(entries, Sequence) or isinstance(entries, (str, bytes)):
             raise ParameterError("parameters must be a list of parameter entries")
@@ -592,16 +596,17 @@ class ParameterSpace:
                         f"parameter '{name}': a {prior.kind} prior is unbounded, so 'bounds' "
                         f"[lo, hi] must be given (the prior is truncated to them)"
                     )
+            e = {**defaults("inference", "parameter"), **e}  # a plain mapping: the schema's
             params.append(
                 Parameter(
                     name=name,
-                    unit=str(e.get("unit", "-")),
+                    unit=str(e["unit"]),
                     prior=prior,
                     lo=bounds[0],
                     hi=bounds[1],
-                    uncertain=bool(e.get("uncertain", False)),
-                    target=e.get("target"),
-                    ground_truth=e.get("ground_truth"),
+                    uncertain=bool(e["uncertain"]),
+                    target=parameter_target(e),
+                    ground_truth=e["ground_truth"],
                 )
             )
         return cls(params)
@@ -612,3 +617,10 @@ class ParameterSpace:
     def __repr__(self) -> str:
         return f"ParameterSpace({', '.join(self.names)})"
 
+
+def parameter_target(entry: Mapping[str, Any]) -> str:
+    """The forward-model key that a ``parameters`` entry sets: its ``target``, or its
+    ``name`` where it has none (``target: null``, the schema's default). The study fills
+    every entry's ``target`` with it once, when it reads its config
+    (:class:`bayescalib.study.Study`); the rest of the code reads ``p["target"]``."""
+    return str(entry.get("target") or entry["name"])

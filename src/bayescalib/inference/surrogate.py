@@ -196,11 +196,12 @@ from typing import Any
 
 import numpy as np
 
+from bayescalib.config import defaults, validate
 from bayescalib.io._atomic_write import atomic_path
 from bayescalib.io.header import check_header, write_header
 
 __all__ = ["KERNELS", "GPSurrogate", "fit_from_config", "fit_gp", "fit_round", "kernel_matrix",
-           "log_input_offsets", "matern32", "warp_inputs"]
+           "log_input_offsets", "matern32", "surrogate_settings", "warp_inputs"]
 
 log = logging.getLogger(__name__)
 
@@ -1188,26 +1189,36 @@ def fit_gp(
     X: np.ndarray,
     y: np.ndarray,
     *,
-    ard: bool = False,
-    optimizer: str = "lbfgsb",
-    restarts: int = 3,
-    seed: int = 0,
+    kernel: str,
+    nugget: str,
+    mean: str,
+    ard: bool,
+    warp: bool | None = None,
+    optimizer: str | None = None,
+    restarts: int | None = None,
+    seed: int | None = None,
     bounds: np.ndarray | None = None,
-    mean_offset_factor: float = 1.0,
-    nugget_factor: float = 1e-5,
+    mean_offset_factor: float | None = None,
+    nugget_factor: float | None = None,
+    nugget_floor: float | None = None,
     max_iters: int = 1000,
     device: str = "auto",
     bound: float | None = None,
-    warp: bool = True,
-    kernel: str = "matern32",
     rotation: np.ndarray | None = None,
     log_offset: np.ndarray | None = None,
-    mean: str = "constant",
     warm_start: tuple[float, np.ndarray] | tuple[float, np.ndarray, float] | None = None,
-    nugget: str = "fixed",
-    nugget_floor: float = 1e-5,
 ) -> GPSurrogate:
-    """Train the GP surrogate of the log-likelihood (paper Sec. 3.2, App. D).
+    """Train one GP surrogate of the log-likelihood (paper Sec. 3.2, App. D).
+
+    One model, every choice of it given: the kernel, the nugget, the mean, the length
+    scales and (with a ``bound``) the output are required keywords, since the study's
+    ``surrogate`` section decides them, some by a search over candidates that one fit
+    cannot make (``kernel: auto``, ``ard: auto``, ``output: auto``). The study's surrogate
+    is :func:`fit_from_config` (with :func:`surrogate_settings` from Python); this is
+    the fit of one of its candidates. The optimizer's settings (``optimizer``,
+    ``restarts``, ``seed``, ``mean_offset_factor``, ``nugget_factor``, ``nugget_floor``)
+    left out (None) are the schema's defaults of the ``surrogate`` section
+    (:func:`bayescalib.config.defaults`), so that they live in one place.
 
     Parameters
     ----------
@@ -1215,8 +1226,23 @@ def fit_gp(
         (n, d) design points in user units.
     y
         (n,) log-likelihood values; non-finite entries (failed runs) are excluded.
+    kernel
+        One of :data:`KERNELS` (the paper's: ``"matern32"``).
+    nugget
+        ``"fixed"``: sigma_n^2 by the rule of ``nugget_factor`` (the paper's); ``"fit"``:
+        sigma_n^2 maximizes the evidence with the kernel's hyperparameters, at least the
+        floor (module docstring).
+    mean
+        ``"constant"``: the fixed constant mean of ``mean_offset_factor``;
+        ``"quadratic"``: the misfit-shaped mean (module docstring), its centre, widths
+        and phi0 fitted by the evidence jointly with the kernel, starting from a
+        least-squares fit to the targets (:func:`_prefit_quadratic`).
     ard
         Per-dimension length scales instead of one.
+    warp
+        With a ``bound`` (then required): True models the log-misfit
+        g = log(1 + B - y) (module docstring; values above B from round-off count as
+        g = 0), False L itself. Without a bound: unused.
     optimizer
         ``"lbfgsb"`` or ``"scg"`` (GPy optimizers).
     restarts
@@ -1228,6 +1254,9 @@ def fit_gp(
         sigma_n^2 = nugget_factor * (max(y) - min(y)) (``nugget="fixed"``). With ``bound``
         the same rules act on the warped values g, with the mean placed above
         them: m = max(g) + mean_offset_factor * (max(g) - min(g)).
+    nugget_floor
+        Floor s_f^2 of the fitted nugget, in nats^2 of the log-likelihood (carried to the
+        units of g for the log-misfit GP), > 0; unused with ``nugget="fixed"``.
     max_iters
         Iteration limit of each optimizer run.
     device
@@ -1235,22 +1264,12 @@ def fit_gp(
     bound
         Known upper bound B of the log-likelihood; predictions never exceed it.
         None: unknown (the paper's surrogate, uncapped).
-    warp
-        With a ``bound``: model the log-misfit g = log(1 + B - y) (module
-        docstring; values above B from round-off count as g = 0) instead of y.
-    kernel
-        One of :data:`KERNELS`.
     rotation
         (d, d) orthogonal matrix: the GP's inputs are the box-scaled inputs times it
         (:func:`principal_frame`); None: the box-scaled inputs themselves.
     log_offset
         (d,) offsets of the log inputs (:func:`log_input_offsets`; NaN: linear), applied
         before the box scaling (the bounds are mapped alike); None: all linear.
-    mean
-        ``"constant"``: the fixed constant mean of ``mean_offset_factor``;
-        ``"quadratic"``: the misfit-shaped mean (module docstring), its centre, widths
-        and phi0 fitted by the evidence jointly with the kernel, starting from a
-        least-squares fit to the targets (:func:`_prefit_quadratic`).
     warm_start
         (kernel variance, length scale(s) of shape (1,) or (d,)[, nugget]) of the first
         optimizer start (a warm start, e.g. the previous round's optimum,
@@ -1258,13 +1277,6 @@ def fit_gp(
         bounds); None: the fixed default. The other starts are drawn as without it. With
         ``nugget="fit"`` the warm start comes on top of the ``restarts`` starts (the fixed
         default included); with a fixed nugget it replaces the fixed default.
-    nugget
-        ``"fixed"``: sigma_n^2 by the rule of ``nugget_factor``; ``"fit"``: sigma_n^2
-        maximizes the evidence with the kernel's hyperparameters, at least the floor
-        (module docstring).
-    nugget_floor
-        Floor s_f^2 of the fitted nugget, in nats^2 of the log-likelihood (carried to the
-        units of g for the log-misfit GP), > 0; unused with ``nugget="fixed"``.
 
     Returns
     -------
@@ -1275,10 +1287,21 @@ def fit_gp(
     ValueError
         Fewer than two finite training values, bad shapes or options.
     """
+    schema_default = defaults("inference", "surrogate")
+    optimizer = schema_default["optimizer"] if optimizer is None else optimizer
+    restarts = schema_default["restarts"] if restarts is None else restarts
+    seed = schema_default["seed"] if seed is None else seed
+    mean_offset_factor = schema_default["mean_offset_factor"] if mean_offset_factor is None \
+        else mean_offset_factor
+    nugget_factor = schema_default["nugget_factor"] if nugget_factor is None else nugget_factor
+    nugget_floor = schema_default["nugget_floor"] if nugget_floor is None else nugget_floor
     X = np.asarray(X, float)
     y = np.asarray(y, float).reshape(-1)
     if X.ndim != 2 or X.shape[0] != y.shape[0]:
         raise ValueError(f"X must be (n, d) and y (n,), got {X.shape} and {y.shape}")
+    if bound is not None and warp is None:
+        raise ValueError("warp must be given with a bound: True models the log-misfit, "
+                         "False the log-likelihood itself")
     if optimizer not in ("lbfgsb", "scg"):
         raise ValueError(f"optimizer must be 'lbfgsb' or 'scg', got {optimizer!r}")
     if restarts < 1:
@@ -1645,7 +1668,7 @@ def _search_settings(X: np.ndarray, y: np.ndarray, surrogate: dict[str, Any],
           "mean_offset_factor": surrogate["mean_offset_factor"],
           "nugget_factor": surrogate["nugget_factor"], "bound": bound,
           "nugget": surrogate["nugget"], "nugget_floor": surrogate["nugget_floor"],
-          "mean": resolve_mean(surrogate.get("mean", "auto"), np.shape(X)[1])}
+          "mean": resolve_mean(surrogate["mean"], np.shape(X)[1])}
     kernels, warps, scales, frames = _discrete_choices(surrogate, bounds, bound)
     Xa, ya = np.asarray(X, float), np.asarray(y, float).reshape(-1)
     ok = np.isfinite(ya) & np.all(np.isfinite(Xa), axis=1)
@@ -1693,6 +1716,20 @@ def _evidence_of_L(gp: GPSurrogate) -> float:
     """The evidence of the log-likelihood values (the warped GP's carried to L by the
     Jacobian of the warping, :func:`fit_from_config`)."""
     return gp.log_marginal_likelihood - (float(np.sum(gp.y_train)) if gp.warped else 0.0)
+
+
+def surrogate_settings(**settings: Any) -> dict[str, Any]:
+    """A validated ``surrogate`` section: ``settings`` (keys of the section, e.g.
+    ``kernel="matern32"``) over the schema's defaults; the way from Python to the study's
+    surrogate, :func:`fit_from_config` (``fit_from_config(X, y, surrogate_settings(),
+    bounds)`` fits what a study with no ``surrogate`` section fits).
+
+    Raises
+    ------
+    bayescalib.config.ConfigError
+        Naming a key the section does not have or a value it does not allow.
+    """
+    return validate({"surrogate": settings}, "inference", where="surrogate_settings")["surrogate"]
 
 
 def fit_from_config(X: np.ndarray, y: np.ndarray, surrogate: dict[str, Any],

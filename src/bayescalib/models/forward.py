@@ -66,6 +66,7 @@ __all__ = [
     "check_executable",
     "failed_result",
     "load_callable",
+    "loading_factors",
     "loading_labels",
     "make_forward_model",
     "solve_point",
@@ -589,6 +590,15 @@ class FSIForward:
                                             time_limit=self.time_limit_s)
         self._extra_outputs(results[-1])
         return results
+
+
+def loading_factors(fm: Mapping[str, Any]) -> list[float]:
+    """The loading factors of a forward-model section; [] where it has no loadings (the
+    section as a solve gets it with a single loading, which
+    :meth:`bayescalib.study.Study.forward_section` leaves out, or ``loadings: {}``, the
+    base solve's)."""
+    loadings = fm.get("loadings")
+    return [float(f) for f in loadings["factors"]] if loadings else []
 
 
 def loading_labels(factors: list[float]) -> list[str]:

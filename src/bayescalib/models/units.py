@@ -183,8 +183,7 @@ def _converted(par: Mapping[str, Any], unit: str, c: float) -> str:
             v += math.log(c)
         out_prior.append(f"{key}: {_num(v)}")
     parts = [f"name: {par['name']}", f"unit: {unit if unit not in ('', '-') else repr('-')}"]
-    if par.get("target"):
-        parts.append(f"target: {par['target']}")
+    parts.append(f"target: {par['target']}")
     parts.append("prior: {" + ", ".join(out_prior) + "}")
     if par.get("bounds") is not None:
         parts.append(f"bounds: [{', '.join(_num(c * float(b)) for b in par['bounds'])}]")
@@ -201,8 +200,7 @@ def check_fsi_units(parameters: Sequence[Mapping[str, Any]], where: str = "confi
     Parameters
     ----------
     parameters
-        The validated ``parameters`` section (a missing ``unit`` is the schema's
-        default ``"-"``).
+        The study's ``parameters`` section (validated, every ``target`` filled).
     where
         Name of the configuration's source for the message.
 
@@ -214,9 +212,9 @@ def check_fsi_units(parameters: Sequence[Mapping[str, Any]], where: str = "confi
         prior, bounds and ground truth converted (to paste in place of the old one).
     """
     for k, par in enumerate(parameters):
-        target = par.get("target") or par["name"]
+        target = par["target"]
         want = fsi_target_unit(target)
-        unit = str(par.get("unit", "-"))
+        unit = str(par["unit"])
         if want is None or _same(unit, want):
             continue
         none = want in DIMENSIONLESS

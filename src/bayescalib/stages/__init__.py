@@ -344,7 +344,7 @@ def observe(observations: Mapping[str, Any], out_path: str | Path, *,
     elif source == "files":
         snaps, labels, loads, segs = [], [], [], []
         domain = observations.get("domain")
-        for entry in observations.get("files", []):
+        for entry in observations["files"]:
             iface, info = read_interface_info(entry["path"], domain=domain,
                                               **_reader_options(entry))
             snaps.append(iface)
@@ -363,7 +363,7 @@ def observe(observations: Mapping[str, Any], out_path: str | Path, *,
             ref_entry = observations["reference"]
             ref = read_interface(ref_entry["path"], domain=domain, **_reader_options(ref_entry))
         stored = StoredObservations(snaps, labels, loads, ref,
-                                    {"source": "files", "files": observations.get("files", [])},
+                                    {"source": "files", "files": observations["files"]},
                                     segs if any(x is not None for x in segs) else None)
     else:
         raise PipelineError(f"observations.source: unknown source {source!r}")
@@ -710,27 +710,8 @@ def train_surrogate(training_path: str | Path, surrogate: Mapping[str, Any],
         return
     tab = read_stage_file(training_path, "training table")
     train_mask = tab["is_train"].astype(bool)
-    X, L = tab["X"][train_mask], tab["loglik"][train_mask]
+    X, L = _loglik_training_set(tab)
     finite = np.isfinite(L)
-    if finite.sum() == 0:
-        reasons = sorted({r for r, ok in zip(tab["reason"], train_mask, strict=True) if ok and r})
-        raise PipelineError(
-            f"all {len(L)} design points failed or have a log-likelihood of -inf, so no "
-            "surrogate can be trained. Reasons seen: "
-            + ("; ".join(reasons[:5]) or "none recorded")
-            + ". Check the forward model settings, the parameter bounds, and sigma_n."
-        )
-    if finite.sum() < 3:
-        raise PipelineError(
-            f"only {int(finite.sum())} of {len(L)} design points succeeded; at least 3 are "
-            "needed to train the surrogate: increase design.n_train or narrow the bounds"
-        )
-    _check_distinct(X, finite, tab["names"])
-    from bayescalib.inference.feasibility import marks_infeasible
-
-    reasons = [r for r, use in zip(tab["reason"], train_mask, strict=True) if use]
-    # a failure for the machine's sake: no value and no infeasible region (feasibility)
-    L = np.where(~finite & ~marks_infeasible(finite, reasons), np.nan, L)
     space = _space(parameters)
     bound = loglik_bound(tab, train_mask)
     if surrogate["target"] == "outputs":
@@ -756,6 +737,37 @@ def train_surrogate(training_path: str | Path, surrogate: Mapping[str, Any],
     log.info("GP surrogate on %d points (%d excluded, %d of them marking where the model "
              "cannot be solved): %s", gp.n_train, gp.n_excluded, gp.n_failed,
              gp.hyperparameters)
+
+
+def _loglik_training_set(tab: Mapping[str, Any]) -> tuple[np.ndarray, np.ndarray]:
+    """The inputs and log-likelihoods the GP surrogate is fitted to: the training
+    points of the table (``is_train``), a failure for the machine's sake (no value and
+    no infeasible region, :mod:`bayescalib.inference.feasibility`) as NaN, an infeasible
+    point's -inf kept. Refuses a table with fewer than 3 finite values or with repeated
+    points. The study's surrogate (:func:`train_surrogate`) and the GP convergence study
+    (:func:`convergence`) fit these, the latter their prefixes."""
+    train_mask = tab["is_train"].astype(bool)
+    X, L = tab["X"][train_mask], tab["loglik"][train_mask]
+    finite = np.isfinite(L)
+    if finite.sum() == 0:
+        reasons = sorted({r for r, ok in zip(tab["reason"], train_mask, strict=True) if ok and r})
+        raise PipelineError(
+            f"all {len(L)} design points failed or have a log-likelihood of -inf, so no "
+            "surrogate can be trained. Reasons seen: "
+            + ("; ".join(reasons[:5]) or "none recorded")
+            + ". Check the forward model settings, the parameter bounds, and sigma_n."
+        )
+    if finite.sum() < 3:
+        raise PipelineError(
+            f"only {int(finite.sum())} of {len(L)} design points succeeded; at least 3 are "
+            "needed to train the surrogate: increase design.n_train or narrow the bounds"
+        )
+    _check_distinct(X, finite, tab["names"])
+    from bayescalib.inference.feasibility import marks_infeasible
+
+    reasons = [r for r, use in zip(tab["reason"], train_mask, strict=True) if use]
+    # a failure for the machine's sake: no value and no infeasible region (feasibility)
+    return X, np.where(~finite & ~marks_infeasible(finite, reasons), np.nan, L)
 
 
 def _train_emulator(tab: Mapping[str, Any], use: np.ndarray, surrogate: Mapping[str, Any],
@@ -847,22 +859,27 @@ def _check_distinct(X: np.ndarray, use: np.ndarray, names: Sequence[str]) -> Non
 def convergence(training_path: str | Path, surrogate: Mapping[str, Any],
                 parameters: Sequence[Mapping[str, Any]], n_train_list: Sequence[int],
                 out_path: str | Path) -> dict[str, Any]:
-    """GP convergence over n_train against the held-out Sobol points."""
+    """GP convergence over n_train against the held-out Sobol points (paper Sec. 4.3).
+
+    The GP of each n is the study's surrogate fitted to the first n training points: the
+    values :func:`train_surrogate` fits (:func:`_loglik_training_set`), the likelihood's
+    bound of the whole table, and :func:`bayescalib.inference.surrogate.fit_from_config`
+    with the study's ``surrogate`` section (kernel, output, ard, frame, inputs, mean,
+    nugget and the optimizer's settings, searched as the study's surrogate searches
+    them); only the training size varies. At the full training set it is the study's
+    surrogate. ``surrogate`` in the record: each n's hyperparameters."""
     from bayescalib.inference.convergence import convergence_study
-    from bayescalib.inference.surrogate import resolve_ard
+    from bayescalib.inference.surrogate import fit_from_config
 
     tab = read_stage_file(training_path, "training table")
     tr = tab["is_train"].astype(bool)
-    space = _space(parameters)
+    X, L = _loglik_training_set(tab)
+    bounds = _space(parameters).bounds
+    bound = loglik_bound(tab, tr)
+    settings = dict(surrogate)
     res = convergence_study(
-        tab["X"][tr], tab["loglik"][tr], tab["X"][~tr], tab["loglik"][~tr],
-        n_train_list=list(n_train_list), bounds=space.bounds,
-        ard=resolve_ard(surrogate["ard"], space.dim),
-        optimizer=surrogate["optimizer"], restarts=surrogate["restarts"],
-        seed=surrogate["seed"], mean_offset_factor=surrogate["mean_offset_factor"],
-        nugget_factor=surrogate["nugget_factor"], nugget=surrogate["nugget"],
-        nugget_floor=surrogate["nugget_floor"],
-    )
+        X, L, tab["X"][~tr], tab["loglik"][~tr], n_train_list=list(n_train_list),
+        fit=lambda Xn, Ln: fit_from_config(Xn, Ln, settings, bounds, bound=bound))
     write_json(out_path, res)
     return res
 
@@ -956,7 +973,7 @@ def summary(study_name: str, parameters: Sequence[Mapping[str, Any]], measures: 
     from bayescalib.inference.likelihood import fit_check
 
     names = [p["name"] for p in parameters]
-    targets = [p.get("target") or p["name"] for p in parameters]
+    targets = [p["target"] for p in parameters]
     per_measure: dict[str, Any] = {}
     posts: dict[str, Any] = {}
     failed_runs: list[dict[str, Any]] = []
@@ -994,11 +1011,11 @@ def summary(study_name: str, parameters: Sequence[Mapping[str, Any]], measures: 
         "study": study_name,
         "measure": measures[0],
         "parameters": [
-            {"name": n, "unit": p.get("unit", "-"), "target": t,
+            {"name": n, "unit": p["unit"], "target": t,
              "uncertain": bool(p.get("uncertain")), "bounds": p.get("bounds")}
             for n, t, p in zip(names, targets, parameters, strict=True)
         ],
-        "units": {"length": "mm", **{p["name"]: p.get("unit", "-") for p in parameters}},
+        "units": {"length": "mm", **{p["name"]: p["unit"] for p in parameters}},
         "map": post["map"],
         "map_marginal": post.get("map_marginal"),
         "posterior_mean": post["mean"],
@@ -1048,7 +1065,7 @@ def posterior_check(sample_runs: Sequence[str | Path], obs_path: str | Path, mea
     from bayescalib.inference.importance import importance_check
 
     names = [p["name"] for p in parameters]
-    targets = [p.get("target") or p["name"] for p in parameters]
+    targets = [p["target"] for p in parameters]
     draws_dir = Path(str(out_path) + ".draws")
     X, L = [], []
     for k, rp in enumerate(sample_runs):

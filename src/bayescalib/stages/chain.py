@@ -145,7 +145,7 @@ def calibrate_rounds(
                          where="calibrate_rounds")["posterior_check"]
     work = Path(workdir)
     switches = dict(switches or {})
-    targets = [p.get("target") or p["name"] for p in parameters]
+    targets = [p["target"] for p in parameters]
     names = [p["name"] for p in parameters]
     d = len(names)
     base = dict(reused) if reused is not None else {

@@ -217,7 +217,7 @@ def posterior_draws(particles_path: str | Path, parameters: Sequence[Mapping[str
 
     x = equal_weight_draws(read_stage_file(particles_path, "SMC particle file"), n,
                            seed)[int(k)]
-    targets = [p.get("target") or p["name"] for p in parameters]
+    targets = [p["target"] for p in parameters]
     return {t: float(v) for t, v in zip(targets, x, strict=True)}
 
 
@@ -317,7 +317,7 @@ def posterior_mean_point(posterior_path: str | Path,
     """The posterior mean of a study (its ``posterior.json``), keyed by target: the
     values at which the fields of the calibrated model are solved."""
     mean = read_stage_file(posterior_path, "posterior summary")["mean"]
-    return {(p.get("target") or p["name"]): float(mean[p["name"]]) for p in parameters}
+    return {p["target"]: float(mean[p["name"]]) for p in parameters}
 
 
 def solve_at_posterior_mean(posterior_path: str | Path, parameters: Sequence[Mapping[str, Any]],
@@ -341,8 +341,8 @@ def _at_posterior_mean_title(run, parameters: Sequence[Mapping[str, Any]]) -> st
     """"Fields at the posterior mean: E = 412 Pa, nu = 0.31" from the run record."""
     parts = []
     for p in parameters:
-        v = run.parameters.get(p.get("target") or p["name"])
-        unit = "" if p.get("unit", "-") in ("-", "", "1") else f" {p['unit']}"
+        v = run.parameters.get(p["target"])
+        unit = "" if p["unit"] in ("-", "", "1") else f" {p['unit']}"
         if v is not None:
             parts.append(f"{p['name']} = {float(v):.4g}{unit}")
     return "Fields at the posterior mean" + (f": {', '.join(parts)}" if parts else "")

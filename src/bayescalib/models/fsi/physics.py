@@ -255,14 +255,14 @@ CANDIDATES: dict[str, Candidate] = {c.name: c for c in (
 
 def enabled_candidates(physics: Mapping[str, Any]) -> list[str]:
     """Names of the switched-on candidates of a validated ``physics`` section."""
-    return [n for n in CANDIDATES if physics.get(n, {}).get("enabled", False)]
+    return [n for n in CANDIDATES if physics[n]["enabled"]]
 
 
 def check_physics(physics: Mapping[str, Any], where: str = "physics") -> str:
     """Return a message if ``phi`` is non-zero for a switched-off candidate, else ``""``."""
     for name in CANDIDATES:
-        sec = physics.get(name, {})
-        if not sec.get("enabled", False) and float(sec.get("phi", 0.0)) != 0.0:
+        sec = physics[name]
+        if not sec["enabled"] and float(sec["phi"]) != 0.0:
             return (f"{where}.{name}.phi = {sec['phi']} but {where}.{name}.enabled is false: "
                     f"switch the candidate on or set phi to 0")
     return ""
@@ -275,8 +275,8 @@ def physics_parameters(physics: Mapping[str, Any]) -> dict[str, float]:
 
 def springs_active(physics: Mapping[str, Any]) -> bool:
     """True when the attachment springs replace the clamp (enabled and ``phi > 0``)."""
-    sec = physics.get("attachment", {})
-    return bool(sec.get("enabled", False)) and float(sec.get("phi", 0.0)) > 0.0
+    sec = physics["attachment"]
+    return bool(sec["enabled"]) and float(sec["phi"]) > 0.0
 
 
 def unsupported_combination(physics: Mapping[str, Any]) -> str:
@@ -288,8 +288,8 @@ def unsupported_combination(physics: Mapping[str, Any]) -> str:
     base's tangential velocity is free for the springs and also Darcy's). Each of the
     two works with the other switched on at ``phi = 0``.
     """
-    perm = physics.get("permeability", {})
-    if springs_active(physics) and perm.get("enabled", False) and float(perm.get("phi", 0.0)) > 0:
+    perm = physics["permeability"]
+    if springs_active(physics) and perm["enabled"] and float(perm["phi"]) > 0:
         return (f"physics.permeability.phi = {perm['phi']} together with the attachment springs "
                 f"(physics.attachment.phi = {physics['attachment']['phi']}) is not supported: "
                 "the Darcy flow along the sliding base makes Newton's linearization singular")
