@@ -39,15 +39,17 @@ def test_hidden_slip_is_located_named_modelled_and_improves_the_fit(tmp_path, co
     assert slip["check_after"]["residual_rms_mm"] < 0.6 * d["check"]["residual_rms_mm"]
     # the extended model is calibrated by the study's active-design chain: round 0 is
     # diagnose.n_train Sobol points plus the base design at phi = 0, then batches of
-    # design.active.batch_size acquired points and design.active.check_points (1) random
-    # check points until the stop rule holds (the last batch cut to the budget's rest)
+    # design.active.batch_size acquired points, design.active.check_points (1) random
+    # check points and at most design.active.probes (2) probes of basins the posterior does
+    # not hold, until the stop rule holds (the last batch cut to the budget's rest)
     assert slip["converged"] is True, slip["reason"]
     assert slip["n_reused"] == 32
     rounds = slip["rounds"]
     assert [h["round"] for h in rounds] == list(range(len(rounds)))
     assert rounds[-1]["n_solves"] == 32 + slip["n_new_solves"]
     sizes = np.diff([32] + [h["n_solves"] for h in rounds])
-    assert sizes[0] == 32 and np.all(sizes[1:-1] == 8 + 1) and 0 < sizes[-1] <= 8 + 1
+    assert sizes[0] == 32 and np.all((sizes[1:-1] >= 8 + 1) & (sizes[1:-1] <= 8 + 1 + 2))
+    assert 0 < sizes[-1] <= 8 + 1 + 2
     assert d["base_calibration"]["strategy"] == "fixed"
     assert any("fixed design" in line for line in d["plain_words"])
     for fam in ("residuals", "interface_residual", "candidates"):
