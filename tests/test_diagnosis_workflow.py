@@ -21,7 +21,9 @@ def concealed():
 
 def _diagnosis(tmp, cfg):
     setup_study(tmp, cfg)
-    smk(tmp)
+    # a base calibration, the diagnosis and up to three extended calibrations; the limit
+    # only guards against a hang (on a shared machine the two-effect case ran past 10 min)
+    smk(tmp, timeout=1800)
     root = tmp / "results" / cfg["study"]
     return json.loads((root / "diagnosis" / "diagnosis.json").read_text()), root
 
