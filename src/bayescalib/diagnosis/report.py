@@ -86,7 +86,7 @@ def _html(d: Mapping[str, Any]) -> str:
         for r in d["attribution"]["ranking"])
     ext = "".join(
         f"<tr><td>{html.escape(e['candidate'])}</td>"
-        f"<td>{html.escape(_ORIGIN.get(e.get('origin', ''), ''))}</td>"
+        f"<td>{html.escape(_ORIGIN.get(e.get('origin'), ''))}</td>"
         f"<td>{e['log_bayes_factor']:.2f}</td>"
         + "<td>" + "<br>".join(f"{html.escape(n)}: {p['mean']:.3g} &plusmn; {p['std']:.2g} "
                                f"{html.escape(p['unit'])}" for n, p in e["phi"].items())
