@@ -140,3 +140,16 @@ def test_the_stop_rule_never_says_converged_with_the_missing_mode_of_seed_4():
     assert row["missed"] == 0, row
     if row["converged"]:
         np.testing.assert_allclose(row["mode_mass"], row["ref_mode_mass"], atol=0.1)
+
+
+def test_the_round_record_names_the_unheld_basin_of_largest_mass_first():
+    """audit lists basins highest peak first; the round's reason must name the one that
+    could hold the most mass, and never a basin the posterior holds."""
+    from bayescalib.inference.active import unheld_basins
+
+    explored = {"basins": [
+        {"peak_loglik": 5.0, "mass": 0.001, "is_held": False},
+        {"peak_loglik": 4.0, "mass": 0.9, "is_held": True},
+        {"peak_loglik": 3.0, "mass": 0.6, "is_held": False},
+    ]}
+    assert [b["mass"] for b in unheld_basins(explored)] == [0.6, 0.001]

@@ -416,6 +416,14 @@ def select_batch(gp, pool: np.ndarray, logprior: np.ndarray, q: int, *, posterio
 MAX_BASINS_RECORDED = 5
 
 
+def unheld_basins(explored: Mapping[str, Any]) -> list[dict[str, Any]]:
+    """The basins of :func:`~bayescalib.inference.exploration.audit` that the posterior
+    does not hold, largest estimated mass first (the first is the one the reason names),
+    at most ``MAX_BASINS_RECORDED``."""
+    return sorted((b for b in explored["basins"] if not b["is_held"]),
+                  key=lambda b: -b["mass"])[:MAX_BASINS_RECORDED]
+
+
 def _round_seed(seed: int, r: int) -> np.random.Generator:
     return np.random.default_rng([int(seed), int(r), 0x5EED])
 
@@ -523,7 +531,7 @@ def acquire_round(r: int, X: np.ndarray, L: np.ndarray, gp, particles: np.ndarra
     rec["exploration"] = {
         "unexplored_mass": explored["unexplored_mass"],
         "fill_distance": explored["fill_distance"],
-        "basins": [b for b in explored["basins"] if not b["is_held"]][:MAX_BASINS_RECORDED],
+        "basins": unheld_basins(explored),
     }
     rec["explored"] = bool(explored["unexplored_mass"] <= stop_cfg["unexplored_mass"])
     settled = rec["change"] is not None and (
