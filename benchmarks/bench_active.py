@@ -34,7 +34,7 @@ Methods
 * ``sobol_gp``: today's pipeline: a scrambled Sobol design of the whole budget,
   the GP surrogate of the log-likelihood (``bayescalib.inference.surrogate.fit_gp``) and
   SMC on its mean (``bayescalib.inference.smc.run_smc``).
-* ``active``: ``bayescalib.inference.active.calibrate`` (active design in batches of 8,
+* ``active``: ``bayescalib.inference.rounds.calibrate`` (active design in batches of 8,
   ``max_solves`` = budget, a quarter of the budget as initial design). Reported
   as "not available" when the module does not import. ``active_vbmc``: the same with
   VBMC's prospective uncertainty in the acquisition (``posterior_power`` 2), so that
@@ -596,9 +596,9 @@ def run_sobol_gp(prob: Problem, budget: int, seed: int) -> dict[str, Any]:
 
 
 def run_active(prob: Problem, budget: int, seed: int, variant: str = "active") -> dict[str, Any]:
-    # Adapter for bayescalib.inference.active.calibrate; kept small so that names can follow the API.
+    # Adapter for bayescalib.inference.rounds.calibrate; kept small so that names can follow the API.
     try:
-        from bayescalib.inference.active import calibrate
+        from bayescalib.inference.rounds import calibrate
     except ImportError as e:
         raise NotAvailable(f"not available (bayescalib.inference.active: {e})") from None
     f = Counter(prob.loglik)
@@ -895,14 +895,14 @@ EMULATOR_FINAL_SMC = {"n_particles": 8000, "n_rej": 20, "zeta": 0.95}
 
 def run_emulator(prob: Problem, budget: int, seed: int) -> dict[str, Any]:
     """Output emulator in rounds of posterior draws
-    (``bayescalib.inference.emulator.calibrate_outputs``): a Sobol design of a quarter
-    of the budget (as ``active``), then rounds of ``EMULATOR_BATCH`` posterior draws,
-    each the previous posterior's importance check (default thresholds); converged
-    when a check confirms it and the posterior moved by at most 0.2 sd (sd change at
-    most 0.2). Least-squares problems only (``outputs``)."""
+    (``bayescalib.inference.rounds.calibrate_outputs``, the pipeline's rounds with
+    ``surrogate.target: outputs``): a Sobol design of a quarter of the budget (as
+    ``active``), then rounds of ``EMULATOR_BATCH`` posterior draws, each the previous
+    posterior's check, with the pipeline's stop rule. Least-squares problems only
+    (``outputs``)."""
     if prob.outputs is None:
         raise NotAvailable("not applicable (needs the model's outputs: a least-squares problem)")
-    from bayescalib.inference.emulator import calibrate_outputs
+    from bayescalib.inference.rounds import calibrate_outputs
 
     f = Counter(prob.loglik)  # counts the evaluations (each gives outputs and loglik)
 
@@ -911,21 +911,24 @@ def run_emulator(prob: Problem, budget: int, seed: int) -> dict[str, Any]:
         return prob.outputs(X)
 
     def per_round(rec: dict[str, Any]) -> None:
-        err = np.max(np.abs(np.asarray(rec["mean"]) - prob.ref_mean) / prob.ref_sd)
-        print(f"    round {rec['round']}: {rec['n_solves']} evals, {rec['components']} "
-              f"components, best {f.best:.4g}, mean err {err:.3g} ref sd"
-              + ("" if "check" not in rec else
-                 f", check: log-weight sd {rec['log_weight_sd']:.3g}, "
-                 f"{'confirmed' if rec['confirmed'] else 'not confirmed'}, moved "
-                 f"{rec['shift_sd']:.2g} sd"), flush=True)
+        err = np.max(np.abs(np.asarray(rec["posterior"]["mean"]) - prob.ref_mean) / prob.ref_sd)
+        pc = rec["posterior_check"]
+        print(f"    round {rec['round']}: {rec['n_solves']} evals, best {f.best:.4g}, mean "
+              f"err {err:.3g} ref sd"
+              + ("" if pc is None else
+                 f", check: log-weight sd {pc['log_weight_sd']:.3g}, "
+                 f"{'confirmed' if pc['confirmed'] else 'not confirmed'}, moved "
+                 f"{rec['change']['shift_sd']:.2g} sd"), flush=True)
 
     space = make_space(prob)
     n0 = max(2 * prob.d + 2, budget // 4)
-    res = calibrate_outputs(outputs, prob.y, space, offset=prob.B, n_initial=n0,
-                            batch=EMULATOR_BATCH, max_solves=budget, seed=seed,
-                            round_smc=EMULATOR_ROUND_SMC, final_smc=EMULATOR_FINAL_SMC,
-                            callback=per_round)
-    lik, n = res.likelihood, len(res.loglik)
+    res = calibrate_outputs(outputs, prob.y, space, offset=prob.B,
+                            active={"n_initial": n0, "batch_size": EMULATOR_BATCH,
+                                    "max_solves": budget, "smc": EMULATOR_ROUND_SMC},
+                            posterior_check={"draws": EMULATOR_BATCH},
+                            smc=EMULATOR_FINAL_SMC, seed=seed, callback=per_round)
+    lik, n = res.surrogate, len(res.loglik)
+    kinds = ["initial"] * n0 + [k for r in res.rounds[:-1] for k in r["next"]["kind"]]
     return {
         "samples": res.smc.particles,
         "weights": res.smc.weights,
@@ -935,8 +938,7 @@ def run_emulator(prob: Problem, budget: int, seed: int) -> dict[str, Any]:
         "n_rounds": len(res.rounds),
         "extra": {"converged": res.converged, "reason": res.reason, "rounds": res.rounds,
                   "components": lik.emulator.n_components, "final_smc": EMULATOR_FINAL_SMC},
-        "design": {"X": res.X, "loglik": res.loglik,
-                   "kind": np.asarray(["initial"] * n0 + ["draw"] * (n - n0))},
+        "design": {"X": res.X, "loglik": res.loglik, "kind": np.asarray(kinds[:n])},
     }
 
 

@@ -8,7 +8,7 @@ solved. Taking the failures as infeasible, the answer is the posterior restricte
 x0 <= 0.5: a truncated normal in x0 (mean 0.220, sd 0.200) with closed-form moments.
 
 Modes, each on the same design seeds (the in-process active design,
-:func:`bayescalib.inference.active.calibrate`, as ``tests/test_active.py``):
+:func:`bayescalib.inference.rounds.calibrate`, as ``tests/test_active.py``):
 
 * ``before``: the failures reach the surrogate as NaN (no value and no region: the
   surrogate extrapolates across the cut, as before the region existed) and the
@@ -39,7 +39,7 @@ from pathlib import Path
 import numpy as np
 from scipy.stats import truncnorm
 
-from bayescalib.inference.active import calibrate
+from bayescalib.inference.rounds import calibrate
 from bayescalib.inference.parameters import ParameterSpace
 
 MEAN, SD, CUT = np.array([0.4, -0.3]), np.array([0.3, 0.4]), 0.5

@@ -57,7 +57,7 @@ VARIANTS: dict[str, dict[str, Any]] = {
 
 def run(prob: ba.Problem, variant: str, seed: int, budget: int) -> dict[str, Any]:
     """One active calibration of ``prob`` with design seed ``seed``, scored."""
-    from bayescalib.inference.active import calibrate
+    from bayescalib.inference.rounds import calibrate
 
     space = ba.make_space(prob)
     f = ba.Counter(prob.loglik)

@@ -13,7 +13,6 @@ import pytest
 from bayescalib.config import validate
 from bayescalib.inference.active import (
     acquire_round,
-    calibrate,
     candidate_pool,
     check_points,
     posterior_change,
@@ -22,6 +21,7 @@ from bayescalib.inference.active import (
     trust_check,
 )
 from bayescalib.inference.design import sobol_design
+from bayescalib.inference.rounds import calibrate
 from bayescalib.inference.parameters import ParameterSpace
 from bayescalib.inference.smc import smc_from_config
 from bayescalib.inference.surrogate import GPSurrogate, fit_from_config, fit_gp

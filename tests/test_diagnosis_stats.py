@@ -722,9 +722,12 @@ def test_an_extension_with_a_step_at_zero_is_not_trained_on_base_solves(tmp_path
         return {}
 
     monkeypatch.setattr(chain, "calibrate_rounds", fake_rounds)
-    base = {"X": np.ones((5, 2)), "loglik": np.zeros(5), "D": np.zeros(5),
-            "status": np.ones(5, bool), "bound": np.zeros(5), "n_measurements": np.ones(5),
-            "reason": [""] * 5}
+    from bayescalib.inference.rounds import Evaluations
+
+    base = Evaluations.from_rows({
+        "X": np.ones((5, 2)), "loglik": np.zeros(5), "D": np.zeros(5),
+        "status": np.ones(5, bool), "bound": np.zeros(5), "n_measurements": np.ones(5),
+        "reason": [""] * 5, "residuals": np.zeros((5, 0))})
     monkeypatch.setattr(chain, "training_rows", lambda _: base)
     params = [{"name": "E", "target": "material.E", "prior": {"type": "uniform", "lo": 1.0,
                                                               "hi": 2.0}, "bounds": [1.0, 2.0]},
@@ -733,10 +736,10 @@ def test_an_extension_with_a_step_at_zero_is_not_trained_on_base_solves(tmp_path
     kw = {"fm": {}, "parameters": params, "base_training": "t.h5", "n_new": 4,
           "max_new": 8, "seed": 0, "active": {"max_solves": 99}, "workdir": tmp_path}
     extended_calibration(growth, **kw)
-    assert seen["reused"]["X"].shape == (5, 3) and seen["budget"] == 5 + 8
-    assert np.all(seen["reused"]["X"][:, 2] == 0.0)
+    assert seen["reused"].X.shape == (5, 3) and seen["budget"] == 5 + 8
+    assert np.all(seen["reused"].X[:, 2] == 0.0)
     extended_calibration([growth, perm], **kw)
-    assert seen["reused"]["X"].shape == (0, 4) and seen["budget"] == 8
+    assert seen["reused"].X.shape == (0, 4) and seen["budget"] == 8
     assert CandidateSpec("a", "b", 1.0, (0, 1)).continuous is True  # the default: reuse
 
 

@@ -9,10 +9,10 @@ from scipy.stats import multivariate_normal
 from bayescalib.inference.emulator import (
     EmulatedLikelihood,
     OutputEmulator,
-    calibrate_outputs,
     fit_output_emulator,
     principal_outputs,
 )
+from bayescalib.inference.rounds import calibrate_outputs
 
 
 class _FixedGP:
@@ -196,10 +196,15 @@ _SMC = {"n_particles": 2000, "n_rej": 10, "zeta": 0.99}
 
 def test_calibrate_outputs_converges_on_the_closed_form_posterior():
     outputs, y, space, mean, cov = _linear_gaussian_study()
-    res = calibrate_outputs(outputs, y, space, n_initial=16, batch=16, max_solves=64,
-                            round_smc=_SMC, final_smc={**_SMC, "n_particles": 8000})
+    res = calibrate_outputs(outputs, y, space,
+                            active={"n_initial": 16, "batch_size": 16, "max_solves": 64,
+                                    "smc": _SMC},
+                            posterior_check={"draws": 16}, smc={**_SMC, "n_particles": 8000})
     assert res.converged, res.reason
-    assert len(res.loglik) <= 64 and res.rounds[-1]["confirmed"]
+    # every batch is made of posterior draws: the last round's confirmed the posterior
+    assert len(res.loglik) <= 64 and res.rounds[-1]["posterior_check"]["confirmed"]
+    assert all(set(r["next"]["kind"]) <= {"posterior_check", "probe"}
+               for r in res.rounds[:-1])
     W = res.smc.weights
     m = W @ res.smc.particles
     sd = np.sqrt(W @ (res.smc.particles - m) ** 2)
@@ -220,9 +225,10 @@ def test_calibrate_outputs_says_not_converged_when_the_budget_is_spent():
         return U
 
     # 17: after the Sobol design one evaluation is left, too few for a check round
-    res = calibrate_outputs(flaky, y, space, n_initial=16, batch=8, max_solves=17,
-                            round_smc=_SMC, final_smc=_SMC)
+    res = calibrate_outputs(flaky, y, space,
+                            active={"n_initial": 16, "batch_size": 8, "max_solves": 17},
+                            smc=_SMC)
     assert not res.converged and res.reason.startswith("NOT converged")
     assert len(res.rounds) == 1 and len(res.loglik) == 16
     assert sum(failed) == 4 and np.sum(np.isinf(res.loglik)) == 4
-    assert res.likelihood.emulator.n_train == 12
+    assert res.surrogate.emulator.n_train == 12

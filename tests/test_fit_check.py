@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from bayescalib.inference.active import calibrate
+from bayescalib.inference.rounds import calibrate
 from bayescalib.inference.likelihood import FIT_P_VALUE, fit_check
 from bayescalib.inference.parameters import ParameterSpace
 

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from bayescalib.config import load_yaml, merge_layers, validate
-from bayescalib.inference.active import calibrate
+from bayescalib.inference.rounds import calibrate
 from bayescalib.inference.design import sobol_design
 from bayescalib.inference.parameters import ParameterSpace
 from bayescalib.inference.surrogate import (

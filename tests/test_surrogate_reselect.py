@@ -228,10 +228,10 @@ def test_the_round_stage_reads_the_previous_rounds_choice_and_the_study_searches
 # ------------------------------------------------------------------ in-process active design
 @pytest.mark.parametrize("growth", [0.0, 10.0])
 def test_calibrate_searches_in_round_0_and_for_its_result(growth, monkeypatch):
-    """In-process rounds (bayescalib.inference.active.calibrate): with reselect_growth 0
+    """In-process rounds (bayescalib.inference.rounds.calibrate): with reselect_growth 0
     every round searches in full (and the result is the last round's); with a growth
     never reached only round 0 searches, and the result's surrogate is one more search."""
-    from bayescalib.inference.active import calibrate
+    from bayescalib.inference.rounds import calibrate
     from bayescalib.inference.parameters import ParameterSpace
 
     count = _Count(monkeypatch)

@@ -117,6 +117,62 @@ def test_summary_says_whether_the_active_design_converged(active_run):
     assert "Nothing to be done" in _smk(tmp, "-n").stdout
 
 
+_DRIVER = """
+import json, sys
+from pathlib import Path
+import yaml
+from bayescalib.config import merge_layers
+from bayescalib.io.training import read_training
+from bayescalib.stages.chain import calibrate_rounds
+from bayescalib.study import Study
+
+tmp, out = Path(sys.argv[1]), Path(sys.argv[2])
+res = tmp / "results/analytic"
+study = Study(merge_layers([yaml.safe_load((tmp / "config/config.yaml").read_text())]))
+c = study.config
+cal = calibrate_rounds(
+    fm=study.forward_section(), parameters=c["parameters"],
+    initial=read_training(res / "active/0/training.h5")["X"],
+    obs_path=res / "observations/observations.h5", measure_name="rkhs",
+    measure=c["measure"], likelihood=c["likelihood"], surrogate=c["surrogate"],
+    smc_cfg=c["smc"], posterior_cfg=c["posterior"], active=c["design"]["active"],
+    workdir=out, check=c["posterior_check"])
+(out / "rounds.json").write_text(json.dumps(cal["rounds"]))
+"""
+
+
+def test_the_workflows_rounds_are_the_drivers_rounds(active_run, tmp_path):
+    """One round driver: the workflow's rounds (rules and the acquire checkpoint) and
+    the driver run in files (bayescalib.stages.chain.calibrate_rounds, as the diagnosis
+    runs it) from the same round-0 points give the same record in every round, value
+    for value, and the same posterior. Both with one BLAS thread, as pipeline jobs run:
+    the optimizer's result depends on the order of summation at round-off, and a round
+    that refits the surrogate from the previous one's optimum passes that on."""
+    import os
+    import subprocess
+    import sys
+
+    tmp, _ = active_run
+    res = tmp / "results/analytic"
+    env = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1",
+           "MKL_NUM_THREADS": "1"}
+    proc = subprocess.run([sys.executable, "-c", _DRIVER, str(tmp), str(tmp_path / "driver")],
+                          env=env, capture_output=True, text=True, check=False)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+
+    def records(root):
+        return [json.loads(p.read_text()) for p in sorted(
+            root.glob("active/*/acquire.json"), key=lambda p: int(p.parent.name))]
+
+    mine, theirs = records(tmp_path / "driver"), records(res)
+    assert len(mine) == len(theirs) >= 2
+    assert len(json.loads((tmp_path / "driver/rounds.json").read_text())) == len(mine)
+    for a, b in zip(mine, theirs, strict=True):
+        assert a == b, a["round"]
+    assert json.loads((tmp_path / "driver/posterior.json").read_text())["mean"] == \
+        json.loads((res / "rkhs/posterior.json").read_text())["mean"]
+
+
 def test_a_fixed_design_checks_its_final_posterior_with_the_posterior_check_rule(done_run):
     """A fixed design has no rounds: its final posterior's draws are solved after the
     design (predictive solves, default 32) and checked there."""

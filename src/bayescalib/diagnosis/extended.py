@@ -139,14 +139,13 @@ def extended_calibration(
     params_ext = extended_parameters(parameters, group)
     space = ParameterSpace.from_config(params_ext)
     X0 = sobol_design(space.bounds, int(n_new), int(seed))
-    base = training_rows(base_training)
-    reused = {**base, "X": np.hstack([base["X"],
-                                      np.zeros((len(base["loglik"]), len(group)))])}
+    # the base solves, at the candidates' zero
+    reused = training_rows(base_training).with_columns(np.zeros(len(group)))
     if not all(c.continuous for c in group):
         # a model with a step at phi = 0+: the base solves would put a jump on the edge
         # of the surrogate's box, so the extended model is trained on its own solves
-        reused = {k: v[:0] for k, v in reused.items()}
-    budget = {**dict(active), "max_solves": len(reused["loglik"]) + int(max_new)}
+        reused = reused.take(slice(0, 0))
+    budget = {**dict(active), "max_solves": len(reused) + int(max_new)}
     switches = {k: v for c in group for k, v in c.switches.items()}
     cal = calibrate_rounds(fm=fm, parameters=params_ext, initial=X0, switches=switches,
                            reused=reused, active=budget, workdir=workdir, **chain)

@@ -99,26 +99,23 @@ fit). The failures mark where the model cannot be solved
 posterior leans on them (:func:`boundary_points`), since the acquisition, treating the
 failures as known, would not go there.
 
-All functions are pure (arrays in, arrays or plain dicts out) and seeded; the
-Snakemake rules of ``workflow/rules/active.smk`` call :func:`acquire_round` once
-per round, and :func:`calibrate` runs the same rounds in-process for a
-log-likelihood given as a Python function (benchmarks, tests).
+All functions are pure (arrays in, arrays or plain dicts out) and seeded. The rounds
+themselves are driven in one place, :mod:`bayescalib.inference.rounds`, which calls
+:func:`acquire_round` once per round (through its ``decide`` step; so do the
+Snakemake rules of ``workflow/rules/active.smk``).
 """
 
 from __future__ import annotations
 
 import logging
 import math
-from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
 
 __all__ = [
-    "ActiveResult",
     "acquire_round",
-    "calibrate",
     "candidate_pool",
     "check_points",
     "posterior_change",
@@ -460,7 +457,7 @@ def acquire_round(r: int, X: np.ndarray, L: np.ndarray, gp, particles: np.ndarra
         posterior has settled (the module docstring). ``draws``: every batch is a check
         round of ``posterior_check.draws`` draws (``design.active.batch_size`` when that
         is 0), cut to the budget left: the rounds of the output emulator
-        (:func:`bayescalib.inference.emulator.calibrate_outputs`), whose surrogate has no
+        (``surrogate.target: outputs``, :mod:`bayescalib.inference.emulator`), whose surrogate has no
         variance-driven acquisition and whose best design points are where the posterior
         lives. Converged when a round's draws confirm the posterior that drew them and
         the posterior refitted with them is settled.
@@ -905,140 +902,6 @@ def _explored_words(rec: Mapping[str, Any]) -> str:
 
 
 # ------------------------------------------------------------- in-process driver
-@dataclass
-class ActiveResult:
-    """Outcome of :func:`calibrate`.
-
-    Attributes
-    ----------
-    X, loglik : all evaluated points (n, d) and their log-likelihoods (n,).
-    surrogate : the GP surrogate of all evaluations: the last round's when that round
-        searched the discrete choices in full, else a full search fitted after it.
-    smc : the SMC result on that surrogate (:class:`~bayescalib.inference.smc.SMCResult`;
-        with the study's settings, also where ``design.active.smc`` lightened the rounds).
-    rounds : the per-round records of :func:`acquire_round`.
-    fit : :func:`bayescalib.inference.likelihood.fit_check` of the best evaluation
-        (None without ``bound`` and ``n_measurements``).
-    """
-
-    X: np.ndarray
-    loglik: np.ndarray
-    surrogate: Any
-    smc: Any
-    rounds: list[dict[str, Any]] = field(default_factory=list)
-    fit: dict[str, Any] | None = None
-
-    @property
-    def check(self) -> dict[str, Any] | None:
-        """The last posterior check of the rounds (:func:`round_check`: real
-        evaluations of a round's posterior draws, which are design points of the next
-        round, in ``X``), or None when no check round was run."""
-        for rec in reversed(self.rounds):
-            if rec.get("posterior_check") is not None:
-                return rec["posterior_check"]
-        return None
-
-    @property
-    def n_evaluations(self) -> int:
-        return int(self.X.shape[0])
-
-    @property
-    def n_rounds(self) -> int:
-        return len(self.rounds)
-
-    @property
-    def converged(self) -> bool:
-        return bool(self.rounds[-1]["converged"])
-
-    @property
-    def reason(self) -> str:
-        return str(self.rounds[-1]["reason"])
-
-
-def calibrate(loglik: Callable[[np.ndarray], np.ndarray], space, *, bound: float | None = None,
-              active: Mapping[str, Any] | None = None,
-              surrogate: Mapping[str, Any] | None = None,
-              smc: Mapping[str, Any] | None = None, seed: int = 0,
-              callback: Callable[[dict[str, Any]], None] | None = None,
-              n_measurements: int | None = None,
-              posterior_check: Mapping[str, Any] | None = None) -> ActiveResult:
-    """Active-design calibration of a log-likelihood given as a Python function.
-
-    Runs the rounds of the pipeline's ``active`` stage in-process: the same
-    surrogate fit (:func:`~bayescalib.inference.surrogate.fit_round`: the discrete
-    choices searched in full in round 0 and when the data have grown by
-    ``surrogate.reselect_growth``, refitted between), SMC and :func:`acquire_round` as
-    the Snakemake rules. The result's surrogate is a full search on all evaluations
-    (the last round's when it was one; else fitted again, and its SMC run again).
-
-    Parameters
-    ----------
-    loglik
-        Vectorized log-likelihood: (q, d) points -> (q,) values (-inf: failed).
-    space
-        :class:`~bayescalib.inference.parameters.ParameterSpace` (prior and design box).
-    bound
-        Known upper bound of the log-likelihood (log-misfit warping); None: none.
-    active, surrogate, smc
-        Partial ``design.active``, ``surrogate`` and ``smc`` config sections; the
-        schema's defaults fill the rest.
-    seed
-        Seed of the Sobol design of round 0.
-    callback
-        Called with each round's record.
-    n_measurements
-        Number of measurements behind the Gaussian log-likelihood: with ``bound``,
-        the result's ``fit`` checks the best evaluation against the noise model.
-    posterior_check
-        Partial ``posterior_check`` section: the size of the rounds' check rounds
-        (``draws`` equally weighted draws of a settled posterior, evaluated as a batch)
-        and the thresholds of their verdict (:func:`round_check`).
-    """
-    from bayescalib.config import round_smc, validate
-    from bayescalib.inference.design import sobol_design
-    from bayescalib.inference.smc import smc_from_config
-    from bayescalib.inference.surrogate import fit_from_config, fit_round
-
-    cfg = validate({"design": {"active": dict(active or {})}, "surrogate": dict(surrogate or {}),
-                    "smc": dict(smc or {}), "posterior_check": dict(posterior_check or {})},
-                   "inference", where="calibrate")
-    a = cfg["design"]["active"]
-    smc_round = round_smc(cfg["smc"], a)
-    X = sobol_design(space.bounds, int(a["n_initial"]), seed)
-    L = np.asarray(loglik(X), float)
-    rounds: list[dict[str, Any]] = []
-    previous = None
-    gp = None
-    r = 0
-    while True:
-        gp = fit_round(X, L, cfg["surrogate"], space.bounds, bound=bound, previous=gp)
-        res = smc_from_config(gp.loglik, space, smc_round)
-        rec = acquire_round(r, X, L, gp, res.particles, res.weights, res.log_evidence, space,
-                            a, previous, cfg["posterior_check"])
-        rounds.append(rec)
-        if callback is not None:
-            callback(rec)
-        log.info("active round %d: %d solves; %s", r, rec["n_solves"], rec["reason"])
-        if rec["stop"]:
-            fit = None
-            if bound is not None and n_measurements is not None:
-                from bayescalib.inference.likelihood import fit_check
-
-                fit = fit_check(L, np.full(L.shape, float(bound)),
-                                np.full(L.shape, float(n_measurements)))
-            if gp.selection != "search":  # the result's surrogate: the best choice for all data
-                gp = fit_from_config(X, L, cfg["surrogate"], space.bounds, bound=bound)
-                res = smc_from_config(gp.loglik, space, cfg["smc"])
-            elif smc_round != cfg["smc"]:  # the rounds sampled lighter: the result in full
-                res = smc_from_config(gp.loglik, space, cfg["smc"])
-            return ActiveResult(X, L, gp, res, rounds, fit)
-        Xn = np.asarray(rec["next"]["points"], float)
-        X = np.vstack([X, Xn])
-        L = np.concatenate([L, np.asarray(loglik(Xn), float)])
-        previous = rec
-        r += 1
-
-
 def history_table(rounds: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
     """Compact per-round history for summary.json (no batches, no covariances)."""
     out = []

@@ -50,13 +50,12 @@ that the likelihood is L(x) = offset - 1/2 |y - u(x)|^2.
 The emulated likelihood has the interface of the log-likelihood surrogate that SMC
 calls (``predict(X)``, ``predict(X, return_var=True)``).
 
-Design (:func:`calibrate_outputs`): a Sobol design, then rounds of equally weighted
-draws of the current posterior, each round's draws both its posterior check (the stop
-rule's last test in :mod:`bayescalib.inference.active`) and the next design points. On
-the 7-D benchmark ``hetero7d`` (``docs/bench_active.md``, "the 7-D problem solved by
-emulating the model's outputs") it converged with 98-114 evaluations within 0.07-0.23
-reference sd; the log-likelihood GP's active design was 2-44 sd off after 200 and
-PyVBMC 0.45-1.46 sd.
+Design: the rounds of :mod:`bayescalib.inference.rounds` (``surrogate.target:
+outputs``; :func:`bayescalib.inference.rounds.calibrate_outputs` in memory), whose
+batches are equally weighted draws of the current posterior, each round's draws both
+its posterior check (the stop rule's last test in :mod:`bayescalib.inference.active`)
+and the next design points: where the posterior lives is where the emulator must be
+right. Measured on the 7-D benchmark ``hetero7d``: ``docs/bench_active.md``.
 """
 
 from __future__ import annotations
@@ -67,8 +66,8 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["EmulatedCalibration", "EmulatedLikelihood", "OutputEmulator", "calibrate_outputs",
-           "fit_output_emulator", "load_surrogate", "principal_outputs"]
+__all__ = ["EmulatedLikelihood", "OutputEmulator", "fit_output_emulator", "load_surrogate",
+           "principal_outputs"]
 
 
 def principal_outputs(U: np.ndarray, *, energy_tol: float = 1e-2,
@@ -387,135 +386,3 @@ def load_surrogate(path, device: str = "auto"):
     if kind == FORMATS["emulator"][0]:
         return EmulatedLikelihood.load(path, device=device)
     return GPSurrogate.load(path, device=device)
-
-
-@dataclass
-class EmulatedCalibration:
-    """Outcome of :func:`calibrate_outputs`.
-
-    Attributes
-    ----------
-    X : (n, d) evaluated points; U : (n, m) their outputs (noise units; NaN rows:
-        failed); loglik : (n,) their log-likelihoods.
-    likelihood : the :class:`EmulatedLikelihood` of the last round (all evaluations).
-    smc : SMC on it with the final settings (:class:`~bayescalib.inference.smc.SMCResult`).
-    rounds : per-round records (``round``, ``n_solves``, ``components``, ``discarded``,
-        ``mean``, ``sd``; from round 1 the check of the previous posterior: ``check``
-        (its words), ``confirmed``, ``log_weight_sd``, ``shift_sd``, ``sd_change``).
-    converged, reason : the verdict, and why.
-    """
-
-    X: np.ndarray
-    U: np.ndarray
-    loglik: np.ndarray
-    likelihood: EmulatedLikelihood
-    smc: Any
-    rounds: list[dict[str, Any]]
-    converged: bool
-    reason: str
-
-
-def calibrate_outputs(outputs, y: np.ndarray, space, *, offset: float = 0.0,
-                      n_initial: int, batch: int, max_solves: int, seed: int = 0,
-                      round_smc: dict[str, Any], final_smc: dict[str, Any],
-                      check: dict[str, Any] | None = None, shift_tol: float = 0.2,
-                      sd_tol: float = 0.2, emulator: dict[str, Any] | None = None,
-                      callback=None) -> EmulatedCalibration:
-    """Calibrate with the output emulator, in rounds of posterior draws.
-
-    Round 0 evaluates a scrambled Sobol design of ``n_initial`` points. Every round
-    fits the emulator to all evaluations (:func:`fit_output_emulator`), samples the
-    posterior of the :class:`EmulatedLikelihood` (SMC, ``round_smc``) and evaluates
-    ``batch`` equally weighted draws of it
-    (:func:`~bayescalib.inference.active.posterior_draws`). The draws are the posterior
-    check of the round that drew them (:func:`~bayescalib.inference.importance.importance_check`:
-    the real log-likelihood against the emulated one at the draws) and design points
-    of the next round: where the posterior lives is where the emulator must be right.
-    Converged when a check confirms the posterior and the posterior refitted with the
-    draws moved by at most ``shift_tol`` sd, every sd by at most ``sd_tol``; NOT
-    converged when ``max_solves`` is spent first.
-
-    Parameters
-    ----------
-    outputs
-        The model: (q, d) points -> (q, m) outputs in noise units (a row of NaN: failed).
-    y
-        (m,) data in noise units.
-    space
-        :class:`~bayescalib.inference.parameters.ParameterSpace` (prior and design box).
-    offset
-        The log-likelihood's value at a perfect fit (:class:`EmulatedLikelihood`).
-    n_initial, batch, max_solves, seed
-        Size of the Sobol design, draws per round, budget of evaluations, and the seed
-        of the design and of the draws.
-    round_smc, final_smc
-        ``n_particles``, ``n_rej``, ``zeta`` of the rounds' SMC and of the reported one.
-    check
-        Thresholds of :func:`~bayescalib.inference.importance.importance_check` (its
-        defaults where None).
-    emulator
-        Keyword arguments of :func:`fit_output_emulator`.
-    callback
-        Called with each round's record.
-    """
-    from bayescalib.inference.active import posterior_change, posterior_draws, posterior_moments
-    from bayescalib.inference.design import sobol_design
-    from bayescalib.inference.importance import importance_check
-    from bayescalib.inference.smc import run_smc
-
-    if not 0 < n_initial <= max_solves or batch < 2:
-        raise ValueError(f"need 0 < n_initial <= max_solves and batch >= 2, got n_initial "
-                         f"{n_initial}, max_solves {max_solves}, batch {batch}")
-    y = np.asarray(y, float)
-
-    def evaluate(X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        U = np.atleast_2d(np.asarray(outputs(X), float))
-        with np.errstate(invalid="ignore"):
-            L = offset - 0.5 * np.sum((U - y) ** 2, axis=1)
-        return U, np.where(np.isfinite(L), L, -np.inf)
-
-    X = sobol_design(space.bounds, int(n_initial), seed)
-    U, L = evaluate(X)
-    rounds: list[dict[str, Any]] = []
-    prev = pending = None
-    converged, reason, r = False, "", 0
-    while True:
-        em = fit_output_emulator(X, U, space.bounds, seed=seed, **(emulator or {}))
-        lik = EmulatedLikelihood(em, y, offset=offset)
-        res = run_smc(lik.loglik, space, rng=np.random.default_rng([seed, r, 0xE1]),
-                      **round_smc)
-        mom = posterior_moments(res.particles, res.weights)
-        rec: dict[str, Any] = {"round": r, "n_solves": len(L), "components": em.n_components,
-                               "discarded": em.discarded, "mean": mom["mean"].tolist(),
-                               "sd": mom["sd"].tolist()}
-        if pending is not None:
-            D, mu = pending
-            chk = importance_check(D, L[-len(D):], mu, posterior_mean=prev["mean"],
-                                   posterior_sd=prev["sd"], **(check or {}))
-            change = posterior_change(prev, mom)
-            rec.update(check=chk["words"], confirmed=bool(chk["confirmed"]),
-                       log_weight_sd=chk.get("log_weight_sd"), shift_sd=change["shift_sd"],
-                       sd_change=change["sd_change"])
-            converged = bool(chk["confirmed"] and change["shift_sd"] <= shift_tol
-                             and change["sd_change"] <= sd_tol)
-        rounds.append(rec)
-        if callback is not None:
-            callback(rec)
-        if converged:
-            reason = (f"converged after round {r} with {len(L)} evaluations: the posterior "
-                      f"of round {r - 1} checked by its draws ({rec['check']}) and moved by "
-                      f"{rec['shift_sd']:.2g} sd when they were added")
-            break
-        left = int(max_solves) - len(L)
-        if left < 2:
-            reason = (f"NOT converged: the budget of {max_solves} evaluations is spent after "
-                      f"round {r}")
-            break
-        D = posterior_draws(res.particles, res.weights, min(int(batch), left),
-                            np.random.default_rng([seed, r, 0xD7A]), exclude=X)
-        pending, prev = (D, lik.predict(D)), mom
-        Un, Ln = evaluate(D)
-        X, U, L = np.vstack([X, D]), np.vstack([U, Un]), np.concatenate([L, Ln])
-        r += 1
-    smc = run_smc(lik.loglik, space, rng=np.random.default_rng(seed), **final_smc)
-    return EmulatedCalibration(X, U, L, lik, smc, rounds, converged, reason)

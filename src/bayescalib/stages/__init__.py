@@ -701,7 +701,7 @@ def train_surrogate(training_path: str | Path, surrogate: Mapping[str, Any],
     surrogate searched the discrete choices in full, it is copied instead of fitted again
     (:func:`_reuse`). A round's refit is not reused: the study's surrogate is a full
     search."""
-    from bayescalib.inference.surrogate import fit_round
+    from bayescalib.inference.rounds import Evaluations, fit_surrogate
 
     if reuse and not _full_search(reuse[-1]):
         log.info("train_surrogate: '%s' refitted the previous round's choices: the "
@@ -709,34 +709,61 @@ def train_surrogate(training_path: str | Path, surrogate: Mapping[str, Any],
     elif _reuse(training_path, reuse, out_path, "train_surrogate"):
         return
     tab = read_stage_file(training_path, "training table")
-    train_mask = tab["is_train"].astype(bool)
-    X, L = _loglik_training_set(tab)
-    finite = np.isfinite(L)
-    space = _space(parameters)
-    bound = loglik_bound(tab, train_mask)
+    use = tab["is_train"].astype(bool)
+    _loglik_training_set(tab)  # refuses too few values and repeated points
+    rows = Evaluations.from_rows({k: (tab[k][use] if k != "reason" else
+                                      [r for r, u in zip(tab["reason"], use, strict=True) if u])
+                                  for k in ("X", "loglik", "status", "reason", "bound",
+                                            "n_measurements", "residuals", "D")})
     if surrogate["target"] == "outputs":
-        _train_emulator(tab, train_mask, surrogate, space, bound, training_path, out_path)
-        return
+        if rows.residuals.shape[1] == 0:
+            raise PipelineError(
+                f"surrogate.target is 'outputs' but the training table '{training_path}' "
+                "holds no residual vectors (it was gathered before they were recorded): "
+                "delete it and the discrepancy records of this measure, then rerun (the "
+                "solves are kept)")
+        if rows.likelihood_bound() is None:
+            raise PipelineError(
+                f"surrogate.target is 'outputs' but the training table '{training_path}' "
+                "records no likelihood bound: gather it again")
     prev = None if previous is None else read_stage_file(previous, "surrogate", device="cpu")
     try:
-        gp = fit_round(X, L, dict(surrogate), space.bounds, bound=bound, previous=prev)
+        fitted = fit_surrogate(rows, surrogate, _space(parameters).bounds, prev)
     except (RuntimeError, ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:
-        Lf = L[finite]
-        raise PipelineError(
-            f"the GP surrogate cannot be fitted to the {int(finite.sum())} log-likelihood "
+        raise PipelineError(_fit_failure(rows, surrogate, training_path, exc)) from None
+    fitted.save(out_path)
+    if surrogate["target"] == "outputs":
+        em = fitted.emulator
+        log.info("output emulator on %d points (%d excluded): %d of %d outputs' principal "
+                 "directions, discarded %.3g (noise units^2 per point), log inputs %s",
+                 fitted.n_train, fitted.n_excluded, em.n_components, rows.residuals.shape[1],
+                 em.discarded, em.log_inputs)
+    else:
+        log.info("GP surrogate on %d points (%d excluded, %d of them marking where the "
+                 "model cannot be solved): %s", fitted.n_train, fitted.n_excluded,
+                 fitted.n_failed, fitted.hyperparameters)
+
+
+def _fit_failure(rows, surrogate: Mapping[str, Any], training_path: str | Path,
+                 exc: BaseException) -> str:
+    """What to say when the surrogate cannot be fitted, with the settings to try."""
+    if surrogate["target"] == "outputs":
+        R = rows.residuals
+        return (f"the output emulator cannot be fitted to the "
+                f"{int(np.isfinite(R).all(1).sum())} residual vectors of '{training_path}' "
+                f"({R.shape[1]} outputs): {type(exc).__name__}: {exc}. Try more "
+                f"surrogate.restarts (now {surrogate['restarts']}) or a larger "
+                f"surrogate.outputs.nugget_floor (now "
+                f"{surrogate['outputs']['nugget_floor']:g}).")
+    Lf = rows.loglik[np.isfinite(rows.loglik)]
+    return (f"the GP surrogate cannot be fitted to the {Lf.size} log-likelihood "
             f"values (range {Lf.min():.6g} to {Lf.max():.6g}): {type(exc).__name__}: {exc}. "
             "Try more surrogate.restarts (now "
             f"{surrogate['restarts']}), the other surrogate.optimizer (now "
             f"'{surrogate['optimizer']}'), a larger surrogate.nugget_factor (now "
             f"{surrogate['nugget_factor']:g}) or surrogate.nugget_floor (now "
             f"{surrogate['nugget_floor']:g}; surrogate.nugget is '{surrogate['nugget']}'), "
-            "or a larger likelihood.sigma_n2 if the values "
-            "are extreme."
-        ) from None
-    gp.save(out_path)
-    log.info("GP surrogate on %d points (%d excluded, %d of them marking where the model "
-             "cannot be solved): %s", gp.n_train, gp.n_excluded, gp.n_failed,
-             gp.hyperparameters)
+            "or a larger likelihood.sigma_n2 if the values are extreme.")
 
 
 def _loglik_training_set(tab: Mapping[str, Any]) -> tuple[np.ndarray, np.ndarray]:
@@ -768,49 +795,6 @@ def _loglik_training_set(tab: Mapping[str, Any]) -> tuple[np.ndarray, np.ndarray
     reasons = [r for r, use in zip(tab["reason"], train_mask, strict=True) if use]
     # a failure for the machine's sake: no value and no infeasible region (feasibility)
     return X, np.where(~finite & ~marks_infeasible(finite, reasons), np.nan, L)
-
-
-def _train_emulator(tab: Mapping[str, Any], use: np.ndarray, surrogate: Mapping[str, Any],
-                    space, bound: float | None, training_path: str | Path,
-                    out_path: str | Path) -> None:
-    """``surrogate.target: outputs``: the emulator of the residual vectors and the
-    likelihood computed from it (:mod:`bayescalib.inference.emulator`)."""
-    from bayescalib.inference.emulator import EmulatedLikelihood, fit_output_emulator
-
-    R = np.asarray(tab["residuals"], float)[use]
-    if R.shape[1] == 0:
-        raise PipelineError(
-            f"surrogate.target is 'outputs' but the training table '{training_path}' holds no "
-            "residual vectors (it was gathered before they were recorded): delete it and "
-            "the discrepancy records of this measure, then rerun (the solves are kept)")
-    if bound is None:
-        raise PipelineError(
-            f"surrogate.target is 'outputs' but the training table '{training_path}' records "
-            "no likelihood bound: gather it again")
-    opts = surrogate["outputs"]
-    from bayescalib.inference.feasibility import marks_infeasible
-
-    marks = marks_infeasible(np.all(np.isfinite(R), axis=1),
-                             [r for r, u in zip(tab["reason"], use, strict=True) if u])
-    try:
-        em = fit_output_emulator(tab["X"][use], R, space.bounds, failed=marks,
-                                 energy_tol=opts["energy_tol"],
-                                 max_components=opts["max_components"], kernel=opts["kernel"],
-                                 restarts=surrogate["restarts"], seed=surrogate["seed"],
-                                 inputs=surrogate["inputs"], nugget_floor=opts["nugget_floor"])
-    except (RuntimeError, ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:
-        raise PipelineError(
-            f"the output emulator cannot be fitted to the {int(np.isfinite(R).all(1).sum())} "
-            f"residual vectors of '{training_path}' ({R.shape[1]} outputs): "
-            f"{type(exc).__name__}: {exc}. Try more surrogate.restarts (now "
-            f"{surrogate['restarts']}) or a larger surrogate.outputs.nugget_floor (now "
-            f"{opts['nugget_floor']:g}).") from None
-    lik = EmulatedLikelihood(em, np.zeros(R.shape[1]), offset=bound)
-    lik.save(out_path)
-    log.info("output emulator on %d points (%d excluded): %d of %d outputs' principal "
-             "directions, discarded %.3g (noise units^2 per point), log inputs %s",
-             lik.n_train, lik.n_excluded, em.n_components, R.shape[1], em.discarded,
-             em.log_inputs)
 
 
 def _full_search(surrogate_path: str | Path) -> bool:
@@ -916,9 +900,8 @@ def acquire(round_index: int, training_path: str | Path, surrogate_path: str | P
             active: Mapping[str, Any], check: Mapping[str, Any],
             parameters: Sequence[Mapping[str, Any]], out_path: str | Path) -> dict[str, Any]:
     """Active design, end of round ``round_index``: trust check, posterior change,
-    stop rule and the next batch (:func:`bayescalib.inference.active.acquire_round`), as JSON."""
-    from bayescalib.inference.active import acquire_round
-    from bayescalib.inference.emulator import EmulatedLikelihood
+    stop rule and the next batch (:func:`bayescalib.inference.rounds.decide`), as JSON."""
+    from bayescalib.inference.rounds import Evaluations, decide
 
     tab = read_stage_file(training_path, "training table")
     gp = read_stage_file(surrogate_path, "surrogate")
@@ -926,14 +909,11 @@ def acquire(round_index: int, training_path: str | Path, surrogate_path: str | P
     previous = None if previous_path is None else \
         read_stage_file(previous_path, "active round record")
     try:
-        rec = acquire_round(int(round_index), tab["X"], tab["loglik"], gp, res.particles,
-                            res.weights, res.log_evidence, _space(parameters), active, previous,
-                            check,
-                            acquisition="draws" if isinstance(gp, EmulatedLikelihood) else "select")
+        rec = decide(int(round_index), Evaluations.from_rows(tab), gp, res, _space(parameters),
+                     active, check, previous)
     except ValueError as exc:
         raise PipelineError(f"active round {round_index}: {exc}. Delete results/<study>/active "
                             "and the runs of the active rounds, then rerun.") from None
-    rec["surrogate_output"] = gp.hyperparameters["output"]
     write_json(out_path, rec)
     log.info("active round %d (%d solves): %s", round_index, rec["n_solves"], rec["reason"])
     return rec
