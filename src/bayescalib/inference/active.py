@@ -110,11 +110,16 @@ from __future__ import annotations
 import logging
 import math
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 __all__ = [
+    "ACQUISITIONS",
+    "PosteriorDraws",
+    "SelectBatch",
+    "StopRule",
     "acquire_round",
     "candidate_pool",
     "check_points",
@@ -122,6 +127,7 @@ __all__ = [
     "posterior_draws",
     "posterior_moments",
     "round_check",
+    "round_record",
     "select_batch",
     "trust_check",
 ]
@@ -425,11 +431,98 @@ def _round_seed(seed: int, r: int) -> np.random.Generator:
     return np.random.default_rng([int(seed), int(r), 0x5EED])
 
 
+@dataclass(frozen=True)
+class StopRule:
+    """The stop rule of the module docstring, over the round records.
+
+    Attributes
+    ----------
+    shift_tol, sd_tol : settled when the posterior mean moved by at most ``shift_tol``
+        sd and every sd changed by at most ``sd_tol`` (``design.active.stop``).
+    gp_tol : the trust check's tolerance in nats.
+    patience : settled rounds in a row before a check round.
+    unexplored_mass : the most posterior mass the exploration audit may leave unheld.
+    max_solves : the budget.
+    n_draws : the size of a check round (0: no check rounds: settled and trusted for
+        ``patience`` rounds converges).
+    draws_only : every round is a check round (the output emulator's rounds).
+    """
+
+    shift_tol: float
+    sd_tol: float
+    gp_tol: float
+    patience: int
+    unexplored_mass: float
+    max_solves: int
+    n_draws: int
+    draws_only: bool
+
+    @classmethod
+    def from_config(cls, active: Mapping[str, Any], check: Mapping[str, Any],
+                    draws_only: bool) -> StopRule:
+        """From the validated ``design.active`` and ``posterior_check`` sections; with
+        ``draws_only`` a check round is ``design.active.batch_size`` draws when
+        ``posterior_check.draws`` is 0."""
+        s = active["stop"]
+        n_draws = int(check["draws"]) or (int(active["batch_size"]) if draws_only else 0)
+        return cls(float(s["shift_tol"]), float(s["sd_tol"]), float(s["gp_tol"]),
+                   int(s["patience"]), float(s["unexplored_mass"]), int(active["max_solves"]),
+                   n_draws, bool(draws_only))
+
+    def settled(self, change: Mapping[str, float] | None) -> bool:
+        """Did the posterior settle (None: round 0, no change to judge)?"""
+        return change is not None and (change["shift_sd"] <= self.shift_tol
+                                       and change["sd_change"] <= self.sd_tol)
+
+    def explored(self, unexplored_mass: float) -> bool:
+        """May the posterior be said to hold every basin the solves show?"""
+        return bool(unexplored_mass <= self.unexplored_mass)
+
+    def apply(self, rec: dict[str, Any], previous: Mapping[str, Any] | None) -> dict[str, Any]:
+        """Set ``settled_streak``, ``converged`` and ``stop`` of round record ``rec``
+        (its ``settled``, ``trusted``, ``explored`` and ``posterior_check`` set), and
+        return what the next batch must be: ``check_next`` (a check round),
+        ``n_draws`` (its size, cut to the budget when every round is one),
+        ``can_check`` (a check round fits in the budget) and ``budget_left``."""
+        pc = rec["posterior_check"]
+        # without check rounds (draws: 0) the pointwise trust check stands in for the
+        # posterior check, as in the stop rule before it: a round counts when settled and
+        # trusted (the diagnosis's calibrations, which check their posteriors themselves)
+        counts = rec["settled"] and rec["explored"] and (self.n_draws > 0 or rec["trusted"])
+        if pc is None:
+            streak = (int(previous.get("settled_streak", 0)) if previous else 0) + 1 \
+                if counts else 0
+        else:  # after a check round the streak starts again (unless it converged)
+            streak = 0
+        rec["settled_streak"] = streak
+        budget_left = self.max_solves - int(rec["n_solves"])
+        if pc is not None:
+            rec["converged"] = bool(pc["confirmed"] and rec["settled"] and rec["explored"])
+        else:  # without a posterior check (draws: 0): settled and trusted, patience rounds
+            rec["converged"] = self.n_draws == 0 and streak >= self.patience
+        n_draws = self.n_draws
+        if self.draws_only:  # every round checks; the last one with the solves left
+            n_draws = min(n_draws, budget_left)
+            can_check = check_next = n_draws >= 2
+        else:
+            can_check = 0 < n_draws <= budget_left
+            check_next = can_check and (streak >= self.patience or budget_left - n_draws < 1)
+        rec["stop"] = bool(rec["converged"] or budget_left <= 0
+                           or (self.draws_only and not check_next))
+        return {"check_next": check_next, "n_draws": n_draws, "can_check": can_check,
+                "budget_left": budget_left}
+
+
 def acquire_round(r: int, X: np.ndarray, L: np.ndarray, gp, particles: np.ndarray,
                   weights: np.ndarray, log_evidence: float, space, active: Mapping[str, Any],
                   previous: Mapping[str, Any] | None,
                   check: Mapping[str, Any], acquisition: str = "select") -> dict[str, Any]:
     """Everything decided at the end of round ``r``: checks, stop rule, next batch.
+
+    The round's record (:func:`round_record`: its posterior, the trust check, the
+    posterior's change, the posterior check of a check round, the exploration audit),
+    then the :class:`StopRule` and, unless it stops, the acquisition's next batch
+    (:data:`ACQUISITIONS`).
 
     Parameters
     ----------
@@ -453,14 +546,15 @@ def acquire_round(r: int, X: np.ndarray, L: np.ndarray, gp, particles: np.ndarra
         round) and the thresholds of
         :func:`~bayescalib.inference.importance.importance_check`.
     acquisition
-        ``select``: batches chosen by :func:`select_batch`, check rounds once the
-        posterior has settled (the module docstring). ``draws``: every batch is a check
-        round of ``posterior_check.draws`` draws (``design.active.batch_size`` when that
-        is 0), cut to the budget left: the rounds of the output emulator
-        (``surrogate.target: outputs``, :mod:`bayescalib.inference.emulator`), whose surrogate has no
-        variance-driven acquisition and whose best design points are where the posterior
-        lives. Converged when a round's draws confirm the posterior that drew them and
-        the posterior refitted with them is settled.
+        ``select`` (:class:`SelectBatch`): batches chosen by :func:`select_batch`, check
+        rounds once the posterior has settled (the module docstring). ``draws``
+        (:class:`PosteriorDraws`): every batch is a check round of
+        ``posterior_check.draws`` draws (``design.active.batch_size`` when that is 0),
+        cut to the budget left: the rounds of the output emulator
+        (``surrogate.target: outputs``, :mod:`bayescalib.inference.emulator`), whose
+        surrogate has no variance-driven acquisition and whose best design points are
+        where the posterior lives. Converged when a round's draws confirm the posterior
+        that drew them and the posterior refitted with them is settled.
 
     Returns
     -------
@@ -468,16 +562,40 @@ def acquire_round(r: int, X: np.ndarray, L: np.ndarray, gp, particles: np.ndarra
         Plain JSON-able record: ``round``, ``n_solves``, ``n_failed``, ``posterior``
         (mean, sd, cov, log_evidence), ``trust`` (:func:`trust_check` of this round's
         batch, None in round 0), ``change`` (:func:`posterior_change` from round r-1),
-        ``settled``, ``trusted``, ``settled_streak``, ``posterior_check`` (the
-        importance check of round r-1's posterior when this round's batch was its
-        check round, else None), ``stop``, ``converged``, ``reason``, and ``next``
-        (the batch for round r+1: ``points``, ``mean``, ``sd``, ``kind``) unless it
-        stops.
+        ``exploration``, ``explored``, ``settled``, ``trusted``, ``settled_streak``,
+        ``posterior_check`` (the importance check of round r-1's posterior when this
+        round's batch was its check round, else None), ``stop``, ``converged``,
+        ``reason``, and ``next`` (the batch for round r+1: ``points``, ``mean``, ``sd``,
+        ``score``, ``kind``) unless it stops.
     """
+    if acquisition not in ACQUISITIONS:
+        raise ValueError(f"acquisition must be one of {sorted(ACQUISITIONS)}, got "
+                         f"{acquisition!r}")
     X = np.atleast_2d(np.asarray(X, float))
     L = np.asarray(L, float)
+    rule = StopRule.from_config(active, check, acquisition == "draws")
+    rec, explored = round_record(r, X, L, gp, particles, weights, log_evidence, space,
+                                 previous, check, rule)
+    step = rule.apply(rec, previous)
+    rec["reason"] = _reason(rec, rule, step, active["stop"], check)
+    if not rec["stop"]:
+        rec["next"] = ACQUISITIONS[acquisition](active).next_batch(
+            r, X, L, gp, particles, weights, space, explored, step)
+    return rec
+
+
+def round_record(r: int, X: np.ndarray, L: np.ndarray, gp, particles: np.ndarray,
+                 weights: np.ndarray, log_evidence: float, space,
+                 previous: Mapping[str, Any] | None, check: Mapping[str, Any],
+                 rule: StopRule) -> tuple[dict[str, Any], dict[str, Any]]:
+    """What round r found, before the stop rule: its posterior, the trust check of
+    round r-1's batch, the posterior's change, the posterior check when that batch was
+    a check round, the exploration audit, and whether the posterior is ``settled``,
+    ``trusted`` and ``explored``. Returns the record and the audit
+    (:func:`~bayescalib.inference.exploration.audit`)."""
+    from bayescalib.inference.exploration import audit
+
     n, d = X.shape
-    stop_cfg = active["stop"]
     moments = posterior_moments(particles, weights)
     rec: dict[str, Any] = {
         "round": int(r),
@@ -501,7 +619,7 @@ def acquire_round(r: int, X: np.ndarray, L: np.ndarray, gp, particles: np.ndarra
                 f"round {r}: the last {q_prev} design points are not the batch that round "
                 f"{r - 1} chose; the run records do not belong to this active design")
         trust = trust_check(np.asarray(nxt["mean"], float), np.asarray(nxt["sd"], float),
-                            L[n - q_prev:], best, d, stop_cfg["gp_tol"])
+                            L[n - q_prev:], best, d, rule.gp_tol)
         rec["trust"] = {k: (v.tolist() if isinstance(v, np.ndarray) else v)
                         for k, v in trust.items()}
         rec["trust"]["n_batch"] = int(q_prev)
@@ -521,8 +639,6 @@ def acquire_round(r: int, X: np.ndarray, L: np.ndarray, gp, particles: np.ndarra
         prev_post = {k: np.asarray(v, float) for k, v in previous["posterior"].items()
                      if k in ("mean", "sd", "cov")}
         rec["change"] = posterior_change(prev_post, moments)
-    from bayescalib.inference.exploration import audit
-
     explored = audit(X, L, particles, weights, log_evidence, space,
                      bound=getattr(gp, "bound", None))
     rec["exploration"] = {
@@ -530,105 +646,118 @@ def acquire_round(r: int, X: np.ndarray, L: np.ndarray, gp, particles: np.ndarra
         "fill_distance": explored["fill_distance"],
         "basins": unheld_basins(explored),
     }
-    rec["explored"] = bool(explored["unexplored_mass"] <= stop_cfg["unexplored_mass"])
-    settled = rec["change"] is not None and (
-        rec["change"]["shift_sd"] <= stop_cfg["shift_tol"]
-        and rec["change"]["sd_change"] <= stop_cfg["sd_tol"])
-    rec["settled"] = bool(settled)
+    rec["explored"] = rule.explored(explored["unexplored_mass"])
+    rec["settled"] = bool(rule.settled(rec["change"]))
     rec["trusted"] = bool(rec["trust"] is not None and rec["trust"]["passed"])
-    pc = rec["posterior_check"]
-    if acquisition not in ("select", "draws"):
-        raise ValueError(f"acquisition must be 'select' or 'draws', got {acquisition!r}")
-    draws_only = acquisition == "draws"
-    n_draws = int(check["draws"]) or (int(active["batch_size"]) if draws_only else 0)
-    patience = int(stop_cfg["patience"])
-    # without check rounds (draws: 0) the pointwise trust check stands in for the
-    # posterior check, as in the stop rule before it: a round counts when settled and
-    # trusted (the diagnosis's calibrations, which check their posteriors themselves)
-    counts = settled and rec["explored"] and (n_draws > 0 or rec["trusted"])
-    if pc is None:
-        streak = (int(previous.get("settled_streak", 0)) if previous else 0) + 1 \
-            if counts else 0
-    else:  # after a check round the streak starts again (unless it converged)
-        streak = 0
-    rec["settled_streak"] = streak
-    budget_left = int(active["max_solves"]) - n
-    if pc is not None:
-        rec["converged"] = bool(pc["confirmed"] and settled and rec["explored"])
-    else:  # without a posterior check (draws: 0): settled and trusted, patience rounds
-        rec["converged"] = n_draws == 0 and streak >= patience
-    if draws_only:  # every round checks; the last one with the solves left
-        n_draws = min(n_draws, budget_left)
-        can_check = check_next = n_draws >= 2
-    else:
-        can_check = 0 < n_draws <= budget_left
-        check_next = can_check and (streak >= patience or budget_left - n_draws < 1)
-    if rec["converged"]:
-        rec["stop"] = True
-        if pc is not None:
-            rec["reason"] = (
-                f"converged after round {r} with {n} solves: the posterior of round {r - 1} "
+    return rec, explored
+
+
+def _reason(rec: Mapping[str, Any], rule: StopRule, step: Mapping[str, Any],
+            stop_cfg: Mapping[str, Any], check: Mapping[str, Any]) -> str:
+    """Plain words: the stop rule's verdict on round ``rec`` and why."""
+    r, n, pc = rec["round"], rec["n_solves"], rec["posterior_check"]
+    streak, budget_left, n_draws = rec["settled_streak"], step["budget_left"], step["n_draws"]
+    if rec["converged"] and pc is not None:
+        return (f"converged after round {r} with {n} solves: the posterior of round {r - 1} "
                 f"confirmed by {pc['n_draws'] - pc['n_failed']} real solves of its draws "
                 f"(log-weight sd {pc['log_weight_sd']:.2g} nats, ESS "
                 f"{100 * pc['ess_fraction']:.0f} %), and it moved by "
                 f"{rec['change']['shift_sd']:.2g} sd (sd change "
                 f"{rec['change']['sd_change']:.2g}) when they were added; "
                 + _explored_words(rec))
-        else:
-            rec["reason"] = (
-                f"converged after round {r} with {n} solves: in the last {streak} round(s) "
+    if rec["converged"]:
+        return (f"converged after round {r} with {n} solves: in the last {streak} round(s) "
                 f"the posterior moved by at most {stop_cfg['shift_tol']:g} sd (now "
                 f"{rec['change']['shift_sd']:.3g} sd, sd change "
                 f"{rec['change']['sd_change']:.3g}) and the surrogate predicted the new "
                 f"solves in the posterior region within {stop_cfg['gp_tol']:g} nats (max "
                 f"error {rec['trust']['max_abs_error']:.3g}); NOT checked with real solves of "
                 f"its draws (posterior_check.draws: 0); " + _explored_words(rec))
-    elif budget_left <= 0 or (draws_only and not check_next):
-        rec["stop"] = True
-        rec["reason"] = (
-            f"NOT converged: the budget design.active.max_solves = {active['max_solves']} is "
-            f"spent after round {r}. " + _why_not(rec, stop_cfg, check, budget_left)
-            + " The posterior reported is that of the last round; raise "
-            "design.active.max_solves to go on (finished solves are kept).")
-    else:
-        rec["stop"] = False
-        if check_next and draws_only:
-            rec["reason"] = (f"continue: {n_draws} draws of this posterior are solved next, "
-                             f"its posterior check and the next design points. "
-                             + _why_not(rec, stop_cfg, check, budget_left))
-        elif check_next:
-            why = (f"the posterior settled for {streak} round(s) in a row"
-                   if streak >= patience else
-                   f"{budget_left} solves are left, the last for the posterior check")
-            rec["reason"] = (f"continue: {why}; {n_draws} draws of it are solved next as its "
-                             f"posterior check. " + _why_not(rec, stop_cfg, check, budget_left))
-        else:
-            rec["reason"] = "continue: " + _why_not(rec, stop_cfg, check, budget_left)
-    if not rec["stop"] and check_next:
-        D = posterior_draws(particles, weights, n_draws,
-                            np.random.default_rng([int(active["seed"]), int(r), 0x15C4]),
-                            exclude=X)
-        kind = ["posterior_check"] * n_draws
-        if draws_only:  # every round is a check round: the probes ride along
-            from bayescalib.inference.exploration import probe_points
+    why_not = _why_not(rec, stop_cfg, check, budget_left)
+    if rec["stop"]:
+        return (f"NOT converged: the budget design.active.max_solves = {rule.max_solves} is "
+                f"spent after round {r}. " + why_not
+                + " The posterior reported is that of the last round; raise "
+                "design.active.max_solves to go on (finished solves are kept).")
+    if step["check_next"] and rule.draws_only:
+        return (f"continue: {n_draws} draws of this posterior are solved next, "
+                f"its posterior check and the next design points. " + why_not)
+    if step["check_next"]:
+        why = (f"the posterior settled for {streak} round(s) in a row"
+               if streak >= rule.patience else
+               f"{budget_left} solves are left, the last for the posterior check")
+        return (f"continue: {why}; {n_draws} draws of it are solved next as its "
+                f"posterior check. " + why_not)
+    return "continue: " + why_not
 
-            probes = probe_points(explored, X, space.bounds,
-                                  min(int(active["probes"]), budget_left - n_draws),
-                                  float(stop_cfg["unexplored_mass"]),
-                                  np.random.default_rng([int(active["seed"]), int(r), 0xB451]))
-            D = np.vstack([D, probes])
-            kind += ["probe"] * len(probes)
-        mean, sd = _predict_loglik(gp, D)
-        rec["next"] = {"points": D.tolist(), "mean": mean.tolist(), "sd": sd.tolist(),
-                       "score": [], "kind": kind}
-    elif not rec["stop"]:
-        reserve = n_draws if can_check else 0
-        room = budget_left - reserve  # >= 1 here
-        rng = _round_seed(active["seed"], r)
+
+def _check_round(r: int, X: np.ndarray, gp, particles: np.ndarray, weights: np.ndarray,
+                 space, explored: Mapping[str, Any], active: Mapping[str, Any],
+                 n_draws: int, n_probes: int) -> dict[str, Any]:
+    """A check round: ``n_draws`` equally weighted draws of the posterior
+    (:func:`posterior_draws`) and ``n_probes`` probes of the unheld basins
+    (:func:`~bayescalib.inference.exploration.probe_points`)."""
+    from bayescalib.inference.exploration import probe_points
+
+    D = posterior_draws(particles, weights, n_draws,
+                        np.random.default_rng([int(active["seed"]), int(r), 0x15C4]), exclude=X)
+    kind = ["posterior_check"] * n_draws
+    if n_probes > 0:
+        probes = probe_points(explored, X, space.bounds, n_probes,
+                              float(active["stop"]["unexplored_mass"]),
+                              np.random.default_rng([int(active["seed"]), int(r), 0xB451]))
+        D = np.vstack([D, probes])
+        kind += ["probe"] * len(probes)
+    mean, sd = _predict_loglik(gp, D)
+    return {"points": D.tolist(), "mean": mean.tolist(), "sd": sd.tolist(), "score": [],
+            "kind": kind}
+
+
+@dataclass(frozen=True)
+class PosteriorDraws:
+    """Every batch a check round of posterior draws, with the probes of the unheld
+    basins: the output emulator's rounds (``surrogate.target: outputs``), whose surrogate
+    has no variance-driven acquisition and whose best design points are where the
+    posterior lives."""
+
+    active: Mapping[str, Any]
+
+    def next_batch(self, r: int, X: np.ndarray, L: np.ndarray, gp, particles: np.ndarray,
+                   weights: np.ndarray, space, explored: Mapping[str, Any],
+                   step: Mapping[str, Any]) -> dict[str, Any]:
+        n_draws = int(step["n_draws"])
+        return _check_round(r, X, gp, particles, weights, space, explored, self.active,
+                            n_draws, min(int(self.active["probes"]),
+                                         int(step["budget_left"]) - n_draws))
+
+
+@dataclass(frozen=True)
+class SelectBatch:
+    """Batches chosen by :func:`select_batch` from a pool of candidates around the
+    posterior and over the box, with check points, boundary points and probes; a check
+    round of posterior draws when the stop rule asks for one (the module docstring)."""
+
+    active: Mapping[str, Any]
+
+    def next_batch(self, r: int, X: np.ndarray, L: np.ndarray, gp, particles: np.ndarray,
+                   weights: np.ndarray, space, explored: Mapping[str, Any],
+                   step: Mapping[str, Any]) -> dict[str, Any]:
+        from scipy.stats import chi2
+
         from bayescalib.inference.exploration import probe_points
 
+        active = self.active
+        if step["check_next"]:
+            return _check_round(r, X, gp, particles, weights, space, explored, active,
+                                int(step["n_draws"]), 0)
+        d = X.shape[1]
+        finite = np.isfinite(L)
+        best = float(L[finite].max()) if finite.any() else -math.inf
+        reserve = int(step["n_draws"]) if step["can_check"] else 0
+        room = int(step["budget_left"]) - reserve  # >= 1 here
+        rng = _round_seed(active["seed"], r)
         probes = probe_points(explored, X, space.bounds, min(int(active["probes"]), room - 1),
-                              float(stop_cfg["unexplored_mass"]),
+                              float(active["stop"]["unexplored_mass"]),
                               np.random.default_rng([int(active["seed"]), int(r), 0xB451]))
         room -= len(probes)
         pool = candidate_pool(particles, weights, space.bounds, int(active["pool_size"]), rng)
@@ -636,37 +765,34 @@ def acquire_round(r: int, X: np.ndarray, L: np.ndarray, gp, particles: np.ndarra
         n_check = min(int(active["check_points"]), room - q)
         n_explore = math.floor(q * float(active["explore_fraction"]) + 0.5)
         exploring = np.arange(len(pool)) >= len(pool) - round(len(pool) * POOL_UNIFORM)
-        from scipy.stats import chi2
-
         threshold = best - 0.5 * float(chi2.ppf(REGION_LEVEL, d))
         batch = select_batch(gp, pool, space.logprior(pool), q,
                              posterior_power=float(active["posterior_power"]), failed=X[~finite],
                              n_explore=n_explore, threshold=threshold, explore_mask=exploring)
         points, mean, sd = batch["points"], batch["mean"], batch["sd"]
         kind = ["acquired"] * len(points)
+        extra = []
         if n_check:
-            C = check_points(particles, weights, space.bounds, n_check,
-                             np.random.default_rng([int(active["seed"]), int(r), 0xC4EC]))
-            c_mean, c_sd = _predict_loglik(gp, C)
-            points, mean, sd = np.vstack([points, C]), np.concatenate([mean, c_mean]), \
-                np.concatenate([sd, c_sd])
-            kind += ["check"] * n_check
+            extra.append((check_points(particles, weights, space.bounds, n_check,
+                                       np.random.default_rng([int(active["seed"]), int(r),
+                                                              0xC4EC])), "check"))
         n_edge = min(int(active["boundary_points"]), room - q - n_check)
         if n_edge > 0 and getattr(gp, "X_failed", None) is not None:
-            B = boundary_points(gp, particles, weights, n_edge, exclude=X)
-            if len(B):
-                b_mean, b_sd = _predict_loglik(gp, B)
-                points, mean, sd = np.vstack([points, B]), np.concatenate([mean, b_mean]), \
-                    np.concatenate([sd, b_sd])
-                kind += ["boundary"] * len(B)
-        if len(probes):
-            p_mean, p_sd = _predict_loglik(gp, probes)
-            points, mean, sd = np.vstack([points, probes]), np.concatenate([mean, p_mean]), \
-                np.concatenate([sd, p_sd])
-            kind += ["probe"] * len(probes)
-        rec["next"] = {"points": points.tolist(), "mean": mean.tolist(), "sd": sd.tolist(),
-                       "score": batch["score"].tolist(), "kind": kind}
-    return rec
+            extra.append((boundary_points(gp, particles, weights, n_edge, exclude=X),
+                          "boundary"))
+        extra.append((probes, "probe"))
+        for P, k in extra:
+            if len(P):
+                m, s = _predict_loglik(gp, P)
+                points, mean, sd = np.vstack([points, P]), np.concatenate([mean, m]), \
+                    np.concatenate([sd, s])
+                kind += [k] * len(P)
+        return {"points": points.tolist(), "mean": mean.tolist(), "sd": sd.tolist(),
+                "score": batch["score"].tolist(), "kind": kind}
+
+
+#: the acquisitions by name (``acquire_round``'s ``acquisition``)
+ACQUISITIONS = {"select": SelectBatch, "draws": PosteriorDraws}
 
 
 #: boundary points (:func:`boundary_points`): a failed solve and its nearest successful one
