@@ -8,8 +8,9 @@ the last round, ``marginalize``. The diagnosis must calibrate models that are kn
 only while it runs (the base model plus one candidate effect), so it cannot be given
 rules in advance. :func:`calibrate_rounds` runs that same chain in-process: the same
 stage functions of :mod:`bayescalib.stages`, the same solve path
-(:func:`bayescalib.models.forward.solve_points`, one isolated and time-limited
-:func:`~bayescalib.models.forward.solve_point` per point), the same acquisition and stop
+(:func:`bayescalib.models.forward.solve_points`: every point isolated and
+time-limited, as a workflow ``solve`` job; a solve process keeps its mesh between
+points), the same acquisition and stop
 rule, and the files of each round laid out as in the workflow's results::
 
     <workdir>/runs/<i>.h5                  run record of new point i
