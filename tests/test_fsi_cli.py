@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 
+import numpy as np
 import pytest
 
 from bayescalib.cli import main
@@ -92,3 +93,60 @@ def test_bad_warm_start_file(tmp_path, capsys):
     rc, _, err = _run(capsys, ["--set", "mesh.preset=coarse", "--out", str(tmp_path),
                                "--warm-start", str(tmp_path / "nothing.npz")])
     assert rc == 2 and "nothing.npz" in err
+
+
+def test_a_study_config_with_two_loadings_records_both(tmp_path, capsys):
+    """The command solves as the workflow does (solve_points): forward_model.loadings
+    of a study config are solved and recorded, one snapshot per factor."""
+    cfg = tmp_path / "study.yaml"
+    cfg.write_text("study: x\nforward_model:\n  fsi:\n    mesh: {preset: coarse}\n"
+                   "  loadings: {factors: [0.5, 1.0]}\n")
+    rc, out, err = _run(capsys, ["--config", str(cfg), "--set", "material.E=500",
+                                 "--out", str(tmp_path / "o")])
+    assert rc == 0, err
+    s = json.loads(out)
+    assert s["status"] == "ok" and s["loadings"] == ["load_0.5", "load_1"]
+    rec = read_run(s["output"])
+    assert [ld.factor for ld in rec.loadings] == [0.5, 1.0]
+    assert [ld.value for ld in rec.loadings] == [50.0, 100.0]  # the fsi inflow rate, 100
+    half, full = (ld.current - rec.interface_reference for ld in rec.loadings)
+    assert 0 < np.abs(half).max() < np.abs(full).max()
+    np.testing.assert_array_equal(rec.loadings[1].current, rec.interface_current)
+    # a series ends in no single load: no warm-start state is written for it
+    assert not (tmp_path / "o" / "run.state.npz").exists()
+
+
+def test_points_file_solves_one_point_per_row(tmp_path, capsys):
+    pts = tmp_path / "points.csv"
+    pts.write_text("material.E,material.nu\n450,0.3\n600,0.2\n")
+    rc, out, err = _run(capsys, ["--set", "mesh.preset=coarse", "--points", str(pts),
+                                 "--out", str(tmp_path / "o")])
+    assert rc == 0, err
+    lines = [json.loads(x) for x in out.strip().splitlines()]
+    assert [x["status"] for x in lines] == ["ok", "ok"]
+    recs = [read_run(x["output"]) for x in lines]
+    assert [(r.parameters["material.E"], r.parameters["material.nu"]) for r in recs] == \
+        [(450.0, 0.3), (600.0, 0.2)]
+    assert recs[0].max_displacement > recs[1].max_displacement  # softer moves more
+    assert (tmp_path / "o" / "run_1.state.npz").is_file()
+
+
+@pytest.mark.parametrize("text, needle", [
+    ("material.EE\n3\n", "material.EE"),
+    ("material.E\nabc\n", "line 2"),
+    ("material.E\n", "at least one row"),
+])
+def test_bad_points_file_names_the_problem(tmp_path, capsys, text, needle):
+    pts = tmp_path / "points.csv"
+    pts.write_text(text)
+    rc, out, err = _run(capsys, ["--set", "mesh.preset=coarse", "--points", str(pts),
+                                 "--out", str(tmp_path / "o")])
+    assert rc == 2 and needle in err and out == ""
+
+
+def test_a_study_of_another_forward_model_is_refused(tmp_path, capsys):
+    cfg = tmp_path / "study.yaml"
+    cfg.write_text("study: x\nforward_model:\n  type: python\n"
+                   "  python: {function: 'bayescalib.models.analytic:interface'}\n")
+    rc, out, err = _run(capsys, ["--config", str(cfg), "--out", str(tmp_path / "o")])
+    assert rc == 2 and "forward_model.type" in err and out == ""

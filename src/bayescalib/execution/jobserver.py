@@ -129,15 +129,15 @@ def _literal(text: str) -> Any:
 
 
 def _solve(args: Mapping[str, str]) -> None:
-    from bayescalib.models.forward import solve_point
+    from bayescalib.models.forward import solve_points
     from bayescalib.stages import read_stage_file, setup_logging
 
     setup_logging(args["log"])
     base = args.get("base") or None
     if base is not None:  # a damaged state is set aside and rebuilt, never solved from
         read_stage_file(base, "warm-start state")
-    solve_point(_literal(args["forward_model"]), _literal(args["point"]), args["out"],
-                warm_start=base)
+    solve_points(_literal(args["forward_model"]), [_literal(args["point"])], [args["out"]],
+                 warm_start=base, reuse=False)
 
 
 def _discrepancy(args: Mapping[str, str]) -> None:
@@ -237,14 +237,14 @@ def _posterior_check(args: Mapping[str, Any]) -> None:
 
 
 def _predictive_solve(args: Mapping[str, Any]) -> None:
-    from bayescalib.models.forward import solve_point
+    from bayescalib.models.forward import solve_points
     from bayescalib.stages import setup_logging
     from bayescalib.stages.figures import posterior_draws
 
     setup_logging(args["log"])
     point = posterior_draws(args["particles"], _literal(args["parameters"]), int(args["k"]),
                             int(args["n"]), int(args["seed"]))
-    solve_point(_literal(args["forward_model"]), point, args["out"])
+    solve_points(_literal(args["forward_model"]), [point], [args["out"]], reuse=False)
 
 
 def _posterior_mean_solve(args: Mapping[str, Any]) -> None:

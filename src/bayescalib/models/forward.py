@@ -22,15 +22,21 @@ built in, chosen by ``forward_model.type`` in the study config:
     back. Its ``{input}``, ``{output}`` and ``{workdir}`` placeholders are absolute
     paths.
 
-:func:`solve_point` runs one model evaluation in a forked child process with a
-wall-clock limit, so that a crash, a hang or a segmentation fault inside a
-solver ends as a recorded failed run (:class:`~bayescalib.io.runrecord.SolveResult`
-with ``status == "failed"``) instead of taking the study down. The run record
-is always written atomically.
+:func:`solve_points` is the one way design points are solved (the workflow's
+``solve`` jobs through :func:`solve_point`, the base state, the diagnosis, the
+``bayescalib solve`` command): every point in a forked process with a wall-clock
+limit, so that a crash, a hang or a segmentation fault inside a solver ends as a
+recorded failed run (:class:`~bayescalib.io.runrecord.SolveResult` with
+``status == "failed"``) instead of taking the study down. The run record is always
+written atomically. A solve process solves point after point with one kept fsi
+model (mesh, spaces and compiled forms; never its solver state, so results are bit
+for bit those of a new model); a point that kills its process or runs past its limit
+fails alone, and the next point gets a new process.
 """
 
 from __future__ import annotations
 
+import contextlib
 import importlib
 import logging
 import math
@@ -560,6 +566,15 @@ class FSIForward:
         self.vtu_path = vtu_path
         self.state_path = state_path
 
+    def next_point(self, vtu_path: str | Path | None = None,
+                   state_path: str | Path | None = None) -> None:
+        """Prepare this model for another design point: its extra outputs, and
+        :meth:`~bayescalib.models.fsi.model.FSIModel.forget_solves` (only the mesh, the
+        spaces and the compiled forms are kept, so the point's result is bit for bit that
+        of a new model)."""
+        self.vtu_path, self.state_path = vtu_path, state_path
+        self.model.forget_solves()
+
     def solve(self, params: Mapping[str, float]) -> SolveResult:
         res = self.model.solve(dict(params), warm_start=self.warm_start,
                                time_limit=self.time_limit_s)
@@ -717,126 +732,6 @@ def make_forward_model(fm: Mapping[str, Any], *, workdir: str | Path = ".",
     )
 
 
-def _child(fm: Mapping[str, Any], params: Mapping[str, float], workdir: str,
-           warm_start: str | None, extra: Mapping[str, str], conn, parent: int) -> None:
-    die_with_parent(parent)  # a killed job takes its solve with it
-    try:
-        model = make_forward_model(fm, workdir=workdir, warm_start=warm_start,
-                                   extra_outputs=extra)
-        res = solve_series(model, params, fm.get("loadings"))
-    except BaseException as exc:  # noqa: BLE001 - any failure is recorded
-        res = failed_result(params, f"{type(exc).__name__}: {exc}",
-                            log_tail=traceback.format_exc()[-2000:])
-    conn.send(res)
-    conn.close()
-
-
-class _Solve:
-    """One model evaluation in flight: a forked child process with its pipe."""
-
-    def __init__(self, fm: Mapping[str, Any], params: Mapping[str, float], out_path: Path,
-                 workdir: Path, warm_start: str | Path | None,
-                 extra_outputs: Mapping[str, str] | None, hard_limit: float | None) -> None:
-        ctx = mp.get_context("fork" if "fork" in mp.get_all_start_methods() else "spawn")
-        self.params, self.out_path, self.hard = dict(params), out_path, hard_limit
-        self.conn, child = ctx.Pipe(duplex=False)
-        self.proc = ctx.Process(target=_child, args=(dict(fm), dict(params), str(workdir),
-                                                     None if warm_start is None else str(warm_start),
-                                                     dict(extra_outputs or {}), child,
-                                                     os.getpid()))
-        self.t0 = time.perf_counter()
-        self.proc.start()
-        child.close()
-
-    def remaining(self) -> float | None:
-        """Seconds left before the hard limit (None: no limit)."""
-        return None if self.hard is None else self.hard - (time.perf_counter() - self.t0)
-
-    def finish(self) -> SolveResult:
-        """Collect the result (killing the child past its limit) and write the run record."""
-        res = None
-        left = self.remaining()
-        if self.conn.poll(None if left is None else max(left, 0.0)):
-            try:
-                res = self.conn.recv()
-            except EOFError:
-                res = None
-        self.proc.join(timeout=5 if res is not None else 0.1)
-        if self.proc.is_alive():
-            self.proc.kill()
-            self.proc.join()
-        self.conn.close()
-        if res is None:
-            wall = time.perf_counter() - self.t0
-            if self.hard is not None and wall >= self.hard:
-                res = failed_result(self.params,
-                                    f"killed after exceeding the time limit ({self.hard:g} s)", wall)
-            else:
-                res = failed_result(self.params,
-                                    f"solver process died (exit code {self.proc.exitcode})", wall)
-        write_run(self.out_path, res)
-        return res
-
-
-def _hard_limit(fm: Mapping[str, Any], time_limit_s: float | None, grace_s: float) -> float | None:
-    limit = time_limit_s if time_limit_s is not None else fm.get("time_limit_s")
-    return None if limit is None else float(limit) + float(grace_s)
-
-
-def solve_point(fm: Mapping[str, Any], params: Mapping[str, float], out_path: str | Path, *,
-                time_limit_s: float | None = None, warm_start: str | Path | None = None,
-                workdir: str | Path | None = None, isolate: bool = True,
-                extra_outputs: Mapping[str, str] | None = None,
-                grace_s: float = 30.0) -> SolveResult:
-    """Evaluate the forward model at ``params`` and write the run record.
-
-    Parameters
-    ----------
-    fm
-        Validated ``forward_model`` config section.
-    params
-        Parameter values keyed by target (user units).
-    out_path
-        HDF5 run record to write (atomically), whatever happens.
-    time_limit_s
-        Hard wall-clock limit for the whole evaluation; past it the child
-        process is killed and the run recorded as failed. Defaults to
-        ``fm["time_limit_s"]``.
-    isolate
-        Run in a forked child (default). ``False`` runs in-process (for tests
-        of cheap models).
-    extra_outputs
-        Optional ``{"vtu": path, "state": path}`` written by the fsi model on success.
-    grace_s
-        Extra seconds past ``time_limit_s`` before the child is killed, so that
-        the model's own time limit (which records how far it got) acts first.
-
-    Returns
-    -------
-    SolveResult
-        The record that was written.
-    """
-    out_path = Path(out_path)
-    workdir = Path(workdir) if workdir is not None else out_path.with_suffix(".work")
-    if isolate:
-        res = _Solve(fm, params, out_path, workdir, warm_start, extra_outputs,
-                     _hard_limit(fm, time_limit_s, grace_s)).finish()
-        log_solve(res, out_path)
-        return res
-    try:
-        res = solve_series(make_forward_model(fm, workdir=workdir, warm_start=warm_start,
-                                              extra_outputs=extra_outputs),
-                           params, fm.get("loadings"))
-    except ForwardModelError:
-        raise
-    except Exception as exc:  # noqa: BLE001
-        res = failed_result(params, f"{type(exc).__name__}: {exc}",
-                            log_tail=traceback.format_exc()[-2000:])
-    write_run(out_path, res)
-    log_solve(res, out_path)
-    return res
-
-
 def log_solve(res: SolveResult, out_path: str | Path) -> None:
     """One log record per solve: status, values, time, load steps and Newton iterations
     (per step when the model records them), the reason of a failure."""
@@ -863,16 +758,205 @@ def _same_inputs(run: SolveResult, params: Mapping[str, Any]) -> bool:
     return True
 
 
+class _Evaluator:
+    """Builds the forward model of a design point and solves it (:func:`solve_series`).
+
+    The fsi model is kept from one point to the next, with only what is bit-neutral:
+    its mesh, spaces and compiled forms (rebuilt when a point's switches change them);
+    before every point it forgets its solver state (:meth:`FSIForward.next_point`: no
+    kept factorization, no last state), so each result is bit for bit that of a new
+    model. A Python or command model is made anew for every point (cheap: the module
+    stays imported; the command's work folder is the point's own). After a solve that
+    raised, the kept model is dropped (it may be half built).
+    """
+
+    def __init__(self, fm: Mapping[str, Any], warm_start: str | Path | None) -> None:
+        self.fm, self.warm_start = fm, warm_start
+        self.fsi: FSIForward | None = None
+
+    def solve(self, params: Mapping[str, Any], workdir: str | Path,
+              extra: Mapping[str, str]) -> SolveResult:
+        try:
+            if self.fm["type"] == "fsi":
+                if self.fsi is None:
+                    model = make_forward_model(self.fm, warm_start=self.warm_start)
+                    assert isinstance(model, FSIForward)
+                    self.fsi = model
+                self.fsi.next_point(extra.get("vtu"), extra.get("state"))
+                model = self.fsi
+            else:
+                model = make_forward_model(self.fm, workdir=workdir, warm_start=self.warm_start,
+                                           extra_outputs=extra)
+            return solve_series(model, params, self.fm.get("loadings"))
+        except BaseException:
+            self.fsi = None
+            raise
+
+
+def _worker(fm: Mapping[str, Any], warm_start: str | None, conn, parent: int) -> None:
+    """A solve process: solves the points it is sent, one at a time, with one
+    :class:`_Evaluator`, and sends each result back; ends at ``None`` or when its
+    parent closes the pipe."""
+    die_with_parent(parent)  # a killed job takes its solves with it
+    evaluator = _Evaluator(fm, warm_start)
+    while True:
+        try:
+            job = conn.recv()
+        except (EOFError, OSError):
+            break
+        if job is None:
+            break
+        params, workdir, extra = job
+        try:
+            res = evaluator.solve(params, workdir, extra)
+        except BaseException as exc:  # noqa: BLE001 - any failure is recorded
+            res = failed_result(params, f"{type(exc).__name__}: {exc}",
+                                log_tail=traceback.format_exc()[-2000:])
+        conn.send(res)
+    conn.close()
+
+
+class _Job:
+    """One design point to solve: its values, run record, work folder and extra outputs."""
+
+    def __init__(self, index: int, params: Mapping[str, Any], out: Path, workdir: Path,
+                 extra: Mapping[str, str]) -> None:
+        self.index, self.params, self.out, self.workdir = index, dict(params), out, workdir
+        self.extra = dict(extra)
+
+
+class _Worker:
+    """A forked solve process (:func:`_worker`) and the point it is solving."""
+
+    def __init__(self, ctx, fm: Mapping[str, Any], warm_start: str | Path | None) -> None:
+        self.conn, child = ctx.Pipe(duplex=True)
+        self.proc = ctx.Process(target=_worker, args=(
+            dict(fm), None if warm_start is None else str(warm_start), child, os.getpid()))
+        self.proc.start()
+        child.close()
+        self.job: _Job | None = None
+        self.t0 = 0.0
+        self.eof = False
+
+    def start(self, job: _Job) -> None:
+        self.job, self.t0, self.eof = job, time.perf_counter(), False
+        with contextlib.suppress(OSError):  # a process gone meanwhile: seen as EOF
+            self.conn.send((job.params, str(job.workdir), job.extra))
+
+    def elapsed(self) -> float:
+        return time.perf_counter() - self.t0
+
+    def result(self) -> SolveResult | None:
+        """The result of the current point if it came (``None``: not yet, or never:
+        :attr:`eof` says that the process has gone)."""
+        try:
+            if self.conn.poll(0):
+                return self.conn.recv()
+        except (EOFError, OSError):
+            self.eof = True
+        return None
+
+    def failure(self, hard: float | None) -> SolveResult:
+        """End the process; the failed-run record of its point."""
+        assert self.job is not None
+        wall = self.elapsed()
+        self.proc.join(timeout=5.0 if self.eof else 0.1)
+        self.stop()
+        if hard is not None and wall >= hard:
+            return failed_result(self.job.params,
+                                 f"killed after exceeding the time limit ({hard:g} s)", wall)
+        return failed_result(self.job.params,
+                             f"solver process died (exit code {self.proc.exitcode})", wall)
+
+    def stop(self, wait: float = 0.0) -> None:
+        """End the process: after ``wait`` seconds for it to exit, killed."""
+        if wait > 0:
+            with contextlib.suppress(OSError, ValueError):
+                self.conn.send(None)
+            self.proc.join(timeout=wait)
+        if self.proc.is_alive():
+            self.proc.kill()
+        self.proc.join()
+        self.conn.close()
+
+
+def _hard_limit(fm: Mapping[str, Any], time_limit_s: float | None, grace_s: float) -> float | None:
+    limit = time_limit_s if time_limit_s is not None else fm.get("time_limit_s")
+    return None if limit is None else float(limit) + float(grace_s)
+
+
+def _finish(job: _Job, res: SolveResult, results: dict[int, SolveResult]) -> None:
+    write_run(job.out, res)
+    log_solve(res, job.out)
+    results[job.index] = res
+
+
+def _solve_isolated(fm: Mapping[str, Any], jobs: list[_Job], workers: int,
+                    warm_start: str | Path | None, hard: float | None) -> dict[int, SolveResult]:
+    """Solve ``jobs`` in at most ``workers`` forked solve processes that keep their model
+    from one point to the next; a point that crashes its process or runs past ``hard``
+    seconds is a failed run, and its process is replaced for the next point."""
+    ctx = mp.get_context("fork" if "fork" in mp.get_all_start_methods() else "spawn")
+    todo = list(jobs)
+    idle: list[_Worker] = []
+    busy: list[_Worker] = []
+    results: dict[int, SolveResult] = {}
+    try:
+        while todo or busy:
+            while todo and len(busy) < max(int(workers), 1):
+                w = idle.pop() if idle else _Worker(ctx, fm, warm_start)
+                w.start(todo.pop(0))
+                busy.append(w)
+            left = [hard - w.elapsed() for w in busy] if hard is not None else []
+            mp.connection.wait([w.conn for w in busy],
+                               timeout=max(min(left), 0.0) if left else None)
+            for w in list(busy):
+                res = w.result()
+                if res is None:
+                    if not w.eof and (hard is None or w.elapsed() < hard):
+                        continue  # still solving
+                    res = w.failure(hard)
+                else:
+                    idle.append(w)
+                busy.remove(w)
+                assert w.job is not None
+                _finish(w.job, res, results)
+                w.job = None
+    finally:
+        for w in busy:
+            w.stop()
+        for w in idle:
+            w.stop(wait=5.0)
+    return results
+
+
 def solve_points(fm: Mapping[str, Any], points: Sequence[Mapping[str, Any]],
                  out_paths: Sequence[str | Path], *, workers: int = 1,
-                 warm_start: str | Path | None = None, grace_s: float = 30.0) -> list[SolveResult]:
-    """:func:`solve_point` at many points, ``workers`` at a time, reusing valid records.
+                 warm_start: str | Path | None = None, grace_s: float = 30.0,
+                 time_limit_s: float | None = None,
+                 workdirs: Sequence[str | Path | None] | None = None,
+                 extra_outputs: Sequence[Mapping[str, str] | None] | None = None,
+                 isolate: bool = True, reuse: bool = True) -> list[SolveResult]:
+    """Solve the forward model at ``points`` and write one run record per point: the one
+    solve path of the package (the workflow's ``solve`` jobs through :func:`solve_point`,
+    the base state, the posterior-mean and predictive solves, the diagnosis, the
+    ``bayescalib solve`` command).
 
-    The stages whose points are known only while they run (the diagnosis: posterior
-    draws, finite-difference steps, extended calibrations) solve through here: every
-    point is the same isolated, time-limited evaluation as a ``solve`` job of the
-    workflow. A run record that exists, reads and was solved at the same values is
-    kept, so an interrupted stage resumes without redoing finished solves.
+    Every point is solved in a forked, time-limited process, so that a crash, a hang
+    or a segmentation fault inside a solver ends as a failed-run record
+    (``status == "failed"`` with the reason) instead of taking the caller down; every
+    record is written atomically, whatever happens. Up to ``workers`` such processes
+    run side by side. A process solves point after point and keeps its model in
+    between where that is bit-neutral (:class:`_Evaluator`: the fsi model's mesh,
+    spaces and compiled forms; its solver state is forgotten before every point), so
+    each record is bit for bit what a new model gives, whichever process solved which
+    points before. A point that kills its process or runs past its limit fails alone:
+    its process is ended and the next point gets a new one.
+
+    The solve processes are forked: the calling process must not have built an fsi
+    model itself (a process forked after Netgen's mesh generation ran in its parent
+    hangs in its own; NGSolve 6.2.2608). The workflow's jobs, the diagnosis and the
+    command line never do; a test that did solves with ``isolate=False``.
 
     Parameters
     ----------
@@ -884,58 +968,124 @@ def solve_points(fm: Mapping[str, Any], points: Sequence[Mapping[str, Any]],
     out_paths
         One run-record path per point.
     workers
-        Child processes at a time.
+        Solve processes at a time.
     warm_start
         State file every solve starts from (fsi only).
+    grace_s
+        Extra seconds past the time limit before a process is killed, so that the
+        model's own time limit (which records how far it got) acts first.
+    time_limit_s
+        Wall-clock limit of one point (``fm["time_limit_s"]`` when None; no limit
+        when neither is given); the process is killed ``grace_s`` after it.
+    workdirs
+        Work folder per point (a command model's; None: ``<run record>.work``).
+    extra_outputs
+        Per point, ``{"vtu": path, "state": path}`` written by the fsi model on success
+        (or None).
+    isolate
+        ``False`` solves in this process, one point after the other (tests of cheap
+        models): no time limit, and a :class:`ForwardModelError` (a misconfigured
+        model) is raised instead of recorded.
+    reuse
+        Keep a run record that exists, reads and was solved at the same values (an
+        interrupted stage resumes without redoing finished solves). ``False`` solves
+        every point.
 
     Returns
     -------
     list of SolveResult
-        In the order of ``points``.
+        In the order of ``points``: the records written (or kept).
     """
     from bayescalib.io.runrecord import RunFileError, read_run
 
     if len(points) != len(out_paths):
         raise ValueError("solve_points: one output path per point is needed")
-    todo = []
-    for p, out in zip(points, out_paths, strict=True):
+    n = len(points)
+    dirs = list(workdirs) if workdirs is not None else [None] * n
+    extras = list(extra_outputs) if extra_outputs is not None else [None] * n
+    if len(dirs) != n or len(extras) != n:
+        raise ValueError("solve_points: one work folder and one extra_outputs per point")
+    results: dict[int, SolveResult] = {}
+    jobs: list[_Job] = []
+    for i, (p, out) in enumerate(zip(points, out_paths, strict=True)):
         out = Path(out)
-        if out.is_file():
+        if reuse and out.is_file():
             try:
-                if _same_inputs(read_run(out), p):
+                run = read_run(out)
+                if _same_inputs(run, p):
+                    results[i] = run
                     continue
             except RunFileError:
                 pass  # corrupt or incomplete: solve again
         out.parent.mkdir(parents=True, exist_ok=True)
-        todo.append((dict(p), out))
-    log.info("solves: %d of %d to do (%d reused), %d at a time", len(todo), len(points),
-             len(points) - len(todo), workers)
-    hard = _hard_limit(fm, None, grace_s)
-    running: list[_Solve] = []
-    while todo or running:
-        while todo and len(running) < max(int(workers), 1):
-            p, out = todo.pop(0)
-            running.append(_Solve(fm, p, out, out.with_suffix(".work"), warm_start, None, hard))
-        left = [s.remaining() for s in running if s.hard is not None]
-        ready = mp.connection.wait([s.conn for s in running],
-                                   timeout=max(min(left), 0.0) if left else None)
-        for s in [s for s in running if s.conn in ready or
-                  (s.remaining() is not None and s.remaining() <= 0)]:
-            s.finish()
-            running.remove(s)
-    return [read_run(p) for p in out_paths]
+        jobs.append(_Job(i, p, out, Path(dirs[i]) if dirs[i] is not None
+                         else out.with_suffix(".work"), extras[i] or {}))
+    if n > 1:
+        log.info("solves: %d of %d to do (%d reused), %d at a time", len(jobs), n,
+                 n - len(jobs), workers)
+    if isolate:
+        results.update(_solve_isolated(fm, jobs, workers, warm_start,
+                                       _hard_limit(fm, time_limit_s, grace_s)))
+    else:
+        evaluator = _Evaluator(fm, warm_start)
+        for job in jobs:
+            try:
+                res = evaluator.solve(job.params, job.workdir, job.extra)
+            except ForwardModelError:
+                raise
+            except Exception as exc:  # noqa: BLE001 - a failed solve is data
+                res = failed_result(job.params, f"{type(exc).__name__}: {exc}",
+                                    log_tail=traceback.format_exc()[-2000:])
+            _finish(job, res, results)
+    return [results[i] for i in range(n)]
+
+
+def solve_point(fm: Mapping[str, Any], params: Mapping[str, float], out_path: str | Path, *,
+                time_limit_s: float | None = None, warm_start: str | Path | None = None,
+                workdir: str | Path | None = None, isolate: bool = True,
+                extra_outputs: Mapping[str, str] | None = None,
+                grace_s: float = 30.0) -> SolveResult:
+    """:func:`solve_points` at one point, always solved (an existing record is
+    replaced): the workflow's ``solve`` job, the ground truth, the posterior-mean solve.
+
+    Parameters
+    ----------
+    fm
+        Validated ``forward_model`` config section.
+    params
+        Parameter values keyed by target (user units).
+    out_path
+        HDF5 run record to write (atomically), whatever happens.
+    time_limit_s, warm_start, isolate, grace_s
+        As in :func:`solve_points`.
+    workdir
+        The point's work folder (None: ``<out_path>.work``).
+    extra_outputs
+        Optional ``{"vtu": path, "state": path}`` written by the fsi model on success.
+
+    Returns
+    -------
+    SolveResult
+        The record that was written.
+    """
+    return solve_points(fm, [params], [out_path], time_limit_s=time_limit_s,
+                        warm_start=warm_start, workdirs=[workdir], isolate=isolate,
+                        extra_outputs=[extra_outputs], grace_s=grace_s, reuse=False)[0]
 
 
 def solve_base_state(fm: Mapping[str, Any], params: Mapping[str, float], run_path: str | Path,
                      state_path: str | Path) -> SolveResult:
-    """Solve at ``params`` (the design-box centre) and save the warm-start state.
+    """Solve at ``params`` (the design-box centre) and save the warm-start state: one
+    point of :func:`solve_points` at the nominal loading only (``loadings: {}``: the
+    design-point solves start from a state at factor 1), with the state as an extra
+    output.
 
     Raises
     ------
     ForwardModelError
         If the base solve fails: the design-point solves cannot start from it.
     """
-    single = {**fm, "loadings": {}}  # the warm-start state is at the nominal loading
+    single = {**fm, "loadings": {}}
     res = solve_point(single, params, run_path, extra_outputs={"state": str(state_path)})
     if res.status != "ok" or not Path(state_path).is_file():
         raise ForwardModelError(

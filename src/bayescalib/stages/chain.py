@@ -10,7 +10,7 @@ plus one candidate effect), so it cannot be given rules in advance.
 :class:`FileStore`, whose steps are the stage functions the rules run, and
 :class:`SolvePath`, which evaluates points by the solve path
 (:func:`bayescalib.models.forward.solve_points`: one isolated, time-limited solve per
-point) and their discrepancy. The files of each round are laid out as in the
+point, a solve process keeping its mesh between points) and their discrepancy. The files of each round are laid out as in the
 workflow's results::
 
     <workdir>/runs/<i>.h5                  run record of new point i

@@ -324,15 +324,16 @@ def solve_at_posterior_mean(posterior_path: str | Path, parameters: Sequence[Map
                             forward_model: Mapping[str, Any], out_path: str | Path,
                             vtu_path: str | Path) -> None:
     """Forward solve at the posterior mean with its fields (the fsi model's VTU), the
-    same solve as every other (:func:`bayescalib.models.forward.solve_point`).
+    same solve as every other (:func:`bayescalib.models.forward.solve_points`).
 
     A failed solve leaves its run record (with the reason) and an empty ``vtu_path``;
     :func:`field_figure` then draws the reason instead of the fields.
     """
-    from bayescalib.models.forward import solve_point
+    from bayescalib.models.forward import solve_points
 
     point = posterior_mean_point(posterior_path, parameters)
-    res = solve_point(forward_model, point, out_path, extra_outputs={"vtu": str(vtu_path)})
+    res = solve_points(forward_model, [point], [out_path], extra_outputs=[{"vtu": str(vtu_path)}],
+                       reuse=False)[0]
     if res.status != "ok" or not Path(vtu_path).is_file():
         Path(vtu_path).write_bytes(b"")
 

@@ -8,6 +8,6 @@ core), :mod:`~bayescalib.models.fsi.model` (config -> solve -> run record),
 :mod:`~bayescalib.models.fsi.vtu` (field output). NGSolve is imported lazily, inside functions.
 """
 
-from bayescalib.models.fsi.model import FSIModel, solve_to_file
+from bayescalib.models.fsi.model import FSIModel
 
-__all__ = ["FSIModel", "solve_to_file"]
+__all__ = ["FSIModel"]

@@ -43,7 +43,7 @@ import numpy as np
 
 from bayescalib.config import ConfigError, set_dotted, validate
 from bayescalib.io._atomic_write import atomic_path
-from bayescalib.io.runrecord import SolveResult, write_run
+from bayescalib.io.runrecord import SolveResult
 from bayescalib.models.fsi.geometry import SOLID_SUBDOMAINS, BiofilmMesh, build_mesh
 from bayescalib.models.fsi.materials import check_poisson
 from bayescalib.models.fsi.physics import (
@@ -56,7 +56,7 @@ from bayescalib.models.fsi.physics import (
 from bayescalib.models.fsi.problem import FSIProblem
 from bayescalib.models.fsi.solver import MonolithicSolver, SolverControls
 
-__all__ = ["MESH_PRESETS", "PA", "FSIModel", "fsi_section", "solve_to_file"]
+__all__ = ["MESH_PRESETS", "PA", "FSIModel", "fsi_section"]
 
 #: Pa -> solver stress units mg/(mm s^2) (= mPa)
 PA = 1.0e3
@@ -304,6 +304,21 @@ class FSIModel:
         if stop != s.ndof or state.shape[0] != start:
             return None
         return np.concatenate([state, np.zeros(stop - start)])
+
+    def forget_solves(self) -> None:
+        """Forget everything earlier solves left behind, keeping only what was built
+        (mesh, spaces, compiled forms): the last state (``warm_start="last"``), the kept
+        LU factorization and the state vector (back to rest). The next solve then
+        computes bit for bit what it computes in a new model of the same config: it
+        starts from rest or from its warm start, with a fresh factorization (a kept one
+        would make its Newton iterates, and so its result, differ at the solver's
+        tolerance and depend on which point was solved before). Used when one model
+        solves many design points (:func:`bayescalib.models.forward.solve_points`)."""
+        self._last_state = None
+        self._last_params = {}
+        if self.solver is not None:
+            self.solver.factorization = None
+            self.solver.reset()
 
     @property
     def last_state(self) -> np.ndarray | None:
@@ -559,36 +574,3 @@ class FSIModel:
         assert self.solver is not None
         write_fields_vtu(path, self.solver)
 
-
-def solve_to_file(
-    config: Mapping[str, Any],
-    overrides: Mapping[str, Any] | None,
-    out_dir: str | Path,
-    vtu: bool = False,
-    warm_start: str | Path | None = None,
-    *,
-    name: str = "run",
-    save_state: bool = True,
-) -> SolveResult:
-    """One solve written to ``out_dir/<name>.h5`` (plus ``<name>.state.npz`` when ok, and
-    ``<name>.vtu`` with ``vtu``). Used by the CLI and by the pipeline's scripts.
-
-    Returns
-    -------
-    SolveResult
-        With ``stats["output"]`` set to the HDF5 path.
-    """
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    model = FSIModel(config)
-    res = model.solve(overrides, warm_start=warm_start)
-    h5 = out / f"{name}.h5"
-    res.stats["output"] = str(h5)
-    if res.ok and save_state:
-        model.save_state(out / f"{name}.state.npz")
-        res.stats["state_file"] = str(out / f"{name}.state.npz")
-    if vtu:
-        model.write_vtu(out / f"{name}.vtu")
-        res.stats["vtu"] = str(out / f"{name}.vtu")
-    write_run(h5, res)
-    return res
