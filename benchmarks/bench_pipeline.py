@@ -20,7 +20,9 @@ Figures per study and mode: wall time of the whole run; the physics summed over 
 run (solves: each run record's own ``wall_time``; discrepancies: every point's
 discrepancy recomputed in this process after a warm-up, i.e. the in-process cost);
 per stage (each figure family its own row, ``fig_posterior`` etc.): the median job
-wall time from Snakemake's ``benchmark:`` files, the median wall time of the job inside
+wall time from the rules' benchmark files (since the job document: the wall time of
+the process that worked, written by ``scripts/job.py``; before it, Snakemake's, of the
+client; the ``script:`` rules', Snakemake's), the median wall time of the job inside
 its job server (fork to exit) and its median CPU time (the servers' job ledger,
 ``logs/jobserver_jobs.tsv``), the median in-process work, the ratio of job wall to work
 and the overhead per job (median job wall minus median in-process work). The whole

@@ -14,7 +14,9 @@ import signal
 import subprocess
 import sys
 import time
+from collections.abc import Mapping
 from pathlib import Path
+from typing import Any
 
 import pytest
 from _workflow_helpers import REPO
@@ -71,14 +73,24 @@ def server(tmp_path):
     proc.wait(timeout=10)
 
 
-def _job(sock: str | None, cwd: Path, stage: str, **args: str) -> subprocess.CompletedProcess:
-    env = {k: v for k, v in os.environ.items() if k != "BAYESCALIB_JOBSERVER"}
+def _doc(stage: str, log: str | None = None, benchmark: str | None = None,
+         mem_mb: int | None = None, **args: Any) -> dict[str, Any]:
+    """A job document as the workflow writes it (jobserver.job_document)."""
+    out = args.get("out", args.get("out_path", ""))
+    return {"stage": stage, "args": args, "log": log, "benchmark": benchmark, "mem_mb": mem_mb,
+            "threads": 1, "out": str(out)}
+
+
+def _job(sock: str | None, cwd: Path, stage: str, *, env: Mapping[str, str] | None = None,
+         **kw: Any) -> subprocess.CompletedProcess:
+    """Run one job through the client: with the server at ``sock``, or (None) without."""
+    env = {k: v for k, v in {**os.environ, **(env or {})}.items()
+           if sock is None or k != "BAYESCALIB_JOBSERVER"}
     env["PYTHONPATH"] = _path(cwd)
     if sock is not None:
         env["BAYESCALIB_JOBSERVER"] = sock
-    argv = [x for kv in args.items() for x in kv]
-    return subprocess.run([*CLIENT, stage, *argv], check=False, cwd=cwd, env=env,
-                          capture_output=True, text=True, timeout=120)
+    return subprocess.run([*CLIENT, json.dumps(_doc(stage, **kw))], check=False, cwd=cwd,
+                          env=env, capture_output=True, text=True, timeout=120)
 
 
 def _solver_pid(tmp_path: Path, client: subprocess.Popen) -> int:
@@ -91,9 +103,15 @@ def _solver_pid(tmp_path: Path, client: subprocess.Popen) -> int:
     return int(pidfile.read_text())
 
 
-def _solve_args(study: Study, i: int, out: str) -> dict[str, str]:
-    return {"log": f"logs/{i}.log", "out": out, "forward_model": repr(study.forward_section()),
-            "point": repr(study.point(i))}
+def _solve_args(study: Study, i: int, out: str) -> dict[str, Any]:
+    return {"log": f"logs/{i}.log", "out": out, "forward_model": study.forward_section(),
+            "point": study.point(i)}
+
+
+def _disc_args(study: Study, root: str, i: int, out: str, log: str) -> dict[str, Any]:
+    return {"log": log, "out_path": out, "run_path": f"{root}/runs/{i}.h5",
+            "obs_path": f"{root}/observations/observations.h5", "measure_name": "rkhs",
+            "measure": study.config["measure"]["rkhs"], "likelihood": study.config["likelihood"]}
 
 
 def test_jobs_through_the_server_equal_jobs_in_a_fresh_interpreter(done_run, base_study,
@@ -111,10 +129,8 @@ def test_jobs_through_the_server_equal_jobs_in_a_fresh_interpreter(done_run, bas
             assert mine.status == ref.status
             assert (mine.interface_current == ref.interface_current).all()
             disc = f"{STUDY}/check/{label}{i}.json"
-            proc = _job(sock, tmp, "discrepancy", log=f"logs/d{label}{i}.log", out=disc,
-                        run=f"{STUDY}/runs/{i}.h5", obs=f"{STUDY}/observations/observations.h5",
-                        measure_name="rkhs", measure=repr(study.config["measure"]["rkhs"]),
-                        likelihood=repr(study.config["likelihood"]))
+            proc = _job(sock, tmp, "discrepancy",
+                        **_disc_args(study, STUDY, i, disc, f"logs/d{label}{i}.log"))
             assert proc.returncode == 0, proc.stderr
             assert json.loads((tmp / disc).read_text()) == \
                 json.loads((root / "discrepancy" / "rkhs" / f"{i}.json").read_text())
@@ -122,10 +138,9 @@ def test_jobs_through_the_server_equal_jobs_in_a_fresh_interpreter(done_run, bas
 
 def test_a_failing_job_exits_nonzero_with_its_error_in_its_log(tmp_path, server, base_study):
     study = Study(base_study)
-    proc = _job(server, tmp_path, "discrepancy", log="logs/d.log", out="d.json",
-                run="missing.h5", obs="missing_obs.h5", measure_name="rkhs",
-                measure=repr(study.config["measure"]["rkhs"]),
-                likelihood=repr(study.config["likelihood"]))
+    args = _disc_args(study, "nowhere", 0, "d.json", "logs/d.log")
+    args.update(run_path="missing.h5", obs_path="missing_obs.h5")
+    proc = _job(server, tmp_path, "discrepancy", **args)
     assert proc.returncode == 1
     assert "missing.h5" in proc.stderr  # the job's stderr is the client's
     assert "missing.h5" in (tmp_path / "logs" / "d.log").read_text()
@@ -195,6 +210,124 @@ def test_the_ledger_records_each_job_with_the_cpu_time_of_its_solve(tmp_path, ba
     assert float(rows[0]["wall_s"]) >= 0.4 and float(rows[0]["max_rss_mb"]) > 0
 
 
+def _model_study(tmp_path: Path, monkeypatch, base_study: dict, source: str,
+                 function: str) -> Study:
+    """The study with the python model ``function`` (module:name) of ``source``, written
+    to tmp_path (where the jobs import it)."""
+    (tmp_path / f"{function.split(':')[0]}.py").write_text(source)
+    monkeypatch.syspath_prepend(str(tmp_path))  # the study is read where its model imports
+    cfg = json.loads(json.dumps(base_study))
+    cfg["forward_model"]["python"] = {"function": function}
+    return Study(cfg)
+
+
+def _benchmark(path: Path) -> dict[str, str]:
+    lines = path.read_text().splitlines()
+    assert len(lines) == 2, lines
+    return dict(zip(lines[0].split("\t"), lines[1].split("\t")))
+
+
+def test_the_benchmark_file_measures_the_process_that_worked(tmp_path, server, base_study,
+                                                             monkeypatch):
+    """The rule's benchmark file (the document's ``benchmark``) holds, in Snakemake's
+    columns, what the working process cost: through the server its forked child, without
+    one the client's own child; either way with the forked solve it waited for (the
+    model's 0.4 s of CPU), not the client's milliseconds. A failed job leaves none."""
+    study = _model_study(tmp_path, monkeypatch, base_study, BURNING, "burning:burn")
+    for label, sock in (("server", server), ("fresh", None)):
+        bench = tmp_path / "benchmarks" / "solve" / f"{label}.tsv"
+        ok = _job(sock, tmp_path, "solve", benchmark=str(bench),
+                  **_solve_args(study, 0, f"{label}.h5"))
+        assert ok.returncode == 0, ok.stderr
+        row = _benchmark(bench)
+        assert list(row) == ["s", "h:m:s", "max_rss", "max_vms", "max_uss", "max_pss", "io_in",
+                             "io_out", "mean_load", "cpu_time"]  # Snakemake's
+        assert float(row["cpu_time"]) >= 0.4, (label, row)
+        assert float(row["s"]) >= float(row["cpu_time"]) * 0.5, (label, row)
+        assert float(row["max_rss"]) > 30, (label, row)  # NumPy at least: not the client's
+    bench = tmp_path / "benchmarks" / "solve" / "server.tsv"
+    bad = _job(server, tmp_path, "no_such_stage", benchmark=str(bench), out="x.h5")
+    assert bad.returncode == 1 and not bench.exists()
+
+
+HUNGRY = """
+import numpy as np
+from bayescalib.models.analytic import interface
+def eat(params, **kw):
+    block = np.ones(int(400e6 // 8))  # 400 MB, written
+    return interface(params, **kw)
+"""
+
+
+def test_resources_mem_mb_limits_the_process_that_works(tmp_path, server, base_study,
+                                                        monkeypatch):
+    """``mem_mb`` limits the job's working process and the solve it forks (an address
+    space of mem_mb beyond what it started with): a model that needs 400 MB fails with a
+    MemoryError under a 150 MB limit, through the server and in the client's fallback
+    (BAYESCALIB_JOBSERVER=off: a local run without a server), and solves under 2000 MB."""
+    study = _model_study(tmp_path, monkeypatch, base_study, HUNGRY, "hungry:eat")
+    for label, sock in (("server", server), ("fresh", None)):
+        env = {"BAYESCALIB_JOBSERVER": "off"}
+        tight = _job(sock, tmp_path, "solve", mem_mb=150, env=env,
+                     **_solve_args(study, 0, f"{label}_tight.h5"))
+        assert tight.returncode == 0, tight.stderr  # a failed solve is a record
+        run = read_run(tmp_path / f"{label}_tight.h5")
+        assert run.status == "failed" and "MemoryError" in run.reason, (label, run.reason)
+        roomy = _job(sock, tmp_path, "solve", mem_mb=2000, env=env,
+                     **_solve_args(study, 0, f"{label}_roomy.h5"))
+        assert roomy.returncode == 0, roomy.stderr
+        assert read_run(tmp_path / f"{label}_roomy.h5").status == "ok", label
+
+
+def test_a_server_refuses_jobs_once_the_source_changed_and_restarts(tmp_path, base_study):
+    """The server fingerprints the package's source when it starts; once a module
+    changed (here: its modification time, in a copy of the package), it refuses the
+    next job with a line that says why, the client runs that job itself (from the
+    source on disk), and the server restarts with the new source and serves again."""
+    pkg = tmp_path / "pkg"
+    shutil.copytree(REPO / "src" / "bayescalib", pkg / "bayescalib",
+                    ignore=shutil.ignore_patterns("__pycache__"))
+    sock = str(tmp_path / "s.sock")
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(pkg), str(tmp_path)]),
+           "OPENBLAS_NUM_THREADS": "1"}
+    proc = subprocess.Popen([sys.executable, "-m", "bayescalib.execution.jobserver", "--serve",
+                             sock], cwd=tmp_path, env=env, stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True)
+
+    def up() -> None:
+        deadline = time.monotonic() + 60
+        while not os.path.exists(sock):
+            assert proc.poll() is None and time.monotonic() < deadline, "server not up"
+            time.sleep(0.05)
+
+    def job(name: str) -> subprocess.CompletedProcess:
+        out = subprocess.run(
+            [*CLIENT, json.dumps(_doc("solve", **_solve_args(study, 0, f"{name}.h5")))],
+            cwd=tmp_path, env={**env, "BAYESCALIB_JOBSERVER": sock}, capture_output=True,
+            text=True, timeout=120, check=False)
+        assert out.returncode == 0, out.stderr
+        assert read_run(tmp_path / f"{name}.h5").status == "ok"
+        return out
+
+    study = Study(base_study)
+    try:
+        up()
+        assert "refused" not in job("before").stderr
+        module = pkg / "bayescalib" / "stages" / "jobs.py"
+        st = module.stat()
+        os.utime(module, ns=(st.st_atime_ns, st.st_mtime_ns + 10**9))  # edited during the run
+        refused = job("changed").stderr
+        assert "the job server refused job solve changed.h5" in refused
+        assert "source changed after the server started" in refused
+        up()  # restarted, importing the source as it is now
+        assert "refused" not in job("after").stderr
+    finally:
+        proc.terminate()
+        log = proc.communicate(timeout=30)[0]
+    assert "restarting with the changed source" in log, log
+    assert log.count("preloaded in") == 2, log
+
+
 @pytest.mark.parametrize("function", ["segfault", "leave"])
 def test_a_crashing_model_is_a_failed_record_and_the_job_succeeds(tmp_path, server, base_study,
                                                                   function, monkeypatch):
@@ -219,8 +352,8 @@ def test_a_job_whose_client_goes_away_is_killed_with_its_solve(tmp_path, server,
     study = Study(cfg)
     env = {**os.environ, "BAYESCALIB_JOBSERVER": server, "PYTHONPATH": _path(tmp_path)}
     args = _solve_args(study, 0, "run.h5")
-    client = subprocess.Popen([*CLIENT, "solve", *[x for kv in args.items() for x in kv]],
-                              cwd=tmp_path, env=env)
+    client = subprocess.Popen([*CLIENT, json.dumps(_doc("solve", **args))], cwd=tmp_path,
+                              env=env)
     solver = _solver_pid(tmp_path, client)
     assert _alive(solver)
     client.kill()  # Snakemake cancels the job
@@ -248,9 +381,9 @@ def test_the_server_and_its_jobs_end_when_the_run_is_killed(tmp_path, base_study
     sock = run.stdout.readline().strip()
     assert sock and os.path.exists(sock), sock
     args = _solve_args(study, 0, "run.h5")
-    client = subprocess.Popen([*CLIENT, "solve", *[x for kv in args.items() for x in kv]],
-                              cwd=tmp_path, env={**os.environ, "BAYESCALIB_JOBSERVER": sock,
-                                                 "PYTHONPATH": _path(tmp_path)})
+    client = subprocess.Popen([*CLIENT, json.dumps(_doc("solve", **args))], cwd=tmp_path,
+                              env={**os.environ, "BAYESCALIB_JOBSERVER": sock,
+                                   "PYTHONPATH": _path(tmp_path)})
     solver = _solver_pid(tmp_path, client)
     run.send_signal(signal.SIGKILL)
     run.wait()
@@ -315,11 +448,11 @@ from bayescalib.execution import jobserver as js
 js._import_all(js._PRELOAD)
 from bayescalib.config import load_schemas
 load_schemas()
-args = json.loads(sys.argv[1])
+docs = json.loads(sys.argv[1])
 new = {}
 for stage in ("solve", "discrepancy"):
     before = set(sys.modules)
-    js.run_stage(stage, args[stage])
+    js.run_job(docs[stage])
     new[stage] = sorted(set(sys.modules) - before)
 print(json.dumps(new))
 """
@@ -332,15 +465,12 @@ def test_a_per_point_job_imports_nothing_the_point_server_has_not(done_run, base
     not cached, for compiling one); the python model's own module aside."""
     study = Study(base_study)
     root = done_run / STUDY
-    args = {"solve": _solve_args(study, 2, str(tmp_path / "s.h5")),
-            "discrepancy": {"log": str(tmp_path / "d.log"), "out": str(tmp_path / "d.json"),
-                            "run": str(root / "runs" / "2.h5"),
-                            "obs": str(root / "observations" / "observations.h5"),
-                            "measure_name": "rkhs",
-                            "measure": repr(study.config["measure"]["rkhs"]),
-                            "likelihood": repr(study.config["likelihood"])}}
-    args["solve"]["log"] = str(tmp_path / "s.log")
-    proc = subprocess.run([sys.executable, "-c", PROBE, json.dumps(args)], cwd=tmp_path,
+    solve = _solve_args(study, 2, str(tmp_path / "s.h5"))
+    solve["log"] = str(tmp_path / "s.log")
+    docs = {"solve": _doc("solve", **solve),
+            "discrepancy": _doc("discrepancy", **_disc_args(
+                study, str(root), 2, str(tmp_path / "d.json"), str(tmp_path / "d.log")))}
+    proc = subprocess.run([sys.executable, "-c", PROBE, json.dumps(docs)], cwd=tmp_path,
                           env={**os.environ, "PYTHONPATH": _path(tmp_path)},
                           capture_output=True, text=True, timeout=300, check=False)
     assert proc.returncode == 0, proc.stderr[-3000:]
@@ -350,15 +480,59 @@ def test_a_per_point_job_imports_nothing_the_point_server_has_not(done_run, base
     assert new["discrepancy"] == []
 
 
-def test_job_arguments_with_lists_of_paths():
-    """A value `[` opens a list closed by `]` (the gather and figure rules pass their
-    runs and records so); an empty list and a last key without value are handled."""
-    from bayescalib.execution.jobserver import parse_args
+class _Named(list):
+    """Snakemake's named lists as a rule function sees them (snakemake.io.Namedlist):
+    positional entries, and named ones (a file or a list of files)."""
 
-    assert parse_args(["out", "t.h5", "runs", "[", "r/0.h5", "r 1.h5", "]", "disc", "[", "]",
-                       "n", "3", "previous"]) == \
-        {"out": "t.h5", "runs": ["r/0.h5", "r 1.h5"], "disc": [], "n": "3"}
-    assert parse_args([]) == {}
+    def __init__(self, *positional: Any, **named: Any) -> None:
+        super().__init__(positional)
+        self._named = named
+        for value in named.values():
+            self.extend(value if isinstance(value, list) else [value])
+
+    def items(self):
+        return self._named.items()
+
+
+def _namespace(**parts: Any) -> dict[str, Any]:
+    ns = {"rule": "gather", "bench_record": None, "threads": 2, "input": _Named(),
+          "output": _Named(), "params": _Named(), "log": _Named(), "resources": _Named()}
+    ns.update(parts)
+    return ns
+
+
+def test_a_job_document_holds_the_named_entries_of_its_rule_once():
+    """The rule's named inputs, outputs and params are the stage's keyword arguments
+    (lists of paths as lists, an empty input as an empty list, params as their values);
+    its unnamed entries (rerun triggers) are left out; the unnamed log entry is the
+    log, ``benchmark=`` the benchmark file; mem_mb from the resources. The command is
+    the client with the document as one shell-quoted JSON argument; at parse time it is
+    the template Snakemake records as the rule's code."""
+    import shlex
+
+    from bayescalib.execution.jobserver import JOB_TEMPLATE, job_command, job_document
+
+    ns = _namespace(
+        input=_Named("trigger.json", run_paths=["r/0.h5", "r 1.h5"], disc_paths=[]),
+        output=_Named(out_path="t.h5"),
+        params=_Named(["set", "aside"], names=["E", "nu"], n_train=None, cfg={"a": [1, 2.5]}),
+        log=_Named("logs/g.log", benchmark="benchmarks/g.tsv"),
+        resources=_Named(mem_mb=1500, _cores=2))
+    doc = job_document(ns)
+    assert doc == {"stage": "gather", "args": {
+        "run_paths": ["r/0.h5", "r 1.h5"], "disc_paths": [], "out_path": "t.h5",
+        "names": ["E", "nu"], "n_train": None, "cfg": {"a": [1, 2.5]}},
+        "log": "logs/g.log", "benchmark": "benchmarks/g.tsv", "mem_mb": 1500, "threads": 2,
+        "out": "t.h5"}
+    assert job_document(ns, "smc")["stage"] == "smc"
+    assert job_document(_namespace())["mem_mb"] is None
+    command = job_command(ns).format()  # Snakemake formats it once more
+    words = shlex.split(command)
+    assert words[:4] == ["$BAYESCALIB_PYTHON", "-I", "-S", "$BAYESCALIB_JOB_CLIENT"]
+    assert json.loads(words[4]) == doc and len(words) == 5
+    assert job_command({"workflow": None, "params": None}) == JOB_TEMPLATE
+    with pytest.raises(ValueError, match="'n_train' is named twice"):
+        job_document(_namespace(input=_Named(n_train="x"), params=_Named(n_train=3)))
 
 
 def test_a_per_round_job_goes_to_the_point_server_while_the_round_server_is_not_up(
@@ -374,11 +548,11 @@ def test_a_per_round_job_goes_to_the_point_server_while_the_round_server_is_not_
            "BAYESCALIB_JOBSERVER_ROUND": str(tmp_path / "absent.sock")}
     root = done_run / STUDY
     out = tmp_path / "surrogate.h5"
+    doc = _doc("train_surrogate", log=str(tmp_path / "t.log"), out_path=str(out),
+               training_path=str(root / "rkhs" / "training.h5"),
+               surrogate=study.config["surrogate"], parameters=study.config["parameters"])
     proc = subprocess.run(
-        [*CLIENT, "train_surrogate", "log", str(tmp_path / "t.log"), "out", str(out),
-         "training", str(root / "rkhs" / "training.h5"),
-         "surrogate", repr(study.config["surrogate"]),
-         "parameters", repr(study.config["parameters"])],
+        [*CLIENT, json.dumps(doc)],
         cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300, check=False)
     assert proc.returncode == 0, proc.stderr
     with h5py.File(out) as mine, h5py.File(root / "rkhs" / "surrogate.h5") as ref:

@@ -55,8 +55,6 @@ ALLOWED: dict[tuple[str, str], str] = {
     ("src/bayescalib/stages/__init__.py", "design"):
         "the summary's extra records (the design summary of a run), not a config section",
     ("src/bayescalib/cli/summary.py", "unit"): "summary.json read back",
-    ("src/bayescalib/execution/jobserver.py", "active"):
-        "a job's arguments (the round records of the summary job), not a config section",
     ("src/bayescalib/inference/surrogate.py", "kernel"):
         "an attribute of a surrogate file written before the kernel was recorded",
     ("src/bayescalib/models/fsi/model.py", "fsi"):

@@ -157,10 +157,9 @@ def test_a_truncated_warm_start_state_is_set_aside_by_the_solve_job(tmp_path, jo
     cut = _truncate(state)
     out = tmp_path / "runs" / "3.h5"
     with pytest.raises(PipelineError) as info:
-        jobserver.run_stage("solve", {"log": str(tmp_path / "solve.log"),
-                                      "forward_model": repr(ANALYTIC),
-                                      "point": repr({"E": 400.0, "nu": 0.3}),
-                                      "out": str(out), "base": str(state)})
+        jobserver.run_job({"stage": "solve", "log": str(tmp_path / "solve.log"),
+                           "args": {"forward_model": ANALYTIC, "point": {"E": 400.0, "nu": 0.3},
+                                    "out": str(out), "base": str(state)}})
     _assert_set_aside(info, state, "warm-start state", cut)
     assert not out.exists()
 

@@ -14,78 +14,75 @@ rule gather_round:
     input:
         unpack(_round_inputs),
     output:
-        f"{ACTIVE_DIR}/{{r}}/training.h5",
+        out_path=f"{ACTIVE_DIR}/{{r}}/training.h5",
     params:
         names=[p["name"] for p in study.config["parameters"]],
         targets=study.targets(),
         n_train=None,
-    benchmark:
-        f"{R}/benchmarks/gather/round_{{r}}.tsv"
     log:
         f"{R}/logs/active/{{r}}/gather.log",
+        benchmark=f"{R}/benchmarks/gather/round_{{r}}.tsv",
     shell:
-        GATHER_JOB
+        job(locals(), "gather")
 
 
 rule train_round:
     conda:
         "../envs/bayescalib.yaml"
     input:
-        training=f"{ACTIVE_DIR}/{{r}}/training.h5",
-        # the previous round's choices of the surrogate (rounds run in order already)
-        previous=lambda wc: [f"{ACTIVE_DIR}/{int(wc.r) - 1}/surrogate.h5"] if int(wc.r) > 0 else [],
+        training_path=f"{ACTIVE_DIR}/{{r}}/training.h5",
+        # the previous round's choices of the surrogate (rounds run in order already;
+        # none in round 0: an empty input)
+        previous=lambda wc: f"{ACTIVE_DIR}/{int(wc.r) - 1}/surrogate.h5" if int(wc.r) > 0 else [],
     output:
-        f"{ACTIVE_DIR}/{{r}}/surrogate.h5",
+        out_path=f"{ACTIVE_DIR}/{{r}}/surrogate.h5",
     params:
         surrogate=study.config["surrogate"],
         parameters=study.config["parameters"],
-    benchmark:
-        f"{R}/benchmarks/train_surrogate/round_{{r}}.tsv"
     log:
         f"{R}/logs/active/{{r}}/train_surrogate.log",
+        benchmark=f"{R}/benchmarks/train_surrogate/round_{{r}}.tsv",
     threads: 1
     shell:
-        TRAIN_JOB
+        job(locals(), "train_surrogate")
 
 
 rule smc_round:
     conda:
         "../envs/bayescalib.yaml"
     input:
-        f"{ACTIVE_DIR}/{{r}}/surrogate.h5",
+        surrogate_path=f"{ACTIVE_DIR}/{{r}}/surrogate.h5",
     output:
-        f"{ACTIVE_DIR}/{{r}}/particles.h5",
+        out_path=f"{ACTIVE_DIR}/{{r}}/particles.h5",
     params:
-        smc=study.round_smc,
+        smc_cfg=study.round_smc,
         parameters=study.config["parameters"],
-    benchmark:
-        f"{R}/benchmarks/smc/round_{{r}}.tsv"
     log:
         f"{R}/logs/active/{{r}}/smc.log",
+        benchmark=f"{R}/benchmarks/smc/round_{{r}}.tsv",
     threads: 2  # alone in its round: the surrogate's chunks on both cores (same particles)
     shell:
-        SMC_JOB
+        job(locals(), "smc")
 
 
 checkpoint acquire:
     conda:
         "../envs/bayescalib.yaml"
     input:
-        training=f"{ACTIVE_DIR}/{{r}}/training.h5",
-        surrogate=f"{ACTIVE_DIR}/{{r}}/surrogate.h5",
-        particles=f"{ACTIVE_DIR}/{{r}}/particles.h5",
-        previous=lambda wc: [_acquire_path(int(wc.r) - 1)] if int(wc.r) > 0 else [],
+        training_path=f"{ACTIVE_DIR}/{{r}}/training.h5",
+        surrogate_path=f"{ACTIVE_DIR}/{{r}}/surrogate.h5",
+        particles_path=f"{ACTIVE_DIR}/{{r}}/particles.h5",
+        previous_path=lambda wc: _acquire_path(int(wc.r) - 1) if int(wc.r) > 0 else [],
     output:
-        f"{ACTIVE_DIR}/{{r}}/acquire.json",
+        out_path=f"{ACTIVE_DIR}/{{r}}/acquire.json",
     params:
         active=study.config["design"]["active"],
         check=study.config["posterior_check"],
         parameters=study.config["parameters"],
-        round=lambda wc: int(wc.r),
-    benchmark:
-        f"{R}/benchmarks/acquire/{{r}}.tsv"
+        round_index=lambda wc: int(wc.r),
     log:
         f"{R}/logs/active/{{r}}/acquire.log",
+        benchmark=f"{R}/benchmarks/acquire/{{r}}.tsv",
     threads: 1
     shell:
-        ACQUIRE_JOB
+        job(locals())

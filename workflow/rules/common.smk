@@ -133,8 +133,8 @@ def _round_reuse(wildcards, *names):
 def _round_inputs(wildcards):
     n = round_size(int(wildcards.r))
     m = study.primary_measure
-    return {"runs": [f"{R}/runs/{i}.h5" for i in range(n)],
-            "disc": [f"{R}/discrepancy/{m}/{i}.json" for i in range(n)]}
+    return {"run_paths": [f"{R}/runs/{i}.h5" for i in range(n)],
+            "disc_paths": [f"{R}/discrepancy/{m}/{i}.json" for i in range(n)]}
 
 
 # ---- Solves
@@ -143,155 +143,52 @@ def _solve_inputs(wildcards):
     out = {}
     if study.config["forward_model"]["warm_start"] == "prior_centre":
         out["base"] = f"{R}/runs/base_state.state.npz"
-    src = point_source(wildcards.i)  # active design: the round record that chose it
-    if src is not None:
-        out["chosen_by"] = ancient(src)
     return out
 
 
-# ---- Jobs through the run's job server (bayescalib.execution.jobserver)
-# The per-point jobs (solve, discrepancy) and the per-round and per-measure ones
-# (train_surrogate, smc, acquire, marginalize) run `scripts/job.py`, a standard-library
-# client that hands the job (its params as Python literals: `{params.x!r:q}`, the repr
-# quoted) to the warm server started in onstart, or runs it in-process when there is
-# none. Snakemake reruns the jobs of a shell command whose text changed, so the text
-# names the interpreter and the client through environment variables that the
-# workflow sets here (not the user): it holds no path of this machine, and a moved
-# checkout or another venv reruns nothing.
+def _chosen_by(wildcards):
+    """The active round record that chose design point i (none for a Sobol point): an
+    input of its solve, not an argument."""
+    src = point_source(wildcards.i)
+    return [] if src is None else ancient(src)
 
-from bayescalib.execution.jobserver import export_job_command
+
+# ---- Jobs through the run's job server (bayescalib.execution.jobserver)
+# The per-point jobs (solve, discrepancy), the per-round and per-measure ones (gather,
+# train_surrogate, smc, acquire, marginalize), the posterior check, summary.json and the
+# figures have one command: `shell: job(locals())` (or `job(locals(), "<stage>")` where the
+# stage is not the rule's name). In the job it is `scripts/job.py` with the job's document,
+# one JSON argument: the rule's *named* inputs, outputs and params, which are the keyword
+# arguments of the stage's function (jobserver.STAGES), its log, its benchmark file (the
+# `benchmark=` log entry: the client writes what the working process cost there) and its
+# resources.mem_mb (the working process's memory limit; Snakemake's `benchmark:` would
+# measure the client, and --benchmark-repeats does not apply). Unnamed entries are Snakemake's
+# only: rerun triggers and report files. A stage parameter is added to the stage function
+# and the rule, nowhere else. The client hands the job to the warm server started in
+# onstart, or runs it itself when there is none. Snakemake reruns the jobs of a shell
+# command whose text changed; the text it records (jobserver.JOB_TEMPLATE) names the
+# interpreter and the client through environment variables that the workflow sets here
+# (not the user): it holds no path of this machine, and a moved checkout or another venv
+# reruns nothing.
+
+from bayescalib.execution.jobserver import export_job_command, job_command as job
 
 export_job_command(workflow.basedir, conda=any(
     getattr(m, "name", str(m)).lower() == "conda"
     for m in getattr(workflow.deployment_settings, "deployment_method", ())))
+
+# The solve rule keeps, as the code Snakemake records for it, the command text it had
+# before the job document (`job(locals(), recorded=...)`): the job's work is the same, and
+# a changed text would solve every design point of the studies already run again (a
+# point is never solved twice). Snakemake formats it for `--printshellcmds` and its
+# records, so its names must stay those of the rule. (The discrepancies, a tenth of a
+# second each, were computed again once: their inputs are named as the stage's.)
 _WARM = study.config["forward_model"]["warm_start"] == "prior_centre"
-SOLVE_JOB = (
+SOLVE_RECORDED = (
     '"$BAYESCALIB_PYTHON" -I -S "$BAYESCALIB_JOB_CLIENT" solve log {log:q} out {output:q}'
     " forward_model {params.forward_model!r:q} point {params.point!r:q}"
     f"{' base {input.base:q}' if _WARM else ''}"
 )
-# an active round's fit: previous is the previous round's surrogate (none in round 0),
-# whose discrete choices it refits between full searches (surrogate.reselect_growth)
-TRAIN_JOB = (
-    '"$BAYESCALIB_PYTHON" -I -S "$BAYESCALIB_JOB_CLIENT"'
-    " train_surrogate log {log:q} out {output:q} training {input.training:q}"
-    " surrogate {params.surrogate!r:q} parameters {params.parameters!r:q}"
-    " previous [ {input.previous:q} ]"
-)
-# the primary measure's train_surrogate and smc may reuse the last round's output
-TRAIN_MEASURE_JOB = (
-    '"$BAYESCALIB_PYTHON" -I -S "$BAYESCALIB_JOB_CLIENT"'
-    " train_surrogate log {log:q} out {output:q} training {input.training:q}"
-    " surrogate {params.surrogate!r:q} parameters {params.parameters!r:q}"
-    " reuse [ {input.reuse:q} ]"
-)
-SMC_MEASURE_JOB = (
-    '"$BAYESCALIB_PYTHON" -I -S "$BAYESCALIB_JOB_CLIENT"'
-    " smc log {log:q} out {output:q} surrogate {input.surrogate:q} smc {params.smc!r:q}"
-    " parameters {params.parameters!r:q} reuse [ {input.reuse:q} ]"
-)
-SMC_JOB = (
-    '"$BAYESCALIB_PYTHON" -I -S "$BAYESCALIB_JOB_CLIENT"'
-    " smc log {log:q} out {output:q} surrogate {input:q} smc {params.smc!r:q}"
-    " parameters {params.parameters!r:q}"
-)
-# previous (no file in round 0) comes last: an empty value drops only itself
-ACQUIRE_JOB = (
-    '"$BAYESCALIB_PYTHON" -I -S "$BAYESCALIB_JOB_CLIENT"'
-    " acquire log {log:q} out {output:q} round {params.round}"
-    " training {input.training:q} surrogate {input.surrogate:q}"
-    " particles {input.particles:q} active {params.active!r:q} check {params.check!r:q}"
-    " parameters {params.parameters!r:q} previous {input.previous:q}"
-)
-MARGINALIZE_JOB = (
-    '"$BAYESCALIB_PYTHON" -I -S "$BAYESCALIB_JOB_CLIENT"'
-    " marginalize log {log:q} out {output.posterior:q} netcdf {output.netcdf:q}"
-    " particles {input.particles:q} surrogate {input.surrogate:q}"
-    " posterior {params.posterior!r:q} parameters {params.parameters!r:q} seed {params.seed}"
-)
-# gather_round, gather: the runs and discrepancy records as lists (`[ ... ]`, read by
-# bayescalib.execution.jobserver.parse_args); set_aside is a rerun trigger only
-GATHER_JOB = (
-    '"$BAYESCALIB_PYTHON" -I -S "$BAYESCALIB_JOB_CLIENT" gather log {log:q} out {output:q}'
-    " names {params.names!r:q} targets {params.targets!r:q} n_train {params.n_train!r:q}"
-    " runs [ {input.runs:q} ] disc [ {input.disc:q} ]"
-)
-POSTERIOR_CHECK_JOB = (
-    '"$BAYESCALIB_PYTHON" -I -S "$BAYESCALIB_JOB_CLIENT" posterior_check log {log:q}'
-    " out {output:q} samples [ {input.samples:q} ] obs {input.obs:q}"
-    " surrogate {input.surrogate:q} measure_name {params.measure_name:q}"
-    " measure {params.measure!r:q} likelihood {params.likelihood!r:q}"
-    " parameters {params.parameters!r:q} check {params.check!r:q}"
-    " particles {input.particles:q}"
-)
-PREDICTIVE_JOB = (
-    '"$BAYESCALIB_PYTHON" -I -S "$BAYESCALIB_JOB_CLIENT" predictive_solve log {log:q}'
-    " out {output:q} particles {input.particles:q} parameters {params.parameters!r:q}"
-    " k {wildcards.k} n {params.n} seed {params.seed}"
-    " forward_model {params.forward_model!r:q}"
-)
-# summary.json (the round server, which has scipy.stats imported for the fit check: the
-# last job of a run, it had been a script job that imported Snakemake)
-SUMMARY_JOB = (
-    '"$BAYESCALIB_PYTHON" -I -S "$BAYESCALIB_JOB_CLIENT" summary log {log:q} out {output:q}'
-    " study {params.study:q} parameters {params.parameters!r:q}"
-    " measures {params.measures!r:q} figure_map {params.figure_map!r:q}"
-    " root {params.root:q} strategy {params.strategy:q} n_solves {params.n_solves}"
-    " budget {params.budget!r:q}"
-    " posterior [ {input.posterior:q} ] training [ {input.training:q} ]"
-    " particles [ {input.particles:q} ] active [ {input.active:q} ]"
-    " convergence [ {input.convergence:q} ] check [ {input.check:q} ]"
-)
-# figures (the round server: Matplotlib imported once per run)
-FIG_RESPONSE_JOB = (
-    '"$BAYESCALIB_PYTHON" -I -S "$BAYESCALIB_JOB_CLIENT" fig_response log {log:q}'
-    " training {input.training:q} surrogate {input.surrogate:q}"
-    " parameters {params.parameters!r:q} plots {params.plots!r:q} stem {params.stem:q}"
-)
-FIG_CONVERGENCE_JOB = (
-    '"$BAYESCALIB_PYTHON" -I -S "$BAYESCALIB_JOB_CLIENT" fig_convergence log {log:q}'
-    " convergence {input:q} plots {params.plots!r:q} stem {params.stem:q}"
-)
-FIG_POSTERIOR_JOB = (
-    '"$BAYESCALIB_PYTHON" -I -S "$BAYESCALIB_JOB_CLIENT" fig_posterior log {log:q}'
-    " particles {input.particles:q} posterior {input.posterior:q}"
-    " parameters {params.parameters!r:q} plots {params.plots!r:q} stems {params.stems!r:q}"
-)
-FIG_INTERFACES_JOB = (
-    '"$BAYESCALIB_PYTHON" -I -S "$BAYESCALIB_JOB_CLIENT" fig_interfaces log {log:q}'
-    " obs {input.obs:q} plots {params.plots!r:q} stem {params.stem:q}"
-    + (" truth {input.truth:q}" if SYNTHETIC else "")
-    + " samples [ {input.samples:q} ]"
-)
-FIG_FIELDS_JOB = (
-    '"$BAYESCALIB_PYTHON" -I -S "$BAYESCALIB_JOB_CLIENT" fig_fields log {log:q}'
-    " vtu {input.vtu:q} run {input.run:q} plots {params.plots!r:q} stem {params.stem:q}"
-    + ("" if SYNTHETIC else " at posterior_mean parameters {params.parameters!r:q}")
-)
-# the solve at the posterior mean, with its fields (real data: the fields figure)
-POSTERIOR_MEAN_JOB = (
-    '"$BAYESCALIB_PYTHON" -I -S "$BAYESCALIB_JOB_CLIENT" posterior_mean_solve log {log:q}'
-    " out {output.run:q} vtu {output.vtu:q} posterior {input.posterior:q}"
-    " parameters {params.parameters!r:q} forward_model {params.forward_model!r:q}"
-)
-FIG_SEGMENTATION_JOB = (
-    '"$BAYESCALIB_PYTHON" -I -S "$BAYESCALIB_JOB_CLIENT" fig_segmentation log {log:q}'
-    " obs {input.obs:q} observations {params.observations!r:q}"
-    " plots {params.plots!r:q} stem {params.stem:q}"
-)
-FIG_ROUNDS_JOB = (
-    '"$BAYESCALIB_PYTHON" -I -S "$BAYESCALIB_JOB_CLIENT" fig_rounds log {log:q}'
-    " training {input.training:q} parameters {params.parameters!r:q}"
-    " active {params.active!r:q} plots {params.plots!r:q} stem {params.stem:q}"
-    " records [ {input.records:q} ] particles [ {input.particles:q} ]"
-)
-DISCREPANCY_JOB = (
-    '"$BAYESCALIB_PYTHON" -I -S "$BAYESCALIB_JOB_CLIENT" discrepancy log {log:q}'
-    " out {output:q} run {input.run:q} obs {input.obs:q}"
-    " measure_name {wildcards.measure:q} measure {params.measure!r:q}"
-    " likelihood {params.likelihood!r:q}"
-)
-
 
 # ---- Discrepancies
 

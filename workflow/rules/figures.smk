@@ -5,8 +5,8 @@ rule fig_response:
     conda:
         "../envs/bayescalib.yaml"
     input:
-        training=f"{R}/{{measure}}/training.h5",
-        surrogate=f"{R}/{{measure}}/surrogate.h5",
+        training_path=f"{R}/{{measure}}/training.h5",
+        surrogate_path=f"{R}/{{measure}}/surrogate.h5",
     output:
         report(
             shown([f"{R}/figures/{{measure}}/response.{ext}" for ext in FMT]),
@@ -21,17 +21,16 @@ rule fig_response:
         stem=lambda wc, output: os.path.splitext(output[0])[0],
     log:
         f"{R}/logs/{{measure}}/fig_response.log",
-    benchmark:
-        f"{R}/benchmarks/figures/{{measure}}/response.tsv"
+        benchmark=f"{R}/benchmarks/figures/{{measure}}/response.tsv",
     shell:
-        FIG_RESPONSE_JOB
+        job(locals())
 
 
 rule fig_convergence:
     conda:
         "../envs/bayescalib.yaml"
     input:
-        f"{R}/{{measure}}/convergence.json",
+        convergence_path=f"{R}/{{measure}}/convergence.json",
     output:
         report(
             shown([f"{R}/figures/{{measure}}/convergence.{ext}" for ext in FMT]),
@@ -45,10 +44,9 @@ rule fig_convergence:
         stem=lambda wc, output: os.path.splitext(output[0])[0],
     log:
         f"{R}/logs/{{measure}}/fig_convergence.log",
-    benchmark:
-        f"{R}/benchmarks/figures/{{measure}}/convergence.tsv"
+        benchmark=f"{R}/benchmarks/figures/{{measure}}/convergence.tsv",
     shell:
-        FIG_CONVERGENCE_JOB
+        job(locals())
 
 
 
@@ -57,23 +55,22 @@ rule fig_posterior:
     conda:
         "../envs/bayescalib.yaml"
     input:
-        particles=f"{R}/{{measure}}/particles.h5",
-        posterior=f"{R}/{{measure}}/posterior.json",
+        particles_path=f"{R}/{{measure}}/particles.h5",
+        posterior_path=f"{R}/{{measure}}/posterior.json",
     output:
-        # one named output per figure family, each with its own report caption
-        **{
-            fam: report(
+        # one output per figure family, each with its own report caption (unnamed: the
+        # stage writes them under params.stems)
+        *[
+            report(
                 shown([f"{R}/figures/{{measure}}/{fam}.{ext}" for ext in FMT]),
                 caption=f"../report/{fam}.rst",
                 category="Posterior",
                 subcategory="{measure}",
             )
             for fam in _POSTERIOR_FAMILIES
-        },
-        **{
-            f"{fam}_kept": kept([f"{R}/figures/{{measure}}/{fam}.{ext}" for ext in FMT])
-            for fam in _POSTERIOR_FAMILIES
-        },
+        ],
+        *[kept([f"{R}/figures/{{measure}}/{fam}.{ext}" for ext in FMT])
+          for fam in _POSTERIOR_FAMILIES],
     params:
         parameters=study.config["parameters"],
         plots=study.config["plots"],
@@ -82,11 +79,10 @@ rule fig_posterior:
         },
     log:
         f"{R}/logs/{{measure}}/fig_posterior.log",
-    benchmark:
-        f"{R}/benchmarks/figures/{{measure}}/posterior.tsv"
+        benchmark=f"{R}/benchmarks/figures/{{measure}}/posterior.tsv",
     priority: 10  # on the longest chain after the SMC (rule smc)
     shell:
-        FIG_POSTERIOR_JOB
+        job(locals())
 
 
 rule predictive_solve:
@@ -95,16 +91,16 @@ rule predictive_solve:
     input:
         particles=f"{R}/{study.primary_measure}/particles.h5",
     output:
-        f"{R}/predictive/{{k}}.h5",
+        out=f"{R}/predictive/{{k}}.h5",
     params:
         forward_model=study.forward_section(),
         parameters=study.config["parameters"],
+        k=lambda wc: int(wc.k),
         n=K_SOLVED,
         seed=study.config["smc"]["seed"],
     log:
         f"{R}/logs/predictive/{{k}}.log",
-    benchmark:
-        f"{R}/benchmarks/predictive/{{k}}.tsv"
+        benchmark=f"{R}/benchmarks/predictive/{{k}}.tsv",
     threads: 1
     group:
         # single-threaded forward solves batched into SLURM jobs like the design's,
@@ -112,19 +108,19 @@ rule predictive_solve:
         # design's solves, and a group may not be left and re-entered
         "predictive_solves"
     shell:
-        PREDICTIVE_JOB
+        job(locals())
 
 
 rule posterior_check:
     conda:
         "../envs/bayescalib.yaml"
     input:
-        samples=expand(f"{R}/predictive/{{k}}.h5", k=range(K_SOLVED)),
-        obs=f"{R}/observations/observations.h5",
-        surrogate=f"{R}/{study.primary_measure}/surrogate.h5",
-        particles=f"{R}/{study.primary_measure}/particles.h5",
+        sample_runs=expand(f"{R}/predictive/{{k}}.h5", k=range(K_SOLVED)),
+        obs_path=f"{R}/observations/observations.h5",
+        surrogate_path=f"{R}/{study.primary_measure}/surrogate.h5",
+        particles_path=f"{R}/{study.primary_measure}/particles.h5",
     output:
-        f"{R}/{study.primary_measure}/posterior_check.json",
+        out_path=f"{R}/{study.primary_measure}/posterior_check.json",
     params:
         measure_name=study.primary_measure,
         measure=study.config["measure"][study.primary_measure],
@@ -133,20 +129,19 @@ rule posterior_check:
         check=study.config["posterior_check"],
     log:
         f"{R}/logs/posterior_check.log",
-    benchmark:
-        f"{R}/benchmarks/posterior_check.tsv"
+        benchmark=f"{R}/benchmarks/posterior_check.tsv",
     threads: 1
     shell:
-        POSTERIOR_CHECK_JOB
+        job(locals())
 
 
 rule fig_interfaces:
     conda:
         "../envs/bayescalib.yaml"
     input:
-        obs=f"{R}/observations/observations.h5",
-        samples=expand(f"{R}/predictive/{{k}}.h5", k=range(K)),
-        **({"truth": f"{R}/observations/ground_truth_run.h5"} if SYNTHETIC else {}),
+        obs_path=f"{R}/observations/observations.h5",
+        sample_runs=expand(f"{R}/predictive/{{k}}.h5", k=range(K)),
+        **({"ground_truth_run": f"{R}/observations/ground_truth_run.h5"} if SYNTHETIC else {}),
     output:
         report(
             shown([f"{R}/figures/interfaces.{ext}" for ext in FMT]),
@@ -159,10 +154,9 @@ rule fig_interfaces:
         stem=lambda wc, output: os.path.splitext(output[0])[0],
     log:
         f"{R}/logs/fig_interfaces.log",
-    benchmark:
-        f"{R}/benchmarks/figures/interfaces.tsv"
+        benchmark=f"{R}/benchmarks/figures/interfaces.tsv",
     shell:
-        FIG_INTERFACES_JOB
+        job(locals())
 
 
 rule posterior_mean_solve:
@@ -171,30 +165,29 @@ rule posterior_mean_solve:
     conda:
         "../envs/bayescalib.yaml"
     input:
-        posterior=f"{R}/{study.primary_measure}/posterior.json",
+        posterior_path=f"{R}/{study.primary_measure}/posterior.json",
     output:
-        run=f"{R}/posterior_mean/run.h5",
-        vtu=f"{R}/posterior_mean/fields.vtu",
+        out_path=f"{R}/posterior_mean/run.h5",
+        vtu_path=f"{R}/posterior_mean/fields.vtu",
     params:
         forward_model=study.forward_section(),
         parameters=study.config["parameters"],
     log:
         f"{R}/logs/posterior_mean_solve.log",
-    benchmark:
-        f"{R}/benchmarks/posterior_mean_solve.tsv"
+        benchmark=f"{R}/benchmarks/posterior_mean_solve.tsv",
     threads: 1
     resources:
         runtime=30,
         mem_mb=2000,
     shell:
-        POSTERIOR_MEAN_JOB
+        job(locals())
 
 rule fig_segmentation:
     conda:
         "../envs/bayescalib.yaml"
     input:
-        obs=f"{R}/observations/observations.h5",
-        images=IMAGE_FILES,
+        IMAGE_FILES,  # a trigger: the segmentation is in observations.h5
+        obs_path=f"{R}/observations/observations.h5",
     output:
         report(
             shown([f"{R}/figures/segmentation.{ext}" for ext in FMT]),
@@ -208,10 +201,9 @@ rule fig_segmentation:
         stem=lambda wc, output: os.path.splitext(output[0])[0],
     log:
         f"{R}/logs/fig_segmentation.log",
-    benchmark:
-        f"{R}/benchmarks/figures/segmentation.tsv"
+        benchmark=f"{R}/benchmarks/figures/segmentation.tsv",
     shell:
-        FIG_SEGMENTATION_JOB
+        job(locals())
 
 
 rule fig_fields:
@@ -219,8 +211,10 @@ rule fig_fields:
         "../envs/bayescalib.yaml"
     input:
         # synthetic data: the solve at the ground truth; real data: at the posterior mean
-        vtu=f"{R}/observations/ground_truth.vtu" if SYNTHETIC else f"{R}/posterior_mean/fields.vtu",
-        run=f"{R}/observations/ground_truth_run.h5" if SYNTHETIC else f"{R}/posterior_mean/run.h5",
+        vtu_path=f"{R}/observations/ground_truth.vtu" if SYNTHETIC
+        else f"{R}/posterior_mean/fields.vtu",
+        run_path=f"{R}/observations/ground_truth_run.h5" if SYNTHETIC
+        else f"{R}/posterior_mean/run.h5",
     output:
         report(
             shown([f"{R}/figures/fields.{ext}" for ext in FMT]),
@@ -231,22 +225,21 @@ rule fig_fields:
     params:
         plots=study.config["plots"],
         stem=lambda wc, output: os.path.splitext(output[0])[0],
-        **({} if SYNTHETIC else {"parameters": study.config["parameters"]}),
+        **({} if SYNTHETIC else {"at": "posterior_mean", "parameters": study.config["parameters"]}),
     log:
         f"{R}/logs/fig_fields.log",
-    benchmark:
-        f"{R}/benchmarks/figures/fields.tsv"
+        benchmark=f"{R}/benchmarks/figures/fields.tsv",
     shell:
-        FIG_FIELDS_JOB
+        job(locals())
 
 
 rule fig_rounds:
     conda:
         "../envs/bayescalib.yaml"
     input:
-        records=lambda wc: active_records(),
-        particles=lambda wc: [f"{ACTIVE_DIR}/{r}/particles.h5" for r in range(final_round() + 1)],
-        training=f"{R}/{study.primary_measure}/training.h5",
+        acquire_paths=lambda wc: active_records(),
+        particles_paths=lambda wc: [f"{ACTIVE_DIR}/{r}/particles.h5" for r in range(final_round() + 1)],
+        training_path=f"{R}/{study.primary_measure}/training.h5",
     output:
         report(
             shown([f"{R}/figures/rounds.{ext}" for ext in FMT]),
@@ -261,7 +254,6 @@ rule fig_rounds:
         stem=lambda wc, output: os.path.splitext(output[0])[0],
     log:
         f"{R}/logs/fig_rounds.log",
-    benchmark:
-        f"{R}/benchmarks/figures/rounds.tsv"
+        benchmark=f"{R}/benchmarks/figures/rounds.tsv",
     shell:
-        FIG_ROUNDS_JOB
+        job(locals())

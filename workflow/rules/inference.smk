@@ -7,20 +7,19 @@ rule smc:
     conda:
         "../envs/bayescalib.yaml"
     input:
-        surrogate=f"{R}/{{measure}}/surrogate.h5",
+        surrogate_path=f"{R}/{{measure}}/surrogate.h5",
         # the rounds' particles are the result only when the rounds sampled with the
         # study's settings (design.active.smc empty)
         reuse=lambda wc: _round_reuse(wc, "surrogate", "particles")
         if study.round_smc == study.config["smc"] else [],
     output:
-        f"{R}/{{measure}}/particles.h5",
+        out_path=f"{R}/{{measure}}/particles.h5",
     params:
-        smc=study.config["smc"],
+        smc_cfg=study.config["smc"],
         parameters=study.config["parameters"],
-    benchmark:
-        f"{R}/benchmarks/smc/{{measure}}.tsv"
     log:
         f"{R}/logs/{{measure}}/smc.log",
+        benchmark=f"{R}/benchmarks/smc/{{measure}}.tsv",
     # the surrogate's chunks on both cores (the same particles, bitwise: tests/test_surrogate.py);
     # Snakemake lowers it to --cores where fewer, and runs it when two cores are free
     threads: 2
@@ -29,27 +28,26 @@ rule smc:
     # other core
     priority: 30
     shell:
-        SMC_MEASURE_JOB
+        job(locals())
 
 
 rule marginalize:
     conda:
         "../envs/bayescalib.yaml"
     input:
-        particles=f"{R}/{{measure}}/particles.h5",
-        surrogate=f"{R}/{{measure}}/surrogate.h5",
+        particles_path=f"{R}/{{measure}}/particles.h5",
+        surrogate_path=f"{R}/{{measure}}/surrogate.h5",
     output:
-        posterior=f"{R}/{{measure}}/posterior.json",
-        netcdf=f"{R}/{{measure}}/posterior.nc",
+        out_json=f"{R}/{{measure}}/posterior.json",
+        out_netcdf=f"{R}/{{measure}}/posterior.nc",
     params:
-        posterior=study.config["posterior"],
+        posterior_cfg=study.config["posterior"],
         parameters=study.config["parameters"],
         seed=study.config["smc"]["seed"],
-    benchmark:
-        f"{R}/benchmarks/marginalize/{{measure}}.tsv"
     log:
         f"{R}/logs/{{measure}}/marginalize.log",
+        benchmark=f"{R}/benchmarks/marginalize/{{measure}}.tsv",
     threads: 1
     priority: 20
     shell:
-        MARGINALIZE_JOB
+        job(locals())

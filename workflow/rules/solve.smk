@@ -31,16 +31,16 @@ rule solve:
     conda:
         "../envs/bayescalib.yaml"
     input:
-        unpack(_solve_inputs),
+        _chosen_by,  # active design: the round record that chose the point (a trigger)
+        unpack(_solve_inputs),  # base: the warm-start state
     output:
-        f"{R}/runs/{{i}}.h5",
+        out=f"{R}/runs/{{i}}.h5",
     params:
         forward_model=study.forward_section(),
         point=lambda wc: point_values(wc.i),
-    benchmark:
-        f"{R}/benchmarks/solve/{{i}}.tsv"
     log:
         f"{R}/logs/solve/{{i}}.log",
+        benchmark=f"{R}/benchmarks/solve/{{i}}.tsv",
     threads: 1
     resources:
         runtime=30,
@@ -48,4 +48,4 @@ rule solve:
     group:
         "solves"
     shell:
-        SOLVE_JOB
+        job(locals(), recorded=SOLVE_RECORDED)

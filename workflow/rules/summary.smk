@@ -6,17 +6,17 @@ rule summary:
     conda:
         "../envs/bayescalib.yaml"
     input:
+        figure_targets(),  # made before the summary, which lists them (params.figure_map)
         posterior=expand(f"{R}/{{measure}}/posterior.json", measure=study.measures),
         training=expand(f"{R}/{{measure}}/training.h5", measure=study.measures),
         particles=expand(f"{R}/{{measure}}/particles.h5", measure=study.measures),
-        figures=figure_targets(),
         convergence=expand(f"{R}/{{measure}}/convergence.json", measure=study.measures)
         if study.config["convergence"]["enabled"]
         else [],
         active=lambda wc: active_records(),
         check=[f"{R}/{study.primary_measure}/posterior_check.json"] if N_CHECK else [],
     output:
-        report(f"{R}/summary.json", caption="../report/summary.rst", category="Summary"),
+        out=report(f"{R}/summary.json", caption="../report/summary.rst", category="Summary"),
     params:
         study=study.name,
         parameters=study.config["parameters"],
@@ -35,4 +35,4 @@ rule summary:
         f"{R}/logs/summary.log",
     threads: 1
     shell:
-        SUMMARY_JOB
+        job(locals())

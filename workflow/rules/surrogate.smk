@@ -6,20 +6,19 @@ rule train_surrogate:
     conda:
         "../envs/bayescalib.yaml"
     input:
-        training=f"{R}/{{measure}}/training.h5",
+        training_path=f"{R}/{{measure}}/training.h5",
         reuse=lambda wc: _round_reuse(wc, "training", "surrogate"),
     output:
-        f"{R}/{{measure}}/surrogate.h5",
+        out_path=f"{R}/{{measure}}/surrogate.h5",
     params:
         surrogate=study.config["surrogate"],
         parameters=study.config["parameters"],
-    benchmark:
-        f"{R}/benchmarks/train_surrogate/{{measure}}.tsv"
     log:
         f"{R}/logs/{{measure}}/train_surrogate.log",
+        benchmark=f"{R}/benchmarks/train_surrogate/{{measure}}.tsv",
     threads: 1
     shell:
-        TRAIN_MEASURE_JOB
+        job(locals())
 
 
 rule convergence:

@@ -13,10 +13,21 @@ and acquisition job of every active-design round. Here the imports are paid once
 run: the workflow's ``onstart`` starts the servers (below), which import the stage
 code, open a Unix socket each and then serve. A job is
 a tiny client (``scripts/job.py``, standard library only, started with
-``python -I -S``) that hands the server its arguments, its working directory, its
+``python -I -S``) that hands the server its job document, its working directory, its
 environment and its stdout/stderr (file descriptors passed over the socket); the
 server forks a child that runs the stage in that setting and reports the child's
-exit status, which the client exits with.
+exit status and cost, which the client exits with and writes to the rule's benchmark
+file.
+
+One launch path
+---------------
+A stage is declared once, in :data:`STAGES` (stage name -> function). A rule's command
+is ``job(locals())`` (:func:`job_command`): in the job, the client with the job's
+document (:func:`job_document`), one JSON argument holding the rule's named inputs,
+outputs and params, which are the stage function's keyword arguments (the only
+encoding of the job's values), its log, its benchmark file, its ``mem_mb`` and its
+threads. The server's child, or the client's own child without a server, calls
+:func:`run_job` with it. A stage parameter is added to the function and the rule.
 
 What a job keeps
 ----------------
@@ -27,10 +38,19 @@ What a job keeps
 * Killing: if the client goes away (Snakemake cancels the job, or is killed), the
   server kills the job's process group. If Snakemake itself dies, the server notices
   within a second (its parent changed), kills every job it runs and exits.
-* Cache keys: the rules' params are unchanged; the job receives exactly them.
+* Cache keys: the rules' params hold the config values they depend on; the job
+  receives exactly them.
 * No server (a cluster executor, a run without ``onstart``, a server that failed to
-  start): the client runs the same stage in-process (``python -m
-  bayescalib.execution.jobserver --run``), with the full imports: slower, same result.
+  start, a server that refused the job): the client runs the same stage in a child of
+  its own (``python -m bayescalib.execution.jobserver --run-job``), with the full
+  imports: slower, same result.
+* Changed code: a server refuses jobs once the package's source differs from what it
+  imported (:func:`source_fingerprint`) and restarts (:func:`serve`); the refused job
+  runs in its client, from the source on disk.
+* Benchmarks and memory: the rule's benchmark file measures the process that worked
+  (the forked child with the solve it waited for: wall time, CPU time, peak RSS,
+  ``scripts/job.py``), not the client; ``resources: mem_mb`` limits that process
+  (:func:`limit_memory`).
 
 Two servers
 -----------
@@ -51,21 +71,23 @@ servers freeze their imported objects (:func:`gc.freeze`) before they fork jobs,
 child's garbage collections do not touch (and copy) the server's pages.
 
 Protocol (``AF_UNIX``, ``SOCK_SEQPACKET``, one request per connection): the client
-sends one JSON message ``{"stage", "argv", "cwd", "env"}`` with two file
-descriptors (its stdout and stderr); the server answers ``{"exit": code}`` when the
-job has ended. ``argv`` is the job's ``KEY VALUE ...`` words (:func:`parse_args`: a
-value ``[`` opens a list of paths closed by ``]``, for the stages that read many files).
+sends one JSON message ``{"job", "cwd", "env"}`` (``job``: the job document) with two
+file descriptors (its stdout and stderr); the server answers ``{"exit": code, "wall_s",
+"cpu_s", "max_rss_mb", "io_in_mb", "io_out_mb"}`` when the job has ended, or
+``{"refused": reason}`` at once (changed source).
 """
 
 from __future__ import annotations
 
 import array
-import ast
 import gc
 import hashlib
+import inspect
 import json
 import os
+import resource
 import selectors
+import shlex
 import signal
 import socket
 import subprocess
@@ -78,8 +100,9 @@ from typing import Any
 
 from bayescalib._process import die_with_parent
 
-__all__ = ["ROUND_STAGES", "STAGES", "export_job_command", "parse_args", "run_stage", "serve",
-           "socket_path", "start_server", "stop_server"]
+__all__ = ["JOB_TEMPLATE", "ROUND_STAGES", "STAGES", "export_job_command", "job_command",
+           "job_document", "limit_memory", "run_job", "serve", "socket_path",
+           "source_fingerprint", "start_server", "stop_server"]
 
 #: environment variable through which the jobs of a run find its point server
 SOCKET_ENV = "BAYESCALIB_JOBSERVER"
@@ -96,253 +119,33 @@ class _Stop(Exception):
 
 # ----------------------------------------------------------------------------- stages
 
-
-def parse_args(words: list[str]) -> dict[str, Any]:
-    """A job's ``KEY VALUE ...`` words as a mapping: each value is a string, or a list of
-    strings where the value is the word ``[`` (the list ends at the word ``]``: the
-    rule's command writes ``runs [ {input.runs:q} ]``). A last key without a value (an
-    empty input formatted by Snakemake) is left out.
-
-    >>> parse_args(["out", "a.h5", "runs", "[", "r/0.h5", "r/1.h5", "]", "n", "3"])
-    {'out': 'a.h5', 'runs': ['r/0.h5', 'r/1.h5'], 'n': '3'}
-    """
-    out: dict[str, Any] = {}
-    k = 0
-    while k + 1 < len(words):
-        key, value = words[k], words[k + 1]
-        k += 2
-        if value == "[":
-            end = words.index("]", k) if "]" in words[k:] else len(words)
-            out[key] = list(words[k:end])
-            k = end + 1
-        else:
-            out[key] = value
-    return out
-
-
-def _literal(text: str) -> Any:
-    """A params value as Snakemake formats it into the shell command (Python literal)."""
-    try:
-        return ast.literal_eval(text)
-    except (ValueError, SyntaxError) as exc:
-        raise ValueError(f"job argument is not a Python literal: {text[:200]!r} ({exc})") from None
-
-
-def _solve(args: Mapping[str, str]) -> None:
-    from bayescalib.models.forward import solve_points
-    from bayescalib.stages import read_stage_file, setup_logging
-
-    setup_logging(args["log"])
-    base = args.get("base") or None
-    if base is not None:  # a damaged state is set aside and rebuilt, never solved from
-        read_stage_file(base, "warm-start state")
-    solve_points(_literal(args["forward_model"]), [_literal(args["point"])], [args["out"]],
-                 warm_start=base, reuse=False)
-
-
-def _discrepancy(args: Mapping[str, str]) -> None:
-    from bayescalib.stages import discrepancy, setup_logging
-
-    setup_logging(args["log"])
-    discrepancy(args["run"], args["obs"], args["measure_name"], _literal(args["measure"]),
-                _literal(args["likelihood"]), args["out"])
-
-
-def _train_surrogate(args: Mapping[str, str]) -> None:
-    from bayescalib.stages import setup_logging, train_surrogate
-
-    setup_logging(args["log"])
-    previous = args.get("previous") or []  # a list: empty in round 0 and for a measure
-    train_surrogate(args["training"], _literal(args["surrogate"]), _literal(args["parameters"]),
-          args["out"], reuse=args.get("reuse") or (),
-          previous=previous[0] if isinstance(previous, list) and previous else None)
-
-
-def _granted_threads() -> int:
-    """The threads Snakemake granted the job (its ``threads:``), which its shell command
-    receives as ``OMP_NUM_THREADS``; 1 where unset."""
-    try:
-        return max(1, int(os.environ.get("OMP_NUM_THREADS", "1")))
-    except ValueError:
-        return 1
-
-
-def _smc(args: Mapping[str, str]) -> None:
-    from bayescalib.stages import setup_logging, smc
-
-    setup_logging(args["log"])
-    smc(args["surrogate"], _literal(args["smc"]), _literal(args["parameters"]), args["out"],
-        threads=_granted_threads(), reuse=args.get("reuse") or ())
-
-
-def _acquire(args: Mapping[str, str]) -> None:
-    from bayescalib.stages import acquire, setup_logging
-
-    setup_logging(args["log"])
-    acquire(int(args["round"]), args["training"], args["surrogate"], args["particles"],
-            args.get("previous") or None, _literal(args["active"]), _literal(args["check"]),
-            _literal(args["parameters"]), args["out"])
-
-
-def _marginalize(args: Mapping[str, str]) -> None:
-    from bayescalib.stages import marginalize, setup_logging
-
-    setup_logging(args["log"])
-    marginalize(args["particles"], args["surrogate"], _literal(args["posterior"]),
-                _literal(args["parameters"]), int(args["seed"]), args["out"], args["netcdf"])
-
-
-def _gather(args: Mapping[str, Any]) -> None:
-    from bayescalib.stages import gather, setup_logging
-
-    setup_logging(args["log"])
-    gather(args["runs"], args["disc"], _literal(args["names"]), _literal(args["targets"]),
-           _literal(args["n_train"]), args["out"])
-
-
-def _summary(args: Mapping[str, Any]) -> None:
-    from bayescalib.stages import (
-        collect_timings,
-        design_summary,
-        posterior_check_summary,
-        round_check_summary,
-        setup_logging,
-        summary,
-    )
-
-    setup_logging(args["log"])
-    budget = _literal(args["budget"]) if "budget" in args else {}
-    extra = {"design": design_summary(args["strategy"], args.get("active", []),
-                                      int(args["n_solves"]), **budget),
-             "timings_s": collect_timings(args["root"])}
-    if args.get("convergence"):
-        extra["gp_convergence"] = list(args["convergence"])
-    if args.get("check"):  # fixed design: a list, empty when posterior_check.draws is 0
-        extra["posterior_check"] = posterior_check_summary(args["check"][0])
-    elif args["strategy"] == "active":  # the last check of the rounds (None: none ran)
-        extra["posterior_check"] = round_check_summary(args.get("active", []))
-    summary(args["study"], _literal(args["parameters"]), _literal(args["measures"]),
-            args["posterior"], args["training"], args["particles"],
-            _literal(args["figure_map"]), args["out"], extra=extra)
-
-
-def _posterior_check(args: Mapping[str, Any]) -> None:
-    from bayescalib.stages import posterior_check, setup_logging
-
-    setup_logging(args["log"])
-    posterior_check(args["samples"], args["obs"], args["measure_name"],
-                    _literal(args["measure"]), _literal(args["likelihood"]), args["surrogate"],
-                    _literal(args["parameters"]), _literal(args["check"]), args["out"],
-                    args["particles"])
-
-
-def _predictive_solve(args: Mapping[str, Any]) -> None:
-    from bayescalib.models.forward import solve_points
-    from bayescalib.stages import setup_logging
-    from bayescalib.stages.figures import posterior_draws
-
-    setup_logging(args["log"])
-    point = posterior_draws(args["particles"], _literal(args["parameters"]), int(args["k"]),
-                            int(args["n"]), int(args["seed"]))
-    solve_points(_literal(args["forward_model"]), [point], [args["out"]], reuse=False)
-
-
-def _posterior_mean_solve(args: Mapping[str, Any]) -> None:
-    from bayescalib.stages import setup_logging
-    from bayescalib.stages.figures import solve_at_posterior_mean
-
-    setup_logging(args["log"])
-    solve_at_posterior_mean(args["posterior"], _literal(args["parameters"]),
-                            _literal(args["forward_model"]), args["out"], args["vtu"])
-
-
-def _fig_response(args: Mapping[str, Any]) -> None:
-    from bayescalib.stages import setup_logging
-    from bayescalib.stages.figures import response_figures
-
-    setup_logging(args["log"])
-    response_figures(args["training"], args["surrogate"], _literal(args["parameters"]),
-                     _literal(args["plots"]), args["stem"])
-
-
-def _fig_convergence(args: Mapping[str, Any]) -> None:
-    from bayescalib.stages import setup_logging
-    from bayescalib.stages.figures import convergence_figure
-
-    setup_logging(args["log"])
-    convergence_figure(args["convergence"], _literal(args["plots"]), args["stem"])
-
-
-def _fig_posterior(args: Mapping[str, Any]) -> None:
-    from bayescalib.stages import setup_logging
-    from bayescalib.stages.figures import posterior_figures
-
-    setup_logging(args["log"])
-    posterior_figures(args["particles"], args["posterior"], _literal(args["parameters"]),
-                      _literal(args["plots"]), _literal(args["stems"]))
-
-
-def _fig_interfaces(args: Mapping[str, Any]) -> None:
-    from bayescalib.stages import setup_logging
-    from bayescalib.stages.figures import interface_figure
-
-    setup_logging(args["log"])
-    interface_figure(args["obs"], args["samples"], _literal(args["plots"]), args["stem"],
-                     ground_truth_run=args.get("truth") or None)
-
-
-def _fig_fields(args: Mapping[str, Any]) -> None:
-    from bayescalib.stages import setup_logging
-    from bayescalib.stages.figures import field_figure
-
-    setup_logging(args["log"])
-    field_figure(args["vtu"], args["run"], _literal(args["plots"]), args["stem"],
-                 at=args.get("at") or None,
-                 parameters=_literal(args["parameters"]) if "parameters" in args else None)
-
-
-def _fig_segmentation(args: Mapping[str, Any]) -> None:
-    from bayescalib.stages import setup_logging
-    from bayescalib.stages.figures import segmentation_figure
-
-    setup_logging(args["log"])
-    segmentation_figure(args["obs"], _literal(args["observations"]), _literal(args["plots"]),
-                        args["stem"])
-
-
-def _fig_rounds(args: Mapping[str, Any]) -> None:
-    from bayescalib.stages import setup_logging
-    from bayescalib.stages.figures import rounds_figure
-
-    setup_logging(args["log"])
-    rounds_figure(args["records"], args["particles"], args["training"],
-                  _literal(args["parameters"]), _literal(args["active"]),
-                  _literal(args["plots"]), args["stem"])
-
-
-#: stage name -> function of the job's arguments (strings, or lists of paths, as
-#: formatted by the rule's shell command and read by :func:`parse_args`). Per point:
-#: solve, discrepancy, predictive_solve, posterior_mean_solve; per round (active design)
-#: and per measure: gather, train_surrogate, smc, acquire, marginalize; the figures.
-STAGES: dict[str, Callable[[Mapping[str, Any]], None]] = {
-    "solve": _solve,
-    "discrepancy": _discrepancy,
-    "predictive_solve": _predictive_solve,
-    "posterior_mean_solve": _posterior_mean_solve,
-    "posterior_check": _posterior_check,
-    "gather": _gather,
-    "train_surrogate": _train_surrogate,
-    "smc": _smc,
-    "acquire": _acquire,
-    "marginalize": _marginalize,
-    "summary": _summary,
-    "fig_response": _fig_response,
-    "fig_convergence": _fig_convergence,
-    "fig_posterior": _fig_posterior,
-    "fig_interfaces": _fig_interfaces,
-    "fig_fields": _fig_fields,
-    "fig_rounds": _fig_rounds,
-    "fig_segmentation": _fig_segmentation,
+#: stage name -> its function (``module:function``, imported when a job of it runs, so that
+#: the point server imports no figure code). A job calls the function with the keyword
+#: arguments of its job document (:func:`job_document`: the rule's named inputs, outputs
+#: and params), and with ``threads=`` (Snakemake's) where the function takes it. Adding a
+#: parameter to a stage: the function's signature and the rule's params, nothing else.
+#: Per point: solve, discrepancy, predictive_solve, posterior_mean_solve; per round (active
+#: design) and per measure: gather, train_surrogate, smc, acquire, marginalize; the
+#: posterior check, summary.json and the figures.
+STAGES: dict[str, str] = {
+    "solve": "bayescalib.stages.jobs:solve",
+    "discrepancy": "bayescalib.stages:discrepancy",
+    "predictive_solve": "bayescalib.stages.jobs:predictive_solve",
+    "posterior_mean_solve": "bayescalib.stages.figures:solve_at_posterior_mean",
+    "posterior_check": "bayescalib.stages:posterior_check",
+    "gather": "bayescalib.stages:gather",
+    "train_surrogate": "bayescalib.stages:train_surrogate",
+    "smc": "bayescalib.stages:smc",
+    "acquire": "bayescalib.stages:acquire",
+    "marginalize": "bayescalib.stages:marginalize",
+    "summary": "bayescalib.stages.jobs:summary",
+    "fig_response": "bayescalib.stages.figures:response_figures",
+    "fig_convergence": "bayescalib.stages.figures:convergence_figure",
+    "fig_posterior": "bayescalib.stages.figures:posterior_figures",
+    "fig_interfaces": "bayescalib.stages.figures:interface_figure",
+    "fig_fields": "bayescalib.stages.figures:field_figure",
+    "fig_rounds": "bayescalib.stages.figures:rounds_figure",
+    "fig_segmentation": "bayescalib.stages.figures:segmentation_figure",
 }
 
 #: the stages the round server runs (GPy, ArviZ, Matplotlib); the others go to the point
@@ -355,8 +158,8 @@ ROUND_STAGES = frozenset({"train_surrogate", "smc", "acquire", "marginalize", "f
 #: per-point job; also the modules a solve or discrepancy imports on its way, so that
 #: no job compiles or loads one of its own)
 _PRELOAD = ("numpy", "scipy.sparse", "scipy.spatial", "scipy.linalg", "h5py",
-            "bayescalib.models.forward", "bayescalib.stages", "bayescalib.study",
-            "bayescalib.measures", "bayescalib.measures.currents",
+            "bayescalib.models.forward", "bayescalib.stages", "bayescalib.stages.jobs",
+            "bayescalib.study", "bayescalib.measures", "bayescalib.measures.currents",
             "bayescalib.geometry.interface", "bayescalib.geometry.projection",
             "bayescalib.inference.likelihood", "bayescalib.io.observation_store",
             "bayescalib.io.runrecord", "bayescalib.io.training", "bayescalib.models.fsi.model",
@@ -366,19 +169,162 @@ _PRELOAD = ("numpy", "scipy.sparse", "scipy.spatial", "scipy.linalg", "h5py",
 #: be used: :func:`bayescalib.inference.surrogate.gpu_possible`)
 _PRELOAD_ROUND = ("numpy", "scipy.linalg", "scipy.optimize", "scipy.stats", "h5py", "GPy",
                   "arviz", "matplotlib", "matplotlib.pyplot", "bayescalib.stages",
-                  "bayescalib.stages.figures", "bayescalib.study", "bayescalib.inference.surrogate",
-                  "bayescalib.inference.smc", "bayescalib.inference.active",
-                  "bayescalib.inference.posterior", "bayescalib.inference.weights",
-                  "bayescalib.plotting")
+                  "bayescalib.stages.jobs", "bayescalib.stages.figures", "bayescalib.study",
+                  "bayescalib.inference.surrogate", "bayescalib.inference.smc",
+                  "bayescalib.inference.active", "bayescalib.inference.posterior",
+                  "bayescalib.inference.weights", "bayescalib.plotting")
+
+#: the command of every job-server rule as Snakemake records it (its ``code`` rerun
+#: trigger, its ``--printshellcmds`` line): no path of this machine, no job's values
+_CLIENT = '"$BAYESCALIB_PYTHON" -I -S "$BAYESCALIB_JOB_CLIENT"'
+JOB_TEMPLATE = f"{_CLIENT} JOB_DOCUMENT"
 
 
-def run_stage(stage: str, args: Mapping[str, str]) -> None:
-    """Run one job of ``stage`` with its arguments in this process."""
+def _plain(value: Any) -> Any:
+    """A rule's value as JSON takes it: Snakemake's file names and lists as ``str`` and
+    ``list``, NumPy scalars as numbers."""
+    if isinstance(value, str):
+        return str(value)
+    if isinstance(value, (list, tuple)):
+        return [_plain(v) for v in value]
+    if isinstance(value, Mapping):
+        return {str(k): _plain(v) for k, v in value.items()}
+    if hasattr(value, "item") and not isinstance(value, (int, float, bool)):
+        return value.item()
+    return value
+
+
+def job_document(namespace: Mapping[str, Any], stage: str | None = None) -> dict[str, Any]:
+    """The job of a rule as one JSON-able document, from the rule function's namespace
+    (``input``, ``output``, ``params``, ``log``, ``threads``, ``resources``, ``rule``):
+
+    * ``stage``: ``stage`` or the rule's name (a key of :data:`STAGES`);
+    * ``args``: the rule's *named* inputs, outputs and params, by name: the stage
+      function's keyword arguments. Unnamed entries are Snakemake's only (rerun
+      triggers such as ``_set_aside``, report files); a name given twice is an error;
+    * ``log``: the job's log file (the unnamed ``log:`` entry, or ``log=``), set up
+      before the stage runs; ``benchmark``: the ``benchmark=`` log entry, the TSV the
+      client writes the working process's measurements to (Snakemake's columns: see
+      ``scripts/job.py``); ``mem_mb``: ``resources.mem_mb`` (None where the rule and the
+      profile set none), the limit of the working process (:func:`limit_memory`);
+      ``threads``; ``out``: the first output (the ledger's column).
+    """
+    rule = str(namespace["rule"])
+    args: dict[str, Any] = {}
+    for kind in ("input", "output", "params"):
+        for name, value in namespace[kind].items():
+            if name in args:
+                raise ValueError(f"rule {rule}: '{name}' is named twice among its inputs, "
+                                 "outputs and params (each is one keyword of its stage)")
+            args[name] = _plain(value)
+    log = namespace["log"]
+    named = dict(log.items())
+    bench = named.pop("benchmark", None)
+    logfile = named.pop("log", None)
+    if logfile is None:
+        logfile = next((f for f in log if f != bench and f not in named.values()), None)
+    resources = dict(namespace["resources"].items())
+    mem_mb = resources.get("mem_mb")
+    output = list(namespace["output"])
+    return {"stage": stage or rule, "args": args,
+            "log": None if logfile is None else str(logfile),
+            "benchmark": None if bench is None else str(bench),
+            "mem_mb": int(mem_mb) if isinstance(mem_mb, (int, float)) else None,
+            "threads": int(namespace["threads"]), "out": str(output[0]) if output else ""}
+
+
+def job_command(namespace: Mapping[str, Any], stage: str | None = None, *,
+                recorded: str | None = None) -> str:
+    """The shell command of a job-server rule: ``shell: job(locals())`` (``job(locals(),
+    "smc")`` where the stage is not the rule's name).
+
+    Snakemake evaluates a ``shell:`` expression twice: once when it parses the rule (at
+    module level, where this returns :data:`JOB_TEMPLATE`, the text Snakemake records
+    as the rule's code) and once in the job (in the rule function, whose locals are the
+    job's input, output, params, ...): there it returns the client's command with the
+    job's document (:func:`job_document`) as its one, shell-quoted JSON argument: the
+    only encoding of the job's values between the rule and the stage function.
+    ``recorded``: the text to record instead of :data:`JOB_TEMPLATE` (a rule whose
+    earlier command text is kept so that its results stay current).
+    """
+    if "bench_record" not in namespace:  # parse time: the module's namespace
+        return JOB_TEMPLATE if recorded is None else recorded
+    text = json.dumps(job_document(namespace, stage), separators=(",", ":"))
+    # Snakemake formats the command once more: its braces are doubled
+    return f"{_CLIENT} {shlex.quote(text)}".replace("{", "{{").replace("}", "}}")
+
+
+def _stage_function(stage: str) -> Callable[..., Any]:
+    import importlib
+
     try:
-        fn = STAGES[stage]
+        module, name = STAGES[stage].split(":")
     except KeyError:
         raise ValueError(f"unknown job stage {stage!r} (known: {', '.join(STAGES)})") from None
-    fn(args)
+    return getattr(importlib.import_module(module), name)
+
+
+def limit_memory(mem_mb: float) -> int | None:
+    """Limit this process (and the processes it forks, e.g. a solve's) to ``mem_mb`` MB of
+    address space more than it holds now: a job given ``resources: mem_mb`` that maps
+    more fails with a MemoryError (an allocation refused), instead of pushing the
+    machine into swap. Measured from the job's start because a job forked from a job
+    server starts with the server's imports mapped (shared with the server, not the
+    job's: about 800 MB of address space for the point server, 500 MB for the round
+    server, 160-230 MB resident). An address-space limit (``RLIMIT_AS``) counts
+    reserved, unused mappings too; CUDA reserves very large ones, so a rule that runs on
+    a GPU should not set mem_mb. Returns the limit in bytes (None where
+    ``/proc/self/statm`` is not there: not Linux)."""
+    try:
+        with open("/proc/self/statm") as fh:
+            size = int(fh.read().split()[0]) * os.sysconf("SC_PAGE_SIZE")
+    except (OSError, ValueError):
+        return None
+    limit = size + int(float(mem_mb) * 2**20)
+    _soft, hard = resource.getrlimit(resource.RLIMIT_AS)
+    if hard != resource.RLIM_INFINITY:
+        limit = min(limit, hard)
+    resource.setrlimit(resource.RLIMIT_AS, (limit, hard))
+    return limit
+
+
+def run_job(doc: Mapping[str, Any]) -> None:
+    """Run one job (its document, :func:`job_document`) in this process: its log set
+    up, its memory limited (``mem_mb``, in a run on this machine: where a job server
+    was started or ``BAYESCALIB_JOBSERVER=off`` asked for none; a cluster job is
+    limited by its scheduler), then the stage function called with its arguments."""
+    from bayescalib.stages import setup_logging
+
+    fn = _stage_function(str(doc.get("stage")))
+    setup_logging(doc.get("log"))
+    if doc.get("mem_mb") and os.environ.get(SOCKET_ENV):
+        limit_memory(doc["mem_mb"])
+    kwargs = dict(doc.get("args") or {})
+    if "threads" in inspect.signature(fn).parameters:
+        kwargs.setdefault("threads", int(doc.get("threads") or 1))
+    fn(**kwargs)
+
+
+def source_fingerprint(root: str | Path | None = None) -> str:
+    """A fingerprint of the package's source as it is on disk now: the path, the
+    modification time and the size of every ``.py``, ``.yaml`` and ``.json`` file under
+    ``root`` (this package: its modules and its config schemas). About a millisecond;
+    a server takes it when it starts and compares it before each job
+    (:func:`serve`)."""
+    base = Path(__file__).resolve().parents[1] if root is None else Path(root)
+    digest = hashlib.sha1()
+    for folder, dirs, files in os.walk(base):
+        dirs[:] = sorted(d for d in dirs if d != "__pycache__")
+        for name in sorted(files):
+            if name.endswith((".py", ".yaml", ".json")):
+                path = os.path.join(folder, name)
+                try:
+                    st = os.stat(path)
+                except FileNotFoundError:
+                    continue
+                digest.update(f"{os.path.relpath(path, base)}\0{st.st_mtime_ns}\0"
+                              f"{st.st_size}\n".encode())
+    return digest.hexdigest()
 
 
 # ----------------------------------------------------------------------------- server
@@ -481,15 +427,22 @@ class _Job:
 LEDGER_COLUMNS = ("server", "stage", "out", "wall_s", "cpu_s", "max_rss_mb", "exit")
 
 
-def _ledger_row(kind: str, job: _Job, wall: float, usage: Any, code: int) -> str:
-    """One line of the job ledger: what a job cost in the server, from its fork to its
-    exit. ``cpu_s`` is the job's own user + system time and that of the processes it
-    waited for (the time-limited solve): unlike a wall time, it does not grow with the
-    load of a shared machine."""
-    cpu = usage.ru_utime + usage.ru_stime
-    rss_mb = usage.ru_maxrss / 1024.0  # kilobytes on Linux
+def _cost(wall: float, usage: Any) -> dict[str, float]:
+    """What a job cost, from its fork to its exit: ``cpu_s`` is the job's own user +
+    system time and that of the processes it waited for (the time-limited solve): unlike
+    a wall time, it does not grow with the load of a shared machine; ``max_rss_mb`` its
+    peak resident memory (or that of a process it waited for, if larger); ``io_in_mb``,
+    ``io_out_mb`` what it read from and wrote to disk (blocks of 512 bytes)."""
+    return {"wall_s": wall, "cpu_s": usage.ru_utime + usage.ru_stime,
+            "max_rss_mb": usage.ru_maxrss / 1024.0,  # kilobytes on Linux
+            "io_in_mb": usage.ru_inblock * 512 / 1e6, "io_out_mb": usage.ru_oublock * 512 / 1e6}
+
+
+def _ledger_row(kind: str, job: _Job, cost: Mapping[str, float], code: int) -> str:
+    """One line of the job ledger (:func:`_cost`)."""
     out = job.out.replace("\t", " ").replace("\n", " ")
-    return f"{kind}\t{job.stage}\t{out}\t{wall:.4f}\t{cpu:.4f}\t{rss_mb:.1f}\t{code}\n"
+    return (f"{kind}\t{job.stage}\t{out}\t{cost['wall_s']:.4f}\t{cost['cpu_s']:.4f}\t"
+            f"{cost['max_rss_mb']:.1f}\t{code}\n")
 
 
 def _receive(conn: socket.socket) -> tuple[dict[str, Any], list[int]]:
@@ -523,8 +476,7 @@ def _run_child(request: Mapping[str, Any], fds: list[int], close: list[int]) -> 
         os.chdir(request["cwd"])
         os.environ.clear()
         os.environ.update(request["env"])
-        args = parse_args(request["argv"]) if "argv" in request else request["args"]
-        run_stage(request["stage"], args)
+        run_job(request["job"])
         code = 0
     except SystemExit as exc:
         code = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
@@ -553,7 +505,8 @@ def _import_all(modules: tuple[str, ...]) -> None:
 
 
 def serve(path: str, parent: int | None = None, preload: tuple[str, ...] = _PRELOAD,
-          kind: str = "point", ledger: str | None = None) -> None:
+          kind: str = "point", ledger: str | None = None,
+          restart: list[str] | None = None) -> None:
     """Run the server: import ``preload``, listen on ``path``, fork a child per job.
 
     Ends when ``parent`` (the Snakemake process) is gone or on SIGTERM, killing the
@@ -561,9 +514,22 @@ def serve(path: str, parent: int | None = None, preload: tuple[str, ...] = _PREL
     appends one tab-separated line (:data:`LEDGER_COLUMNS`) to that file: the server,
     the stage, the job's output path, its wall time from fork to exit, its CPU time,
     its peak memory and its exit status (read by ``benchmarks/bench_pipeline.py``).
+    The client hears the same figures with the job's exit status (``scripts/job.py``
+    writes them to the rule's benchmark file).
+
+    Changed code: the server takes :func:`source_fingerprint` before its imports and
+    again before each job. When the package's source has changed since (a module or a
+    schema edited during the run), its children would run the old modules it imported:
+    it refuses the job (``{"refused": reason}``; the client then runs the job itself,
+    from the source on disk), stops accepting jobs (its socket is removed: the jobs that
+    follow run in their clients), lets the jobs it runs end, and then, with ``restart``
+    (the command line that started it, :func:`main`), starts again in its place
+    (``os.execv``: the same process, so the run still stops it), importing the new
+    source; without ``restart`` it exits.
     """
     t0 = time.monotonic()
     name = f"jobserver ({kind})"
+    fingerprint = source_fingerprint()  # before the imports: an edit during them counts
     _import_all(preload)
     try:  # the config schemas, validated by every solve (fsi model) and job
         from bayescalib.config import load_schemas
@@ -619,6 +585,7 @@ def serve(path: str, parent: int | None = None, preload: tuple[str, ...] = _PREL
     signal.signal(signal.SIGTERM, _on_term)
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C: Snakemake cancels the jobs
     n_done = 0
+    stale: str | None = None  # why the server stopped accepting jobs (changed source)
 
     def kill(job: _Job) -> None:
         try:
@@ -630,9 +597,13 @@ def serve(path: str, parent: int | None = None, preload: tuple[str, ...] = _PREL
         while True:
             if parent is not None and os.getppid() != parent and not _alive(parent):
                 break
+            if stale is not None and not jobs:
+                break
             for key, _ in sel.select(timeout=1.0):
                 what = key.data
                 if what == "listen":
+                    if stale is not None:  # closed in this round of events
+                        continue
                     conn, _ = listener.accept()
                     sel.register(conn, selectors.EVENT_READ, "request")
                 elif what == "request":
@@ -656,7 +627,35 @@ def serve(path: str, parent: int | None = None, preload: tuple[str, ...] = _PREL
                         sel.unregister(conn)
                         conn.close()
                         continue
-                    keep = [listener.fileno(), conn.fileno(), sel.fileno()] + \
+                    reason = None
+                    if not isinstance(request.get("job"), dict):
+                        reason = "the request holds no job document (a client of another version)"
+                    elif stale is not None or source_fingerprint() != fingerprint:
+                        reason = (f"{name}: the bayescalib source changed after the server "
+                                  "started (it runs the modules it imported then)")
+                        if stale is None:
+                            stale = reason
+                            print(f"{reason}: refusing jobs, restarting once its "
+                                  f"{len(jobs)} running jobs end", flush=True)
+                            sel.unregister(listener)
+                            listener.close()
+                            try:
+                                if os.stat(path).st_ino == inode:
+                                    os.unlink(path)
+                            except FileNotFoundError:
+                                pass
+                    if reason is not None:
+                        for f in fds:
+                            os.close(f)
+                        try:
+                            conn.send(json.dumps({"refused": reason}).encode())
+                        except OSError:
+                            pass
+                        sel.unregister(conn)
+                        conn.close()
+                        continue
+                    keep = [conn.fileno(), sel.fileno()] + \
+                        ([listener.fileno()] if stale is None else []) + \
                         [j.conn.fileno() for j in jobs.values()] + list(jobs)
                     pid = os.fork()
                     if pid == 0:
@@ -664,9 +663,8 @@ def serve(path: str, parent: int | None = None, preload: tuple[str, ...] = _PREL
                     for f in fds:
                         os.close(f)
                     pidfd = os.pidfd_open(pid)
-                    argv = request.get("argv") or []
-                    out = argv[argv.index("out") + 1] if "out" in argv[:-1] else ""
-                    job = _Job(conn, pid, pidfd, str(request.get("stage")), str(out))
+                    doc = request["job"]
+                    job = _Job(conn, pid, pidfd, str(doc.get("stage")), str(doc.get("out", "")))
                     jobs[pidfd] = job
                     by_conn[conn.fileno()] = job
                     sel.register(pidfd, selectors.EVENT_READ, "child")
@@ -677,8 +675,9 @@ def serve(path: str, parent: int | None = None, preload: tuple[str, ...] = _PREL
                     _, status, usage = os.wait4(job.pid, 0)
                     os.close(pidfd)
                     code = os.waitstatus_to_exitcode(status)
+                    cost = _cost(time.monotonic() - job.t0, usage)
                     if ledger is not None:
-                        row = _ledger_row(kind, job, time.monotonic() - job.t0, usage, code)
+                        row = _ledger_row(kind, job, cost, code)
                         try:
                             with open(ledger, "a") as fh:  # one short append per job
                                 fh.write(row)
@@ -687,7 +686,7 @@ def serve(path: str, parent: int | None = None, preload: tuple[str, ...] = _PREL
                     if job.conn.fileno() in by_conn:
                         by_conn.pop(job.conn.fileno())
                         try:
-                            job.conn.send(json.dumps({"exit": code}).encode())
+                            job.conn.send(json.dumps({"exit": code, **cost}).encode())
                         except OSError:
                             pass
                         sel.unregister(job.conn)
@@ -704,6 +703,11 @@ def serve(path: str, parent: int | None = None, preload: tuple[str, ...] = _PREL
         except FileNotFoundError:
             pass
         print(f"{name}: {n_done} jobs run; stopped", flush=True)
+    if stale is not None and restart is not None:
+        print(f"{name}: restarting with the changed source", flush=True)
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os.execv(sys.executable, [sys.executable, *restart])
 
 
 def _alive(pid: int) -> bool:
@@ -718,8 +722,8 @@ def _alive(pid: int) -> bool:
 
 def main(argv: list[str] | None = None) -> int:
     """``--serve PATH [--parent PID] [--kind point|round] [--ledger TSV]`` runs a server;
-    ``--run STAGE
-    KEY VALUE ...`` runs one job in this process (the client's fallback)."""
+    ``--run-job`` runs the job whose document (:func:`job_document`, JSON) is on standard
+    input in this process (the client's fallback)."""
     argv = sys.argv[1:] if argv is None else argv
     if argv[:1] == ["--serve"] and len(argv) >= 2:
         opts = dict(zip(argv[2::2], argv[3::2]))
@@ -729,13 +733,16 @@ def main(argv: list[str] | None = None) -> int:
             return 2
         parent = int(opts["--parent"]) if "--parent" in opts else None
         serve(argv[1], parent, _PRELOAD_ROUND if kind == "round" else _PRELOAD, kind,
-              opts.get("--ledger"))
+              opts.get("--ledger"), restart=["-m", "bayescalib.execution.jobserver", *argv])
         return 0
-    if argv[:1] == ["--run"] and len(argv) >= 2:
-        run_stage(argv[1], parse_args(argv[2:]))
+    if argv == ["--run-job"]:
+        die_with_parent(os.getppid())  # the client is killed: so is its job
+        doc = json.loads(sys.stdin.read())
+        sys.stdin.close()
+        run_job(doc)
         return 0
     sys.stderr.write("usage: python -m bayescalib.execution.jobserver --serve PATH [--parent PID] "
-                     "[--kind point|round] [--ledger TSV] | --run STAGE [KEY VALUE ...]\n")
+                     "[--kind point|round] [--ledger TSV] | --run-job < JOB_DOCUMENT\n")
     return 2
 
 

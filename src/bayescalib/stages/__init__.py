@@ -693,8 +693,8 @@ def train_surrogate(training_path: str | Path, surrogate: Mapping[str, Any],
     ``previous``: the surrogate file of the previous active round. Its discrete choices
     (kernel, output, inputs, frame) are refitted instead of searched again until the
     training set has grown by ``surrogate.reselect_growth`` since their last full search
-    (:func:`bayescalib.inference.surrogate.fit_round`). None (round 0, a fixed design,
-    the study's final surrogate): a full search.
+    (:func:`bayescalib.inference.surrogate.fit_round`). None or empty (round 0, a fixed
+    design, the study's final surrogate; a rule's absent input): a full search.
 
     ``reuse``: (training table, surrogate) of an earlier fit with the same settings
     (the last active round's); when the training table holds the same content and that
@@ -726,7 +726,7 @@ def train_surrogate(training_path: str | Path, surrogate: Mapping[str, Any],
             raise PipelineError(
                 f"surrogate.target is 'outputs' but the training table '{training_path}' "
                 "records no likelihood bound: gather it again")
-    prev = None if previous is None else read_stage_file(previous, "surrogate", device="cpu")
+    prev = None if not previous else read_stage_file(previous, "surrogate", device="cpu")
     try:
         fitted = fit_surrogate(rows, surrogate, _space(parameters).bounds, prev)
     except (RuntimeError, ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:
@@ -906,7 +906,7 @@ def acquire(round_index: int, training_path: str | Path, surrogate_path: str | P
     tab = read_stage_file(training_path, "training table")
     gp = read_stage_file(surrogate_path, "surrogate")
     res = read_stage_file(particles_path, "SMC particle file")
-    previous = None if previous_path is None else \
+    previous = None if not previous_path else \
         read_stage_file(previous_path, "active round record")
     try:
         rec = decide(int(round_index), Evaluations.from_rows(tab), gp, res, _space(parameters),
