@@ -54,7 +54,8 @@ if workflow.is_main_process:
         # summary.json is read by no job: a damaged one is set aside here, before the
         # plan is made, so that this run writes it again (a look-only command leaves it)
         if os.path.isfile(f"{study.root}/summary.json"):
-            from bayescalib.stages import PipelineError, read_stage_file
+            from bayescalib.stages.errors import PipelineError
+            from bayescalib.stages.files import read_stage_file
 
             try:
                 read_stage_file(f"{study.root}/summary.json", "study summary",
@@ -83,7 +84,7 @@ if workflow.is_main_process:
 
 # the report's front page reads the study's key numbers from here (workflow.rst);
 # cheap: one small JSON file, read only when it exists
-from bayescalib.stages import front_page
+from bayescalib.stages.summary import front_page
 
 config["front_page"] = front_page(  # the posterior's figure embedded for a report only
     f"{R}/summary.json", embed_figure="--report" in {a.split("=", 1)[0] for a in sys.argv})
@@ -130,7 +131,8 @@ onsuccess:
 
     _summary = _Path(R, "summary.json")
     if _summary.is_file():
-        from bayescalib.stages import read_stage_file, run_line
+        from bayescalib.stages.files import read_stage_file
+        from bayescalib.stages.summary import run_line
         from bayescalib.stages.verdict import verdict
 
         _s = read_stage_file(_summary, "study summary")  # this run wrote or read it

@@ -159,7 +159,7 @@ def _physics(root: Path, study_cfg: dict) -> dict[str, list[float]]:
     """In-process cost per point: solve (its record's wall time), discrepancy (recomputed
     here, warm)."""
     from bayescalib.io.runrecord import read_run
-    from bayescalib.stages import discrepancy
+    from bayescalib.stages.discrepancy import discrepancy
 
     runs = sorted(p for p in (root / "runs").glob("[0-9]*.h5"))
     solve = [read_run(p).wall_time for p in runs]
@@ -194,6 +194,23 @@ def _timed(fn) -> float:
     return time.perf_counter() - t0
 
 
+def _stages():
+    """The stage functions of the tree this process imports, by name: each from the module
+    of its rule (``bayescalib.stages.<module>``), or, in a tree from before the stages were
+    split into those modules (a ``before`` mode's), from ``bayescalib.stages`` itself."""
+    import importlib
+    from types import SimpleNamespace
+
+    where = {"read_json": "files", "gather": "gather", "train_surrogate": "surrogate",
+             "smc": "smc", "acquire": "acquire", "marginalize": "marginalize"}
+    try:
+        return SimpleNamespace(**{name: getattr(importlib.import_module(
+            f"bayescalib.stages.{module}"), name) for name, module in where.items()})
+    except ModuleNotFoundError:
+        package = importlib.import_module("bayescalib.stages")
+        return SimpleNamespace(**{name: getattr(package, name) for name in where})
+
+
 def _takes_reuse(stages) -> bool:
     import inspect
 
@@ -216,8 +233,7 @@ def _round_stages_of(tree: Path, root: Path, study: str) -> dict[str, list[float
 def _round_stages(root: Path, cfg: dict) -> dict[str, list[float]]:
     """In-process cost of the per-round and per-measure stages, rerun here on the run's
     files (into a scratch folder; warm: the imports are paid by a first call)."""
-    from bayescalib import stages
-
+    stages = _stages()
     out: dict[str, list[float]] = {}
     m = cfg["measures"][0]
     with tempfile.TemporaryDirectory() as tmp:

@@ -1,6 +1,6 @@
 """The SMC stage's in-process cost, two source trees side by side (A/B).
 
-Runs ``bayescalib.stages.smc`` (the pipeline's SMC job: load the GP surrogate, run
+Runs ``bayescalib.stages.smc.smc`` (the pipeline's SMC job: load the GP surrogate, run
 adaptive-tempering SMC on its mean, write the particles) on one study's surrogate, with
 the code of each tree in turn (a subprocess per run that imports the package from
 ``TREE/src``, one BLAS thread as the job servers run it), interleaved A, B, A, B, ...
@@ -49,9 +49,9 @@ def _child(tree: str, results: str, study: str, threads: int, out: str) -> None:
     import numpy as np
 
     sys.path.insert(0, str(REPO / "benchmarks"))
-    from bench_pipeline import _study_config
+    from bench_pipeline import _stages, _study_config
 
-    from bayescalib import stages
+    from bayescalib.inference.parameters import ParameterSpace
     from bayescalib.inference.posterior import read_particles_h5
 
     cfg = _study_config(Path(tree), study)
@@ -59,13 +59,13 @@ def _child(tree: str, results: str, study: str, threads: int, out: str) -> None:
     sur = Path(results) / measure / "surrogate.h5"
 
     def call() -> None:
-        stages.smc(sur, cfg["smc"], cfg["parameters"], out, threads=threads)
+        _stages().smc(sur, cfg["smc"], cfg["parameters"], out, threads=threads)
 
     if results == "analytic":
         from bayescalib.inference.posterior import write_particles_h5
         from bayescalib.inference.smc import smc_from_config
 
-        space = stages._space(cfg["parameters"])
+        space = ParameterSpace.from_config(cfg["parameters"])
 
         def banana(X: np.ndarray) -> np.ndarray:
             e = (X[:, 0] - 100.0) / 700.0

@@ -35,15 +35,14 @@ import json, sys, time
 from pathlib import Path
 sys.path.insert(0, {bench!r})
 import bench_pipeline as bp
-from bayescalib import stages
 from bayescalib.stages import figures
 stage, tree, results, study, out = sys.argv[1:6]
 cfg = bp._study_config(Path(tree), study)
 folder = Path(results) / cfg["measures"][0]
 out = Path(out)
 if stage == "smc":
-    run = lambda: stages.smc(folder / "surrogate.h5", cfg["smc"], cfg["parameters"],
-                             out / "particles.h5")
+    run = lambda: bp._stages().smc(folder / "surrogate.h5", cfg["smc"], cfg["parameters"],
+                                   out / "particles.h5")
 else:
     stems = {{k: out / k for k in ("joint", "particles", "marginals", "pairs", "parallel")}}
     run = lambda: figures.posterior_figures(folder / "particles.h5", folder / "posterior.json",

@@ -88,7 +88,7 @@ def _solve(fm, points, folder: Path):
 
 
 def _curves(run, n_snap: int):
-    from bayescalib.stages import model_interfaces
+    from bayescalib.stages.discrepancy import model_interfaces
 
     return model_interfaces(run, n_snap)
 

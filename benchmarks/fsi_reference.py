@@ -11,7 +11,7 @@ with ``config/smoke.yaml`` deep-merged over it, exactly as Snakemake layers a
    reference uses the pipeline's own model settings;
 2. makes the synthetic observation as the pipeline does: the ``ground_truth`` rule's
    solve (:func:`bayescalib.models.forward.solve_point` at ``study.ground_truth_point()``)
-   and the ``observe`` rule's :func:`bayescalib.stages.observe` into an
+   and the ``observe`` rule's :func:`bayescalib.stages.observe.observe` into an
    ``observations.h5`` in a scratch folder;
 3. with ``forward_model.warm_start: prior_centre``, solves the ``base_state`` rule's
    warm-start state (:func:`bayescalib.models.forward.solve_base_state` at the prior centre);
@@ -27,7 +27,7 @@ with ``config/smoke.yaml`` deep-merged over it, exactly as Snakemake layers a
    all its corners is not solved but marked failed and ``inferred``
    (``--max-stride 1`` solves every cell);
 5. writes each point's run record and computes its log-likelihood with
-   :func:`bayescalib.stages.discrepancy`, the ``discrepancy`` rule's own function
+   :func:`bayescalib.stages.discrepancy.discrepancy`, the ``discrepancy`` rule's own function
    (a failed solve gives -inf);
 6. if the posterior is narrow on that grid (a marginal sd spans fewer than
    ``--min-cells`` grid cells, or a conditional sd, the width across a ridge along a
@@ -162,7 +162,7 @@ def make_observation(study, scratch: Path) -> dict[str, Any]:
     """The ``ground_truth``, ``observe`` and (prior-centre warm start) ``base_state``
     rules, with their own library calls, into ``scratch``. Returns the paths."""
     from bayescalib.models.forward import solve_base_state, solve_point
-    from bayescalib.stages import observe
+    from bayescalib.stages.observe import observe
 
     fm = study.forward_section()
     obs_dir = scratch / "observations"
@@ -265,7 +265,7 @@ def solve_grid(study, paths: Mapping[str, Any], E: np.ndarray, nu: np.ndarray, s
 
     Each point: :func:`solve_series` with the study's forward model (one model object
     for the whole grid), the run record written to ``scratch/<name>/run.h5`` and
-    :func:`bayescalib.stages.discrepancy` on it.
+    :func:`bayescalib.stages.discrepancy.discrepancy` on it.
 
     Failed solves are the slow ones (the load continuation stalls after many Newton
     steps), so the grid is solved coarse to fine: first the cells on a lattice of stride
@@ -276,7 +276,7 @@ def solve_grid(study, paths: Mapping[str, Any], E: np.ndarray, nu: np.ndarray, s
     """
     from bayescalib.io.runrecord import write_run
     from bayescalib.models.forward import make_forward_model, solve_series
-    from bayescalib.stages import discrepancy
+    from bayescalib.stages.discrepancy import discrepancy
 
     if warm not in ("centre", "previous"):
         raise ValueError(f"warm must be 'centre' or 'previous', got {warm!r}")
@@ -382,7 +382,7 @@ def check_against_rule(study, paths: Mapping[str, Any], grid: Mapping[str, Any],
     """
     import subprocess
 
-    from bayescalib.stages import discrepancy
+    from bayescalib.stages.discrepancy import discrepancy
 
     fm = study.forward_section()
     work = scratch / "check"

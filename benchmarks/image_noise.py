@@ -57,7 +57,7 @@ from bayescalib.inference.likelihood import log_likelihood
 from bayescalib.io.observation_store import StoredObservations, read_observations
 from bayescalib.io.observations import add_noise, write_mask_png
 from bayescalib.models.analytic import interface as analytic
-from bayescalib.stages import observe
+from bayescalib.stages.observe import observe
 
 TRUTH = {"E": 400.0, "nu": 0.3}
 FACTORS = (0.5, 1.0)

@@ -1,6 +1,6 @@
 """Rule `base_state`: the warm-start state at the centre of the design box."""
 from bayescalib.models.forward import solve_base_state
-from bayescalib.stages import setup_logging
+from bayescalib.stages.logs import setup_logging
 
 setup_logging(snakemake.log[0])  # noqa: F821
 solve_base_state(

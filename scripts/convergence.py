@@ -1,5 +1,6 @@
 """Rule `convergence`: GP error over n_train on held-out Sobol points."""
-from bayescalib.stages import convergence, setup_logging
+from bayescalib.stages.convergence import convergence
+from bayescalib.stages.logs import setup_logging
 
 setup_logging(snakemake.log[0])  # noqa: F821
 convergence(

@@ -1,7 +1,8 @@
 """Rule `diagnose`: model-form diagnosis of the calibrated study."""
 from bayescalib.diagnosis.report import write_diagnosis
 from bayescalib.diagnosis.stage import run_diagnosis
-from bayescalib.stages import design_summary, setup_logging
+from bayescalib.stages.logs import setup_logging
+from bayescalib.stages.summary import design_summary
 
 sm = snakemake  # noqa: F821
 setup_logging(sm.log[0])

@@ -1,6 +1,6 @@
 """Rule `ground_truth`: the forward solve at the ground-truth parameters."""
 from bayescalib.models.forward import solve_point
-from bayescalib.stages import setup_logging
+from bayescalib.stages.logs import setup_logging
 
 setup_logging(snakemake.log[0])  # noqa: F821
 vtu = snakemake.output.get("vtu")  # noqa: F821

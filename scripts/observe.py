@@ -1,5 +1,6 @@
 """Rule `observe`: the observation set (synthetic or from files)."""
-from bayescalib.stages import observe, setup_logging
+from bayescalib.stages.logs import setup_logging
+from bayescalib.stages.observe import observe
 
 setup_logging(snakemake.log[0])  # noqa: F821
 observe(

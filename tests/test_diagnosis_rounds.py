@@ -11,7 +11,7 @@ from types import SimpleNamespace
 
 import pytest
 
-from bayescalib import stages
+import bayescalib.stages.marginalize as marginalize_stage
 from bayescalib.diagnosis import stage
 from bayescalib.inference import posterior
 
@@ -36,7 +36,7 @@ def rechecks(monkeypatch):
         return SimpleNamespace(rms=rms[r]), 0, None
 
     monkeypatch.setattr(stage, "_check_from_particles", check)
-    monkeypatch.setattr(stages, "marginalize",
+    monkeypatch.setattr(marginalize_stage, "marginalize",
                         lambda particles, *a, **k: {"mean": {"phi_x": 4.0}, "from": str(particles)})
     monkeypatch.setattr(posterior, "read_particles_h5",
                         lambda p: SimpleNamespace(log_evidence=42.0))

@@ -650,7 +650,7 @@ def test_a_failed_signature_is_retried_and_an_untestable_candidate_is_named(
     from bayescalib.diagnosis.stage import _signatures
     from bayescalib.models.analytic import interface
     from bayescalib.models.forward import solve_points
-    from bayescalib.stages import model_interfaces
+    from bayescalib.stages.discrepancy import model_interfaces
 
     fm = _analytic_fm(solvable)
     cand = CandidateSpec("prestrain", "prestrain", 0.01, (-0.05, 0.05))

@@ -165,7 +165,7 @@ def _observe_masks(tmp_path, curves, seed=7, units="mm"):
     """Masks of ``curves`` written as the benchmark does, read by the observation stage
     from an ``observations: {source: files}`` section with pixel_size and origin."""
     from bayescalib.io.observation_store import read_observations
-    from bayescalib.stages import observe
+    from bayescalib.stages.observe import observe
 
     f = {"mm": 1.0, "um": 1.0e3}[units]
     rng = np.random.default_rng(seed)

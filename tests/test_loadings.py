@@ -16,7 +16,9 @@ from bayescalib.io.observation_store import read_observations
 from bayescalib.io.runrecord import read_run
 from bayescalib.models.analytic import interface as analytic
 from bayescalib.models.forward import PythonModel, loading_labels, solve_point, solve_series
-from bayescalib.stages import PipelineError, discrepancy, observe
+from bayescalib.stages.discrepancy import discrepancy
+from bayescalib.stages.errors import PipelineError
+from bayescalib.stages.observe import observe
 from bayescalib.study import Study
 
 FM = {"type": "python", "python": {"function": "bayescalib.models.analytic:interface"},

@@ -270,7 +270,7 @@ def test_a_jobs_python_warnings_go_to_its_log_not_to_the_console(tmp_path):
     """GPy's RuntimeWarnings (with their site-packages paths) leaked onto the console."""
     log = tmp_path / "logs" / "job.log"
     code = ("import logging, warnings\n"
-            "from bayescalib.stages import setup_logging\n"
+            "from bayescalib.stages.logs import setup_logging\n"
             f"setup_logging({str(log)!r})\n"
             "warnings.warn('invalid value encountered in add', RuntimeWarning)\n"
             "logging.getLogger('bayescalib').warning('a warning of bayescalib itself')\n")

@@ -114,7 +114,7 @@ def test_the_front_page_renders_as_snakemakes_report_renders_it(tmp_path, monkey
     from docutils.core import publish_parts
     from PIL import Image
 
-    from bayescalib.stages import front_page
+    from bayescalib.stages.summary import front_page
 
     monkeypatch.chdir(tmp_path)
     Path("fig").mkdir()

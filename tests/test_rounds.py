@@ -25,7 +25,8 @@ from bayescalib.inference.rounds import (
     RoundSettings,
     run_rounds,
 )
-from bayescalib.stages import _clean, observe
+from bayescalib.stages.files import _clean
+from bayescalib.stages.observe import observe
 from bayescalib.stages.chain import FileStore, SolvePath
 from bayescalib.study import Study
 

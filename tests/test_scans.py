@@ -281,7 +281,7 @@ def _files_section(tmp_path, n=2):
 
 def test_the_segmentation_uncertainty_is_stored_per_snapshot(tmp_path):
     from bayescalib.io.observation_store import read_observations
-    from bayescalib.stages import observe
+    from bayescalib.stages.observe import observe
 
     section = _files_section(tmp_path)
     observe(section, tmp_path / "observations.h5")
@@ -333,7 +333,7 @@ def test_the_diagnosis_takes_the_segmentation_uncertainty_as_a_lower_bound():
 
 def test_the_segmentation_figure_is_drawn_through_the_job_stage(tmp_path):
     from bayescalib.execution.jobserver import run_stage
-    from bayescalib.stages import observe
+    from bayescalib.stages.observe import observe
 
     section = _files_section(tmp_path)
     observe(section, tmp_path / "observations.h5")

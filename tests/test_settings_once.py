@@ -50,9 +50,9 @@ ALLOWED: dict[tuple[str, str], str] = {
         "an extension's record of its check draws read back",
     ("src/bayescalib/diagnosis/report.py", "unit"):
         "a row of diagnosis.json's attribution ranking read back",
-    ("src/bayescalib/stages/__init__.py", "unit"):
+    ("src/bayescalib/stages/summary.py", "unit"):
         "summary.json read back (run_line, the report's table)",
-    ("src/bayescalib/stages/__init__.py", "design"):
+    ("src/bayescalib/stages/summary.py", "design"):
         "the summary's extra records (the design summary of a run), not a config section",
     ("src/bayescalib/cli/summary.py", "unit"): "summary.json read back",
     ("src/bayescalib/inference/surrogate.py", "kernel"):
@@ -223,8 +223,10 @@ def test_the_convergence_study_fits_the_studys_surrogate(tmp_path):
     study's surrogate: the same data, the likelihood's bound, the kernel, output, frame,
     inputs, mean and nugget of the surrogate section (before issue 37 it was a Matérn 3/2
     of L without the bound, whatever the section said)."""
-    from bayescalib import stages
     from bayescalib.io.training import write_training
+    from bayescalib.stages.convergence import convergence
+    from bayescalib.stages.files import read_json
+    from bayescalib.stages.surrogate import train_surrogate
 
     n, n_test = 24, 8
     X = np.vstack([sobol_design(BOX, n, 1), sobol_test_points(BOX, n, n_test, 1)])
@@ -241,10 +243,10 @@ def test_the_convergence_study_fits_the_studys_surrogate(tmp_path):
     # output chosen with the bound, one length scale per input, the fitted nugget
     section = surrogate_settings(kernel="rbf", output="auto", ard=True, frame="axes",
                                  inputs="linear", restarts=1)
-    stages.train_surrogate(training, section, parameters, tmp_path / "surrogate.h5")
+    train_surrogate(training, section, parameters, tmp_path / "surrogate.h5")
     study_gp = GPSurrogate.load(tmp_path / "surrogate.h5", device="cpu")
-    res = stages.convergence(training, section, parameters, [12, n],
-                             tmp_path / "convergence.json")
+    res = convergence(training, section, parameters, [12, n],
+                      tmp_path / "convergence.json")
     # the GP measured at n is the study's: its error at the held-out points is the
     # study surrogate's (before issue 37 another GP's)
     err = np.linalg.norm(study_gp.predict(X[n:]) - L[n:])
@@ -254,4 +256,4 @@ def test_the_convergence_study_fits_the_studys_surrogate(tmp_path):
     assert full["nugget_mode"] == "fit"
     assert full == study_gp.hyperparameters
     assert res["n_train"] == [12, n] and res["n_used"] == [12, n]
-    assert stages.read_json(tmp_path / "convergence.json")["surrogate"][-1] == full
+    assert read_json(tmp_path / "convergence.json")["surrogate"][-1] == full

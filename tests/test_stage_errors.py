@@ -13,11 +13,15 @@ import json
 import numpy as np
 import pytest
 
-from bayescalib import stages
 from bayescalib.config import validate
 from bayescalib.io.runrecord import read_run
 from bayescalib.models.forward import failed_result, solve_point
-from bayescalib.stages import PipelineError
+from bayescalib.stages.discrepancy import discrepancy
+from bayescalib.stages.errors import PipelineError
+from bayescalib.stages.files import write_json
+from bayescalib.stages.gather import gather
+from bayescalib.stages.observe import observe
+from bayescalib.stages.surrogate import train_surrogate
 
 ANALYTIC = {"type": "python", "python": {"function": "bayescalib.models.analytic:interface"}}
 PARAMETERS = [
@@ -43,7 +47,7 @@ def _points(n: int = 8) -> np.ndarray:
 
 
 def _table(tmp_path, X, loglik, status=None):
-    """Run records + discrepancy files -> training.h5 through stages.gather."""
+    """Run records + discrepancy files -> training.h5 through the gather stage."""
     runs, discs = [], []
     for i, ((E, nu), ll) in enumerate(zip(X, loglik, strict=True)):
         ok = status is None or status[i]
@@ -55,17 +59,17 @@ def _table(tmp_path, X, loglik, status=None):
             from bayescalib.io.runrecord import write_run
 
             write_run(rp, failed_result(params, "Newton did not converge at load 0.4"))
-        stages.write_json(dp, {"status": "ok" if ok else "failed", "loglik": ll,
-                                 "D": None if ll is None else 1.0})
+        write_json(dp, {"status": "ok" if ok else "failed", "loglik": ll,
+                          "D": None if ll is None else 1.0})
         runs.append(rp)
         discs.append(dp)
     out = tmp_path / "training.h5"
-    stages.gather(runs, discs, ["E", "nu"], ["E", "nu"], len(runs), out)
+    gather(runs, discs, ["E", "nu"], ["E", "nu"], len(runs), out)
     return out
 
 
 def _train(path, tmp_path, **surrogate):
-    stages.train_surrogate(path, {**SURROGATE, **surrogate}, PARAMETERS, tmp_path / "surrogate.h5")
+    train_surrogate(path, {**SURROGATE, **surrogate}, PARAMETERS, tmp_path / "surrogate.h5")
 
 
 def _assert_clean(exc_info):
@@ -151,7 +155,7 @@ def observed(tmp_path):
     truth = tmp_path / "obs" / "truth.h5"
     solve_point(ANALYTIC, {"E": 400.0, "nu": 0.3}, truth, isolate=False)
     obs = tmp_path / "obs" / "observations.h5"
-    stages.observe(_observations({"source": "synthetic"}), obs, ground_truth_run=truth)
+    observe(_observations({"source": "synthetic"}), obs, ground_truth_run=truth)
     return obs
 
 
@@ -172,8 +176,8 @@ def test_discrepancy_sets_a_corrupt_run_record_aside(tmp_path, observed, damage)
         run.write_bytes(b"")
     out = tmp_path / "disc" / "3.json"
     with pytest.raises(PipelineError) as info:
-        stages.discrepancy(run, observed, "rkhs", {"sigma_w": 0.005},
-                             {"sigma_n2": 0.0005}, out)
+        discrepancy(run, observed, "rkhs", {"sigma_w": 0.005},
+                      {"sigma_n2": 0.0005}, out)
     msg = str(info.value)
     assert "runs/3.h5" in msg and "moved to" in msg
     assert "Run the same snakemake command again" in msg
@@ -182,8 +186,8 @@ def test_discrepancy_sets_a_corrupt_run_record_aside(tmp_path, observed, damage)
     assert not out.exists()
     # once re-solved (what the next snakemake run does: the record is missing) all is well
     solve_point(ANALYTIC, {"E": 500.0, "nu": 0.2}, run, isolate=False)
-    rec = stages.discrepancy(run, observed, "rkhs", {"sigma_w": 0.005},
-                               {"sigma_n2": 0.0005}, out)
+    rec = discrepancy(run, observed, "rkhs", {"sigma_w": 0.005},
+                        {"sigma_n2": 0.0005}, out)
     assert rec["loglik"] is not None
 
 
@@ -195,7 +199,7 @@ def test_gather_sets_a_corrupt_run_record_aside(tmp_path):
     discs = [tmp_path / "disc" / f"{i}.json" for i in range(4)]
     _truncate(runs[1])
     with pytest.raises(PipelineError, match=r"runs/1.h5' is corrupt or truncated") as info:
-        stages.gather(runs, discs, ["E", "nu"], ["E", "nu"], 4, tab)
+        gather(runs, discs, ["E", "nu"], ["E", "nu"], 4, tab)
     _assert_clean(info)
     assert (tmp_path / "runs" / "1.h5.corrupt").is_file() and not tab.exists()
 
@@ -207,7 +211,7 @@ def test_gather_sets_a_corrupt_discrepancy_file_aside(tmp_path):
     discs = [tmp_path / "disc" / f"{i}.json" for i in range(4)]
     discs[2].write_text('{"status": "ok", "loglik": -1.')
     with pytest.raises(PipelineError, match=r"disc/2.json") as info:
-        stages.gather(runs, discs, ["E", "nu"], ["E", "nu"], 4, tab)
+        gather(runs, discs, ["E", "nu"], ["E", "nu"], 4, tab)
     assert "moved to" in str(info.value)
     assert (tmp_path / "disc" / "2.json.corrupt").is_file()
 
@@ -218,7 +222,7 @@ def test_gather_refuses_a_record_of_another_parameter_setup(tmp_path):
     runs = [tmp_path / "runs" / f"{i}.h5" for i in range(3)]
     discs = [tmp_path / "disc" / f"{i}.json" for i in range(3)]
     with pytest.raises(PipelineError, match="no value for material.E") as info:
-        stages.gather(runs, discs, ["E", "nu"], ["material.E", "nu"], 3, tab)
+        gather(runs, discs, ["E", "nu"], ["material.E", "nu"], 3, tab)
     _assert_clean(info)
 
 
@@ -227,7 +231,7 @@ def test_observe_sets_a_corrupt_ground_truth_record_aside(tmp_path):
     solve_point(ANALYTIC, {"E": 400.0, "nu": 0.3}, truth, isolate=False)
     _truncate(truth)
     with pytest.raises(PipelineError, match="truth.h5") as info:
-        stages.observe(_observations({"source": "synthetic"}), tmp_path / "obs.h5", ground_truth_run=truth)
+        observe(_observations({"source": "synthetic"}), tmp_path / "obs.h5", ground_truth_run=truth)
     _assert_clean(info)
     assert (tmp_path / "truth.h5.corrupt").is_file()
 
@@ -249,8 +253,8 @@ def test_each_set_aside_gets_its_own_name(tmp_path, observed):
         solve_point(ANALYTIC, {"E": 500.0, "nu": 0.2}, run, isolate=False)
         _truncate(run)
         with pytest.raises(PipelineError, match=expected.replace(".", r"\.")):
-            stages.discrepancy(run, observed, "rkhs", {"sigma_w": 0.005},
-                                 {"sigma_n2": 0.0005}, tmp_path / "d.json")
+            discrepancy(run, observed, "rkhs", {"sigma_w": 0.005},
+                          {"sigma_n2": 0.0005}, tmp_path / "d.json")
     assert sorted(p.name for p in run.parent.glob("*.corrupt")) == [
         "3.h5.1.corrupt", "3.h5.2.corrupt", "3.h5.corrupt"]
 
@@ -270,15 +274,15 @@ def test_observations_in_other_units_are_a_unit_slip_not_a_misfit(tmp_path, scal
     write_observations(obs, StoredObservations([Interface.polyline(pts)], ["scan"], [None], None,
                                                {"source": "files"}))
     with pytest.raises(PipelineError, match="unit slip") as exc:
-        stages.discrepancy(truth, obs, "rkhs", {"sigma_w": 0.005},
-                             {"sigma_n2": 5e-4}, tmp_path / "d.json")
+        discrepancy(truth, obs, "rkhs", {"sigma_w": 0.005},
+                      {"sigma_n2": 5e-4}, tmp_path / "d.json")
     _assert_clean(exc)
     assert "observations.files[].units" in str(exc.value)
     # the same curve in the right units is a normal discrepancy
     write_observations(obs, StoredObservations([Interface.polyline(np.asarray(
         res.interface_current))], ["scan"], [None], None, {"source": "files"}))
-    rec = stages.discrepancy(truth, obs, "rkhs", {"sigma_w": 0.005},
-                               {"sigma_n2": 5e-4}, tmp_path / "d.json")
+    rec = discrepancy(truth, obs, "rkhs", {"sigma_w": 0.005},
+                        {"sigma_n2": 5e-4}, tmp_path / "d.json")
     assert rec["D"] == pytest.approx(0.0, abs=1e-9)
 
 
@@ -303,10 +307,10 @@ def test_gather_refuses_residual_vectors_of_different_lengths(tmp_path):
     runs = [tmp_path / "runs" / f"{i}.h5" for i in range(3)]
     discs = [tmp_path / "disc" / f"{i}.json" for i in range(3)]
     for i, m in enumerate((5, 5, 7)):
-        stages.write_json(discs[i], {"status": "ok", "loglik": -1.0, "D": 1.0, "sigma_n2": 1e-6,
-                                     "snapshots": [{"n": m, "D": 1.0, "loglik": -1.0,
-                                                    "distances": [0.001] * m}]})
+        write_json(discs[i], {"status": "ok", "loglik": -1.0, "D": 1.0, "sigma_n2": 1e-6,
+                              "snapshots": [{"n": m, "D": 1.0, "loglik": -1.0,
+                                             "distances": [0.001] * m}]})
     with pytest.raises(PipelineError, match=r"differ in length \(5 in .*disc/0.json', 7 in "
                                             r".*disc/2.json'\)") as info:
-        stages.gather(runs, discs, ["E", "nu"], ["E", "nu"], 3, tmp_path / "t.h5")
+        gather(runs, discs, ["E", "nu"], ["E", "nu"], 3, tmp_path / "t.h5")
     _assert_clean(info)

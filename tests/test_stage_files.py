@@ -1,4 +1,4 @@
-"""One reader for every file a stage reads from another stage (bayescalib.stages.
+"""One reader for every file a stage reads from another stage (bayescalib.stages.files.
 read_stage_file), whatever its format: a file that cannot be read is moved aside to
 ``<name>.corrupt`` and the error names it, what it is, and says that the same snakemake
 command rebuilds it, so the next run does (it is a missing target) instead of failing
@@ -17,13 +17,23 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bayescalib import stages
 from bayescalib.execution import jobserver
 from bayescalib.inference.parameters import ParameterSpace
 from bayescalib.inference.posterior import write_particles_h5
 from bayescalib.inference.smc import SMCResult
 from bayescalib.models.forward import solve_point
-from bayescalib.stages import PipelineError, figures, read_stage_file
+from bayescalib.stages import figures
+from bayescalib.stages.errors import PipelineError
+from bayescalib.stages.files import read_stage_file, write_json
+from bayescalib.stages.gather import gather
+from bayescalib.stages.observe import observe
+from bayescalib.stages.summary import (
+    design_summary,
+    posterior_check_summary,
+    round_check_summary,
+    summary,
+)
+from bayescalib.stages.surrogate import train_surrogate
 
 ANALYTIC = {"type": "python", "python": {"function": "bayescalib.models.analytic:interface"}}
 PARAMETERS = [
@@ -82,17 +92,17 @@ def _json_cases():
         ("posterior summary", "rkhs/posterior.json", POSTERIOR,
          lambda tmp, p: figures.posterior_mean_point(p, PARAMETERS)),
         ("posterior summary", "rkhs/posterior.json", POSTERIOR,
-         lambda tmp, p: stages.summary("s", PARAMETERS, ["rkhs"], [p], [tmp / "t.h5"],
-                                       [tmp / "p.h5"], {}, tmp / "summary.json")),
+         lambda tmp, p: summary("s", PARAMETERS, ["rkhs"], [p], [tmp / "t.h5"],
+                                [tmp / "p.h5"], {}, tmp / "summary.json")),
         ("GP convergence record", "rkhs/convergence.json",
          {"n_train": [4, 8], "rel_error": [0.2, 0.1], "loo_rel_error": [0.3, 0.1]},
          lambda tmp, p: figures.convergence_figure(p, PLOTS, tmp / "fig" / "convergence")),
         ("posterior check", "rkhs/posterior_check.json", {"confirmed": True, "draws": []},
-         lambda tmp, p: stages.posterior_check_summary(p)),
+         lambda tmp, p: posterior_check_summary(p)),
         ("active round record", "active/0/acquire.json", ROUND,
-         lambda tmp, p: stages.design_summary("active", [p], 8)),
+         lambda tmp, p: design_summary("active", [p], 8)),
         ("active round record", "active/0/acquire.json", ROUND,
-         lambda tmp, p: stages.round_check_summary([p])),
+         lambda tmp, p: round_check_summary([p])),
         ("active round record", "active/0/acquire.json", ROUND,
          lambda tmp, p: figures.rounds_figure([p], [], tmp / "t.h5", PARAMETERS,
                                               {"stop": {"shift_tol": 0.3}}, PLOTS,
@@ -106,7 +116,7 @@ def _json_cases():
                          ids=[f"{c[0]}-{k}" for k, c in enumerate(_json_cases())])
 def test_a_truncated_json_stage_output_is_set_aside(tmp_path, kind, name, content, read):
     path = tmp_path / name
-    stages.write_json(path, content)
+    write_json(path, content)
     cut = _truncate(path)
     with pytest.raises(PipelineError) as info:
         read(tmp_path, path)
@@ -118,10 +128,10 @@ def test_a_truncated_discrepancy_record_is_set_aside_by_gather(tmp_path):
     discs = [tmp_path / "discrepancy" / "rkhs" / f"{i}.json" for i in range(2)]
     for rp, dp, E in zip(runs, discs, (300.0, 500.0), strict=True):
         solve_point(ANALYTIC, {"E": E, "nu": 0.3}, rp, isolate=False)
-        stages.write_json(dp, {"status": "ok", "loglik": -1.0, "D": 1.0})
+        write_json(dp, {"status": "ok", "loglik": -1.0, "D": 1.0})
     cut = _truncate(discs[1])
     with pytest.raises(PipelineError) as info:
-        stages.gather(runs, discs, ["E", "nu"], ["E", "nu"], 2, tmp_path / "training.h5")
+        gather(runs, discs, ["E", "nu"], ["E", "nu"], 2, tmp_path / "training.h5")
     _assert_set_aside(info, discs[1], "discrepancy record", cut)
 
 
@@ -204,8 +214,8 @@ def test_truncated_run_records_and_observations_are_set_aside_by_the_interface_f
     truth = tmp_path / "observations" / "ground_truth_run.h5"
     solve_point(ANALYTIC, {"E": 400.0, "nu": 0.3}, truth, isolate=False)
     obs = tmp_path / "observations" / "observations.h5"
-    stages.observe({"source": "synthetic", "noise_sigma": 0.0, "seed": 0}, obs,
-                   ground_truth_run=truth)
+    observe({"source": "synthetic", "noise_sigma": 0.0, "seed": 0}, obs,
+            ground_truth_run=truth)
     sample = tmp_path / "runs" / "posterior_sample_0.h5"
     solve_point(ANALYTIC, {"E": 420.0, "nu": 0.3}, sample, isolate=False)
     cut = _truncate(sample)
@@ -243,6 +253,6 @@ def test_a_truncated_previous_round_surrogate_is_set_aside_not_called_unfittable
     cut = _truncate(previous)
     surrogate = validate({"surrogate": {"restarts": 1}}, "inference")["surrogate"]
     with pytest.raises(PipelineError) as info:
-        stages.train_surrogate(training, surrogate, PARAMETERS,
-                               tmp_path / "active" / "1" / "surrogate.h5", previous=previous)
+        train_surrogate(training, surrogate, PARAMETERS,
+                        tmp_path / "active" / "1" / "surrogate.h5", previous=previous)
     _assert_set_aside(info, previous, "surrogate", cut)

@@ -17,10 +17,10 @@ import numpy as np
 import pytest
 
 import bayescalib.inference.surrogate as sur
-from bayescalib import stages
 from bayescalib.config import validate
 from bayescalib.inference.design import sobol_design
 from bayescalib.io.training import write_training
+from bayescalib.stages.surrogate import train_surrogate
 
 BOX = np.array([[-2.0, 2.0], [-1.0, 3.0]])
 B = 1.5  # the log-likelihood's upper bound
@@ -211,16 +211,16 @@ def test_the_round_stage_reads_the_previous_rounds_choice_and_the_study_searches
     r0, r1 = tmp_path / "0", tmp_path / "1"
     r0.mkdir()
     r1.mkdir()
-    stages.train_surrogate(_table(r0 / "training.h5", 12), cfg, PARAMETERS, r0 / "surrogate.h5")
-    stages.train_surrogate(_table(r1 / "training.h5", 17), cfg, PARAMETERS, r1 / "surrogate.h5",
-                           previous=r0 / "surrogate.h5")
+    train_surrogate(_table(r0 / "training.h5", 12), cfg, PARAMETERS, r0 / "surrogate.h5")
+    train_surrogate(_table(r1 / "training.h5", 17), cfg, PARAMETERS, r1 / "surrogate.h5",
+                    previous=r0 / "surrogate.h5")
     s0 = sur.GPSurrogate.load(r0 / "surrogate.h5", device="cpu")
     s1 = sur.GPSurrogate.load(r1 / "surrogate.h5", device="cpu")
     assert (s0.selection, s0.selection_n) == ("search", 12)
     assert (s1.selection, s1.selection_n, s1.n_train) == ("refit", 12, 17)
-    stages.train_surrogate(_table(tmp_path / "training.h5", 17), cfg, PARAMETERS,
-                           tmp_path / "surrogate.h5",
-                           reuse=[r1 / "training.h5", r1 / "surrogate.h5"])
+    train_surrogate(_table(tmp_path / "training.h5", 17), cfg, PARAMETERS,
+                    tmp_path / "surrogate.h5",
+                    reuse=[r1 / "training.h5", r1 / "surrogate.h5"])
     final = sur.GPSurrogate.load(tmp_path / "surrogate.h5", device="cpu")
     assert (final.selection, final.selection_n, final.n_train) == ("search", 17, 17)
 

@@ -148,7 +148,7 @@ def test_the_front_page_table_has_a_truth_column_only_with_a_truth():
 # ---- summary.json, the run's last line, `bayescalib summary`
 
 def test_summary_json_of_real_data_has_no_ground_truth_key(tmp_path):
-    from bayescalib.stages import front_page, run_line
+    from bayescalib.stages.summary import front_page, run_line
 
     base = {"study": "scan", "measure": "rkhs",
             "parameters": [{"name": "E", "unit": "Pa"}], "map": {"E": 401.0},

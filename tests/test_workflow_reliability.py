@@ -279,7 +279,7 @@ def test_a_resume_waits_for_the_orphaned_jobs_of_a_killed_run(done_run, tmp_path
     shutil.copytree(done_run, tmp, symlinks=True)
     log = tmp / STUDY / "logs" / "solve" / "3.log"
     orphan = subprocess.Popen(
-        [sys.executable, "-c", ("from bayescalib.stages import setup_logging; "
+        [sys.executable, "-c", ("from bayescalib.stages.logs import setup_logging; "
          f"setup_logging({str(log)!r}); print('running', flush=True); "
          "import time; time.sleep(120)")], stdout=subprocess.PIPE, text=True)
     try:

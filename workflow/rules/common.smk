@@ -45,10 +45,10 @@ def _read_acquire(r):
     """The record of active round r (runs the checkpoint first when needed); read once
     per version of the file (point_round reads the records for every design point).
     A record that cannot be read is set aside, so that the next run makes it again
-    (bayescalib.stages.read_stage_file)."""
+    (bayescalib.stages.files.read_stage_file)."""
     import os
 
-    from bayescalib.stages import read_stage_file
+    from bayescalib.stages.files import read_stage_file
 
     path = checkpoints.acquire.get(r=int(r)).output[0]
     key = (path, os.stat(path).st_mtime_ns)

@@ -26,7 +26,9 @@ def _fmt(v) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    from bayescalib.stages import PipelineError, read_json, run_line
+    from bayescalib.stages.errors import PipelineError
+    from bayescalib.stages.files import read_json
+    from bayescalib.stages.summary import run_line
 
     path = Path(args.results)
     if path.is_dir():

@@ -115,7 +115,7 @@ def linearize(nodes: Sequence[np.ndarray], base: Sequence[Any],
 
 def noisy_nodes(nodes: Sequence[np.ndarray], sigma: float, seed: int) -> list[np.ndarray]:
     """The observed nodes with Gaussian coordinate noise, as the synthetic observations
-    of ``observations.seed: seed`` (:func:`bayescalib.stages.observe`: one generator,
+    of ``observations.seed: seed`` (:func:`bayescalib.stages.observe.observe`: one generator,
     snapshots in order, ``points + sigma N(0, I)``).
 
     Parameters

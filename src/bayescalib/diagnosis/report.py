@@ -44,7 +44,7 @@ def write_diagnosis(diagnosis: Mapping[str, Any], checks: Mapping[str, Any], *,
     """
     from bayescalib.plotting import plot_interface_residual
     from bayescalib.plotting.diagnosis import plot_candidate_ranking, plot_residual_bands
-    from bayescalib.stages import write_json
+    from bayescalib.stages.files import write_json
 
     fig = Path(figdir)
     written: list[str] = []

@@ -83,7 +83,8 @@ import numpy as np
 
 from bayescalib.diagnosis.extended import CandidateSpec, extended_calibration, joint_name
 from bayescalib.inference.posterior import equal_weight_draws
-from bayescalib.stages import model_interfaces, read_stage_file
+from bayescalib.stages.discrepancy import model_interfaces
+from bayescalib.stages.files import read_stage_file
 
 __all__ = ["IMAGE_NOISE_LAG_PIXELS", "MIN_IDENTIFIABLE", "choose_extension", "decide_verdict",
            "explains_mismatch", "fits_better", "joint_of_singles", "judge_extensions",
@@ -288,7 +289,7 @@ def _better_confirmed_round(cal: dict[str, Any], after, n_fail_after: int, tag: 
     rechecked : dict or None
         ``{round: residual RMS (mm)}`` of the rounds re-checked (None: no second check).
     """
-    from bayescalib.stages import marginalize
+    from bayescalib.stages.marginalize import marginalize
 
     rounds = cal.get("rounds") or []
     if cal["converged"] or len(rounds) < 2 or after is None:
@@ -603,7 +604,7 @@ def run_diagnosis(
 
     ``active`` is the study's validated ``design.active`` section (the extended
     calibrations use it); ``design`` the design block of the study's calibration
-    (:func:`bayescalib.stages.design_summary`: strategy, solves, converged, reason).
+    (:func:`bayescalib.stages.summary.design_summary`: strategy, solves, converged, reason).
 
     Solves and extended calibrations are kept under ``outdir`` and reused.
     """

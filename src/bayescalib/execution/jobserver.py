@@ -129,15 +129,15 @@ class _Stop(Exception):
 #: posterior check, summary.json and the figures.
 STAGES: dict[str, str] = {
     "solve": "bayescalib.stages.jobs:solve",
-    "discrepancy": "bayescalib.stages:discrepancy",
+    "discrepancy": "bayescalib.stages.discrepancy:discrepancy",
     "predictive_solve": "bayescalib.stages.jobs:predictive_solve",
     "posterior_mean_solve": "bayescalib.stages.figures:solve_at_posterior_mean",
-    "posterior_check": "bayescalib.stages:posterior_check",
-    "gather": "bayescalib.stages:gather",
-    "train_surrogate": "bayescalib.stages:train_surrogate",
-    "smc": "bayescalib.stages:smc",
-    "acquire": "bayescalib.stages:acquire",
-    "marginalize": "bayescalib.stages:marginalize",
+    "posterior_check": "bayescalib.stages.posterior_check:posterior_check",
+    "gather": "bayescalib.stages.gather:gather",
+    "train_surrogate": "bayescalib.stages.surrogate:train_surrogate",
+    "smc": "bayescalib.stages.smc:smc",
+    "acquire": "bayescalib.stages.acquire:acquire",
+    "marginalize": "bayescalib.stages.marginalize:marginalize",
     "summary": "bayescalib.stages.jobs:summary",
     "fig_response": "bayescalib.stages.figures:response_figures",
     "fig_convergence": "bayescalib.stages.figures:convergence_figure",
@@ -158,7 +158,8 @@ ROUND_STAGES = frozenset({"train_surrogate", "smc", "acquire", "marginalize", "f
 #: per-point job; also the modules a solve or discrepancy imports on its way, so that
 #: no job compiles or loads one of its own)
 _PRELOAD = ("numpy", "scipy.sparse", "scipy.spatial", "scipy.linalg", "h5py",
-            "bayescalib.models.forward", "bayescalib.stages", "bayescalib.stages.jobs",
+            "bayescalib.models.forward", "bayescalib.stages.logs", "bayescalib.stages.files",
+            "bayescalib.stages.jobs", "bayescalib.stages.discrepancy", "bayescalib.stages.gather",
             "bayescalib.study", "bayescalib.measures", "bayescalib.measures.currents",
             "bayescalib.geometry.interface", "bayescalib.geometry.projection",
             "bayescalib.inference.likelihood", "bayescalib.io.observation_store",
@@ -168,7 +169,10 @@ _PRELOAD = ("numpy", "scipy.sparse", "scipy.spatial", "scipy.linalg", "h5py",
 #: what the round server imports before it accepts jobs (torch only where a GPU may
 #: be used: :func:`bayescalib.inference.surrogate.gpu_possible`)
 _PRELOAD_ROUND = ("numpy", "scipy.linalg", "scipy.optimize", "scipy.stats", "h5py", "GPy",
-                  "arviz", "matplotlib", "matplotlib.pyplot", "bayescalib.stages",
+                  "arviz", "matplotlib", "matplotlib.pyplot", "bayescalib.stages.logs",
+                  "bayescalib.stages.surrogate", "bayescalib.stages.smc",
+                  "bayescalib.stages.acquire", "bayescalib.stages.marginalize",
+                  "bayescalib.stages.posterior_check", "bayescalib.stages.summary",
                   "bayescalib.stages.jobs", "bayescalib.stages.figures", "bayescalib.study",
                   "bayescalib.inference.surrogate", "bayescalib.inference.smc",
                   "bayescalib.inference.active", "bayescalib.inference.posterior",
@@ -293,7 +297,7 @@ def run_job(doc: Mapping[str, Any]) -> None:
     up, its memory limited (``mem_mb``, in a run on this machine: where a job server
     was started or ``BAYESCALIB_JOBSERVER=off`` asked for none; a cluster job is
     limited by its scheduler), then the stage function called with its arguments."""
-    from bayescalib.stages import setup_logging
+    from bayescalib.stages.logs import setup_logging
 
     fn = _stage_function(str(doc.get("stage")))
     setup_logging(doc.get("log"))

@@ -50,10 +50,10 @@ log = logging.getLogger(__name__)
 
 
 def training_rows(training: str | Path):
-    """The rows of a training table (:func:`bayescalib.stages.gather`) used for training,
+    """The rows of a training table (:func:`bayescalib.stages.gather.gather`) used for training,
     as :class:`~bayescalib.inference.rounds.Evaluations`."""
     from bayescalib.inference.rounds import Evaluations
-    from bayescalib.stages import read_stage_file
+    from bayescalib.stages.files import read_stage_file
 
     tab = read_stage_file(training, "training table")
     return Evaluations.from_rows(tab).take(tab["is_train"].astype(bool))
@@ -95,7 +95,8 @@ class SolvePath:
     def __call__(self, X: np.ndarray):
         from bayescalib.inference.rounds import Evaluations
         from bayescalib.models.forward import solve_points
-        from bayescalib.stages import discrepancy, gather_rows
+        from bayescalib.stages.discrepancy import discrepancy
+        from bayescalib.stages.gather import gather_rows
 
         work = Path(self.workdir)
         targets = [p["target"] for p in self.parameters]
@@ -141,7 +142,8 @@ class FileStore:
 
     def fit(self, r: int | None, rows, previous: Any) -> Any:
         from bayescalib.io.training import write_training
-        from bayescalib.stages import read_stage_file, train_surrogate
+        from bayescalib.stages.files import read_stage_file
+        from bayescalib.stages.surrogate import train_surrogate
 
         if r is not None:  # the result's surrogate is fitted to the last round's table
             self.training = self._folder(r) / "training.h5"
@@ -156,8 +158,8 @@ class FileStore:
         return read_stage_file(self.surrogate, "surrogate")
 
     def sample(self, r: int | None, surrogate: Any, smc: Mapping[str, Any]) -> Any:
-        from bayescalib.stages import read_stage_file
-        from bayescalib.stages import smc as run_smc
+        from bayescalib.stages.files import read_stage_file
+        from bayescalib.stages.smc import smc as run_smc
 
         self.particles = self._folder(r) / "particles.h5"
         run_smc(self.surrogate, smc, self.parameters, self.particles)
@@ -165,7 +167,7 @@ class FileStore:
 
     def decide(self, r: int, rows, surrogate: Any, result: Any,
                previous: Mapping[str, Any] | None) -> dict[str, Any]:
-        from bayescalib.stages import acquire
+        from bayescalib.stages.acquire import acquire
 
         rd = self._folder(r)
         return acquire(r, self.training, self.surrogate, self.particles,
@@ -230,7 +232,7 @@ def calibrate_rounds(
     """
     from bayescalib.config import round_smc, validate
     from bayescalib.inference.rounds import RoundSettings, run_rounds
-    from bayescalib.stages import marginalize
+    from bayescalib.stages.marginalize import marginalize
 
     check_cfg = validate({"posterior_check": dict(check or {"draws": 0})}, "inference",
                          where="calibrate_rounds")["posterior_check"]

@@ -27,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from bayescalib.stages import read_stage_file
+from bayescalib.stages.files import read_stage_file
 
 __all__ = [
     "convergence_figure",

@@ -17,7 +17,7 @@ def solve(*, out: str, forward_model: Mapping[str, Any], point: Mapping[str, flo
     """One design point's forward solve (rule solve): ``base`` is the warm-start state
     (``forward_model.warm_start: prior_centre``)."""
     from bayescalib.models.forward import solve_points
-    from bayescalib.stages import read_stage_file
+    from bayescalib.stages.files import read_stage_file
 
     base = base or None
     if base is not None:  # a damaged state is set aside and rebuilt, never solved from
@@ -42,13 +42,13 @@ def summary(*, out: str, study: str, parameters: Sequence[Mapping[str, Any]],
             convergence: Sequence[str] = (), check: Sequence[str] = ()) -> None:
     """summary.json (rule summary): the study's results, its design, its timings, the
     GP convergence files and the posterior check."""
-    from bayescalib.stages import (
+    from bayescalib.stages.summary import (
         collect_timings,
         design_summary,
         posterior_check_summary,
         round_check_summary,
     )
-    from bayescalib.stages import summary as write_summary
+    from bayescalib.stages.summary import summary as write_summary
 
     extra: dict[str, Any] = {
         "design": design_summary(strategy, list(active), int(n_solves), **dict(budget or {})),
