@@ -30,12 +30,12 @@ def rechecks(monkeypatch):
     rms: dict[int, float] = {}
     calls: list[str] = []
 
-    def check(tag, particles, *args, **kwargs):
+    def check(ctx, model, particles, tag, seed):
         r = int(str(particles).split("/")[-2])
         calls.append(tag)
         return SimpleNamespace(rms=rms[r]), 0, None
 
-    monkeypatch.setattr(stage, "_check_from_particles", check)
+    monkeypatch.setattr(stage, "_predictive_check_at_draws", check)
     monkeypatch.setattr(marginalize_stage, "marginalize",
                         lambda particles, *a, **k: {"mean": {"phi_x": 4.0}, "from": str(particles)})
     monkeypatch.setattr(posterior, "read_particles_h5",
@@ -43,10 +43,19 @@ def rechecks(monkeypatch):
     return rms, calls
 
 
+def _context(seed=0, n_draws=16):
+    """A stand-in context: the settings these helpers read (the solves are stand-ins)."""
+    return SimpleNamespace(settings={"seed": seed, "n_draws": n_draws}, posterior_cfg={},
+                           smc_cfg={"seed": 0})
+
+
+def _model():
+    return stage.CheckedModel("x", [], {}, 1e-3)
+
+
 def _pick(cal, last_rms, tmp_path):
-    return stage._better_confirmed_round(
-        cal, SimpleNamespace(rms=last_rms), 0, "x", [], {}, None, None, {}, tmp_path, 1, None,
-        1e-3, {"posterior_cfg": {}, "smc_cfg": {"seed": 0}})
+    return stage._better_confirmed_round(_context(), cal, SimpleNamespace(rms=last_rms), 0,
+                                         _model())
 
 
 def test_the_round_before_is_reported_when_real_solves_confirm_it_better(tmp_path, rechecks):
@@ -81,24 +90,24 @@ def test_no_second_check_for_a_converged_or_single_round_calibration(tmp_path, r
     assert calls == []
 
 
-# --- the reported check: fresh draws of the kept round (stage._report_check) ----------
+# --- the reported check: fresh draws of the kept round (stage._reported_predictive_check)
 
 @pytest.fixture
 def fresh_checks(monkeypatch):
     """Stand-in re-check: records (tag, particles, seed) and returns an RMS of 2.0e-3."""
     calls: list[tuple[str, str, int]] = []
 
-    def check(tag, particles, targets, switches, obs, fm, cfg, *args, **kwargs):
-        calls.append((tag, str(particles), int(cfg["seed"])))
+    def check(ctx, model, particles, tag, seed):
+        calls.append((tag, str(particles), int(seed)))
         return SimpleNamespace(rms=2.0e-3), 1, None
 
-    monkeypatch.setattr(stage, "_check_from_particles", check)
+    monkeypatch.setattr(stage, "_predictive_check_at_draws", check)
     return calls
 
 
 def _report(cal, after, rechecked, tmp_path, seed=5):
-    return stage._report_check(cal, after, 0, rechecked, "x", [], {}, None, None,
-                               {"seed": seed, "n_draws": 16}, tmp_path, 1, None, 1e-3)
+    return stage._reported_predictive_check(_context(seed=seed), cal, after, 0, rechecked,
+                                            _model())
 
 
 def test_the_reported_rms_comes_from_fresh_draws_of_the_kept_round(tmp_path, fresh_checks):
@@ -139,7 +148,7 @@ def test_fresh_draws_that_do_not_solve_leave_the_extension_unconfirmed(tmp_path,
     def check(*args, **kwargs):
         raise stage.PredictiveCheckError("only 1 of 16 posterior draws solved")
 
-    monkeypatch.setattr(stage, "_check_from_particles", check)
+    monkeypatch.setattr(stage, "_predictive_check_at_draws", check)
     after, n_fail, src = _report(_cal(tmp_path), SimpleNamespace(rms=1.0e-3),
                                  {2: 1.0e-3, 1: 2.0e-3}, tmp_path)
     assert after is None and n_fail == 16

@@ -645,9 +645,12 @@ def test_a_failed_signature_is_retried_and_an_untestable_candidate_is_named(
     gives the signature (it equals the forward-difference one of the analytic model to
     first order); where every attempt fails the candidate is reported as not testable,
     with the solver's reason, never silently dropped."""
+    import dataclasses
+
+    from bayescalib.diagnosis.context import DiagnosisContext
     from bayescalib.diagnosis.extended import CandidateSpec
     from bayescalib.diagnosis.residuals import offsets
-    from bayescalib.diagnosis.stage import _signatures
+    from bayescalib.diagnosis.stage import Linearization, _signatures
     from bayescalib.models.analytic import interface
     from bayescalib.models.forward import solve_points
     from bayescalib.stages.discrepancy import model_interfaces
@@ -673,8 +676,12 @@ def test_a_failed_signature_is_retried_and_an_untestable_candidate_is_named(
 
     draws = {"X": X, "ok": np.array([True, True]),
              "curves": [model_interfaces(r, 2) for r in runs[2:]]}
-    sig, failed, attempts = _signatures([cand], [runs[1]], mean, draws, np.array([700.0, 1.25]),
-                                        offsets_of, fm, tmp_path, 1, None, 2)
+    # the context's solve path and a linearization at the mean (box E 100-800, nu -0.8-0.45)
+    ctx = DiagnosisContext(**{**{f.name: None for f in dataclasses.fields(DiagnosisContext)},
+                              "fm": fm, "work": tmp_path, "workers": 1})
+    lin = Linearization(["E", "nu"], np.array([400.0, 0.3]), np.array([100.0, -0.8]),
+                        np.array([800.0, 0.45]), None, [], obs, C0, None, None)
+    sig, failed, attempts = _signatures(ctx, lin, [cand], [runs[1]], draws)
     tried = attempts["prestrain"]["tried"]
     assert tried[0] == {"phi_step": 0.01, "at": "posterior mean", "ok": False,
                         "reason": tried[0]["reason"]}

@@ -31,7 +31,7 @@
    fit better, so their RMS is biased low (the minimum of two noisy estimates); the
    check that is reported, and that decides whether the extension explains the
    mismatch, comes from *fresh* draws of the kept posterior (another seed,
-   :data:`REPORT_SEED_OFFSET`), solved for the report only (:func:`_report_check`).
+   :data:`REPORT_SEED_OFFSET`), solved for the report only (:func:`_reported_predictive_check`).
    Every check gives the spread of its RMS over the draws
    (:func:`~bayescalib.diagnosis.residuals.rms_spread`: per-draw median and 16-84 %
    range, and a bootstrap interval over the draws).
@@ -72,15 +72,25 @@ cause the chosen model does not contain.
 
 from __future__ import annotations
 
+import functools
 import itertools
 import logging
 import math
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+# the observation noise settings are resolved with the context (and kept here by name)
+from bayescalib.diagnosis.context import (
+    IMAGE_NOISE_LAG_PIXELS,
+    DiagnosisContext,
+    noise_lag,
+    resolve_noise_model,
+    thinned_observations,
+)
 from bayescalib.diagnosis.extended import CandidateSpec, extended_calibration, joint_name
 from bayescalib.inference.posterior import equal_weight_draws
 from bayescalib.stages.discrepancy import model_interfaces
@@ -125,7 +135,7 @@ NOT_TESTABLE_ADVICE = ("make the forward model solve with it switched on (the so
 N_RETRY_STEPS = 3
 
 #: added to ``diagnose.seed`` for the posterior draws solved for the report of an
-#: extension whose round was chosen by real solves (:func:`_report_check`)
+#: extension whose round was chosen by real solves (:func:`_reported_predictive_check`)
 REPORT_SEED_OFFSET = 1000
 
 
@@ -162,96 +172,185 @@ def resolve_candidates(fm: Mapping[str, Any], diagnose: Mapping[str, Any]) -> li
 
 
 # ------------------------------------------------------------------------- helpers
-#: lag of the noise estimate for interfaces traced from images, in pixel sizes (see
-#: :func:`bayescalib.diagnosis.residuals.estimate_noise`)
-IMAGE_NOISE_LAG_PIXELS = 5.0
+@dataclass(frozen=True)
+class CheckedModel:
+    """A model whose posterior draws are solved for a predictive check: the base model or
+    an extension.
+
+    Attributes
+    ----------
+    tag : its folder under the work folder (and its name in messages).
+    targets : the columns of its SMC particles (the base parameters', then each ``phi``).
+    switches : forward-model settings added to every solve (the extension's).
+    sigma : the noise sd given to its predictive checks, mm (None: estimated).
+    """
+
+    tag: str
+    targets: list[str]
+    switches: Mapping[str, Any]
+    sigma: float | None
 
 
-def _image_pixel_sizes(observations: Mapping[str, Any]) -> list[float]:
-    """Pixel sizes (mm) of the image files among the observations (none: not images)."""
-    from bayescalib.io.observations import IMAGE_SUFFIXES, UNITS
+@dataclass(frozen=True)
+class BaseCalibration:
+    """The study's calibration as ``summary.json`` reports it (step 0): its SMC particle
+    file and log evidence, its posterior summary and its design block (strategy, solves,
+    converged, reason)."""
 
-    if observations.get("source") != "files":
-        return []
-    return [float(e["pixel_size"]) * UNITS[e.get("units") or "mm"]
-            for e in observations.get("files") or []
-            if Path(e["path"]).suffix.lower() in IMAGE_SUFFIXES and e.get("pixel_size")]
+    particles: str | Path
+    log_evidence: float
+    summary: Mapping[str, Any]
+    design: dict[str, Any]
 
-
-def noise_lag(diagnose: Mapping[str, Any], observations: Mapping[str, Any]) -> float:
-    """Arc length (mm) over which the noise estimate differences the residual:
-    ``diagnose.noise_lag`` if set, else :data:`IMAGE_NOISE_LAG_PIXELS` times the largest
-    pixel size of the image files among the observations, else 0 (adjacent nodes)."""
-    if diagnose.get("noise_lag") is not None:
-        return float(diagnose["noise_lag"])
-    sizes = _image_pixel_sizes(observations)
-    return IMAGE_NOISE_LAG_PIXELS * max(sizes) if sizes else 0.0
-
-
-def resolve_noise_model(diagnose: Mapping[str, Any], observations: Mapping[str, Any]) -> str:
-    """Noise model of the predictive check's replicates
-    (:data:`bayescalib.diagnosis.residuals.NOISE_MODELS`): ``diagnose.noise_model`` if
-    set, else ``bootstrap`` for interfaces traced from images (their segmentation error
-    is heavy-tailed and its level is estimated from ~100 nodes) when the check smooths
-    (``diagnose.smoothing`` > 0: the bootstrap takes the smooth part out) and
-    ``gaussian`` otherwise (synthetic coordinate noise, exactly i.i.d. Gaussian)."""
-    if diagnose.get("noise_model") is not None:
-        return str(diagnose["noise_model"])
-    images = bool(_image_pixel_sizes(observations))
-    return "bootstrap" if images and float(diagnose["smoothing"]) > 0 else "gaussian"
+    @classmethod
+    def read(cls, particles: str | Path, posterior: str | Path,
+             design: Mapping[str, Any]) -> BaseCalibration:
+        return cls(particles,
+                   float(read_stage_file(particles, "SMC particle file").log_evidence),
+                   read_stage_file(posterior, "posterior summary"),
+                   {k: design.get(k) for k in ("strategy", "n_solves", "converged", "reason")})
 
 
-def thinned_observations(obs, spacing: float):
-    """The observation set with every snapshot thinned to one node per ``spacing`` mm of
-    arc length (:func:`bayescalib.diagnosis.residuals.thin_nodes`; 0 = unchanged): the
-    nodes the diagnosis uses when the noise is correlated along the interface (images)."""
-    import dataclasses
+def _offsets_from(observed: Sequence[np.ndarray], reference: Sequence[Any],
+                  curves: Sequence[Sequence[Any]]) -> tuple[np.ndarray, np.ndarray]:
+    """Residual of the observed nodes and offsets of ``curves`` (per snapshot each)
+    from the ``reference`` prediction, over all snapshots."""
+    from bayescalib.diagnosis.residuals import offsets
 
-    from bayescalib.diagnosis.residuals import thin_nodes
-    from bayescalib.geometry.interface import Interface
-
-    if spacing <= 0:
-        return obs
-    snaps = []
-    for s in obs.snapshots:
-        pts = np.asarray(s.points)
-        idx = thin_nodes(pts, spacing)
-        snaps.append(Interface.polyline(pts[idx], closed=s.n_cells == s.n_points and idx.size >= 3,
-                                        name=s.name))
-    return dataclasses.replace(obs, snapshots=snaps)
+    ys, os_ = [], []
+    for s in range(len(observed)):
+        y, o = offsets(observed[s], reference[s], [cv[s] for cv in curves])
+        ys.append(y)
+        os_.append(o)
+    return np.concatenate(ys), np.concatenate(os_, axis=1)
 
 
-def _check_from_particles(tag: str, particles: str | Path, targets: Sequence[str],
-                          switches: Mapping[str, Any], obs, fm, cfg, work: Path,
-                          workers: int, warm_start, sigma):
-    """Solve posterior draws and run the predictive check.
+@dataclass(frozen=True)
+class Linearization:
+    """The base model linearized at its posterior mean (step 3).
+
+    Attributes
+    ----------
+    targets : the base parameters' targets.
+    theta : the posterior mean (parameter order).
+    lo, hi : the parameters' box.
+    h : the finite-difference steps (towards the box interior).
+    fd : the parameters whose step solved (the columns of ``J``).
+    observed : the observed nodes per snapshot (the diagnosis's: thinned).
+    reference : the predicted interfaces at the posterior mean, per snapshot.
+    r : the residual of the observed nodes from ``reference``, all snapshots.
+    J : the nuisance Jacobian of the offsets (columns ``fd``).
+    """
+
+    targets: list[str]
+    theta: np.ndarray
+    lo: np.ndarray
+    hi: np.ndarray
+    h: np.ndarray
+    fd: list[int]
+    observed: list[np.ndarray]
+    reference: list[Any]
+    r: np.ndarray
+    J: np.ndarray
+
+    @property
+    def base_point(self) -> dict[str, float]:
+        return dict(zip(self.targets, map(float, self.theta), strict=True))
+
+    @property
+    def n_snap(self) -> int:
+        return len(self.observed)
+
+    def offsets_of(self, curves: Sequence[Sequence[Any]]) -> tuple[np.ndarray, np.ndarray]:
+        """Residual and offsets from the posterior-mean prediction, over all snapshots."""
+        return _offsets_from(self.observed, self.reference, curves)
+
+
+@dataclass(frozen=True)
+class Attribution:
+    """What step 3 found: the linearization, the candidates tested, the attribution
+    (:func:`~bayescalib.diagnosis.attribution.attribute`, its ranking annotated for the
+    report), the candidates no signature solve could evaluate (name -> reasons) and
+    every signature attempt (:func:`_signatures`)."""
+
+    lin: Linearization
+    cands: list[CandidateSpec]
+    result: dict[str, Any]
+    failed: dict[str, str]
+    attempts: dict[str, Any]
+
+
+@dataclass(frozen=True)
+class Screening:
+    """The verdict before any modelling (step 4's gate): the re-fit test (``refit``:
+    whether the base parameters absorb the mismatch), the screening verdict and whether
+    extended models are calibrated (``extend``)."""
+
+    refit: dict[str, Any]
+    verdict: str
+    extend: bool
+
+
+@dataclass(frozen=True)
+class Extensions:
+    """Steps 4-5: the calibrated extensions, each judged by real solves
+    (:func:`model_extensions`), the reference noise sd they were judged against (mm)
+    and the joint model of singles (None: none)."""
+
+    extended: list[dict[str, Any]]
+    noise_reference: float
+    joint: dict[str, Any] | None
+
+
+@dataclass(frozen=True)
+class Decision:
+    """What the diagnosis decided: its screening and extensions, the candidates set
+    aside, the chosen model and the verdict."""
+
+    screening: Screening
+    extensions: Extensions
+    set_aside: list[dict[str, Any]]
+    chosen: str
+    verdict: str
+
+
+def _residual_variance(check) -> np.ndarray:
+    """The variance of the residual at every observed node (noise and posterior spread)
+    of a predictive check, all snapshots."""
+    return np.concatenate([sn.v for sn in check.snapshots])
+
+
+def _recheck_sigma(ctx: DiagnosisContext, check) -> float | None:
+    """The noise sd given to the predictive checks after the base model's (extensions,
+    registered observations): the base check's when it was given, else the context's
+    (None: each estimates its own)."""
+    return check.sigma if check.sigma_source == "given" else ctx.sigma
+
+
+def _predictive_check_at_draws(ctx: DiagnosisContext, model: CheckedModel,
+                               particles: str | Path, tag: str, seed: int):
+    """Solve posterior draws of ``model`` and run the predictive check.
+
+    ``diagnose.n_draws`` draws of the SMC particles ``particles`` (systematic
+    resampling seeded by ``seed``; the noise replicates by ``seed + 1``) are solved under
+    ``<work>/<tag>/draws``.
 
     Returns the check, the number of failed draws and the draws: ``X`` (K, d), ``ok``
     (K,) and ``curves`` (the predicted interfaces of the solved draws, per snapshot).
     """
-    from bayescalib.diagnosis.residuals import predictive_check
-    from bayescalib.models.forward import solve_points
-
-    X = equal_weight_draws(read_stage_file(particles, "SMC particle file"), int(cfg["n_draws"]),
-                           int(cfg["seed"]))
-    points = [{**dict(zip(targets, map(float, x), strict=True)), **switches} for x in X]
-    runs = solve_points(fm, points, [work / tag / "draws" / f"{k}.h5" for k in range(len(X))],
-                      workers=workers, warm_start=warm_start)
+    X = equal_weight_draws(read_stage_file(particles, "SMC particle file"),
+                           int(ctx.settings["n_draws"]), int(seed))
+    points = [{**dict(zip(model.targets, map(float, x), strict=True)), **model.switches}
+              for x in X]
+    runs = ctx.solve(points, Path(tag) / "draws")
     good = [r for r in runs if r.ok]
     if len(good) < 2:
         reasons = sorted({r.reason.split(";")[0] for r in runs if not r.ok})
         raise PredictiveCheckError(
             f"diagnosis ({tag}): only {len(good)} of {len(runs)} posterior draws solved; the "
             "predictive check needs at least 2. Failures: " + "; ".join(reasons[:3]))
-    n_snap = len(obs.snapshots)
-    curves = [model_interfaces(r, n_snap) for r in good]
-    check = predictive_check(obs.snapshots, curves,
-                             labels=obs.labels, sigma=sigma, noise_floor=cfg["noise_floor"],
-                             ell=cfg["smoothing"], alpha=cfg["alpha"], n_noise=cfg["n_noise"],
-                             noise_lag=cfg["noise_lag_mm"],
-                             noise_model=cfg["noise_model_name"],
-                             segmentation_sigma=cfg.get("segmentation_sigma_mm"),
-                             rng=np.random.default_rng(int(cfg["seed"]) + 1))
+    curves = [model_interfaces(r, ctx.n_snap) for r in good]
+    check = ctx.predictive_check(ctx.obs.snapshots, curves, model.sigma, seed)
     draws = {"X": X, "ok": np.array([r.ok for r in runs]), "curves": curves}
     return check, len(runs) - len(good), draws
 
@@ -268,10 +367,8 @@ def retry_steps(cand: CandidateSpec) -> list[float]:
     return out[:N_RETRY_STEPS]
 
 
-def _better_confirmed_round(cal: dict[str, Any], after, n_fail_after: int, tag: str,
-                            targets: Sequence[str], switches: Mapping[str, Any], obs, fm,
-                            cfg: Mapping[str, Any], work: Path, workers: int, warm_start,
-                            sigma, chain: Mapping[str, Any]):
+def _better_confirmed_round(ctx: DiagnosisContext, cal: dict[str, Any], after,
+                            n_fail_after: int, model: CheckedModel):
     """The round that represents an extended calibration that stopped unconverged.
 
     When the budget ends an active design, the last round's posterior may have moved
@@ -297,9 +394,9 @@ def _better_confirmed_round(cal: dict[str, Any], after, n_fail_after: int, tag: 
     last = int(rounds[-1]["round"])
     rd = Path(cal["particles"]).parent.parent / str(last - 1)
     try:
-        alt, n_fail_alt, _ = _check_from_particles(
-            f"{tag}/round_{last - 1}", rd / "particles.h5", targets, switches, obs, fm, cfg,
-            work, workers, warm_start, sigma)
+        alt, n_fail_alt, _ = _predictive_check_at_draws(
+            ctx, model, rd / "particles.h5", f"{model.tag}/round_{last - 1}",
+            int(ctx.settings["seed"]))
     except PredictiveCheckError as exc:
         log.warning("%s", exc)
         return cal, after, n_fail_after, {last: float(after.rms)}
@@ -307,9 +404,10 @@ def _better_confirmed_round(cal: dict[str, Any], after, n_fail_after: int, tag: 
     if alt.rms >= after.rms:
         return cal, after, n_fail_after, rechecked
     log.info("%s: round %d's posterior fits better at real solves than the last round's "
-             "(%.3g vs %.3g mm); it represents the extension", tag, last - 1, alt.rms, after.rms)
-    summary = marginalize(rd / "particles.h5", rd / "surrogate.h5", chain["posterior_cfg"],
-                          cal["parameters"], int(chain["smc_cfg"]["seed"]),
+             "(%.3g vs %.3g mm); it represents the extension", model.tag, last - 1, alt.rms,
+             after.rms)
+    summary = marginalize(rd / "particles.h5", rd / "surrogate.h5", ctx.posterior_cfg,
+                          cal["parameters"], int(ctx.smc_cfg["seed"]),
                           rd / "posterior.json", rd / "posterior.nc")
     cal = {**cal, "posterior": summary, "particles": str(rd / "particles.h5"),
            "surrogate": str(rd / "surrogate.h5"), "reported_round": last - 1,
@@ -318,11 +416,11 @@ def _better_confirmed_round(cal: dict[str, Any], after, n_fail_after: int, tag: 
     return cal, alt, n_fail_alt, rechecked
 
 
-def _report_check(cal: Mapping[str, Any], after, n_fail_after: int,
-                  rechecked: Mapping[int, float] | None, tag: str, targets: Sequence[str],
-                  switches: Mapping[str, Any], obs, fm, cfg: Mapping[str, Any], work: Path,
-                  workers: int, warm_start, sigma):
-    """The check reported for an extension, unbiased by the choice of its round.
+def _reported_predictive_check(ctx: DiagnosisContext, cal: Mapping[str, Any], after,
+                               n_fail_after: int, rechecked: Mapping[int, float] | None,
+                               model: CheckedModel):
+    """The predictive check reported for an extension, unbiased by the choice of its
+    round.
 
     :func:`_better_confirmed_round` keeps, of two rounds, the one whose real solves fit
     better: the kept check's RMS is the smaller of two estimates that each vary with
@@ -344,38 +442,67 @@ def _report_check(cal: Mapping[str, Any], after, n_fail_after: int,
         ``selection_rms_mm`` (the kept round's RMS at the draws that chose it) and,
         when none solved, ``failed`` (the reason).
     """
-    seed = int(cfg["seed"])
+    seed = int(ctx.settings["seed"])
+    n_draws = int(ctx.settings["n_draws"])
     if rechecked is None or len(rechecked) < 2:
-        return after, n_fail_after, {"draws": "check", "seed": seed,
-                                     "n_draws": int(cfg["n_draws"]),
+        return after, n_fail_after, {"draws": "check", "seed": seed, "n_draws": n_draws,
                                      "n_failed": int(n_fail_after)}
     kept = cal.get("reported_round")
     kept = max(int(k) for k in rechecked) if kept is None else int(kept)
-    source = {"draws": "fresh", "seed": seed + REPORT_SEED_OFFSET,
-              "n_draws": int(cfg["n_draws"]),
+    source = {"draws": "fresh", "seed": seed + REPORT_SEED_OFFSET, "n_draws": n_draws,
               "selection_rms_mm": float({int(k): v for k, v in rechecked.items()}[kept])}
     try:
-        fresh, n_fail, _ = _check_from_particles(
-            f"{tag}/report", cal["particles"], targets, switches, obs, fm,
-            {**cfg, "seed": seed + REPORT_SEED_OFFSET}, work, workers, warm_start, sigma)
+        fresh, n_fail, _ = _predictive_check_at_draws(
+            ctx, model, cal["particles"], f"{model.tag}/report", seed + REPORT_SEED_OFFSET)
     except PredictiveCheckError as exc:
         log.warning("%s", exc)
-        return None, int(cfg["n_draws"]), {**source, "n_failed": int(cfg["n_draws"]),
-                                           "failed": str(exc)}
+        return None, n_draws, {**source, "n_failed": n_draws, "failed": str(exc)}
     log.info("%s: residual RMS at fresh draws of the kept round %.3g mm (%.3g mm at the "
-             "draws that chose it)", tag, fresh.rms, source["selection_rms_mm"])
+             "draws that chose it)", model.tag, fresh.rms, source["selection_rms_mm"])
     return fresh, n_fail, {**source, "n_failed": int(n_fail)}
 
 
-def _signatures(cands: Sequence[CandidateSpec], first: Sequence[Any],
-                base_point: Mapping[str, float], draws: Mapping[str, Any], scale: np.ndarray,
-                offsets_of, fm, work: Path, workers: int, warm_start, n_snap: int):
+def _linearize(ctx: DiagnosisContext, mean: Mapping[str, float],
+               cands: Sequence[CandidateSpec]) -> tuple[Linearization, list]:
+    """Solve at the posterior mean ``mean``, at a finite-difference step of every
+    parameter (towards the box interior, so the point stays inside the prior support)
+    and at each candidate's step; the linearization and the candidates' solves."""
+    from bayescalib.diagnosis.attribution import jacobian_from_offsets
+
+    targets = ctx.targets
+    theta = np.array([float(mean[n]) for n in ctx.names])
+    lo, hi = ctx.bounds()
+    h = float(ctx.settings["fd_step"]) * (hi - lo)
+    h = np.where(theta + h > hi, -h, h)
+    base_point = dict(zip(targets, map(float, theta), strict=True))
+    pts = [base_point]
+    for i, t in enumerate(targets):
+        pts.append({**base_point, t: float(theta[i] + h[i])})
+    for c in cands:
+        pts.append({**base_point, c.target: c.step, **c.switches})
+    runs = ctx.solve(pts, "base/linearization")
+    if not runs[0].ok:
+        raise ValueError(f"diagnosis: the solve at the posterior mean failed ({runs[0].reason})")
+    reference = model_interfaces(runs[0], ctx.n_snap)
+    observed = [np.asarray(s.points, dtype=float) for s in ctx.obs.snapshots]
+    r, _ = _offsets_from(observed, reference, [])
+    fd = [i for i in range(len(targets)) if runs[1 + i].ok]
+    _, O_fd = _offsets_from(observed, reference,
+                            [model_interfaces(runs[1 + i], ctx.n_snap) for i in fd])
+    # offsets are measured from the posterior-mean prediction, so its own offset is 0
+    J = jacobian_from_offsets(list(O_fd), np.zeros(len(r)), [h[i] for i in fd])
+    lin = Linearization(targets, theta, lo, hi, h, fd, observed, reference, r, J)
+    return lin, runs[1 + len(targets):]
+
+
+def _signatures(ctx: DiagnosisContext, lin: Linearization, cands: Sequence[CandidateSpec],
+                first: Sequence[Any], draws: Mapping[str, Any]):
     """Candidate signatures, trying harder where the solve at the step failed.
 
-    ``first`` are the solves at ``base_point`` with each candidate at its step. A
+    ``first`` are the solves at the posterior mean with each candidate at its step. A
     candidate whose solve failed is tried again with :func:`retry_steps` at the
     posterior mean, then at its step from the solved posterior draw nearest to the mean
-    (box-scaled distance ``scale``), where the signature is the difference to that
+    (distance scaled by the box), where the signature is the difference to that
     draw's own prediction. A candidate no attempt could solve is *not testable*.
 
     Returns
@@ -389,27 +516,26 @@ def _signatures(cands: Sequence[CandidateSpec], first: Sequence[Any],
         every attempt with its outcome.
     """
     from bayescalib.diagnosis.attribution import signature_from_offsets
-    from bayescalib.models.forward import solve_points
 
+    n_snap = lin.n_snap
     signatures, attempts = {}, {}
     for c, run in zip(cands, first, strict=True):
         attempts[c.name] = {"phi_step": c.step, "at": "posterior mean", "tried": [
             {"phi_step": c.step, "at": "posterior mean", "ok": bool(run.ok),
              "reason": "" if run.ok else run.reason}]}
         if run.ok:
-            _, O = offsets_of([model_interfaces(run, n_snap)])
+            _, O = lin.offsets_of([model_interfaces(run, n_snap)])
             signatures[c.name] = signature_from_offsets(O[0], 0.0, c.step)
     todo = [c for c in cands if c.name not in signatures]
     if not todo:
         return signatures, {}, attempts
-    targets = list(base_point)
-    theta = np.array([base_point[t] for t in targets])
+    base_point = lin.base_point
     ok = np.flatnonzero(draws["ok"])
     near, draw_point = None, None
     if ok.size:
-        dist = np.linalg.norm((draws["X"][ok] - theta) / scale, axis=1)
+        dist = np.linalg.norm((draws["X"][ok] - lin.theta) / (lin.hi - lin.lo), axis=1)
         near = int(np.argmin(dist))  # index into the solved draws (draws["curves"])
-        draw_point = dict(zip(targets, map(float, draws["X"][ok[near]]), strict=True))
+        draw_point = dict(zip(lin.targets, map(float, draws["X"][ok[near]]), strict=True))
     pts, meta = [], []
     for c in todo:
         for st in retry_steps(c):
@@ -419,9 +545,7 @@ def _signatures(cands: Sequence[CandidateSpec], first: Sequence[Any],
             for st in [c.step, *retry_steps(c)[:1]]:
                 pts.append({**draw_point, c.target: st, **c.switches})
                 meta.append((c, st, near))
-    runs = solve_points(fm, pts, [work / "base" / "signatures" / f"{i}.h5"
-                                for i in range(len(pts))], workers=workers,
-                        warm_start=warm_start)
+    runs = ctx.solve(pts, "base/signatures")
     for (c, st, k), run in zip(meta, runs, strict=True):
         at = "posterior mean" if k is None else f"posterior draw {int(ok[k])}"
         attempts[c.name]["tried"].append({"phi_step": st, "at": at, "ok": bool(run.ok),
@@ -429,10 +553,10 @@ def _signatures(cands: Sequence[CandidateSpec], first: Sequence[Any],
         if c.name in signatures or not run.ok:
             continue
         if k is None:
-            _, O = offsets_of([model_interfaces(run, n_snap)])
+            _, O = lin.offsets_of([model_interfaces(run, n_snap)])
             signatures[c.name] = signature_from_offsets(O[0], 0.0, st)
         else:
-            _, O = offsets_of([draws["curves"][k], model_interfaces(run, n_snap)])
+            _, O = lin.offsets_of([draws["curves"][k], model_interfaces(run, n_snap)])
             signatures[c.name] = signature_from_offsets(O[1], O[0], st)
         attempts[c.name].update(phi_step=st, at=at)
     failed = {}
@@ -444,8 +568,34 @@ def _signatures(cands: Sequence[CandidateSpec], first: Sequence[Any],
     return signatures, failed, attempts
 
 
-def _registration(modes, r, J, v, C0, obs, obs_pts, check, draws, theta, h, fd, targets,
-                  names, box, fm, cfg, work: Path, workers: int, warm_start, sigma) -> dict:
+def _attribute(ctx: DiagnosisContext, mean: Mapping[str, float], check,
+               draws: Mapping[str, Any]) -> Attribution:
+    """Step 3: linearize at the posterior mean ``mean``, solve the candidates'
+    signatures (:func:`_signatures`) and rank the candidates
+    (:func:`~bayescalib.diagnosis.attribution.attribute`) against the base predictive
+    check's residual variance."""
+    from bayescalib.diagnosis.attribution import attribute
+
+    cfg = ctx.settings
+    cands = resolve_candidates(ctx.fm, cfg)
+    lin, cand_runs = _linearize(ctx, mean, cands)
+    signatures, failed, attempts = _signatures(ctx, lin, cands, cand_runs, draws)
+    attr = attribute(lin.r, lin.J, signatures, _residual_variance(check), alpha=cfg["alpha"],
+                     r2_min=cfg["r2_min"], max_effects=cfg["max_effects"],
+                     ranges={c.name: c.prior for c in cands})
+    # plain-words size of each signature's effect at the step, for the report
+    for row in attr["ranking"]:
+        c = next(c for c in cands if c.name == row["candidate"])
+        row["summary"] = c.summary
+        row["step"] = attempts[c.name]["phi_step"]
+        row["signature_at"] = attempts[c.name]["at"]
+        row["unit"] = c.unit
+        row["max_shift_at_step_mm"] = float(np.max(np.abs(signatures[c.name] * c.step)))
+    return Attribution(lin, cands, attr, failed, attempts)
+
+
+def _registration(ctx: DiagnosisContext, lin: Linearization, check,
+                  draws: Mapping[str, Any]) -> dict:
     """Test and, when significant, model a rigid misregistration of the observations.
 
     The block test (:func:`~bayescalib.diagnosis.attribution.block_test`) at the posterior
@@ -458,17 +608,18 @@ def _registration(modes, r, J, v, C0, obs, obs_pts, check, draws, theta, h, fd, 
     """
     from bayescalib.diagnosis.attribution import block_test, jacobian_from_offsets
     from bayescalib.diagnosis.registration import joint_fit, laplace_draws
-    from bayescalib.diagnosis.residuals import offsets, predictive_check, registration_signatures
+    from bayescalib.diagnosis.residuals import offsets, registration_signatures
     from bayescalib.geometry.interface import Interface
     from bayescalib.geometry.registration import register
-    from bayescalib.models.forward import solve_points
 
-    lo, hi = box
-    n_snap = len(obs_pts)
+    cfg, obs, names = ctx.settings, ctx.obs, ctx.names
+    modes = list(cfg["registration"])
+    targets, theta, h, fd, lo, hi = lin.targets, lin.theta, lin.h, lin.fd, lin.lo, lin.hi
+    obs_pts, n_snap = lin.observed, lin.n_snap
     centre = obs_pts[0].mean(axis=0)
-    B = np.concatenate([registration_signatures(obs_pts[s], C0[s], centre, modes)
+    B = np.concatenate([registration_signatures(obs_pts[s], lin.reference[s], centre, modes)
                         for s in range(n_snap)])
-    out = block_test(r, J, B, v, modes)
+    out = block_test(lin.r, lin.J, B, _residual_variance(check), modes)
     out["centre_mm"] = [float(x) for x in centre]
     out["significant"] = bool(out["p_value"] < float(cfg["alpha"]))
     # accounts for the mismatch to first order (as the attribution's r2_min asks)
@@ -487,10 +638,7 @@ def _registration(modes, r, J, v, C0, obs, obs_pts, check, draws, theta, h, fd, 
         """Residual, Jacobian and registration signatures of the registered observations."""
         pts = [dict(zip(targets, map(float, th), strict=True))]
         pts += [{**pts[0], targets[i]: float(th[i] + h[i])} for i in fd]
-        it = next(solve_no)
-        runs = solve_points(fm, pts, [work / "registration" / f"gauss_newton_{it}" / f"{k}.h5"
-                                      for k in range(len(pts))],
-                            workers=workers, warm_start=warm_start)
+        runs = ctx.solve(pts, f"registration/gauss_newton_{next(solve_no)}")
         if not all(run.ok for run in runs):
             return next(run.reason for run in runs if not run.ok)
         C = model_interfaces(runs[0], n_snap)
@@ -509,7 +657,7 @@ def _registration(modes, r, J, v, C0, obs, obs_pts, check, draws, theta, h, fd, 
     # the joint fit weighs the observation noise only: v also holds the spread of the
     # base posterior's draws, which the re-fit replaces (with it, a fit at chi2 76 on 128
     # values left 1.7 um against 1 um noise)
-    v_noise = np.full(len(r), float(check.sigma) ** 2)
+    v_noise = np.full(len(lin.r), float(check.sigma) ** 2)
     fit = joint_fit(evaluate, theta + step0, out["estimate"], fd, h, lo, hi, v_noise, modes,
                     names)
     out["iterations"] = fit.iterations
@@ -529,21 +677,13 @@ def _registration(modes, r, J, v, C0, obs, obs_pts, check, draws, theta, h, fd, 
     Xr[:, fd] = laplace_draws(fit.J, v_noise, th[fd], lo[fd], hi[fd], len(Xr),
                               np.random.default_rng(int(cfg["seed"]) + 2))
     out["draws_after"] = "laplace"
-    rruns = solve_points(fm, [dict(zip(targets, map(float, x), strict=True)) for x in Xr],
-                         [work / "registration" / "draws" / f"{k}.h5" for k in range(len(Xr))],
-                         workers=workers, warm_start=warm_start)
+    rruns = ctx.solve([dict(zip(targets, map(float, x), strict=True)) for x in Xr],
+                      "registration/draws")
     rcurves = [model_interfaces(rr, n_snap) for rr in rruns if rr.ok]
     if len(rcurves) < 2:
         out["check_after_failed"] = "fewer than 2 draws of the registered model solved"
         return out
-    after = predictive_check(
-        moved, rcurves, labels=obs.labels,
-        sigma=check.sigma if check.sigma_source == "given" else sigma,
-        noise_floor=cfg["noise_floor"], ell=cfg["smoothing"], alpha=cfg["alpha"],
-        n_noise=cfg["n_noise"], noise_lag=cfg["noise_lag_mm"],
-        noise_model=cfg["noise_model_name"],
-        segmentation_sigma=cfg.get("segmentation_sigma_mm"),
-        rng=np.random.default_rng(int(cfg["seed"]) + 1))
+    after = ctx.predictive_check(moved, rcurves, _recheck_sigma(ctx, check), int(cfg["seed"]))
     out["check_after"] = after.to_json()
     out["explains"] = bool(out["first_order"] and explains_mismatch(out["check_after"], check))
     return out
@@ -567,6 +707,212 @@ def _bias(summary: Mapping[str, Any], parameters: Sequence[Mapping[str, Any]]) -
     return {n: {"posterior_mean": float(mean[n]), "truth": float(t),
                 "relative_error": float(abs(mean[n] - t) / abs(t)) if t else float(abs(mean[n]))}
             for n, t in truth.items() if n in mean}
+
+
+def _refit(ctx: DiagnosisContext, lin: Linearization, check) -> dict[str, Any]:
+    """The re-fit test (:func:`~bayescalib.diagnosis.attribution.refit_test`): whether a
+    step of the base parameters alone absorbs the mismatch, with the re-fitted point and
+    whether it lies in the box."""
+    from bayescalib.diagnosis.attribution import refit_test
+
+    names = ctx.names
+    refit = refit_test(lin.r, lin.J, np.full(len(lin.r), check.sigma**2))
+    refit["step"] = dict(zip([names[i] for i in lin.fd], refit["step"], strict=True))
+    refit["parameters"] = {n: float(lin.theta[names.index(n)] + d)
+                           for n, d in refit["step"].items()}
+    refit["in_bounds"] = bool(all(lin.lo[names.index(n)] <= x <= lin.hi[names.index(n)]
+                                  for n, x in refit["parameters"].items()))
+    return refit
+
+
+def _confirm_extension(ctx: DiagnosisContext, cal: dict[str, Any], model: CheckedModel):
+    """Step 5 for one extension: the predictive check at solved draws of its posterior,
+    the round that represents it (:func:`_better_confirmed_round`) and the check
+    reported (:func:`_reported_predictive_check`). An extended posterior where the
+    forward model does not solve (the surrogate interpolates over failed points) cannot
+    be confirmed: recorded, not fatal.
+
+    Returns the calibration (of the round kept), the check reported (None: none solved),
+    its failed draws, why it failed (None), the rounds re-checked and the reported
+    check's draws (their source)."""
+    try:
+        after, n_fail_after, _ = _predictive_check_at_draws(
+            ctx, model, cal["particles"], model.tag, int(ctx.settings["seed"]))
+        check_failed = None
+    except PredictiveCheckError as exc:
+        log.warning("%s", exc)
+        after, n_fail_after, check_failed = None, int(ctx.settings["n_draws"]), str(exc)
+    cal, after, n_fail_after, rechecked = _better_confirmed_round(ctx, cal, after,
+                                                                  n_fail_after, model)
+    after, n_fail_after, after_source = _reported_predictive_check(
+        ctx, cal, after, n_fail_after, rechecked, model)
+    if after is None and check_failed is None:
+        check_failed = after_source.get("failed")
+    return cal, after, n_fail_after, check_failed, rechecked, after_source
+
+
+def _calibrate_extension(ctx: DiagnosisContext, base: BaseCalibration, sigma: float | None,
+                         group: list[CandidateSpec]) -> dict[str, Any]:
+    """Calibrate base + ``group`` and re-check it with real solves (steps 4-5); the
+    extension's record, not yet judged (:func:`judge_extensions`). ``sigma``: the noise
+    sd given to its predictive checks (:func:`_recheck_sigma`)."""
+    from bayescalib.inference.active import history_table
+
+    cfg = ctx.settings
+    name = joint_name(group)
+    n_new = int(cfg["n_train"] or ctx.active["n_initial"])
+    max_new = int(cfg["max_solves"] or ctx.active["max_solves"])
+    cal = extended_calibration(
+        group, fm=ctx.fm, parameters=ctx.parameters, base_training=ctx.training_path,
+        n_new=n_new * len(group), max_new=max_new * len(group),
+        seed=int(cfg["seed"]) + 1, active=ctx.active,
+        workdir=ctx.work / name.replace(" + ", "+"), **ctx.chain())
+    model = CheckedModel(name.replace(" + ", "+"), ctx.targets + [c.target for c in group],
+                         {k: val for c in group for k, val in c.switches.items()}, sigma)
+    cal, after, n_fail_after, check_failed, rechecked, after_source = _confirm_extension(
+        ctx, cal, model)
+    post = cal["posterior"]
+    phi = {c.name: {"mean": float(post["mean"][f"phi_{c.name}"]),
+                    "std": float(post["std"][f"phi_{c.name}"]),
+                    "interval": post["intervals"].get(f"phi_{c.name}"),
+                    "prior": list(c.prior), "unit": c.unit} for c in group}
+    one = phi[group[0].name] if len(group) == 1 else None
+    return {
+        "candidate": name, "members": [c.name for c in group],
+        "summary": "; ".join(c.summary for c in group),
+        "unit": group[0].unit if one else "-",
+        "log_evidence": cal["log_evidence"],
+        "log_bayes_factor": cal["log_evidence"] - base.log_evidence,
+        "phi": phi,
+        "phi_mean": one["mean"] if one else None,
+        "phi_std": one["std"] if one else None,
+        "phi_prior": one["prior"] if one else None,
+        "phi_interval": one["interval"] if one else None,
+        "n_new_solves": cal["n_new"], "n_reused": cal["n_reused"],
+        "n_failed": cal["n_failed"], "converged": cal["converged"],
+        "reason": cal["reason"], "rounds": history_table(cal["rounds"]),
+        "n_failed_draws_after": int(n_fail_after),
+        "check_after": None if after is None else after.to_json(),
+        "check_after_failed": check_failed,
+        "posterior": {k: post[k] for k in ("names", "mean", "std", "map")},
+        "bias_after": _bias(post, ctx.parameters),
+        "particles": cal["particles"],
+        "reported_round": cal.get("reported_round"),
+        "rechecked_rounds": rechecked,
+        "check_after_draws": after_source,
+        "_check": after,
+    }
+
+
+def _extension_groups(ctx: DiagnosisContext,
+                      found: Attribution) -> list[tuple[list[CandidateSpec], str]]:
+    """The extended models to calibrate (step 4): each of the ``n_extend`` best-ranked
+    identifiable candidates of plausible magnitude (the selected first), and those the
+    attribution selected together as one model."""
+    attr = found.result
+    ranked = [row["candidate"] for row in attr["ranking"]
+              if row["identifiable_fraction"] > MIN_IDENTIFIABLE and row["phi_hat_plausible"]]
+    singles = list(dict.fromkeys(attr["selected"] + ranked))[: int(ctx.settings["n_extend"])]
+    by_name = {c.name: c for c in found.cands}
+    groups = [([by_name[n]], "ranking") for n in singles]
+    if len(attr["selected"]) > 1:  # effects found together are modelled together
+        groups.append(([by_name[n] for n in attr["selected"]], "attribution"))
+    return groups
+
+
+def _screen(ctx: DiagnosisContext, check, found: Attribution,
+            registration: dict | None) -> Screening:
+    """The re-fit test and the verdict before any modelling; no candidate is modelled
+    when the check passes (unless ``diagnose.force_extend``), when the base parameters
+    absorb the mismatch, or when a misregistration explains it and the attribution
+    selected no physics."""
+    cfg, selected = ctx.settings, found.result["selected"]
+    refit = _refit(ctx, found.lin, check)
+    screen = decide_verdict(check.adequate, selected, refit, float(cfg["alpha"]),
+                            registration=registration, untestable=sorted(found.failed),
+                            single_snapshot=len(ctx.obs.labels) == 1)
+    extend = ((not check.adequate and screen != ABSORBED
+               and not (screen == MISREGISTERED and not selected))
+              or bool(cfg["force_extend"])) and int(cfg["n_extend"]) > 0
+    return Screening(refit, screen, extend)
+
+
+def _extend(ctx: DiagnosisContext, base: BaseCalibration, check, found: Attribution,
+            registration: dict | None, screening: Screening) -> Extensions:
+    """Steps 4-5: calibrate the extended models the screening calls for, check each with
+    real solves and judge them (:func:`model_extensions`); the registered observations'
+    re-check is judged against the same reference noise."""
+    calibrate = functools.partial(_calibrate_extension, ctx, base, _recheck_sigma(ctx, check))
+    extended, noise_ref, joint = model_extensions(
+        _extension_groups(ctx, found) if screening.extend else [], calibrate, check,
+        registration_after=(registration or {}).get("check_after"),
+        max_effects=int(ctx.settings["max_effects"]),
+        joint_when=str(ctx.settings["joint_of_singles"]))
+    if registration is not None and registration.get("check_after") is not None:
+        registration["explains"] = bool(registration["first_order"] and explains_mismatch(
+            registration["check_after"], check, noise_ref))
+    return Extensions(extended, noise_ref, joint)
+
+
+def _decide(ctx: DiagnosisContext, check, found: Attribution, registration: dict | None,
+            screening: Screening, extensions: Extensions) -> Decision:
+    """Choose a model (:func:`choose_extension`), set aside by name every candidate no
+    extension contains (:func:`set_aside_candidates`) and decide the verdict
+    (:func:`decide_verdict`)."""
+    cfg, attr, extended = ctx.settings, found.result, extensions.extended
+    best = choose_extension(extended)
+    # a significant candidate left out by n_extend matters while no extension explains it
+    aside = [] if check.adequate else set_aside_candidates(
+        attr["ranking"], found.cands, found.failed, threshold=float(attr["threshold"]),
+        r2_min=float(cfg["r2_min"]), calibrated={m for e in extended for m in e["members"]},
+        n_extend=int(cfg["n_extend"]) if screening.extend and best is None else None,
+        user_candidates=bool(cfg["candidates"]))
+    chosen = best["candidate"] if best is not None else "base"
+    verdict = decide_verdict(check.adequate, attr["selected"], screening.refit,
+                             float(cfg["alpha"]), chosen=None if best is None else chosen,
+                             modelled=bool(extended), registration=registration,
+                             untestable=sorted(found.failed),
+                             single_snapshot=len(ctx.obs.labels) == 1, set_aside=aside)
+    return Decision(screening, extensions, aside, chosen, verdict)
+
+
+def _diagnosis_record(ctx: DiagnosisContext, base: BaseCalibration, check,
+                      n_failed_draws: int, found: Attribution, registration: dict | None,
+                      decision: Decision) -> dict[str, Any]:
+    """The ``diagnosis.json`` content (plain values), its plain words included."""
+    attr, obs = found.result, ctx.obs
+    out = {
+        "verdict": decision.verdict,
+        "screening_verdict": decision.screening.verdict,
+        "attribution_verdict": attr["verdict"],
+        "check": check.to_json(),
+        "n_draws": int(ctx.settings["n_draws"]), "n_failed_draws": int(n_failed_draws),
+        "attribution": {k: attr[k] for k in ("ranking", "selected", "explained", "threshold",
+                                             "steps")},
+        "refit": decision.screening.refit,
+        "registration": registration,
+        "zero_load_snapshot": _zero_load_label(ctx.fm, obs.labels),
+        "failed_signatures": found.failed,
+        "noise_reference_mm": decision.extensions.noise_reference,
+        "signature_attempts": found.attempts,
+        "posterior_mean": dict(zip(ctx.names, map(float, found.lin.theta), strict=True)),
+        "extended": [{k: val for k, val in e.items() if k != "_check"}
+                     for e in decision.extensions.extended],
+        "joint_of_singles": decision.extensions.joint,
+        "set_aside": decision.set_aside,
+        "chosen_model": decision.chosen,
+        "bias_before": _bias(base.summary, ctx.parameters),
+        "base_calibration": base.design,
+        "hidden_truth": obs.meta.get("hidden") or None,
+        "hidden_misregistration": obs.meta.get("misregistration") or None,
+        "observed_nodes": {"n_observed": ctx.n_observed,
+                           "n_used": [len(s.points) for s in obs.snapshots],
+                           "spacing_mm": float(ctx.noise_lag_mm)},
+        "units": "lengths mm; phi in the candidate's unit; registration shifts mm, "
+                 "rotation rad, scale relative",
+    }
+    out["plain_words"] = plain_words(out)
+    return out
 
 
 # ----------------------------------------------------------------------------- stage
@@ -608,248 +954,31 @@ def run_diagnosis(
 
     Solves and extended calibrations are kept under ``outdir`` and reused.
     """
-    from bayescalib.diagnosis.attribution import (
-        attribute,
-        jacobian_from_offsets,
-        refit_test,
-    )
-    from bayescalib.diagnosis.residuals import offsets
-    from bayescalib.inference.active import history_table
-    from bayescalib.inference.parameters import ParameterSpace
-    from bayescalib.models.forward import solve_points
-
-    work = Path(outdir)
-    cfg = dict(diagnose)
-    obs = read_stage_file(obs_path, "observation set")
-    if warm_start is not None:  # a damaged state is set aside and rebuilt, never solved from
-        read_stage_file(warm_start, "warm-start state")
-    n_snap = len(obs.snapshots)
-    space = ParameterSpace.from_config(parameters)
-    targets = [p["target"] for p in parameters]
-    names = [p["name"] for p in parameters]
-    chain = {"obs_path": obs_path, "measure_name": measure_name, "measure": measure,
-             "likelihood": likelihood, "surrogate": surrogate, "smc_cfg": smc_cfg,
-             "posterior_cfg": posterior_cfg, "workers": workers, "warm_start": warm_start}
-
-    # 0: the study's calibration, as summary.json reports it ------------------------
-    base_evidence = float(read_stage_file(particles_path, "SMC particle file").log_evidence)
-    base_summary = read_stage_file(posterior_path, "posterior summary")
-    base_design = {k: design.get(k) for k in ("strategy", "n_solves", "converged", "reason")}
-    cfg["noise_lag_mm"] = noise_lag(cfg, observations)
-    cfg["noise_model_name"] = resolve_noise_model(cfg, observations)
-    # raw scans: the segmentation's positional uncertainty bounds the noise from below
-    cfg["segmentation_sigma_mm"] = obs.segmentation_sigma()
-    n_observed = [len(s.points) for s in obs.snapshots]
-    obs = thinned_observations(obs, cfg["noise_lag_mm"])
-    sigma = cfg["noise_sigma"]
-    if sigma is None and observations["source"] == "synthetic" \
-            and float(observations["noise_sigma"]) > 0:
-        sigma = float(observations["noise_sigma"])
-
-    # 1-2: check and locate ------------------------------------------------------
-    check, n_failed_draws, draws = _check_from_particles(
-        "base", particles_path, targets, {}, obs, fm, cfg, work, workers, warm_start, sigma)
+    ctx = DiagnosisContext.build(
+        diagnose=diagnose, observations=observations, obs_path=obs_path, outdir=outdir,
+        warm_start=warm_start, fm=fm, parameters=parameters, measure_name=measure_name,
+        measure=measure, likelihood=likelihood, surrogate=surrogate, smc_cfg=smc_cfg,
+        posterior_cfg=posterior_cfg, active=active, training_path=training_path,
+        workers=workers)
+    # 0: the study's calibration, as summary.json reports it
+    base = BaseCalibration.read(particles_path, posterior_path, design)
+    # 1-2: detect and locate (the predictive check of the base model)
+    check, n_failed_draws, draws = _predictive_check_at_draws(
+        ctx, CheckedModel("base", ctx.targets, {}, ctx.sigma), base.particles, "base",
+        int(ctx.settings["seed"]))
     log.info("predictive check: adequate=%s p=%s", check.adequate, check.p_values)
-
-    # 3: attribute ----------------------------------------------------------------
-    cands = resolve_candidates(fm, cfg)
-    theta = np.array([float(base_summary["mean"][n]) for n in names])
-    lo, hi = space.bounds[:, 0], space.bounds[:, 1]
-    h = float(cfg["fd_step"]) * (hi - lo)
-    # step towards the box interior so the FD point stays inside the prior support
-    h = np.where(theta + h > hi, -h, h)
-    base_point = dict(zip(targets, map(float, theta), strict=True))
-    pts = [base_point]
-    for i, t in enumerate(targets):
-        pts.append({**base_point, t: float(theta[i] + h[i])})
-    for c in cands:
-        pts.append({**base_point, c.target: c.step, **c.switches})
-    runs = solve_points(fm, pts, [work / "base" / "linearization" / f"{i}.h5"
-                                for i in range(len(pts))], workers=workers,
-                      warm_start=warm_start)
-    if not runs[0].ok:
-        raise ValueError(f"diagnosis: the solve at the posterior mean failed ({runs[0].reason})")
-    C0 = model_interfaces(runs[0], n_snap)
-    obs_pts = [np.asarray(obs.snapshots[s].points, dtype=float) for s in range(n_snap)]
-
-    def offsets_of(curves: Sequence[Sequence[Any]]) -> tuple[np.ndarray, np.ndarray]:
-        """Residual and offsets from the posterior-mean prediction, over all snapshots."""
-        ys, os_ = [], []
-        for s in range(n_snap):
-            y, o = offsets(obs_pts[s], C0[s], [cv[s] for cv in curves])
-            ys.append(y)
-            os_.append(o)
-        return np.concatenate(ys), np.concatenate(os_, axis=1)
-
-    r, _ = offsets_of([])
-    fd = [i for i in range(len(targets)) if runs[1 + i].ok]
-    _, O_fd = offsets_of([model_interfaces(runs[1 + i], n_snap) for i in fd])
-    # offsets are measured from the posterior-mean prediction, so its own offset is 0
-    zero = np.zeros(len(r))
-    J = jacobian_from_offsets(list(O_fd), zero, [h[i] for i in fd])
-    signatures, failed_sig, attempts = _signatures(
-        cands, runs[1 + len(targets):], base_point, draws, hi - lo, offsets_of, fm, work,
-        workers, warm_start, n_snap)
-    v = np.concatenate([sn.v for sn in check.snapshots])
-    attr = attribute(r, J, signatures, v, alpha=cfg["alpha"], r2_min=cfg["r2_min"],
-                     max_effects=cfg["max_effects"], ranges={c.name: c.prior for c in cands})
-    # plain-words size of each signature's effect at the step, for the report
-    for row in attr["ranking"]:
-        c = next(c for c in cands if c.name == row["candidate"])
-        row["summary"] = c.summary
-        row["step"] = attempts[c.name]["phi_step"]
-        row["signature_at"] = attempts[c.name]["at"]
-        row["unit"] = c.unit
-        row["max_shift_at_step_mm"] = float(np.max(np.abs(signatures[c.name] * c.step)))
-
-    # a mismatch that is not physics: the observed interfaces misplaced as a whole
-    registration = None
-    if cfg["registration"]:
-        registration = _registration(
-            list(cfg["registration"]), r, J, v, C0, obs, obs_pts, check, draws, theta,
-            h, fd, targets, names, (lo, hi), fm, cfg, work, workers, warm_start, sigma)
-
-    # 4-5: model and show ------------------------------------------------------------
-    refit = refit_test(r, J, np.full(len(r), check.sigma**2))
-    refit["step"] = dict(zip([names[i] for i in fd], refit["step"], strict=True))
-    refit["parameters"] = {n: float(theta[names.index(n)] + d) for n, d in refit["step"].items()}
-    refit["in_bounds"] = bool(all(lo[names.index(n)] <= x <= hi[names.index(n)]
-                                  for n, x in refit["parameters"].items()))
-    untestable = sorted(failed_sig)
-    single = len(obs.labels) == 1
-    screen = decide_verdict(check.adequate, attr["selected"], refit, float(cfg["alpha"]),
-                            registration=registration, untestable=untestable,
-                            single_snapshot=single)
-    # no candidate is modelled when the base parameters absorb the mismatch, or when a
-    # misregistration explains it and the attribution selected no physics
-    run_ext = ((not check.adequate and screen != ABSORBED
-                and not (screen == MISREGISTERED and not attr["selected"]))
-               or bool(cfg["force_extend"])) and int(cfg["n_extend"]) > 0
-    n_new = int(cfg["n_train"] or active["n_initial"])
-    max_new = int(cfg["max_solves"] or active["max_solves"])
-
-    def calibrate(group: list[CandidateSpec]) -> dict[str, Any]:
-        """Calibrate base + ``group`` and re-check it with real solves (steps 4-5); the
-        extension's record, not yet judged (:func:`judge_extensions`)."""
-        name = joint_name(group)
-        cal = extended_calibration(
-            group, fm=fm, parameters=parameters, base_training=training_path,
-            n_new=n_new * len(group), max_new=max_new * len(group),
-            seed=int(cfg["seed"]) + 1, active=active,
-            workdir=work / name.replace(" + ", "+"), **chain)
-        ext_targets = targets + [c.target for c in group]
-        switches = {k: val for c in group for k, val in c.switches.items()}
-        # an extended posterior where the forward model does not solve (the surrogate
-        # interpolates over failed points) cannot be confirmed: recorded, not fatal
-        try:
-            after, n_fail_after, _ = _check_from_particles(
-                name.replace(" + ", "+"), cal["particles"], ext_targets, switches, obs,
-                fm, cfg, work, workers, warm_start,
-                check.sigma if check.sigma_source == "given" else sigma)
-            check_failed = None
-        except PredictiveCheckError as exc:
-            log.warning("%s", exc)
-            after, n_fail_after, check_failed = None, int(cfg["n_draws"]), str(exc)
-        cal, after, n_fail_after, rechecked = _better_confirmed_round(
-            cal, after, n_fail_after, name.replace(" + ", "+"), ext_targets, switches,
-            obs, fm, cfg, work, workers, warm_start,
-            check.sigma if check.sigma_source == "given" else sigma, chain)
-        after, n_fail_after, after_source = _report_check(
-            cal, after, n_fail_after, rechecked, name.replace(" + ", "+"), ext_targets,
-            switches, obs, fm, cfg, work, workers, warm_start,
-            check.sigma if check.sigma_source == "given" else sigma)
-        if after is None and check_failed is None:
-            check_failed = after_source.get("failed")
-        post = cal["posterior"]
-        phi = {c.name: {"mean": float(post["mean"][f"phi_{c.name}"]),
-                        "std": float(post["std"][f"phi_{c.name}"]),
-                        "interval": post["intervals"].get(f"phi_{c.name}"),
-                        "prior": list(c.prior), "unit": c.unit} for c in group}
-        one = phi[group[0].name] if len(group) == 1 else None
-        return {
-            "candidate": name, "members": [c.name for c in group],
-            "summary": "; ".join(c.summary for c in group),
-            "unit": group[0].unit if one else "-",
-            "log_evidence": cal["log_evidence"],
-            "log_bayes_factor": cal["log_evidence"] - base_evidence,
-            "phi": phi,
-            "phi_mean": one["mean"] if one else None,
-            "phi_std": one["std"] if one else None,
-            "phi_prior": one["prior"] if one else None,
-            "phi_interval": one["interval"] if one else None,
-            "n_new_solves": cal["n_new"], "n_reused": cal["n_reused"],
-            "n_failed": cal["n_failed"], "converged": cal["converged"],
-            "reason": cal["reason"], "rounds": history_table(cal["rounds"]),
-            "n_failed_draws_after": int(n_fail_after),
-            "check_after": None if after is None else after.to_json(),
-            "check_after_failed": check_failed,
-            "posterior": {k: post[k] for k in ("names", "mean", "std", "map")},
-            "bias_after": _bias(post, parameters),
-            "particles": cal["particles"],
-            "reported_round": cal.get("reported_round"),
-            "rechecked_rounds": rechecked,
-            "check_after_draws": after_source,
-            "_check": after,
-        }
-
-    groups: list[tuple[list[CandidateSpec], str]] = []
-    if run_ext:
-        ranked = [row["candidate"] for row in attr["ranking"]
-                  if row["identifiable_fraction"] > MIN_IDENTIFIABLE
-                  and row["phi_hat_plausible"]]
-        singles = list(dict.fromkeys(attr["selected"] + ranked))[: int(cfg["n_extend"])]
-        by_name = {c.name: c for c in cands}
-        groups = [([by_name[n]], "ranking") for n in singles]
-        if len(attr["selected"]) > 1:  # effects found together are modelled together
-            groups.append(([by_name[n] for n in attr["selected"]], "attribution"))
-    extended, noise_ref, followup = model_extensions(
-        groups, calibrate, check, registration_after=(registration or {}).get("check_after"),
-        max_effects=int(cfg["max_effects"]), joint_when=str(cfg["joint_of_singles"]))
-    if registration is not None and registration.get("check_after") is not None:
-        registration["explains"] = bool(registration["first_order"] and explains_mismatch(
-            registration["check_after"], check, noise_ref))
-    best = choose_extension(extended)
-    # a significant candidate left out by n_extend matters while no extension explains it
-    aside = [] if check.adequate else set_aside_candidates(
-        attr["ranking"], cands, failed_sig, threshold=float(attr["threshold"]),
-        r2_min=float(cfg["r2_min"]), calibrated={m for e in extended for m in e["members"]},
-        n_extend=int(cfg["n_extend"]) if run_ext and best is None else None,
-        user_candidates=bool(cfg.get("candidates")))
-    chosen = best["candidate"] if best is not None else "base"
-    verdict = decide_verdict(check.adequate, attr["selected"], refit, float(cfg["alpha"]),
-                             chosen=None if best is None else chosen,
-                             modelled=bool(extended), registration=registration,
-                             untestable=untestable, single_snapshot=single, set_aside=aside)
-    out = {
-        "verdict": verdict,
-        "screening_verdict": screen,
-        "attribution_verdict": attr["verdict"],
-        "check": check.to_json(),
-        "n_draws": int(cfg["n_draws"]), "n_failed_draws": int(n_failed_draws),
-        "attribution": {k: attr[k] for k in ("ranking", "selected", "explained", "threshold",
-                                             "steps")},
-        "refit": refit,
-        "registration": registration,
-        "zero_load_snapshot": _zero_load_label(fm, obs.labels),
-        "failed_signatures": failed_sig,
-        "noise_reference_mm": noise_ref,
-        "signature_attempts": attempts,
-        "posterior_mean": dict(zip(names, map(float, theta), strict=True)),
-        "extended": [{k: val for k, val in e.items() if k != "_check"} for e in extended],
-        "joint_of_singles": followup,
-        "set_aside": aside,
-        "chosen_model": chosen,
-        "bias_before": _bias(base_summary, parameters),
-        "base_calibration": base_design,
-        "hidden_truth": obs.meta.get("hidden") or None,
-        "hidden_misregistration": obs.meta.get("misregistration") or None,
-        "observed_nodes": {"n_observed": n_observed, "n_used": [len(s.points) for s in obs.snapshots],
-                           "spacing_mm": float(cfg["noise_lag_mm"])},
-        "units": "lengths mm; phi in the candidate's unit; registration shifts mm, "
-                 "rotation rad, scale relative",
-    }
-    out["plain_words"] = plain_words(out)
-    checks = {"base": check, **{e["candidate"]: e["_check"] for e in extended
+    # 3: attribute to candidate physics, and test a misregistration (not physics)
+    found = _attribute(ctx, base.summary["mean"], check, draws)
+    registration = (_registration(ctx, found.lin, check, draws)
+                    if ctx.settings["registration"] else None)
+    # 4-5: extend (when the screening calls for it) and check the extensions with real
+    # solves, then decide
+    screening = _screen(ctx, check, found, registration)
+    extensions = _extend(ctx, base, check, found, registration, screening)
+    decision = _decide(ctx, check, found, registration, screening, extensions)
+    # 6: report
+    out = _diagnosis_record(ctx, base, check, n_failed_draws, found, registration, decision)
+    checks = {"base": check, **{e["candidate"]: e["_check"] for e in extensions.extended
                                 if e["_check"] is not None}}
     return out, checks
 
