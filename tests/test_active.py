@@ -22,9 +22,9 @@ from bayescalib.inference.active import (
     trust_check,
 )
 from bayescalib.inference.design import sobol_design
+from bayescalib.inference.gp import GPSurrogate, fit_from_config, fit_gp
 from bayescalib.inference.parameters import ParameterSpace
 from bayescalib.inference.smc import smc_from_config
-from bayescalib.inference.surrogate import GPSurrogate, fit_from_config, fit_gp
 
 
 def _space(bounds):

@@ -1,6 +1,6 @@
 """When the surrogate's discrete choices are searched again (surrogate.reselect_growth).
 
-Contract (bayescalib.inference.surrogate.fit_round): every candidate of the discrete
+Contract (bayescalib.inference.gp.selection.fit_round): every candidate of the discrete
 choices (kernel x output x input scale x frame) is fitted in round 0 and whenever the
 training set has grown by the stated fraction since the last full search; in the rounds
 between, exactly one fit (the previous choice, on all current data); a refit that fails
@@ -16,7 +16,7 @@ import h5py
 import numpy as np
 import pytest
 
-import bayescalib.inference.surrogate as sur
+import bayescalib.inference.gp.selection as sur
 from bayescalib import stages
 from bayescalib.config import validate
 from bayescalib.inference.design import sobol_design

@@ -693,7 +693,7 @@ def train_surrogate(training_path: str | Path, surrogate: Mapping[str, Any],
     ``previous``: the surrogate file of the previous active round. Its discrete choices
     (kernel, output, inputs, frame) are refitted instead of searched again until the
     training set has grown by ``surrogate.reselect_growth`` since their last full search
-    (:func:`bayescalib.inference.surrogate.fit_round`). None (round 0, a fixed design,
+    (:func:`bayescalib.inference.gp.selection.fit_round`). None (round 0, a fixed design,
     the study's final surrogate): a full search.
 
     ``reuse``: (training table, surrogate) of an earlier fit with the same settings
@@ -701,7 +701,7 @@ def train_surrogate(training_path: str | Path, surrogate: Mapping[str, Any],
     surrogate searched the discrete choices in full, it is copied instead of fitted again
     (:func:`_reuse`). A round's refit is not reused: the study's surrogate is a full
     search."""
-    from bayescalib.inference.surrogate import fit_round
+    from bayescalib.inference.gp import fit_round
 
     if reuse and not _full_search(reuse[-1]):
         log.info("train_surrogate: '%s' refitted the previous round's choices: the "
@@ -815,7 +815,7 @@ def _train_emulator(tab: Mapping[str, Any], use: np.ndarray, surrogate: Mapping[
 
 def _full_search(surrogate_path: str | Path) -> bool:
     """False when the surrogate file records a refit of an earlier round's discrete
-    choices (:func:`bayescalib.inference.surrogate.fit_round`); True otherwise (a full
+    choices (:func:`bayescalib.inference.gp.selection.fit_round`); True otherwise (a full
     search, a file written before the record, or one that cannot be read: then
     :func:`_reuse` decides)."""
     import h5py
@@ -863,13 +863,13 @@ def convergence(training_path: str | Path, surrogate: Mapping[str, Any],
 
     The GP of each n is the study's surrogate fitted to the first n training points: the
     values :func:`train_surrogate` fits (:func:`_loglik_training_set`), the likelihood's
-    bound of the whole table, and :func:`bayescalib.inference.surrogate.fit_from_config`
+    bound of the whole table, and :func:`bayescalib.inference.gp.selection.fit_from_config`
     with the study's ``surrogate`` section (kernel, output, ard, frame, inputs, mean,
     nugget and the optimizer's settings, searched as the study's surrogate searches
     them); only the training size varies. At the full training set it is the study's
     surrogate. ``surrogate`` in the record: each n's hyperparameters."""
     from bayescalib.inference.convergence import convergence_study
-    from bayescalib.inference.surrogate import fit_from_config
+    from bayescalib.inference.gp import fit_from_config
 
     tab = read_stage_file(training_path, "training table")
     tr = tab["is_train"].astype(bool)
