@@ -32,7 +32,7 @@ recompute).
 Methods
 -------
 * ``sobol_gp``: today's pipeline: a scrambled Sobol design of the whole budget,
-  the GP surrogate of the log-likelihood (``bayescalib.inference.surrogate.fit_gp``) and
+  the GP surrogate of the log-likelihood (``bayescalib.inference.gp.fit.fit_gp``) and
   SMC on its mean (``bayescalib.inference.smc.run_smc``).
 * ``active``: ``bayescalib.inference.rounds.calibrate`` (active design in batches of 8,
   ``max_solves`` = budget, a quarter of the budget as initial design). Reported
@@ -575,7 +575,7 @@ def _round_metrics(prob: Problem, gp, rec: dict[str, Any]) -> dict[str, float]:
 
 def run_sobol_gp(prob: Problem, budget: int, seed: int) -> dict[str, Any]:
     from bayescalib.inference.design import sobol_design
-    from bayescalib.inference.surrogate import fit_gp
+    from bayescalib.inference.gp import fit_gp
 
     f = Counter(prob.loglik)
     space = make_space(prob)
@@ -607,7 +607,7 @@ def run_active(prob: Problem, budget: int, seed: int, variant: str = "active") -
     history: list[dict[str, Any]] = []
     trace: list[dict[str, Any]] = []
     fitted: list[Any] = []  # each round's surrogate (--trace), in the order calibrate fits them
-    import bayescalib.inference.surrogate as surrogate_module
+    import bayescalib.inference.gp.selection as surrogate_module
 
     fit_orig = surrogate_module.fit_round  # each round's surrogate: a search or a refit
 
@@ -636,7 +636,7 @@ def run_active(prob: Problem, budget: int, seed: int, variant: str = "active") -
               f"mean err {np.max(np.abs(np.asarray(rec['posterior']['mean']) - prob.ref_mean) / prob.ref_sd):.3g} ref sd",
               flush=True)
 
-    import bayescalib.inference.surrogate as sur
+    import bayescalib.inference.gp.selection as sur
 
     searches = [0]
     full_search = sur.fit_from_config

@@ -61,7 +61,7 @@ def _config(max_solves: int, strict: bool, surrogate: dict | None = None,
 def main(argv: list[str] | None = None) -> int:
     from _reference import grid_moments, grid_points, hellinger_to_reference, load_reference
 
-    from bayescalib.inference.surrogate import GPSurrogate
+    from bayescalib.inference.gp import GPSurrogate
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--ref", default=str(REPO / "benchmarks/data/fsi_reference_smoke.npz"))

@@ -53,10 +53,10 @@ def fixed(problems: list[tuple[str, int]]) -> None:
 
     from bayescalib.config import validate
     from bayescalib.inference.design import sobol_design
+    from bayescalib.inference.gp import fit_from_config
     from bayescalib.inference.importance import importance_check
     from bayescalib.inference.resampling import systematic_resample
     from bayescalib.inference.smc import smc_from_config
-    from bayescalib.inference.surrogate import fit_from_config
 
     print("| problem | solves | surrogate mean err (ref sd) | draw set | check |")
     print("|---|---|---|---|---|")

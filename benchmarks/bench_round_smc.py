@@ -64,8 +64,8 @@ def main() -> None:
     import yaml
 
     from bayescalib.inference.design import sobol_design
+    from bayescalib.inference.gp import fit_from_config
     from bayescalib.inference.smc import run_smc
-    from bayescalib.inference.surrogate import fit_from_config
 
     ba = _bench_active()
     rng = np.random.default_rng(ba.H7_NOISE_SEED)

@@ -46,9 +46,9 @@ import time
 import numpy as np
 
 from bayescalib.inference.design import sobol_design
+from bayescalib.inference.gp import GPSurrogate, fit_gp
 from bayescalib.inference.parameters import Parameter, ParameterSpace, Uniform
 from bayescalib.inference.smc import run_smc
-from bayescalib.inference.surrogate import GPSurrogate, fit_gp
 
 
 class _Stop(Exception):

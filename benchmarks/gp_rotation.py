@@ -17,7 +17,7 @@ in them, C_u = V diag(s) V^T):
 
 with C_u from the reference posterior (``ref``) or a rough estimate (``rough``:
 the moments of SMC on the axis-aligned GP's mean), regularized as
-C_u + (0.01)^2 I; and ``train``: ``bayescalib.inference.surrogate.principal_frame``,
+C_u + (0.01)^2 I; and ``train``: ``bayescalib.inference.gp.inputs.principal_frame``,
 the frame the surrogate uses (principal axes of the training points weighted by
 their tempered likelihood, no reference needed). Since the kernel is stationary the centre of the frame does
 not matter, only its linear map.
@@ -53,8 +53,8 @@ import bench_active as ba
 
 from bayescalib.inference.active import posterior_moments
 from bayescalib.inference.design import sobol_design
+from bayescalib.inference.gp import fit_gp, principal_frame
 from bayescalib.inference.smc import run_smc
-from bayescalib.inference.surrogate import fit_gp, principal_frame
 
 REG_SD = 0.01  # regularization of C_u, in box units
 

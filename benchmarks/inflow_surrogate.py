@@ -41,14 +41,14 @@ def main(argv: list[str] | None = None) -> int:
     from scipy.stats import chi2
 
     from bayescalib.config import load_yaml, validate
-    from bayescalib.inference.parameters import ParameterSpace
-    from bayescalib.inference.smc import smc_from_config
-    from bayescalib.inference.surrogate import (
+    from bayescalib.inference.gp import (
         fit_from_config,
         fit_gp,
         log_input_offsets,
         principal_frame,
     )
+    from bayescalib.inference.parameters import ParameterSpace
+    from bayescalib.inference.smc import smc_from_config
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--data", default=str(REPO / "benchmarks/data/uncertain_inflow_solves.npz"))

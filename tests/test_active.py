@@ -21,10 +21,10 @@ from bayescalib.inference.active import (
     trust_check,
 )
 from bayescalib.inference.design import sobol_design
-from bayescalib.inference.rounds import calibrate
+from bayescalib.inference.gp import GPSurrogate, fit_from_config, fit_gp
 from bayescalib.inference.parameters import ParameterSpace
+from bayescalib.inference.rounds import calibrate
 from bayescalib.inference.smc import smc_from_config
-from bayescalib.inference.surrogate import GPSurrogate, fit_from_config, fit_gp
 
 
 def _space(bounds):

@@ -137,7 +137,7 @@ def test_an_emulator_file_reproduces_its_likelihood_and_is_told_from_a_gp_file(t
     predictions, bit for bit, and :func:`load_surrogate` tells it from a GP file; the
     stages' interface (n_train, n_excluded, threads, hyperparameters) is kept."""
     from bayescalib.inference.emulator import load_surrogate
-    from bayescalib.inference.surrogate import GPSurrogate, fit_gp
+    from bayescalib.inference.gp import GPSurrogate, fit_gp
 
     model, bounds, X = _linear_problem(20, seed=2)
     U = model(X)

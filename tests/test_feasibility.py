@@ -14,7 +14,7 @@ from bayescalib.inference.feasibility import (
     marks_infeasible,
     says_nothing_of_the_model,
 )
-from bayescalib.inference.surrogate import GPSurrogate, fit_gp
+from bayescalib.inference.gp import GPSurrogate, fit_gp
 
 
 def test_a_failure_amid_solves_marks_its_voronoi_cell_and_nothing_else():

@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 
 from bayescalib.geometry.interface import Interface
+from bayescalib.inference.gp import GPSurrogate, fit_gp
 from bayescalib.inference.parameters import ParameterSpace
 from bayescalib.inference.posterior import read_particles_h5, write_particles_h5
 from bayescalib.inference.smc import SMCResult
-from bayescalib.inference.surrogate import GPSurrogate, fit_gp
 from bayescalib.io.header import FORMATS
 from bayescalib.io.observation_store import (
     StoredObservations,

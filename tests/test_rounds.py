@@ -25,9 +25,9 @@ from bayescalib.inference.rounds import (
     RoundSettings,
     run_rounds,
 )
+from bayescalib.stages.chain import FileStore, SolvePath
 from bayescalib.stages.files import _clean
 from bayescalib.stages.observe import observe
-from bayescalib.stages.chain import FileStore, SolvePath
 from bayescalib.study import Study
 
 DATA = Path(__file__).parent / "data"

@@ -6,7 +6,7 @@ convergence study fits the study's own surrogate.
   the schemas fill every documented key (:func:`bayescalib.config.validate`), so a
   second default in the code could only disagree with them. The scan flags the keys the
   schemas define; :data:`ALLOWED` lists the dicts that are not config sections.
-- :func:`bayescalib.inference.surrogate.fit_gp` has no default of its own for a setting
+- :func:`bayescalib.inference.gp.fit.fit_gp` has no default of its own for a setting
   of the ``surrogate`` section: the model's choices are required, the optimizer's
   settings left out are the schema's; :func:`fit_from_config` passes all of them.
 """
@@ -23,9 +23,10 @@ import pytest
 import yaml
 
 from bayescalib.config import defaults, load_yaml, merge_layers
-from bayescalib.inference import surrogate as sur
 from bayescalib.inference.design import sobol_design, sobol_test_points
-from bayescalib.inference.surrogate import GPSurrogate, fit_from_config, surrogate_settings
+from bayescalib.inference.gp import GPSurrogate, fit_from_config, surrogate_settings
+from bayescalib.inference.gp import fit as gp_fit
+from bayescalib.inference.gp import selection as gp_selection
 
 ROOT = Path(__file__).resolve().parents[1]
 SCHEMAS = ROOT / "src" / "bayescalib" / "schemas"
@@ -55,7 +56,7 @@ ALLOWED: dict[tuple[str, str], str] = {
     ("src/bayescalib/stages/summary.py", "design"):
         "the summary's extra records (the design summary of a run), not a config section",
     ("src/bayescalib/cli/summary.py", "unit"): "summary.json read back",
-    ("src/bayescalib/inference/surrogate.py", "kernel"):
+    ("src/bayescalib/inference/gp/store.py", "kernel"):
         "an attribute of a surrogate file written before the kernel was recorded",
     ("src/bayescalib/models/fsi/model.py", "fsi"):
         "the raw config before validation: a type check of the section",
@@ -137,7 +138,7 @@ SECTION_SETTINGS = {"kernel", "nugget", "mean", "ard", "warp", "optimizer", "res
 
 
 def test_fit_gp_has_no_default_of_its_own_for_a_surrogate_setting():
-    params = inspect.signature(sur.fit_gp).parameters
+    params = inspect.signature(gp_fit.fit_gp).parameters
     # the model's choices (the section decides some by a search one fit cannot make)
     for name in ("kernel", "nugget", "mean", "ard"):
         assert params[name].default is inspect.Parameter.empty, name
@@ -150,7 +151,7 @@ def test_fit_gp_has_no_default_of_its_own_for_a_surrogate_setting():
 def test_fit_gp_needs_the_output_with_a_bound():
     X = sobol_design(np.array([[0.0, 1.0], [0.0, 1.0]]), 8, 0)
     with pytest.raises(ValueError, match="warp must be given with a bound"):
-        sur.fit_gp(X, -np.sum(X**2, axis=1), kernel="matern32", nugget="fixed",
+        gp_fit.fit_gp(X, -np.sum(X**2, axis=1), kernel="matern32", nugget="fixed",
                    mean="constant", ard=False, bound=0.0)
 
 
@@ -161,14 +162,14 @@ def test_fit_gp_takes_the_schemas_optimizer_settings(monkeypatch):
     y = -np.sum((X - 0.4) ** 2, axis=1)
     kw = {"kernel": "matern32", "nugget": "fixed", "mean": "constant", "ard": False}
     schema = defaults("inference", "surrogate")
-    plain = sur.fit_gp(X, y, **kw)
-    spelled = sur.fit_gp(X, y, **kw, **{k: schema[k] for k in (
+    plain = gp_fit.fit_gp(X, y, **kw)
+    spelled = gp_fit.fit_gp(X, y, **kw, **{k: schema[k] for k in (
         "optimizer", "restarts", "seed", "mean_offset_factor", "nugget_factor", "nugget_floor")})
     assert plain.restarts == schema["restarts"]
     assert plain.hyperparameters == spelled.hyperparameters
     other = {**schema, "restarts": 1, "nugget_factor": 1e-3}
-    monkeypatch.setattr(sur, "defaults", lambda name, definition: dict(other))
-    changed = sur.fit_gp(X, y, **kw)
+    monkeypatch.setattr(gp_fit, "defaults", lambda name, definition: dict(other))
+    changed = gp_fit.fit_gp(X, y, **kw)
     assert changed.restarts == 1
     assert changed.nugget == pytest.approx(1e-3 * float(np.ptp(y)))
 
@@ -180,7 +181,7 @@ def test_fit_from_config_passes_every_setting_of_the_section(monkeypatch):
         calls.append(kw)
         raise RuntimeError("recorded")
 
-    monkeypatch.setattr(sur, "fit_gp", recording)
+    monkeypatch.setattr(gp_selection, "fit_gp", recording)
     X = sobol_design(np.array([[0.0, 1.0], [0.0, 1.0]]), 8, 0)
     with pytest.raises(RuntimeError, match="every GP surrogate fit failed"):
         fit_from_config(X, -np.sum(X**2, axis=1), surrogate_settings(restarts=1),

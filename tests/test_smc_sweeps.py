@@ -21,9 +21,9 @@ import numpy as np
 import pytest
 
 from bayescalib.inference.design import sobol_design
+from bayescalib.inference.gp import GPSurrogate
 from bayescalib.inference.parameters import Parameter, ParameterSpace, Uniform
 from bayescalib.inference.smc import _proposal_factor, _tempered, mh_sweeps, run_smc
-from bayescalib.inference.surrogate import GPSurrogate
 
 
 def reference_sweeps(X, ll, lp, gamma, chol, n_sweeps, loglik, logprior, rng, W):

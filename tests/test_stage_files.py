@@ -191,7 +191,7 @@ def test_a_truncated_vtu_field_file_is_set_aside_by_the_field_figure(tmp_path):
 def test_a_truncated_hdf5_stage_output_is_set_aside_by_the_response_figure(tmp_path, kind):
     """The figure stages read the training table and the surrogate through the same
     reader as the inference stages."""
-    from bayescalib.inference.surrogate import fit_gp
+    from bayescalib.inference.gp import fit_gp
     from bayescalib.io.training import write_training
 
     X = np.column_stack([np.linspace(150, 750, 8), np.linspace(-0.7, 0.4, 8)])
@@ -238,7 +238,7 @@ def test_a_truncated_previous_round_surrogate_is_set_aside_not_called_unfittable
     """An active round's fit reads the previous round's surrogate: a damaged one is set
     aside (before, it was reported as a GP that cannot be fitted, on every rerun)."""
     from bayescalib.config import validate
-    from bayescalib.inference.surrogate import fit_gp
+    from bayescalib.inference.gp import fit_gp
     from bayescalib.io.training import write_training
 
     X = np.column_stack([np.linspace(150, 750, 8), np.linspace(-0.7, 0.4, 8)])

@@ -295,8 +295,8 @@ def test_the_time_guard_counts_the_candidate_models_a_search_fits(parameters, su
     """The GP estimate's count of candidate models (kernel x output x input scale x
     frame) is that of the search it estimates (the same function decides both)."""
     from bayescalib.config import validate
+    from bayescalib.inference.gp.selection import _search_settings, search_size
     from bayescalib.inference.parameters import ParameterSpace
-    from bayescalib.inference.surrogate import _search_settings, search_size
 
     params = load_yaml(ROOT / "config" / "uncertain_inflow.yaml").get("parameters") \
         if parameters == 3 else DEFAULT["parameters"]

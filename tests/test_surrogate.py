@@ -1,11 +1,11 @@
-"""GP surrogate of the log-likelihood (bayescalib.inference.surrogate) and the convergence study."""
+"""GP surrogate of the log-likelihood (bayescalib.inference.gp) and the convergence study."""
 
 import numpy as np
 import pytest
 
 from bayescalib.inference.convergence import convergence_study_function
 from bayescalib.inference.design import sobol_design, sobol_test_points
-from bayescalib.inference.surrogate import GPSurrogate, fit_gp, surrogate_settings
+from bayescalib.inference.gp import GPSurrogate, fit_gp, surrogate_settings
 
 BOX = np.array([[100.0, 800.0], [-0.8, 0.5]])
 
@@ -172,7 +172,7 @@ def test_convergence_study_error_decreases():
 def test_scg_optimizer_improves_evidence():
     # SCG (the paper's choice in 6D) must end at a higher evidence than its fixed start
     # (s^2 = mean((y - m)^2), l = 0.3), and not far below L-BFGS-B's optimum.
-    from bayescalib.inference.surrogate import _build_gpy
+    from bayescalib.inference.gp.fit import _build_gpy
 
     X = sobol_design(BOX, 32, 4)
     y = smooth_loglik(X)
@@ -198,7 +198,7 @@ def test_every_kernel_predicts_as_gpy_does(kernel, device):
     independent factorizations; the two fast predictors agree with each other closer).
     A nugget of 1e-3 of the range keeps K well conditioned, so that GPy adds no jitter
     of its own (it does near singularity, and then the two would differ by that)."""
-    from bayescalib.inference.surrogate import fit_gp
+    from bayescalib.inference.gp import fit_gp
 
     rng = np.random.default_rng(3)
     X = rng.uniform(0, 1, (40, 2))
@@ -236,8 +236,9 @@ def test_threaded_prediction_is_bitwise_the_single_threaded_one(gp64):
 GPU_PROBE = """
 import sys
 import numpy as np
-from bayescalib.inference import surrogate
-surrogate._GPU_MARKERS = ("/nonexistent/gpu-marker",)
+from bayescalib.inference import gp as surrogate
+from bayescalib.inference.gp import predictor
+predictor._GPU_MARKERS = ("/nonexistent/gpu-marker",)
 assert not surrogate.gpu_possible()
 gp = surrogate.fit_gp(np.array([[0.1, 0.2], [0.5, 0.9], [0.8, 0.3], [0.3, 0.6]]),
                       np.array([-1.0, -2.0, -0.5, -1.5]), restarts=1, kernel="matern32",
@@ -271,7 +272,7 @@ def test_fast_mean_is_the_gp_formula_evaluated_directly(kernel, bound):
     kernels' sums cancel by many orders of magnitude, hence that scale)."""
     from scipy.spatial.distance import cdist
 
-    from bayescalib.inference.surrogate import KERNELS
+    from bayescalib.inference.gp import KERNELS
 
     rng = np.random.default_rng(7)
     X = BOX[:, 0] + rng.uniform(0.0, 1.0, (50, 2)) * (BOX[:, 1] - BOX[:, 0])

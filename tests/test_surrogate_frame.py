@@ -14,9 +14,9 @@ import pytest
 
 from bayescalib.config import validate
 from bayescalib.inference.design import sobol_design
+from bayescalib.inference.gp import GPSurrogate, fit_from_config, fit_gp, principal_frame
 from bayescalib.inference.parameters import ParameterSpace
 from bayescalib.inference.smc import run_smc
-from bayescalib.inference.surrogate import GPSurrogate, fit_from_config, fit_gp, principal_frame
 
 
 def _gaussian(sds, seed_rot=None, mean=None):

@@ -18,14 +18,14 @@ import pytest
 from bayescalib.config import load_yaml, merge_layers, validate
 from bayescalib.inference.rounds import calibrate
 from bayescalib.inference.design import sobol_design
-from bayescalib.inference.parameters import ParameterSpace
-from bayescalib.inference.surrogate import (
+from bayescalib.inference.gp import (
     GPSurrogate,
     fit_from_config,
     fit_gp,
     log_input_offsets,
     resolve_ard,
 )
+from bayescalib.inference.parameters import ParameterSpace
 
 CONFIG = Path(__file__).resolve().parents[1] / "config"
 BOUND = 2.88  # the likelihood's upper bound B (one scalar measurement)

@@ -17,16 +17,16 @@ import pytest
 
 from bayescalib.config import validate
 from bayescalib.inference.design import sobol_design
-from bayescalib.inference.surrogate import (
+from bayescalib.inference.gp import (
     GPSurrogate,
-    _build_gpy,
-    _quadratic_mapping_class,
     fit_from_config,
     fit_gp,
-    frame_extent,
     principal_frame,
     resolve_mean,
 )
+from bayescalib.inference.gp.fit import _build_gpy
+from bayescalib.inference.gp.inputs import frame_extent
+from bayescalib.inference.gp.mean import _quadratic_mapping_class
 
 BOX3 = np.array([[0.0, 1.0], [-1.0, 1.0], [10.0, 30.0]])
 MODE3 = np.array([0.55, 0.2, 18.0])

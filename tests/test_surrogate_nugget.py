@@ -1,4 +1,4 @@
-"""The fitted nugget of the GP surrogate (surrogate.nugget: fit; bayescalib.inference.surrogate).
+"""The fitted nugget of the GP surrogate (surrogate.nugget: fit; bayescalib.inference.gp.fit).
 
 Specification: with ``nugget="fit"`` the GP noise variance sigma_n^2 is a hyperparameter of
 the evidence, bounded below by an absolute floor (nats^2 of L, carried to the units of the
@@ -15,7 +15,7 @@ import pytest
 
 from bayescalib.config import validate
 from bayescalib.inference.design import sobol_design
-from bayescalib.inference.surrogate import GPSurrogate, fit_from_config, fit_gp, fit_round
+from bayescalib.inference.gp import GPSurrogate, fit_from_config, fit_gp, fit_round
 
 BOX = np.array([[0.0, 1.0], [0.0, 1.0]])
 FLOOR = 1e-5

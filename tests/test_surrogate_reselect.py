@@ -1,6 +1,6 @@
 """When the surrogate's discrete choices are searched again (surrogate.reselect_growth).
 
-Contract (bayescalib.inference.surrogate.fit_round): every candidate of the discrete
+Contract (bayescalib.inference.gp.selection.fit_round): every candidate of the discrete
 choices (kernel x output x input scale x frame) is fitted in round 0 and whenever the
 training set has grown by the stated fraction since the last full search; in the rounds
 between, exactly one fit (the previous choice, on all current data); a refit that fails
@@ -16,7 +16,7 @@ import h5py
 import numpy as np
 import pytest
 
-import bayescalib.inference.surrogate as sur
+import bayescalib.inference.gp.selection as sur
 from bayescalib.config import validate
 from bayescalib.inference.design import sobol_design
 from bayescalib.io.training import write_training
@@ -231,8 +231,8 @@ def test_calibrate_searches_in_round_0_and_for_its_result(growth, monkeypatch):
     """In-process rounds (bayescalib.inference.rounds.calibrate): with reselect_growth 0
     every round searches in full (and the result is the last round's); with a growth
     never reached only round 0 searches, and the result's surrogate is one more search."""
-    from bayescalib.inference.rounds import calibrate
     from bayescalib.inference.parameters import ParameterSpace
+    from bayescalib.inference.rounds import calibrate
 
     count = _Count(monkeypatch)
     space = ParameterSpace.from_config(PARAMETERS)

@@ -167,14 +167,14 @@ _PRELOAD = ("numpy", "scipy.sparse", "scipy.spatial", "scipy.linalg", "h5py",
             "bayescalib.models.fsi.solver", "ngsolve", "netgen.occ", "multiprocessing.popen_fork")
 
 #: what the round server imports before it accepts jobs (torch only where a GPU may
-#: be used: :func:`bayescalib.inference.surrogate.gpu_possible`)
+#: be used: :func:`bayescalib.inference.gp.predictor.gpu_possible`)
 _PRELOAD_ROUND = ("numpy", "scipy.linalg", "scipy.optimize", "scipy.stats", "h5py", "GPy",
                   "arviz", "matplotlib", "matplotlib.pyplot", "bayescalib.stages.logs",
                   "bayescalib.stages.surrogate", "bayescalib.stages.smc",
                   "bayescalib.stages.acquire", "bayescalib.stages.marginalize",
                   "bayescalib.stages.posterior_check", "bayescalib.stages.summary",
                   "bayescalib.stages.jobs", "bayescalib.stages.figures", "bayescalib.study",
-                  "bayescalib.inference.surrogate", "bayescalib.inference.smc",
+                  "bayescalib.inference.gp", "bayescalib.inference.smc",
                   "bayescalib.inference.active", "bayescalib.inference.posterior",
                   "bayescalib.inference.weights", "bayescalib.plotting")
 
@@ -554,7 +554,7 @@ def serve(path: str, parent: int | None = None, preload: tuple[str, ...] = _PREL
                 warm_up()
             except Exception as exc:  # noqa: BLE001 - a job pays them itself; serve on
                 print(f"{name}: figure warm-up failed ({exc})", flush=True)
-        from bayescalib.inference.surrogate import gpu_possible
+        from bayescalib.inference.gp import gpu_possible
 
         if gpu_possible():  # a surrogate on device "auto" may use it
             _import_all(("torch",))

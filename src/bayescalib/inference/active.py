@@ -8,7 +8,7 @@ stated convergence criterion. Round 0 is the Sobol design (``n_initial``
 points). Each round r then
 
 1. fits the GP surrogate of the log-likelihood on all solves so far (with the
-   log-misfit warping of :mod:`bayescalib.inference.surrogate`, so it never exceeds the
+   log-misfit warping of :mod:`bayescalib.inference.gp.warping`, so it never exceeds the
    likelihood's upper bound) and runs SMC on it (Algorithm 1);
 2. checks the surrogate of round r-1 against the solves it asked for
    (:func:`trust_check`): their log-likelihoods were *predicted before they were
@@ -94,7 +94,7 @@ return to a point whose solve failed, while the GP itself is fitted on the
 successful solves only (a failure carries no value of the log-likelihood to
 fit). The failures mark where the model cannot be solved
 (:mod:`bayescalib.inference.feasibility`): the sampler's likelihood is zero there
-(:meth:`~bayescalib.inference.surrogate.GPSurrogate.loglik`), and each batch gets
+(:meth:`~bayescalib.inference.gp.predictor.GPSurrogate.loglik`), and each batch gets
 ``boundary_points`` that bisect the gaps between failed and successful solves where the
 posterior leans on them (:func:`boundary_points`), since the acquisition, treating the
 failures as known, would not go there.
@@ -320,7 +320,7 @@ def select_batch(gp, pool: np.ndarray, logprior: np.ndarray, q: int, *, posterio
     Parameters
     ----------
     gp
-        :class:`~bayescalib.inference.surrogate.GPSurrogate` of the log-likelihood.
+        :class:`~bayescalib.inference.gp.predictor.GPSurrogate` of the log-likelihood.
     pool
         Candidates (M, d) in user units.
     logprior

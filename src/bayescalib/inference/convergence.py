@@ -1,11 +1,11 @@
 """Convergence of the GP surrogate over the number of training points (paper Sec. 3.2).
 
 For each n in ``n_train_list`` the surrogate is fitted to the first n points of the
-Sobol design by one fit function (the study's: :func:`~bayescalib.inference.surrogate.
-fit_from_config` with its ``surrogate`` section, so that the GP measured is the GP the
-study calibrates with) -- the prefix property of :mod:`bayescalib.inference.design`
-makes the designs nested -- and its mean is compared with the true log-likelihood at
-``n_test`` held-out *later* points of the same Sobol sequence (indices
+Sobol design by one fit function (the study's:
+:func:`~bayescalib.inference.gp.selection.fit_from_config` with its ``surrogate`` section,
+so that the GP measured is the GP the study calibrates with) -- the prefix property of
+:mod:`bayescalib.inference.design` makes the designs nested -- and its mean is compared
+with the true log-likelihood at ``n_test`` held-out *later* points of the same Sobol sequence (indices
 n_max .. n_max + n_test):
 
     l2_error  = || mean(X_test) - L(X_test) ||_2                (vector 2-norm)
@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 
 from bayescalib.inference.design import sobol_design, sobol_test_points
-from bayescalib.inference.surrogate import GPSurrogate, fit_from_config, surrogate_settings
+from bayescalib.inference.gp import GPSurrogate, fit_from_config, surrogate_settings
 
 __all__ = ["convergence_study", "convergence_study_function"]
 
@@ -55,7 +55,7 @@ def convergence_study(
         Increasing training sizes, each <= n_max.
     fit
         ``fit(X[:n], y[:n])`` -> the surrogate of n points (the study's:
-        :func:`~bayescalib.inference.surrogate.fit_from_config` with its settings).
+        :func:`~bayescalib.inference.gp.selection.fit_from_config` with its settings).
 
     Returns
     -------
@@ -115,9 +115,9 @@ def convergence_study_function(
 
     Builds the Sobol training pool (first max(n_train_list) points) and the
     ``n_test`` later points of the same sequence, evaluates ``loglik`` on both, and
-    fits :func:`~bayescalib.inference.surrogate.fit_from_config` with the validated
+    fits :func:`~bayescalib.inference.gp.selection.fit_from_config` with the validated
     ``surrogate`` section (None: the schema's defaults,
-    :func:`~bayescalib.inference.surrogate.surrogate_settings`), the design box
+    :func:`~bayescalib.inference.gp.selection.surrogate_settings`), the design box
     ``bounds`` and the log-likelihood's upper bound ``bound`` (None: unknown).
     """
     settings = dict(surrogate_settings() if surrogate is None else surrogate)

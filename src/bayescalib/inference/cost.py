@@ -11,7 +11,7 @@ shipped in ``config/``, ``examples/`` and ``tests/data/`` is estimated well insi
 Cost model (seconds on one core of the project's 2-core machine):
 
 * **GP fit** (:func:`gp_fit_seconds`): a full search of the surrogate's discrete
-  choices fits :func:`bayescalib.inference.surrogate.search_size` candidate models,
+  choices fits :func:`bayescalib.inference.gp.selection.search_size` candidate models,
   each from ``restarts`` optimizer starts; one start costs
   ``(GP_START_S + GP_CUBIC_S n^3) p / 9`` for ``n`` training points and ``p``
   hyperparameters (``d + 2`` with one length scale per input, else 3; the constants
@@ -204,7 +204,7 @@ def _bounds(cfg: Mapping[str, Any]) -> np.ndarray:
 
 def _gp_starts(cfg: Mapping[str, Any], bounds: np.ndarray) -> tuple[int, str]:
     """Candidate models of one full search and their description."""
-    from bayescalib.inference.surrogate import search_size
+    from bayescalib.inference.gp import search_size
 
     sur = cfg["surrogate"]
     if sur["target"] == "outputs":
@@ -227,7 +227,7 @@ def study_gp_seconds(cfg: Mapping[str, Any], *, restarts: int | None = None) -> 
     restarts
         Optimizer starts per candidate (None: ``surrogate.restarts``).
     """
-    from bayescalib.inference.surrogate import resolve_ard, resolve_mean
+    from bayescalib.inference.gp import resolve_ard, resolve_mean
 
     sur = cfg["surrogate"]
     bounds = _bounds(cfg)

@@ -2,7 +2,7 @@
 
 Why
 ---
-The paper's surrogate (:mod:`bayescalib.inference.surrogate`) is a GP of the scalar
+The paper's surrogate (:mod:`bayescalib.inference.gp`) is a GP of the scalar
 log-likelihood L(x) = -1/2 |y - u(x)|^2 / sigma^2 + const. When the data are
 informative, L falls by thousands of nats across the prior box while the posterior
 lives in a region a few nats deep: a stationary GP of L must be accurate to a fraction
@@ -114,7 +114,7 @@ class OutputEmulator:
     ----------
     mean : (m,) mean output ubar (noise units).
     basis : (k, m) orthonormal principal directions Phi.
-    components : k :class:`~bayescalib.inference.surrogate.GPSurrogate`, the GP of each
+    components : k :class:`~bayescalib.inference.gp.predictor.GPSurrogate`, the GP of each
         coordinate a_j(x).
     discarded : discarded energy per training point (noise units squared).
     n_train : number of training points.
@@ -150,7 +150,7 @@ class OutputEmulator:
 
 def _fit_coordinate(X, a, bounds, log_offset, *, kernel: str, restarts: int, seed: int,
                     nugget_floor: float):
-    from bayescalib.inference.surrogate import fit_gp
+    from bayescalib.inference.gp import fit_gp
 
     a = np.asarray(a, float)
     span = float(np.ptp(a)) or 1.0
@@ -181,7 +181,7 @@ def fit_output_emulator(X: np.ndarray, U: np.ndarray, bounds: np.ndarray, *,
     energy_tol, max_components
         :func:`principal_outputs`.
     kernel
-        Kernel of every coordinate's GP (:data:`~bayescalib.inference.surrogate.KERNELS`).
+        Kernel of every coordinate's GP (:data:`~bayescalib.inference.gp.kernels.KERNELS`).
     restarts, seed
         Optimizer starts of each GP fit, and their seed.
     inputs
@@ -195,7 +195,7 @@ def fit_output_emulator(X: np.ndarray, U: np.ndarray, bounds: np.ndarray, *,
         ``X_failed``, and used by :meth:`EmulatedLikelihood.loglik`). None: every row
         with a non-finite output.
     """
-    from bayescalib.inference.surrogate import log_input_offsets
+    from bayescalib.inference.gp import log_input_offsets
 
     X = np.atleast_2d(np.asarray(X, float))
     U = np.atleast_2d(np.asarray(U, float))
@@ -272,7 +272,7 @@ class EmulatedLikelihood:
     def loglik(self, X: np.ndarray) -> np.ndarray:
         """The log-likelihood the sampler targets, (M,): :meth:`predict`'s, and -inf
         where the failed solves mark the model infeasible (kept by the first
-        coordinate's GP, :meth:`bayescalib.inference.surrogate.GPSurrogate.infeasible`)."""
+        coordinate's GP, :meth:`bayescalib.inference.gp.predictor.GPSurrogate.infeasible`)."""
         L = self.predict(X)
         first = self.emulator.components[0]
         if first.X_failed is not None:
@@ -327,7 +327,7 @@ class EmulatedLikelihood:
         """Write the emulator and the data to HDF5 atomically (kind ``emulator`` of
         :mod:`bayescalib.io.header`): ``/mean (m,)``, ``/basis (k, m)``, ``/y (m,)``,
         one group ``/coordinates/<j>`` per coordinate GP
-        (:meth:`~bayescalib.inference.surrogate.GPSurrogate.write_group`), attributes
+        (:meth:`~bayescalib.inference.gp.predictor.GPSurrogate.write_group`), attributes
         ``offset``, ``discarded``, ``n_train``, ``n_failed``, ``log_inputs``."""
         import h5py
 
@@ -354,7 +354,7 @@ class EmulatedLikelihood:
         """Read a file written by :meth:`save`; predictions are reproduced exactly."""
         import h5py
 
-        from bayescalib.inference.surrogate import GPSurrogate
+        from bayescalib.inference.gp import GPSurrogate
         from bayescalib.io.header import check_header
 
         with h5py.File(path, "r") as f:
@@ -371,13 +371,13 @@ class EmulatedLikelihood:
 
 def load_surrogate(path, device: str = "auto"):
     """The surrogate a ``train_surrogate`` job wrote, whatever its kind: a
-    :class:`~bayescalib.inference.surrogate.GPSurrogate` of the log-likelihood
+    :class:`~bayescalib.inference.gp.predictor.GPSurrogate` of the log-likelihood
     (``surrogate.target: loglik``) or an :class:`EmulatedLikelihood`
     (``surrogate.target: outputs``). Both give ``predict(X)`` and
     ``predict(X, return_var=True)`` of the log-likelihood."""
     import h5py
 
-    from bayescalib.inference.surrogate import GPSurrogate
+    from bayescalib.inference.gp import GPSurrogate
     from bayescalib.io.header import FORMATS
 
     with h5py.File(path, "r") as f:

@@ -3,7 +3,7 @@
 A solve fails where the model has no steady state the solver can reach (an element
 inverted under flow, Newton stalled at a very soft material, the time limit): its
 design point carries no log-likelihood. The GP of the log-likelihood is fitted on the
-solved points only (:mod:`bayescalib.inference.surrogate`), so by itself it
+solved points only (:mod:`bayescalib.inference.gp`), so by itself it
 extrapolates over the failed region as if the model could be solved there, and the
 posterior may settle where every solve fails: its check solves then fail too, and
 nothing real ever tests it (:func:`bayescalib.inference.importance.importance_check`
@@ -36,7 +36,7 @@ is deterministic in the parameters (an inverted element, Newton diverging, NaN i
 interface, a user command's error) and marks its point.
 
 The GP surrogate keeps the failed points (``GPSurrogate.X_failed``) and applies the
-region in :meth:`~bayescalib.inference.surrogate.GPSurrogate.loglik`; the output
+region in :meth:`~bayescalib.inference.gp.predictor.GPSurrogate.loglik`; the output
 emulator keeps them in its first coordinate's GP and applies it in
 :meth:`~bayescalib.inference.emulator.EmulatedLikelihood.loglik`. Every sampler of the
 pipeline targets ``loglik``.

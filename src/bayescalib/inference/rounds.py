@@ -5,7 +5,7 @@ repeats, for r = 0, 1, ...:
 
 1. **fit** the surrogate to every evaluation so far (:func:`fit_surrogate`: the GP of
    the log-likelihood of paper Sec. 3.2, eq. prior_gp, its discrete choices searched
-   or refitted by :func:`~bayescalib.inference.surrogate.fit_round`; or, with
+   or refitted by :func:`~bayescalib.inference.gp.selection.fit_round`; or, with
    ``surrogate.target: outputs``, the emulator of the residual vectors,
    :mod:`bayescalib.inference.emulator`);
 2. **sample** its posterior by SMC with adaptive tempering (paper Algorithm 1), with
@@ -104,7 +104,7 @@ class Evaluations:
     @classmethod
     def from_rows(cls, rows: Mapping[str, Any]) -> Evaluations:
         """From a mapping with the attributes' names as keys (a training table's columns,
-        :func:`bayescalib.stages.gather_rows`)."""
+        :func:`bayescalib.stages.gather.gather_rows`)."""
         X = np.atleast_2d(np.asarray(rows["X"], float))
         n = X.shape[0]
         R = np.asarray(rows["residuals"], float)
@@ -261,7 +261,7 @@ def fit_surrogate(rows: Evaluations, surrogate: Mapping[str, Any], bounds: np.nd
     """The surrogate of a round (step 1 of the module docstring).
 
     ``surrogate.target: loglik``: the GP of the log-likelihood values
-    (:func:`~bayescalib.inference.surrogate.fit_round`), a failure for the machine's sake
+    (:func:`~bayescalib.inference.gp.selection.fit_round`), a failure for the machine's sake
     (a time limit, a killed process: :func:`~bayescalib.inference.feasibility.says_nothing_of_the_model`)
     left out as NaN, any other failure kept as -inf (it marks where the model cannot be
     solved, :mod:`bayescalib.inference.feasibility`). ``outputs``: the emulator of the
@@ -299,7 +299,7 @@ def fit_surrogate(rows: Evaluations, surrogate: Mapping[str, Any], bounds: np.nd
                                  restarts=surrogate["restarts"], seed=surrogate["seed"],
                                  inputs=surrogate["inputs"], nugget_floor=opts["nugget_floor"])
         return EmulatedLikelihood(em, np.zeros(R.shape[1]), offset=bound)
-    from bayescalib.inference.surrogate import fit_round
+    from bayescalib.inference.gp.selection import fit_round
 
     finite = np.isfinite(rows.loglik)
     y = np.where(~finite & ~marks_infeasible(finite, list(rows.reason)), np.nan, rows.loglik)

@@ -27,14 +27,14 @@ def convergence(training_path: str | Path, surrogate: Mapping[str, Any],
     The GP of each n is the study's surrogate fitted to the first n training points: the
     values :func:`bayescalib.stages.surrogate.train_surrogate` fits
     (:func:`bayescalib.stages.surrogate.loglik_training_set`), the likelihood's bound of
-    the whole table, and :func:`bayescalib.inference.surrogate.fit_from_config`
+    the whole table, and :func:`bayescalib.inference.gp.selection.fit_from_config`
     with the study's ``surrogate`` section (kernel, output, ard, frame, inputs, mean,
     nugget and the optimizer's settings, searched as the study's surrogate searches
     them); only the training size varies. At the full training set it is the study's
     surrogate. ``surrogate`` in the record: each n's hyperparameters."""
     from bayescalib.inference.convergence import convergence_study
     from bayescalib.inference.parameters import ParameterSpace
-    from bayescalib.inference.surrogate import fit_from_config
+    from bayescalib.inference.gp import fit_from_config
 
     tab = read_stage_file(training_path, "training table")
     tr = tab["is_train"].astype(bool)

@@ -36,7 +36,7 @@ def train_surrogate(training_path: str | Path, surrogate: Mapping[str, Any],
     ``previous``: the surrogate file of the previous active round. Its discrete choices
     (kernel, output, inputs, frame) are refitted instead of searched again until the
     training set has grown by ``surrogate.reselect_growth`` since their last full search
-    (:func:`bayescalib.inference.surrogate.fit_round`). None or empty (round 0, a fixed
+    (:func:`bayescalib.inference.gp.selection.fit_round`). None or empty (round 0, a fixed
     design, the study's final surrogate; a rule's absent input): a full search.
 
     ``reuse``: (training table, surrogate) of an earlier fit with the same settings
@@ -144,7 +144,7 @@ def loglik_training_set(tab: Mapping[str, Any]) -> tuple[np.ndarray, np.ndarray]
 
 def _full_search(surrogate_path: str | Path) -> bool:
     """False when the surrogate file records a refit of an earlier round's discrete
-    choices (:func:`bayescalib.inference.surrogate.fit_round`); True otherwise (a full
+    choices (:func:`bayescalib.inference.gp.selection.fit_round`); True otherwise (a full
     search, a file written before the record, or one that cannot be read: then
     :func:`bayescalib.stages.files.reuse_output` decides)."""
     import h5py
