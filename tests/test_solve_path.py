@@ -94,3 +94,29 @@ def test_a_kept_fsi_model_gives_the_records_of_a_new_model_per_point(tmp_path):
     assert kept[0].stats["build_time"] > 0
     assert kept[1].stats["build_time"] == kept[2].stats["build_time"] == 0
     assert all(r.stats["build_time"] > 0 for r in fresh)
+
+
+def test_a_process_that_has_meshed_still_solves_isolated(tmp_path):
+    """A process forked after Netgen generated a mesh in its parent hangs in its own
+    mesh generation; after an in-process solve (a notebook, a test) the solve path starts
+    its processes afresh instead, and the record is the in-process one. The time limit
+    is short so that a hang fails here in about a minute."""
+    import subprocess
+    import sys
+
+    script = """
+import sys
+from pathlib import Path
+import numpy as np
+from bayescalib.models.forward import solve_point, solve_points
+out = Path(sys.argv[1])
+fm = {"type": "fsi", "time_limit_s": 60.0, "fsi": {"mesh": {"preset": "coarse"}}}
+here = solve_point(fm, {"material.E": 500.0}, out / "here.h5", isolate=False)
+(there,) = solve_points(fm, [{"material.E": 500.0}], [out / "there.h5"], grace_s=5.0)
+assert there.ok, there.reason
+np.testing.assert_array_equal(there.interface_current, here.interface_current)
+print("ok")
+"""
+    proc = subprocess.run([sys.executable, "-c", script, str(tmp_path)], capture_output=True,
+                          text=True, timeout=600, check=False)
+    assert proc.returncode == 0 and proc.stdout.strip().endswith("ok"), proc.stderr[-2000:]

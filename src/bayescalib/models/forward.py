@@ -891,12 +891,26 @@ def _finish(job: _Job, res: SolveResult, results: dict[int, SolveResult]) -> Non
     results[job.index] = res
 
 
+def _start_method() -> str:
+    """How solve processes start: forked (cheap: the caller's imports are shared), unless
+    Netgen has generated a mesh in this process or one it was forked from
+    (:data:`bayescalib.models.fsi.geometry.MESHED`): a process forked after that hangs in
+    its own mesh generation, so they start from a fresh interpreter (``spawn``: a
+    script calling this must then guard its top level with ``if __name__ ==
+    "__main__":``, as multiprocessing requires; not ``forkserver``, whose processes are
+    not children of this one)."""
+    geometry = sys.modules.get("bayescalib.models.fsi.geometry")
+    if "fork" in mp.get_all_start_methods() and not getattr(geometry, "MESHED", False):
+        return "fork"
+    return "spawn"
+
+
 def _solve_isolated(fm: Mapping[str, Any], jobs: list[_Job], workers: int,
                     warm_start: str | Path | None, hard: float | None) -> dict[int, SolveResult]:
     """Solve ``jobs`` in at most ``workers`` forked solve processes that keep their model
     from one point to the next; a point that crashes its process or runs past ``hard``
     seconds is a failed run, and its process is replaced for the next point."""
-    ctx = mp.get_context("fork" if "fork" in mp.get_all_start_methods() else "spawn")
+    ctx = mp.get_context(_start_method())
     todo = list(jobs)
     idle: list[_Worker] = []
     busy: list[_Worker] = []
@@ -953,10 +967,11 @@ def solve_points(fm: Mapping[str, Any], points: Sequence[Mapping[str, Any]],
     points before. A point that kills its process or runs past its limit fails alone:
     its process is ended and the next point gets a new one.
 
-    The solve processes are forked: the calling process must not have built an fsi
-    model itself (a process forked after Netgen's mesh generation ran in its parent
-    hangs in its own; NGSolve 6.2.2608). The workflow's jobs, the diagnosis and the
-    command line never do; a test that did solves with ``isolate=False``.
+    The solve processes are forked, unless this process (or one it was forked from) has
+    generated a Netgen mesh: a process forked after that hangs in its own mesh
+    generation (NGSolve 6.2.2608), so they then start from a fresh interpreter
+    (:func:`_start_method`; the workflow's jobs, the diagnosis and the command line never
+    mesh before they solve, and fork).
 
     Parameters
     ----------

@@ -73,6 +73,20 @@ class BiofilmMesh:
     patch_height: float
 
 
+#: whether Netgen has generated a mesh in this process, or in the process it was forked
+#: from (the flag is inherited by a fork): a process forked after that hangs in its own
+#: mesh generation (NGSolve 6.2.2608), so the solve path then starts its solve processes
+#: afresh (:func:`bayescalib.models.forward.solve_points`)
+MESHED = False
+
+
+def generate_mesh(geo, **options):
+    """``geo.GenerateMesh(**options)``, recorded in :data:`MESHED`."""
+    global MESHED
+    MESHED = True
+    return geo.GenerateMesh(**options)
+
+
 def _outline_face(geometry: dict[str, Any]):
     """OpenCascade face of the biofilm patch above the floor, and its height (mm)."""
     from netgen.occ import Ellipse, Face, Wire, WorkPlane, gp_Ax2d, gp_Dir2d, gp_Pnt2d
@@ -257,9 +271,8 @@ def build_mesh(geometry: dict[str, Any], mesh_cfg: dict[str, Any]) -> BiofilmMes
     for f in shape.faces:
         if f.name != "fluid":
             f.maxh = float(mesh_cfg["h_solid"])
-    geo = OCCGeometry(shape, dim=2)
-    ngmesh = geo.GenerateMesh(maxh=float(mesh_cfg["h_bulk"]), grading=float(mesh_cfg["grading"]))
-    mesh = ng.Mesh(ngmesh)
+    mesh = ng.Mesh(generate_mesh(OCCGeometry(shape, dim=2), maxh=float(mesh_cfg["h_bulk"]),
+                                 grading=float(mesh_cfg["grading"])))
     mesh.Curve(int(mesh_cfg["curve_order"]))
     verts, coords, segs = interface_chain(mesh, "interface")
     return BiofilmMesh(mesh, regions, verts, coords, segs, height)

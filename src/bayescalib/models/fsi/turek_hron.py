@@ -65,8 +65,9 @@ def _mesh(kind: str, h_flag: float, h_cyl: float, h_bulk: float, curve_order: in
             if e.name == "cyl":
                 e.maxh = h_cyl
         shape = Glue([fluid, flag]) if kind == "FSI1" else fluid
-    geo = OCCGeometry(shape, dim=2)
-    mesh = ng.Mesh(geo.GenerateMesh(maxh=h_bulk, grading=0.3))
+    from bayescalib.models.fsi.geometry import generate_mesh
+
+    mesh = ng.Mesh(generate_mesh(OCCGeometry(shape, dim=2), maxh=h_bulk, grading=0.3))
     mesh.Curve(curve_order)
     return mesh
 
