@@ -670,8 +670,9 @@ def run_active(prob: Problem, budget: int, seed: int, variant: str = "active") -
     gp = res.surrogate
     if int(res.n_evaluations) != f.n:
         print(f"  [active] note: res.n_evaluations={res.n_evaluations} but the counter saw {f.n}")
-    if res.check is not None:  # the last check round's verdict (its draws are evaluations)
-        print(f"    posterior check (round {res.check['round']}): {res.check['words']}",
+    pc = res.posterior_check  # the last check round's verdict (its draws are evaluations)
+    if pc is not None:
+        print(f"    posterior check (round {pc['round']}): {pc['words']}",
               flush=True)
     smc = metric_smc(gp.predict, prob, seed)
     return {
@@ -683,8 +684,8 @@ def run_active(prob: Problem, budget: int, seed: int, variant: str = "active") -
         "n_rounds": int(res.n_rounds),
         "extra": {
             "converged": bool(res.converged),
-            "check_confirmed": None if res.check is None else bool(res.check["confirmed"]),
-            "check": None if res.check is None else res.check["words"],
+            "check_confirmed": None if pc is None else bool(pc["confirmed"]),
+            "check": None if pc is None else pc["words"],
             "check_evals": sum(len(r["next"]["points"]) for r in res.rounds
                                if "posterior_check" in r.get("next", {}).get("kind", [])),
             "reason": str(res.reason),

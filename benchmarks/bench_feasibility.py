@@ -80,7 +80,7 @@ def run(mode: str, seed: int) -> dict:
     P = res.smc.particles
     m = W @ P[:, 0]
     s = float(np.sqrt(W @ (P[:, 0] - m) ** 2))
-    chk = res.check or {}
+    chk = res.posterior_check or {}
     return {"mode": mode, "seed": seed, "converged": bool(res.converged),
             "evaluations": len(res.loglik),
             "mean_err_sd": float((m - t.mean()) / t.std()),

@@ -234,9 +234,10 @@ def test_active_calibration_converges_to_the_closed_form_posterior():
     assert before["next"]["kind"] == ["posterior_check"] * 32
     draws = np.asarray(before["next"]["points"])
     np.testing.assert_array_equal(res.X[-32:], draws)
-    assert last["posterior_check"] is res.check and res.check["round"] == before["round"]
-    assert res.check["n_draws"] == 32 and res.check["confirmed"], res.check["words"]
-    assert res.check["log_weight_sd"] < 0.5
+    pc = res.posterior_check
+    assert last["posterior_check"] is pc and pc["round"] == before["round"]
+    assert pc["n_draws"] == 32 and pc["confirmed"], pc["words"]
+    assert pc["log_weight_sd"] < 0.5
     assert res.reason.startswith(f"converged after round {last['round']}")
     assert "confirmed by 32 real solves of its draws" in res.reason, res.reason
 
@@ -323,13 +324,13 @@ def test_a_spent_budget_is_reported_as_not_converged():
     assert res.reason.startswith("NOT converged") and "max_solves = 14" in res.reason
     # the default 32 draws of the posterior check never fit in the 6 solves after round 0
     assert "posterior check's 32 draws do not fit" in res.reason, res.reason
-    assert res.check is None
+    assert res.posterior_check is None
     none = calibrate(_gaussian_misfit([0.63, 0.21], np.diag([0.01, 0.015]) ** 2), space,
                      bound=0.0, active={"n_initial": 8, "batch_size": 4, "max_solves": 8},
                      surrogate={"restarts": 1}, smc={"n_particles": 300, "n_rej": 3,
                                                      "zeta": 0.9},
                      posterior_check={"draws": 0})
-    assert none.check is None
+    assert none.posterior_check is None
 
 
 def test_the_rounds_are_reproducible():
@@ -633,7 +634,7 @@ def test_a_posterior_cut_by_failed_solves_converges_to_the_posterior_where_the_m
     beyond = res.smc.particles[:, 0] > 0.5
     assert W[beyond].sum() < 0.2, W[beyond].sum()  # the true posterior has none there
     assert any("boundary" in (r.get("next") or {}).get("kind", []) for r in res.rounds)
-    assert res.check["failed_fraction"] <= 0.1, res.check["words"]
+    assert res.posterior_check["failed_fraction"] <= 0.1, res.posterior_check["words"]
 
 
 def test_boundary_points_bisect_the_gaps_the_posterior_leans_on_and_never_repeat():

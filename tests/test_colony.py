@@ -145,7 +145,7 @@ def test_a_substrate_away_from_the_floor_is_refused_with_the_origin_that_fits(tm
 def test_outlines_the_mesh_cannot_resolve_are_refused():
     """Gaps narrower than two interface elements (min_gap) cannot be meshed."""
     ok = ol.resample_curve(_ellipse(0.3, 0.4), 0.005)
-    ol.check_colony(ok, channel_length=2.0, channel_height=1.0, min_gap=0.07)
+    ol.validate_colony(ok, channel_length=2.0, channel_height=1.0, min_gap=0.07)
     # a mushroom: its cap overhangs the floor with a 30 um fluid gap under it
     mushroom = ol.resample_curve(np.array([
         [0.9, 0.0], [0.9, 0.03], [0.6, 0.03], [0.55, 0.1], [0.7, 0.3], [1.0, 0.35],
@@ -161,7 +161,7 @@ def test_outlines_the_mesh_cannot_resolve_are_refused():
         (ol.resample_curve(_ellipse(0.3, 1.2), 0.005), "channel top"),
     ]:
         with pytest.raises(ol.OutlineError, match=words):
-            ol.check_colony(bad, channel_length=2.0, channel_height=1.0, min_gap=0.07)
+            ol.validate_colony(bad, channel_length=2.0, channel_height=1.0, min_gap=0.07)
 
 
 def _scan_study(entry, tmp_path, files=None, **geometry):

@@ -602,7 +602,8 @@ def test_the_rounds_figure_shows_the_posterior_check_and_one_legend_for_all_pane
         [None, 2.0, 0.4], NAMES, UNITS, [tmp_path / "rounds.png"], bounds=[[-3, 3], [-3, 3]],
         shift_tol=0.2, gp_tol=1.0, converged=True,
         batch_kinds=[["acquired"] * 4, ["posterior_check"] * 4, None],
-        check=[None, None, {"log_weight_sd": 0.13, "confirmed": True}], return_figure=True)
+        posterior_check=[None, None, {"log_weight_sd": 0.13, "confirmed": True}],
+        return_figure=True)
     legend = [t.get_text() for t in fig.axes[0].get_legend().get_texts()]
     assert "posterior check's draws, next round" in legend
     checks_ax = fig.axes[-1]

@@ -30,7 +30,7 @@ from bayescalib.stages.observe import observe
 from bayescalib.stages.summary import (
     design_summary,
     posterior_check_summary,
-    round_check_summary,
+    round_posterior_check_summary,
     summary,
 )
 from bayescalib.stages.surrogate import train_surrogate
@@ -102,7 +102,7 @@ def _json_cases():
         ("active round record", "active/0/acquire.json", ROUND,
          lambda tmp, p: design_summary("active", [p], 8)),
         ("active round record", "active/0/acquire.json", ROUND,
-         lambda tmp, p: round_check_summary([p])),
+         lambda tmp, p: round_posterior_check_summary([p])),
         ("active round record", "active/0/acquire.json", ROUND,
          lambda tmp, p: figures.rounds_figure([p], [], tmp / "t.h5", PARAMETERS,
                                               {"stop": {"shift_tol": 0.3}}, PLOTS,

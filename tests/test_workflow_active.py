@@ -136,7 +136,7 @@ cal = calibrate_rounds(
     obs_path=res / "observations/observations.h5", measure_name="rkhs",
     measure=c["measure"], likelihood=c["likelihood"], surrogate=c["surrogate"],
     smc_cfg=c["smc"], posterior_cfg=c["posterior"], active=c["design"]["active"],
-    workdir=out, check=c["posterior_check"])
+    workdir=out, posterior_check=c["posterior_check"])
 (out / "rounds.json").write_text(json.dumps(cal["rounds"]))
 """
 

@@ -193,12 +193,12 @@ class Study:
     def __init__(self, config: Mapping[str, Any], *, where: str = "config"):
         cfg = validate(config, "study", where=where)
         #: plain-words notes on settings that were ignored (printed when the workflow starts)
-        self.notes: list[str] = self._check_consistency(cfg, where)
+        self.notes: list[str] = self._validate_consistency(cfg, where)
         self.config: dict[str, Any] = sorted_keys(cfg)
 
     # ------------------------------------------------------------------ checks
     @staticmethod
-    def _check_consistency(cfg: dict[str, Any], where: str) -> list[str]:
+    def _validate_consistency(cfg: dict[str, Any], where: str) -> list[str]:
         """Check what the schema cannot; resolve ``auto`` settings; return notes."""
         from bayescalib.inference.parameters import (
             ParameterError,
@@ -231,7 +231,7 @@ class Study:
                     f"{where}: forward_model.command.template: file "
                     f"'{fm['command']['template']}' does not exist"
                 )
-        Study._check_model(fm, where)
+        Study._validate_model(fm, where)
         if fm["warm_start"] == "auto":
             fm["warm_start"] = "prior_centre" if kind == "fsi" else "none"
         elif fm["warm_start"] != "none" and kind != "fsi":
@@ -264,7 +264,7 @@ class Study:
                 f"{where}: convergence.n_train: largest value {max(conv['n_train'])} exceeds "
                 f"design.n_train = {cfg['design']['n_train']}"
             )
-        Study._check_cost(cfg, where)
+        Study._validate_cost(cfg, where)
         names = [p["name"] for p in cfg["parameters"]]
         obs = cfg["observations"]
         if obs["source"] == "synthetic":
@@ -282,22 +282,22 @@ class Study:
             sigma_n2_from_config(cfg["likelihood"])
         except ValueError as exc:
             raise ConfigError(f"{where}: {exc}") from None
-        Study._check_loadings(cfg, where)
+        Study._validate_loadings(cfg, where)
         if cfg["forward_model"]["type"] == "fsi":
-            from bayescalib.models.units import check_fsi_units
+            from bayescalib.models.units import validate_fsi_units
 
-            check_fsi_units(cfg["parameters"], where)  # before the boxes: the unit is the cause
+            validate_fsi_units(cfg["parameters"], where)  # before the boxes: the unit is the cause
             notes += Study._resolve_geometry(cfg, where)
-            Study._check_boxes(cfg, where)
-        Study._check_hidden(cfg, where)
-        observed = Study._check_observation_files(cfg, where)
-        Study._check_measure_points(cfg, where)
-        Study._check_registration(cfg, where, observed)
-        Study._check_diagnose(cfg, where)
+            Study._validate_boxes(cfg, where)
+        Study._validate_hidden(cfg, where)
+        observed = Study._validate_observation_files(cfg, where)
+        Study._validate_measure_points(cfg, where)
+        Study._validate_registration(cfg, where, observed)
+        Study._validate_diagnose(cfg, where)
         return notes
 
     @staticmethod
-    def _check_model(fm: dict[str, Any], where: str) -> None:
+    def _validate_model(fm: dict[str, Any], where: str) -> None:
         """What a solve would find wrong with a python or command model before it
         computes anything: the python callable importable, callable and taking its
         options (the module is imported now, as a solve imports it); the command's program
@@ -307,18 +307,18 @@ class Study:
         from bayescalib.models.forward import (  # not for the fsi model: parsing stays cheap
             CommandModel,
             ForwardModelError,
-            check_call,
-            check_executable,
             load_callable,
+            validate_call,
+            validate_executable,
         )
 
         try:
             if fm["type"] == "python":
-                check_call(load_callable(fm["python"]["function"]),
+                validate_call(load_callable(fm["python"]["function"]),
                            fm["python"].get("options") or {})
             elif fm["type"] == "command":
                 c = fm["command"]
-                check_executable(c["command"][0])
+                validate_executable(c["command"][0])
                 # built, not run: the template parses and the names are valid (no folder made)
                 CommandModel(c["template"], c["command"], input_name=c["input_name"],
                              output_name=c["output_name"], workdir="read.work", units=c["units"])
@@ -326,7 +326,7 @@ class Study:
             raise ConfigError(f"{where}: {exc}") from None
 
     @staticmethod
-    def _check_cost(cfg: dict[str, Any], where: str) -> None:
+    def _validate_cost(cfg: dict[str, Any], where: str) -> None:
         """The cost of the work, known before any job: the design's size, the estimated
         time of the GP fits and of one SMC tempering step, and the SMC's memory, each
         against its limit (:mod:`bayescalib.inference.cost`, ``smc.max_memory_gib``);
@@ -415,7 +415,7 @@ class Study:
         it can be meshed, and fill ``geometry.outline`` with its interface, so every
         solve depends on the points (a changed scan reruns them) and none reads the
         file. Returns a note saying which colony was taken and how."""
-        from bayescalib.geometry.outline import OutlineError, check_colony
+        from bayescalib.geometry.outline import OutlineError, validate_colony
         from bayescalib.io.colony import read_colony
         from bayescalib.io.observations import ObservationError
         from bayescalib.models.fsi.model import MESH_PRESETS
@@ -442,7 +442,7 @@ class Study:
         mesh = {**MESH_PRESETS[fsi["mesh"]["preset"]],
                 **{k: v for k, v in fsi["mesh"].items() if v is not None}}
         try:
-            check_colony(colony.interface, channel_length=float(geo["length"]),
+            validate_colony(colony.interface, channel_length=float(geo["length"]),
                          channel_height=float(geo["channel_height"]),
                          min_gap=2.0 * float(mesh["h_interface"]), name=f"{key}.scan")
         except OutlineError as exc:
@@ -455,7 +455,7 @@ class Study:
                 f"{i['height_mm']:.4g} mm high, smoothed at {i['smoothing_mm'] * 1e3:.3g} um)"]
 
     @staticmethod
-    def _check_registration(cfg: dict[str, Any], where: str, observed: dict[str, Any]) -> None:
+    def _validate_registration(cfg: dict[str, Any], where: str, observed: dict[str, Any]) -> None:
         """Every observed interface lies where the model's undeformed biofilm is, at its
         scale: a flow moves the interface by a fraction of the colony's height and its
         feet barely; a wrong origin or unit moves or scales it as a whole. Refused when
@@ -466,7 +466,7 @@ class Study:
         A python or command model's geometry is known only from a solve: its files are
         compared with ``observations.reference`` (units and placement) or, without one,
         with the first file (units: the snapshots of one colony are of one size), and
-        that one's size with the likelihood's noise (:meth:`_check_scale`)."""
+        that one's size with the likelihood's noise (:meth:`_validate_scale`)."""
         import numpy as np
 
         from bayescalib.geometry.outline import placement
@@ -484,7 +484,7 @@ class Study:
         else:
             what = "observations.reference" if "observations.reference" in observed \
                 else next(iter(observed))
-            Study._check_scale(cfg, where, what, observed[what])
+            Study._validate_scale(cfg, where, what, observed[what])
             ref = observed[what].points
             place = what == "observations.reference"  # snapshots under load move apart
         height = float(np.ptp(ref[:, 1])) or 1.0
@@ -523,7 +523,7 @@ class Study:
                     f"{key}.units{fix}")
 
     @staticmethod
-    def _check_scale(cfg: dict[str, Any], where: str, key: str, iface: Any) -> None:
+    def _validate_scale(cfg: dict[str, Any], where: str, key: str, iface: Any) -> None:
         """An observed interface smaller than the likelihood's noise sd sigma_N (its
         largest extent, in mm) holds no shape to calibrate on: refused as the unit slip it
         usually is (a file in metres read as mm), naming the unit in which it would span
@@ -551,7 +551,7 @@ class Study:
                if u else ""))
 
     @staticmethod
-    def _check_observation_files(cfg: dict[str, Any], where: str) -> dict[str, Any]:
+    def _validate_observation_files(cfg: dict[str, Any], where: str) -> dict[str, Any]:
         """Observation files exist, can be read and hold an interface that fits the
         domain: known before any job. Images are read and segmented here too (the
         observe job does it again; about 10 ms for a 600 x 300 scan), so that an
@@ -563,8 +563,8 @@ class Study:
             IMAGE_SUFFIXES,
             VTK_SUFFIXES,
             ObservationError,
-            check_shape,
             read_interface,
+            validate_shape,
         )
 
         obs = cfg["observations"]
@@ -605,21 +605,21 @@ class Study:
             except OSError as exc:
                 raise ConfigError(f"{where}: {key}.path: '{path}' cannot be read "
                                   f"({exc.strerror or exc})") from None
-            Study._check_point_count(cfg, where, key, path)
+            Study._validate_point_count(cfg, where, key, path)
             opts = {k: e[k] for k in ("units", "pixel_size", "origin", "drop_border", "floor",
                                       "image", "segmentation")
                     if e.get(k) is not None}
             try:
                 observed[key] = read_interface(path, domain=obs.get("domain"), **opts)
-                check_shape(observed[key], str(path))
+                validate_shape(observed[key], str(path))
             except ObservationError as exc:
                 raise ConfigError(f"{where}: {key}: {exc}") from None
             if "rkhs" in cfg["measures"] and key != "observations.reference":
-                Study._check_rkhs_cost(cfg, where, key, path, observed[key])
+                Study._validate_rkhs_cost(cfg, where, key, path, observed[key])
         return observed
 
     @staticmethod
-    def _check_measure_points(cfg: dict[str, Any], where: str) -> None:
+    def _validate_measure_points(cfg: dict[str, Any], where: str) -> None:
         """The Euclidean measure's file of measurement points (``measure.euclidean.points``)
         exists and holds points, when the study is read: every discrepancy job reads it."""
         from bayescalib.io.observations import ObservationError, count_points, read_points
@@ -646,7 +646,7 @@ class Study:
             raise ConfigError(f"{where}: {key}: {exc}") from None
 
     @staticmethod
-    def _check_point_count(cfg: dict[str, Any], where: str, key: str, path: Path) -> None:
+    def _validate_point_count(cfg: dict[str, Any], where: str, key: str, path: Path) -> None:
         """An observation file of more points than
         :data:`bayescalib.io.observations.MAX_OBSERVATION_POINTS` is refused from its row
         (or VTK header) count, before it is read."""
@@ -671,7 +671,7 @@ class Study:
             + f"; resample the interface (e.g. to a point every {h:g} mm)")
 
     @staticmethod
-    def _check_rkhs_cost(cfg: dict[str, Any], where: str, key: str, path: Path,
+    def _validate_rkhs_cost(cfg: dict[str, Any], where: str, key: str, path: Path,
                          iface: Any) -> None:
         """The RKHS measure's cost guards (``measure.rkhs.max_pairs``, and the most
         elements :func:`bayescalib.measures.currents.current` resamples into) applied to an
@@ -703,7 +703,7 @@ class Study:
                 f"{h:g} mm; resample it, or raise measure.rkhs.max_pairs")
 
     @staticmethod
-    def _check_diagnose(cfg: dict[str, Any], where: str) -> None:
+    def _validate_diagnose(cfg: dict[str, Any], where: str) -> None:
         dg = cfg["diagnose"]
         if not dg["enabled"]:
             return
@@ -724,7 +724,7 @@ class Study:
                                   f"got {c['prior']}")
 
     @staticmethod
-    def _check_loadings(cfg: dict[str, Any], where: str) -> None:
+    def _validate_loadings(cfg: dict[str, Any], where: str) -> None:
         fm = cfg["forward_model"]
         ld = fm["loadings"]
         factors = ld["factors"]
@@ -752,7 +752,7 @@ class Study:
             )
 
     @staticmethod
-    def _check_boxes(cfg: dict[str, Any], where: str) -> None:
+    def _validate_boxes(cfg: dict[str, Any], where: str) -> None:
         """Every value of a parameter's design box must be a valid setting of the fsi
         model: each end of each box is set into the fsi section (the others at their
         defaults) and validated, once per study. The schema's limits are intervals, so
@@ -780,7 +780,7 @@ class Study:
                         f"{str(exc).splitlines()[-1].strip()}") from None
 
     @staticmethod
-    def _check_hidden(cfg: dict[str, Any], where: str) -> None:
+    def _validate_hidden(cfg: dict[str, Any], where: str) -> None:
         hidden = cfg["observations"].get("hidden") or {}
         if not hidden:
             return

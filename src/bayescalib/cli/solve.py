@@ -82,7 +82,7 @@ def _read_points(path: str) -> list[dict[str, float]]:
     return points
 
 
-def _check_warm_start(path: str) -> None:
+def _validate_warm_start(path: str) -> None:
     import numpy as np
 
     p = Path(path)
@@ -116,7 +116,7 @@ def run(args: argparse.Namespace) -> int:
     else:
         points, names = [{}], [args.name]
     if args.warm_start:
-        _check_warm_start(args.warm_start)
+        _validate_warm_start(args.warm_start)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     series = len(loading_factors(fm)) > 1

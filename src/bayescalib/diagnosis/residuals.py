@@ -1,5 +1,7 @@
 """Posterior predictive check of the calibrated model along the observed interface.
 
+(The *predictive check*; not the rounds' posterior check: docs/glossary.md.)
+
 Steps 1 (check) and 2 (locate) of the model-form diagnosis. All quantities are
 *normal offsets* in mm measured along the observed interface's arc length ``s``:
 

@@ -1,5 +1,10 @@
 """The ``diagnose`` stage: check, locate, attribute, model, show (writes diagnosis.json).
 
+In this module "check" is always the *predictive check*
+(:func:`bayescalib.diagnosis.residuals.predictive_check`; a variable ``check`` holds
+one, ``diagnosis.json``'s ``check`` is the base model's, ``check_after`` a re-check's),
+never the rounds' trust or posterior check (docs/glossary.md).
+
 0. *Start* from the study's own calibration: the posterior that ``summary.json``
    reports, with its design block (active rounds converged or not). The diagnosis does
    not re-calibrate the base model; when its calibration did not converge it says so,

@@ -27,7 +27,7 @@ Steps
    (odd reflection about each end point).
 4. **Resampling** (:func:`resample_curve`) to uniform arc-length spacing, so the
    spline the mesh generator fits through the points has no clustered nodes.
-5. **Checks** (:func:`check_colony`): a simple curve inside the channel, no
+5. **Checks** (:func:`validate_colony`): a simple curve inside the channel, no
    self-touching (two parts of the interface, or the interface and the floor,
    closer than ``min_gap`` where the curve between them is much longer): a
    gap narrower than about two elements cannot be meshed with the interface
@@ -49,7 +49,6 @@ __all__ = [
     "ColonyChoice",
     "OutlineError",
     "Placement",
-    "check_colony",
     "counterclockwise",
     "curve_length",
     "extend_to_floor",
@@ -60,6 +59,7 @@ __all__ = [
     "select_colony",
     "signed_area",
     "smooth_curve",
+    "validate_colony",
 ]
 
 
@@ -399,7 +399,7 @@ def select_colony(mask: np.ndarray, *, columns: tuple[float, float] | None = Non
     return comp, ColonyChoice(k, len(ids), ranges, areas, by, words)
 
 
-def check_colony(interface: np.ndarray, *, channel_length: float, channel_height: float,
+def validate_colony(interface: np.ndarray, *, channel_length: float, channel_height: float,
                  min_gap: float, name: str = "outline") -> None:
     """Refuse an interface the model cannot mesh or should not take.
 

@@ -1,6 +1,9 @@
 """Active design: rounds of solves placed where the posterior lives, a posterior
 check with real solves as the stop rule's last test, and an honest stop rule.
 
+Each kind of "check" here has its own name (trust check, check points, check round,
+posterior check); docs/glossary.md says what each is and which keys name it.
+
 The paper fixes the design in advance (Sec. 3.2: a scrambled Sobol sample over
 the prior box) and names the remedy for sharp likelihoods in Sec. 3.3: refine
 where the posterior lives. This module makes that a sequential design with a
@@ -30,27 +33,28 @@ or when only ``posterior_check.draws`` solves of the budget ``max_solves`` are l
 equally weighted draws of the current posterior (:func:`posterior_draws`), with
 the surrogate's log-likelihood at each recorded. The next round solves them as
 design points and judges them by importance sampling
-(:func:`round_check`, :func:`bayescalib.inference.importance.importance_check`:
+(:func:`round_posterior_check`, :func:`bayescalib.inference.importance.importance_check`:
 log-weights L - mu, their spread, ESS, the corrected mean and sd). Confirmed, and
 the posterior refitted with the draws added settled against the checked one:
 **converged**. Not confirmed (or moved): the draws stay in the training set (where
 the posterior lives, they are the most useful solves the rounds can get), the
 settled streak starts again, and the rounds go on; when the budget is spent the
 run stops **NOT converged** and says why (the posterior reported is the last
-round's). A check that does not fit in the budget left is not run, and the reason
-says so. With ``posterior_check.draws`` 0 there are no check rounds, and the trust
+round's). A check round that does not fit in the budget left is not run, and the
+reason says so. With ``posterior_check.draws`` 0 there are no check rounds, and the trust
 check decides in their place: converged when the posterior is settled and the
 surrogate predicted the new solves in the posterior region within ``gp_tol`` nats for
 ``patience`` rounds in a row (said in the reason: not checked with real solves of its
-draws). The diagnosis's calibrations run this way; they check their posteriors with
-real solves themselves.
+draws). The diagnosis's calibrations run this way; their posteriors are tested with
+real solves by the diagnosis's own predictive check.
 
 Check points. The trust check can only test the surrogate where the batch goes,
 and an uncertainty-driven batch goes where the surrogate is unsure. A surrogate
 that is confident and wrong about the rim of its posterior (too narrow: between
 the training points a GP reverts to a mean placed above every observed misfit)
-is never tested there, and both checks then pass on a posterior that is too
-narrow. Each batch therefore carries a few points drawn at random from the
+is never tested there, and the trust check and the posterior check then both pass
+on a posterior that is too narrow. Each batch therefore carries a few *check points*
+(:func:`check_points`, batch kind ``"check"``): points drawn at random from the
 posterior widened by its own spread, chosen without the surrogate; their
 predictions enter the trust check like the others.
 
@@ -126,7 +130,7 @@ __all__ = [
     "posterior_change",
     "posterior_draws",
     "posterior_moments",
-    "round_check",
+    "round_posterior_check",
     "round_record",
     "select_batch",
     "trust_check",
@@ -134,7 +138,7 @@ __all__ = [
 
 log = logging.getLogger(__name__)
 
-#: probability level of the posterior region in which the surrogate is checked
+#: probability level of the posterior region in which the trust check tests the surrogate
 REGION_LEVEL = 0.99
 #: jitter of the posterior candidates, in posterior standard deviations
 BANDWIDTH = 0.5
@@ -458,13 +462,14 @@ class StopRule:
     draws_only: bool
 
     @classmethod
-    def from_config(cls, active: Mapping[str, Any], check: Mapping[str, Any],
+    def from_config(cls, active: Mapping[str, Any], posterior_check: Mapping[str, Any],
                     draws_only: bool) -> StopRule:
         """From the validated ``design.active`` and ``posterior_check`` sections; with
         ``draws_only`` a check round is ``design.active.batch_size`` draws when
         ``posterior_check.draws`` is 0."""
         s = active["stop"]
-        n_draws = int(check["draws"]) or (int(active["batch_size"]) if draws_only else 0)
+        n_draws = (int(posterior_check["draws"])
+                   or (int(active["batch_size"]) if draws_only else 0))
         return cls(float(s["shift_tol"]), float(s["sd_tol"]), float(s["gp_tol"]),
                    int(s["patience"]), float(s["unexplored_mass"]), int(active["max_solves"]),
                    n_draws, bool(draws_only))
@@ -481,9 +486,9 @@ class StopRule:
     def apply(self, rec: dict[str, Any], previous: Mapping[str, Any] | None) -> dict[str, Any]:
         """Set ``settled_streak``, ``converged`` and ``stop`` of round record ``rec``
         (its ``settled``, ``trusted``, ``explored`` and ``posterior_check`` set), and
-        return what the next batch must be: ``check_next`` (a check round),
+        return what the next batch must be: ``check_round_next`` (a check round),
         ``n_draws`` (its size, cut to the budget when every round is one),
-        ``can_check`` (a check round fits in the budget) and ``budget_left``."""
+        ``check_round_fits`` (a check round fits in the budget) and ``budget_left``."""
         pc = rec["posterior_check"]
         # without check rounds (draws: 0) the pointwise trust check stands in for the
         # posterior check, as in the stop rule before it: a round counts when settled and
@@ -501,23 +506,26 @@ class StopRule:
         else:  # without a posterior check (draws: 0): settled and trusted, patience rounds
             rec["converged"] = self.n_draws == 0 and streak >= self.patience
         n_draws = self.n_draws
-        if self.draws_only:  # every round checks; the last one with the solves left
+        if self.draws_only:  # every round is a check round; the last one with the solves left
             n_draws = min(n_draws, budget_left)
-            can_check = check_next = n_draws >= 2
+            check_round_fits = check_round_next = n_draws >= 2
         else:
-            can_check = 0 < n_draws <= budget_left
-            check_next = can_check and (streak >= self.patience or budget_left - n_draws < 1)
+            check_round_fits = 0 < n_draws <= budget_left
+            check_round_next = check_round_fits and (streak >= self.patience
+                                                     or budget_left - n_draws < 1)
         rec["stop"] = bool(rec["converged"] or budget_left <= 0
-                           or (self.draws_only and not check_next))
-        return {"check_next": check_next, "n_draws": n_draws, "can_check": can_check,
-                "budget_left": budget_left}
+                           or (self.draws_only and not check_round_next))
+        return {"check_round_next": check_round_next, "n_draws": n_draws,
+                "check_round_fits": check_round_fits, "budget_left": budget_left}
 
 
 def acquire_round(r: int, X: np.ndarray, L: np.ndarray, gp, particles: np.ndarray,
                   weights: np.ndarray, log_evidence: float, space, active: Mapping[str, Any],
                   previous: Mapping[str, Any] | None,
-                  check: Mapping[str, Any], acquisition: str = "select") -> dict[str, Any]:
-    """Everything decided at the end of round ``r``: checks, stop rule, next batch.
+                  posterior_check: Mapping[str, Any],
+                  acquisition: str = "select") -> dict[str, Any]:
+    """Everything decided at the end of round ``r``: trust check, posterior check (of a
+    check round), stop rule, next batch.
 
     The round's record (:func:`round_record`: its posterior, the trust check, the
     posterior's change, the posterior check of a check round, the exploration audit),
@@ -541,7 +549,7 @@ def acquire_round(r: int, X: np.ndarray, L: np.ndarray, gp, particles: np.ndarra
         The validated ``design.active`` config section.
     previous
         The record this function returned for round r-1 (None for round 0).
-    check
+    posterior_check
         The validated ``posterior_check`` section: ``draws`` (the size of a check
         round) and the thresholds of
         :func:`~bayescalib.inference.importance.importance_check`.
@@ -573,11 +581,11 @@ def acquire_round(r: int, X: np.ndarray, L: np.ndarray, gp, particles: np.ndarra
                          f"{acquisition!r}")
     X = np.atleast_2d(np.asarray(X, float))
     L = np.asarray(L, float)
-    rule = StopRule.from_config(active, check, acquisition == "draws")
+    rule = StopRule.from_config(active, posterior_check, acquisition == "draws")
     rec, explored = round_record(r, X, L, gp, particles, weights, log_evidence, space,
-                                 previous, check, rule)
+                                 previous, posterior_check, rule)
     step = rule.apply(rec, previous)
-    rec["reason"] = _reason(rec, rule, step, active["stop"], check)
+    rec["reason"] = _reason(rec, rule, step, active["stop"], posterior_check)
     if not rec["stop"]:
         rec["next"] = ACQUISITIONS[acquisition](active).next_batch(
             r, X, L, gp, particles, weights, space, explored, step)
@@ -586,7 +594,7 @@ def acquire_round(r: int, X: np.ndarray, L: np.ndarray, gp, particles: np.ndarra
 
 def round_record(r: int, X: np.ndarray, L: np.ndarray, gp, particles: np.ndarray,
                  weights: np.ndarray, log_evidence: float, space,
-                 previous: Mapping[str, Any] | None, check: Mapping[str, Any],
+                 previous: Mapping[str, Any] | None, posterior_check: Mapping[str, Any],
                  rule: StopRule) -> tuple[dict[str, Any], dict[str, Any]]:
     """What round r found, before the stop rule: its posterior, the trust check of
     round r-1's batch, the posterior's change, the posterior check when that batch was
@@ -625,17 +633,18 @@ def round_record(r: int, X: np.ndarray, L: np.ndarray, gp, particles: np.ndarray
         rec["trust"]["n_batch"] = int(q_prev)
         rec["trust"]["n_batch_failed"] = int((~np.isfinite(L[n - q_prev:])).sum())
         kinds = np.asarray(nxt.get("kind", ["acquired"] * q_prev))
-        is_check = kinds == "check"
+        is_check_point = kinds == "check"
         err, region = trust["errors"], trust["in_region"]
-        rec["trust"]["check_errors"] = err[is_check].tolist()
+        rec["trust"]["check_errors"] = err[is_check_point].tolist()
         rec["trust"]["check_max_underprediction"] = (
-            float(np.max(err[is_check & region])) if np.any(is_check & region) else None)
+            float(np.max(err[is_check_point & region])) if np.any(is_check_point & region)
+            else None)
         drawn = kinds == "posterior_check"
         if drawn.any() and np.all(drawn | (kinds == "probe")):  # a check round (+ probes)
             draws = {k: np.asarray(nxt[k])[drawn] for k in ("points", "mean", "sd")}
-            rec["posterior_check"] = round_check(draws, L[n - q_prev:][drawn], check,
-                                                 space.names, r - 1,
-                                                 posterior=previous["posterior"])
+            rec["posterior_check"] = round_posterior_check(
+                draws, L[n - q_prev:][drawn], posterior_check, space.names, r - 1,
+                posterior=previous["posterior"])
         prev_post = {k: np.asarray(v, float) for k, v in previous["posterior"].items()
                      if k in ("mean", "sd", "cov")}
         rec["change"] = posterior_change(prev_post, moments)
@@ -653,7 +662,7 @@ def round_record(r: int, X: np.ndarray, L: np.ndarray, gp, particles: np.ndarray
 
 
 def _reason(rec: Mapping[str, Any], rule: StopRule, step: Mapping[str, Any],
-            stop_cfg: Mapping[str, Any], check: Mapping[str, Any]) -> str:
+            stop_cfg: Mapping[str, Any], posterior_check: Mapping[str, Any]) -> str:
     """Plain words: the stop rule's verdict on round ``rec`` and why."""
     r, n, pc = rec["round"], rec["n_solves"], rec["posterior_check"]
     streak, budget_left, n_draws = rec["settled_streak"], step["budget_left"], step["n_draws"]
@@ -673,16 +682,16 @@ def _reason(rec: Mapping[str, Any], rule: StopRule, step: Mapping[str, Any],
                 f"solves in the posterior region within {stop_cfg['gp_tol']:g} nats (max "
                 f"error {rec['trust']['max_abs_error']:.3g}); NOT checked with real solves of "
                 f"its draws (posterior_check.draws: 0); " + _explored_words(rec))
-    why_not = _why_not(rec, stop_cfg, check, budget_left)
+    why_not = _why_not(rec, stop_cfg, posterior_check, budget_left)
     if rec["stop"]:
         return (f"NOT converged: the budget design.active.max_solves = {rule.max_solves} is "
                 f"spent after round {r}. " + why_not
                 + " The posterior reported is that of the last round; raise "
                 "design.active.max_solves to go on (finished solves are kept).")
-    if step["check_next"] and rule.draws_only:
+    if step["check_round_next"] and rule.draws_only:
         return (f"continue: {n_draws} draws of this posterior are solved next, "
                 f"its posterior check and the next design points. " + why_not)
-    if step["check_next"]:
+    if step["check_round_next"]:
         why = (f"the posterior settled for {streak} round(s) in a row"
                if streak >= rule.patience else
                f"{budget_left} solves are left, the last for the posterior check")
@@ -691,11 +700,13 @@ def _reason(rec: Mapping[str, Any], rule: StopRule, step: Mapping[str, Any],
     return "continue: " + why_not
 
 
-def _check_round(r: int, X: np.ndarray, gp, particles: np.ndarray, weights: np.ndarray,
-                 space, explored: Mapping[str, Any], active: Mapping[str, Any],
-                 n_draws: int, n_probes: int) -> dict[str, Any]:
-    """A check round: ``n_draws`` equally weighted draws of the posterior
-    (:func:`posterior_draws`) and ``n_probes`` probes of the unheld basins
+def _posterior_draw_batch(r: int, X: np.ndarray, gp, particles: np.ndarray,
+                          weights: np.ndarray, space, explored: Mapping[str, Any],
+                          active: Mapping[str, Any], n_draws: int,
+                          n_probes: int) -> dict[str, Any]:
+    """The batch of a check round: ``n_draws`` equally weighted draws of the posterior
+    (:func:`posterior_draws`; batch kind ``"posterior_check"``, solved next round for
+    the posterior check) and ``n_probes`` probes of the unheld basins
     (:func:`~bayescalib.inference.exploration.probe_points`)."""
     from bayescalib.inference.exploration import probe_points
 
@@ -726,8 +737,9 @@ class PosteriorDraws:
                    weights: np.ndarray, space, explored: Mapping[str, Any],
                    step: Mapping[str, Any]) -> dict[str, Any]:
         n_draws = int(step["n_draws"])
-        return _check_round(r, X, gp, particles, weights, space, explored, self.active,
-                            n_draws, min(int(self.active["probes"]),
+        return _posterior_draw_batch(r, X, gp, particles, weights, space, explored,
+                                     self.active, n_draws,
+                                     min(int(self.active["probes"]),
                                          int(step["budget_left"]) - n_draws))
 
 
@@ -747,13 +759,13 @@ class SelectBatch:
         from bayescalib.inference.exploration import probe_points
 
         active = self.active
-        if step["check_next"]:
-            return _check_round(r, X, gp, particles, weights, space, explored, active,
-                                int(step["n_draws"]), 0)
+        if step["check_round_next"]:
+            return _posterior_draw_batch(r, X, gp, particles, weights, space, explored,
+                                         active, int(step["n_draws"]), 0)
         d = X.shape[1]
         finite = np.isfinite(L)
         best = float(L[finite].max()) if finite.any() else -math.inf
-        reserve = int(step["n_draws"]) if step["can_check"] else 0
+        reserve = int(step["n_draws"]) if step["check_round_fits"] else 0
         room = int(step["budget_left"]) - reserve  # >= 1 here
         rng = _round_seed(active["seed"], r)
         probes = probe_points(explored, X, space.bounds, min(int(active["probes"]), room - 1),
@@ -762,7 +774,7 @@ class SelectBatch:
         room -= len(probes)
         pool = candidate_pool(particles, weights, space.bounds, int(active["pool_size"]), rng)
         q = min(int(active["batch_size"]), room)
-        n_check = min(int(active["check_points"]), room - q)
+        n_check_points = min(int(active["check_points"]), room - q)
         n_explore = math.floor(q * float(active["explore_fraction"]) + 0.5)
         exploring = np.arange(len(pool)) >= len(pool) - round(len(pool) * POOL_UNIFORM)
         threshold = best - 0.5 * float(chi2.ppf(REGION_LEVEL, d))
@@ -772,11 +784,11 @@ class SelectBatch:
         points, mean, sd = batch["points"], batch["mean"], batch["sd"]
         kind = ["acquired"] * len(points)
         extra = []
-        if n_check:
-            extra.append((check_points(particles, weights, space.bounds, n_check,
+        if n_check_points:
+            extra.append((check_points(particles, weights, space.bounds, n_check_points,
                                        np.random.default_rng([int(active["seed"]), int(r),
                                                               0xC4EC])), "check"))
-        n_edge = min(int(active["boundary_points"]), room - q - n_check)
+        n_edge = min(int(active["boundary_points"]), room - q - n_check_points)
         if n_edge > 0 and getattr(gp, "X_failed", None) is not None:
             extra.append((boundary_points(gp, particles, weights, n_edge, exclude=X),
                           "boundary"))
@@ -881,9 +893,10 @@ def posterior_draws(particles: np.ndarray, weights: np.ndarray, n: int,
     return np.asarray(out, float).reshape(int(n), P.shape[1])
 
 
-def round_check(batch: Mapping[str, Any], L: np.ndarray, check: Mapping[str, Any],
-                names: Sequence[str], checked_round: int,
-                posterior: Mapping[str, Any] | None = None) -> dict[str, Any]:
+def round_posterior_check(batch: Mapping[str, Any], L: np.ndarray,
+                          posterior_check: Mapping[str, Any],
+                          names: Sequence[str], checked_round: int,
+                          posterior: Mapping[str, Any] | None = None) -> dict[str, Any]:
     """:func:`~bayescalib.inference.importance.importance_check` of a check round: the
     real log-likelihoods ``L`` (q,) of the draws ``batch["points"]`` against the
     surrogate's ``batch["mean"]`` recorded when they were drawn; ``posterior`` (the
@@ -894,10 +907,11 @@ def round_check(batch: Mapping[str, Any], L: np.ndarray, check: Mapping[str, Any
 
     res = importance_check(np.asarray(batch["points"], float), np.asarray(L, float),
                            np.asarray(batch["mean"], float),
-                           min_ess_fraction=check["min_ess_fraction"],
-                           shift_tol=check["shift_tol"], sd_tol=check["sd_tol"],
-                           max_log_weight_sd=check["max_log_weight_sd"],
-                           max_failed_fraction=check["max_failed_fraction"],
+                           min_ess_fraction=posterior_check["min_ess_fraction"],
+                           shift_tol=posterior_check["shift_tol"],
+                           sd_tol=posterior_check["sd_tol"],
+                           max_log_weight_sd=posterior_check["max_log_weight_sd"],
+                           max_failed_fraction=posterior_check["max_failed_fraction"],
                            posterior_mean=None if posterior is None else posterior["mean"],
                            posterior_sd=None if posterior is None else posterior["sd"])
     for key in ("mean_q", "sd_q", "mean_is", "sd_is", "shift_sd", "shift_se", "sd_ratio",
@@ -955,7 +969,8 @@ def _predict_loglik(gp, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return gp.loglik_from_latent(g), np.sqrt(_loglik_var_scale(gp, g) * np.maximum(var_g, 0.0))
 
 
-def _why_not(rec: Mapping[str, Any], stop_cfg: Mapping[str, Any], check: Mapping[str, Any],
+def _why_not(rec: Mapping[str, Any], stop_cfg: Mapping[str, Any],
+             posterior_check: Mapping[str, Any],
              budget_left: int) -> str:
     """Plain words: why round ``rec`` has not converged (the posterior check's verdict,
     the posterior's change, the trust check's numbers)."""
@@ -982,13 +997,13 @@ def _why_not(rec: Mapping[str, Any], stop_cfg: Mapping[str, Any], check: Mapping
         parts.append(f"the posterior moved by {c['shift_sd']:.3g} sd (tolerance "
                      f"{stop_cfg['shift_tol']:g}) and its sd changed by {c['sd_change']:.3g} "
                      f"(tolerance {stop_cfg['sd_tol']:g})")
-    elif pc is None and int(check["draws"]) > 0:
+    elif pc is None and int(posterior_check["draws"]) > 0:
         parts.append(f"the posterior settled in {rec['settled_streak']} round(s) in a row, "
                      f"{stop_cfg['patience']} needed before its posterior check")
     elif pc is None and t["passed"]:
         parts.append(f"settled and trusted in {rec['settled_streak']} round(s) in a row, "
                      f"{stop_cfg['patience']} needed")
-    n_draws = int(check["draws"])
+    n_draws = int(posterior_check["draws"])
     if n_draws > budget_left and (pc is None or not pc["confirmed"]):
         parts.append(f"the posterior check's {n_draws} draws do not fit in the "
                      f"{max(budget_left, 0)} solve(s) left of the budget")

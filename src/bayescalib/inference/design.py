@@ -44,7 +44,7 @@ import numpy as np
 __all__ = ["scale_to_box", "sobol_design", "sobol_test_points", "sobol_unit"]
 
 
-def _check_bounds(bounds: np.ndarray) -> np.ndarray:
+def _validate_bounds(bounds: np.ndarray) -> np.ndarray:
     b = np.asarray(bounds, dtype=float)
     if b.ndim != 2 or b.shape[1] != 2 or b.shape[0] < 1:
         raise ValueError(f"bounds must have shape (d, 2), got {b.shape}")
@@ -133,7 +133,7 @@ def sobol_unit(d: int, n: int, seed: int) -> np.ndarray:
 
 def scale_to_box(U: np.ndarray, bounds: np.ndarray) -> np.ndarray:
     """Map unit-box points ``U`` (n, d) to the box ``bounds`` (d, 2)."""
-    b = _check_bounds(bounds)
+    b = _validate_bounds(bounds)
     return b[:, 0] + np.asarray(U, dtype=float) * (b[:, 1] - b[:, 0])
 
 
@@ -154,12 +154,12 @@ def sobol_design(bounds: np.ndarray, n: int, seed: int) -> np.ndarray:
     np.ndarray
         (n, d) design points in user units.
     """
-    b = _check_bounds(bounds)
+    b = _validate_bounds(bounds)
     return scale_to_box(sobol_unit(b.shape[0], n, seed), b)
 
 
 def sobol_test_points(bounds: np.ndarray, n_offset: int, n_test: int, seed: int) -> np.ndarray:
     """Points ``n_offset .. n_offset + n_test - 1`` of the same Sobol sequence, (n_test, d)."""
-    b = _check_bounds(bounds)
+    b = _validate_bounds(bounds)
     U = sobol_unit(b.shape[0], n_offset + n_test, seed)[n_offset:]
     return scale_to_box(U, b)

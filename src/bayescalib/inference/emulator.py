@@ -355,10 +355,10 @@ class EmulatedLikelihood:
         import h5py
 
         from bayescalib.inference.gp import GPSurrogate
-        from bayescalib.io.header import check_header
+        from bayescalib.io.header import validate_header
 
         with h5py.File(path, "r") as f:
-            check_header(f, "emulator", path)
+            validate_header(f, "emulator", path)
             g = f["coordinates"]
             comps = [GPSurrogate.read_group(g[str(j)], device=device) for j in range(len(g))]
             em = OutputEmulator(mean=f["mean"][()], basis=f["basis"][()], components=comps,

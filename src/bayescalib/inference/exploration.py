@@ -1,7 +1,8 @@
 """What the rounds have not explored: basins of the solved log-likelihoods that the
 posterior does not hold, and the posterior mass they could carry.
 
-Why the stop rule needs it. The posterior check (:func:`~bayescalib.inference.active.round_check`)
+Why the stop rule needs it. The posterior check
+(:func:`~bayescalib.inference.active.round_posterior_check`; terms: docs/glossary.md)
 solves draws of the surrogate posterior and compares: it tests the posterior where its
 draws go, and no draw goes to a mode the surrogate does not know. On a posterior with two
 modes about 16 sd apart (``benchmarks/bench_modes.py``), a GP fitted to the bowl of one

@@ -1,5 +1,8 @@
 """Posterior check by importance sampling with real solves.
 
+(The posterior check, not the trust check, the fit check or the diagnosis's predictive
+check: docs/glossary.md.)
+
 The surrogate posterior q(x) ∝ p(x) exp(mu(x)) (paper eq. posterior with the GP mean
 mu in place of the log-likelihood L) is what the SMC samples. The posterior the user
 wants is pi(x) ∝ p(x) exp(L(x)). Solving the forward model at S draws x_s ~ q gives

@@ -13,8 +13,8 @@ their log-likelihoods add. A failed or missing model snapshot (None), a
 geometry the measure cannot evaluate, or a non-finite D give ``-inf``: the
 value is never NaN.
 
-Absolute check of the fit (:func:`fit_check`). The likelihood states a noise
-model: with n measurements and the parameters at their true values,
+Absolute check of the fit, the *fit check* (:func:`fit_check`; docs/glossary.md). The
+likelihood states a noise model: with n measurements and the parameters at their true values,
 D^2 / sigma_N^2 ~ chi2_n, so the misfit Phi = B - log L = D^2 / (2 sigma_N^2)
 (B the bound at D = 0) is about n/2 +- sqrt(n/2). A surrogate can agree with
 itself around a wrong mode; this check cannot be fooled that way: when even

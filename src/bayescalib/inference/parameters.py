@@ -510,7 +510,7 @@ class ParameterSpace:
             raise ParameterError(f"unknown parameter '{name}'; known: {', '.join(self.names)}") from None
 
     # densities ---------------------------------------------------------
-    def _check(self, X: np.ndarray) -> np.ndarray:
+    def _as_2d(self, X: np.ndarray) -> np.ndarray:
         X = np.asarray(X, dtype=float)
         if X.ndim == 1:
             X = X[None, :]
@@ -523,7 +523,7 @@ class ParameterSpace:
 
         -inf for rows outside the box; never NaN (NaN inputs give -inf).
         """
-        X = self._check(X)
+        X = self._as_2d(X)
         out = np.zeros(X.shape[0])
         for j, p in enumerate(self.parameters):
             out += p.logpdf(X[:, j])

@@ -48,7 +48,7 @@ from bayescalib.inference.resampling import systematic_resample
 from bayescalib.inference.smc import SMCResult, weighted_cov
 from bayescalib.inference.weights import ess, weighted_quantile
 from bayescalib.io._atomic_write import atomic_path
-from bayescalib.io.header import check_header, write_header
+from bayescalib.io.header import validate_header, write_header
 
 __all__ = [
     "credible_intervals",
@@ -294,7 +294,7 @@ def read_particles_h5(path: str | Path) -> SMCResult:
     import h5py
 
     with h5py.File(path, "r") as f:
-        check_header(f, "particles", path)
+        validate_header(f, "particles", path)
         names = [n.decode() if isinstance(n, bytes) else str(n) for n in f.attrs["names"]]
         return SMCResult(
             particles=f["particles"][()],

@@ -1,5 +1,7 @@
 """The rounds of a calibration by active design: one driver for every place that runs them.
 
+Round, check round, trust check, posterior check: docs/glossary.md.
+
 A calibration in rounds (what a round decides: :mod:`bayescalib.inference.active`)
 repeats, for r = 0, 1, ...:
 
@@ -217,14 +219,14 @@ class RoundSettings:
     surrogate : the ``surrogate`` section.
     smc : the ``smc`` section: the result's sampler.
     round_smc : the rounds' sampler (``smc`` with ``design.active.smc`` applied).
-    check : the ``posterior_check`` section (the check rounds).
+    posterior_check : the ``posterior_check`` section (the check rounds).
     """
 
     active: Mapping[str, Any]
     surrogate: Mapping[str, Any]
     smc: Mapping[str, Any]
     round_smc: Mapping[str, Any]
-    check: Mapping[str, Any]
+    posterior_check: Mapping[str, Any]
 
     @classmethod
     def from_config(cls, cfg: Mapping[str, Any]) -> RoundSettings:
@@ -307,11 +309,13 @@ def fit_surrogate(rows: Evaluations, surrogate: Mapping[str, Any], bounds: np.nd
 
 
 def decide(r: int, rows: Evaluations, surrogate, result, space, active: Mapping[str, Any],
-           check: Mapping[str, Any], previous: Mapping[str, Any] | None) -> dict[str, Any]:
-    """The record of round r (step 3 of the module docstring): checks, stop rule and
-    the next batch (:func:`~bayescalib.inference.active.acquire_round`), the batch
-    chosen by the surrogate's acquisition when it is the GP of the log-likelihood and
-    made of posterior draws when it is the output emulator (its surrogate has no
+           posterior_check: Mapping[str, Any],
+           previous: Mapping[str, Any] | None) -> dict[str, Any]:
+    """The record of round r (step 3 of the module docstring): trust check, posterior
+    check (of a check round), stop rule and the next batch
+    (:func:`~bayescalib.inference.active.acquire_round`), the batch chosen by the
+    surrogate's acquisition when it is the GP of the log-likelihood and made of
+    posterior draws when it is the output emulator (its surrogate has no
     variance-driven acquisition), and the surrogate's output transform recorded.
 
     Parameters
@@ -324,7 +328,7 @@ def decide(r: int, rows: Evaluations, surrogate, result, space, active: Mapping[
         The round's surrogate and its SMC result.
     space
         :class:`~bayescalib.inference.parameters.ParameterSpace`.
-    active, check
+    active, posterior_check
         The validated ``design.active`` and ``posterior_check`` sections.
     previous
         The record of round r-1 (None in round 0).
@@ -333,7 +337,8 @@ def decide(r: int, rows: Evaluations, surrogate, result, space, active: Mapping[
     from bayescalib.inference.emulator import EmulatedLikelihood
 
     rec = acquire_round(int(r), rows.X, rows.loglik, surrogate, result.particles,
-                        result.weights, result.log_evidence, space, active, previous, check,
+                        result.weights, result.log_evidence, space, active, previous,
+                        posterior_check,
                         acquisition="draws" if isinstance(surrogate, EmulatedLikelihood)
                         else "select")
     rec["surrogate_output"] = surrogate.hyperparameters["output"]
@@ -373,7 +378,7 @@ class MemoryStore:
     def decide(self, r: int, rows: Evaluations, surrogate: Any, result: Any,
                previous: Mapping[str, Any] | None) -> dict[str, Any]:
         return decide(r, rows, surrogate, result, self.space, self.settings.active,
-                      self.settings.check, previous)
+                      self.settings.posterior_check, previous)
 
 
 # ------------------------------------------------------------------- the driver
@@ -410,7 +415,7 @@ class RoundsResult:
         return self.rows.loglik
 
     @property
-    def check(self) -> dict[str, Any] | None:
+    def posterior_check(self) -> dict[str, Any] | None:
         """The last posterior check of the rounds (real evaluations of a round's
         posterior draws, which are design points of the next round, in ``X``), or None
         when no check round was run."""

@@ -23,7 +23,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-__all__ = ["FORMATS", "check_header", "write_header"]
+__all__ = ["FORMATS", "validate_header", "write_header"]
 
 #: kind -> (format name, current layout version, what the file is, in words)
 FORMATS: dict[str, tuple[str, int, str]] = {
@@ -54,7 +54,7 @@ def write_header(f, kind: str) -> None:
     f.attrs["format_version"] = version
 
 
-def check_header(f, kind: str, path: str | Path, error: type[Exception] = ValueError) -> int:
+def validate_header(f, kind: str, path: str | Path, error: type[Exception] = ValueError) -> int:
     """Check that the open h5py file ``f`` (read from ``path``) is a ``kind`` file of the
     current layout (or an older one it still reads, :data:`READABLE_OLDER`); raise
     ``error`` naming the file otherwise. Returns the version."""

@@ -25,7 +25,7 @@ import numpy as np
 
 from bayescalib.geometry.interface import Interface
 from bayescalib.io._atomic_write import atomic_path
-from bayescalib.io.header import check_header, write_header
+from bayescalib.io.header import validate_header, write_header
 
 __all__ = ["StoredObservations", "read_observations", "write_observations"]
 
@@ -133,7 +133,7 @@ def read_observations(path: str | Path) -> StoredObservations:
         raise ValueError(f"observation file '{p}' does not exist")
     try:
         with h5py.File(p, "r") as f:
-            check_header(f, "observations", p)
+            validate_header(f, "observations", p)
             if int(f.attrs.get("complete", 0)) != 1:
                 raise ValueError(f"observation file '{p}' is incomplete (interrupted write?)")
             n = int(f.attrs["n_snapshots"])

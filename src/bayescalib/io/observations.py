@@ -56,13 +56,13 @@ __all__ = [
     "ObservationError",
     "ObservationSet",
     "add_noise",
-    "check_domain",
-    "check_shape",
     "count_points",
     "read_interface",
     "read_interface_info",
     "read_points",
     "unit_hint",
+    "validate_domain",
+    "validate_shape",
     "write_interface_csv",
     "write_interface_vtk",
     "write_mask_png",
@@ -96,7 +96,7 @@ def unit_hint(ratio: float, units: str, lo: float, hi: float) -> str | None:
     """The length unit (of :data:`UNITS`, other than ``units``) in which a size that is
     ``ratio`` times what is expected when read in ``units`` would be between ``lo`` and
     ``hi`` times it; None when none is. The one rule behind every "the numbers fit if the
-    file is in ..." of the unit checks (:func:`check_domain`,
+    file is in ..." of the unit checks (:func:`validate_domain`,
     :class:`bayescalib.study.Study`)."""
     for u, f in UNITS.items():
         if u != units and units in UNITS and lo <= ratio * f / UNITS[units] <= hi:
@@ -141,7 +141,7 @@ def count_points(path: str | Path, limit: int = MAX_OBSERVATION_POINTS) -> int |
     return None
 
 
-def check_shape(interface: Interface, where: str) -> None:
+def validate_shape(interface: Interface, where: str) -> None:
     """Refuse an observed interface with fewer than :data:`MIN_INTERFACE_POINTS` nodes, or
     a 2D curve whose nodes all lie on one straight line (no outline to compare a model's
     with).
@@ -174,7 +174,7 @@ def _unit_factor(units: str, where: str) -> float:
 
 
 # ---------------------------------------------------------------------------- checks
-def _check_curve_points(pts: np.ndarray, where: str, rows: np.ndarray | None = None) -> None:
+def _validate_curve_points(pts: np.ndarray, where: str, rows: np.ndarray | None = None) -> None:
     """Empty/single point, NaN/inf and duplicate consecutive points (rows are 1-based file rows)."""
     if pts.shape[0] == 0:
         raise ObservationError(f"{where}: the curve is empty (no points)")
@@ -194,7 +194,7 @@ def _check_curve_points(pts: np.ndarray, where: str, rows: np.ndarray | None = N
         )
 
 
-def _check_simple(curve: Interface, where: str) -> None:
+def _validate_simple(curve: Interface, where: str) -> None:
     if curve.dim != 2:
         return
     hits = segment_intersections(curve, max_report=1)
@@ -206,7 +206,7 @@ def _check_simple(curve: Interface, where: str) -> None:
         )
 
 
-def check_domain(interface: Interface, domain: Sequence[Sequence[float]] | None, where: str, units: str = "mm") -> None:
+def validate_domain(interface: Interface, domain: Sequence[Sequence[float]] | None, where: str, units: str = "mm") -> None:
     """Check that the interface fits an expected bounding box (catches unit mismatches).
 
     Parameters
@@ -284,7 +284,7 @@ def _read_csv(path: Path, units: str, where: str) -> Interface:
                 "triangulated surfaces (VTK)"
             )
         pts = pts[:, :2]
-    _check_curve_points(pts, where, rows)
+    _validate_curve_points(pts, where, rows)
     closed = pts.shape[0] > 3 and np.array_equal(pts[0], pts[-1])
     if closed:
         pts = pts[:-1]
@@ -292,7 +292,7 @@ def _read_csv(path: Path, units: str, where: str) -> Interface:
         curve = Interface.polyline(pts, closed=closed, name=where)
     except InterfaceError as exc:
         raise ObservationError(str(exc)) from None
-    _check_simple(curve, where)
+    _validate_simple(curve, where)
     return curve
 
 
@@ -394,7 +394,7 @@ _VTK_COUNT = re.compile(
 _VTK_POINTS = re.compile(rb'NumberOfPoints\s*=\s*"\s*(\d+)|^[ \t]*POINTS[ \t]+(\d+)', re.MULTILINE)
 
 
-def _check_vtk_header(path: Path, where: str) -> None:
+def _validate_vtk_header(path: Path, where: str) -> None:
     """Refuse a VTK file whose header declares absurd sizes (before VTK allocates them)."""
     with open(path, "rb") as fh:
         head = fh.read(1 << 20)
@@ -407,7 +407,7 @@ def _check_vtk_header(path: Path, where: str) -> None:
             )
 
 
-def _check_vtk_cell_ids(data, where: str) -> None:
+def _validate_vtk_cell_ids(data, where: str) -> None:
     """Cells must refer to existing points (VTK filters may crash otherwise)."""
     import vtk
     from vtk.util.numpy_support import vtk_to_numpy
@@ -434,12 +434,12 @@ def _read_vtk(path: Path, units: str, where: str) -> Interface:
     import vtk
     from vtk.util.numpy_support import vtk_to_numpy
 
-    _check_vtk_header(path, where)
+    _validate_vtk_header(path, where)
     data = _vtk_reader(path)
     # an unreadable legacy file gives a bare vtkDataObject (no points at all)
     if not isinstance(data, vtk.vtkDataSet) or data.GetNumberOfPoints() == 0:
         raise ObservationError(f"{where}: the VTK file holds no points (empty or unreadable)")
-    _check_vtk_cell_ids(data, where)
+    _validate_vtk_cell_ids(data, where)
     if not isinstance(data, vtk.vtkPolyData):
         geo = vtk.vtkGeometryFilter()
         geo.SetInputData(data)
@@ -491,11 +491,11 @@ def _read_vtk(path: Path, units: str, where: str) -> Interface:
             if order is not None:
                 closed = cells.shape[0] == pts.shape[0]
                 ordered = pts[order]
-                _check_curve_points(ordered, where)
+                _validate_curve_points(ordered, where)
                 curve = Interface.polyline(ordered, closed=closed, name=where)
             else:
                 curve = Interface(pts, cells, name=where)
-            _check_simple(curve, where)
+            _validate_simple(curve, where)
             return curve
         return Interface.surface(pts, cells, name=where)
     except InterfaceError as exc:
@@ -649,7 +649,7 @@ def read_interface_info(
     else:
         known = sorted(CSV_SUFFIXES | VTK_SUFFIXES | IMAGE_SUFFIXES)
         raise ObservationError(f"{where}: unknown interface file type {suffix!r}; use one of {', '.join(known)}")
-    check_domain(iface, domain, where, units)
+    validate_domain(iface, domain, where, units)
     return iface, info
 
 

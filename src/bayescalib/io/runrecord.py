@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from bayescalib.io._atomic_write import atomic_path
-from bayescalib.io.header import check_header, write_header
+from bayescalib.io.header import validate_header, write_header
 
 __all__ = [
     "LoadingResult",
@@ -199,7 +199,7 @@ def read_run(path: str | Path) -> SolveResult:
         raise RunFileError(f"run file '{path}' does not exist")
     try:
         with h5py.File(path, "r") as f:
-            check_header(f, "run", path, RunFileError)
+            validate_header(f, "run", path, RunFileError)
             if int(_plain(f.attrs.get("complete", 0))) != 1:
                 raise RunFileError(f"run file '{path}' is incomplete (writing was interrupted)")
             a = f.attrs

@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 
 from bayescalib.io._atomic_write import atomic_path
-from bayescalib.io.header import check_header, write_header
+from bayescalib.io.header import validate_header, write_header
 
 __all__ = ["read_training", "write_training"]
 
@@ -67,7 +67,7 @@ def read_training(path: str | Path) -> dict[str, Any]:
     import h5py
 
     with h5py.File(path, "r") as f:
-        check_header(f, "training", path)
+        validate_header(f, "training", path)
         out = {k: f[k][...] for k in ("X", "loglik", "D", "status", "is_train")}
         for key in ("bound", "n_measurements"):  # absent from tables of earlier runs
             out[key] = f[key][...] if key in f else np.full(len(out["loglik"]), np.nan)

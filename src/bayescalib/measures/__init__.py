@@ -101,7 +101,7 @@ class MeasureResult:
     n: int
 
 
-def _check_pair(model: Interface, obs: Interface) -> None:
+def _validate_pair(model: Interface, obs: Interface) -> None:
     if not isinstance(model, Interface) or not isinstance(obs, Interface):
         raise MeasureError("model and observation must be Interface objects")
     if model.dim != obs.dim:
@@ -220,7 +220,7 @@ def euclidean(
     MeasureResult
         ``distances`` (k,), ``D = ||d||_2``, ``n = k``.
     """
-    _check_pair(model, obs)
+    _validate_pair(model, obs)
     d = model.dim
     if isinstance(points, (str, Path)):
         from bayescalib.io.observations import read_points
@@ -277,7 +277,7 @@ def closest_point(model: Interface, obs: Interface) -> MeasureResult:
         ``distances`` (n_in,) signed by the observed normal, ``D = ||d||_2``,
         ``n = n_in`` (number of model interface nodes).
     """
-    _check_pair(model, obs)
+    _validate_pair(model, obs)
     signed, _, _ = closest_points(model.points, obs)
     return MeasureResult(distances=signed, D=float(np.linalg.norm(signed)), n=int(signed.size))
 
@@ -344,7 +344,7 @@ def rkhs(
     if residual not in ("auto", "scalar", "field"):
         raise MeasureOptionError(f"residual must be 'scalar', 'field' or 'auto', got {residual!r}")
 
-    _check_pair(model, obs)
+    _validate_pair(model, obs)
     if not (isinstance(sigma_w, (int, float)) and np.isfinite(sigma_w) and sigma_w > 0):
         raise MeasureOptionError(f"sigma_w must be a positive number in mm, got {sigma_w!r}")
     try:

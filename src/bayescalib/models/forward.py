@@ -68,8 +68,6 @@ __all__ = [
     "ForwardModel",
     "ForwardModelError",
     "PythonModel",
-    "check_call",
-    "check_executable",
     "failed_result",
     "load_callable",
     "loading_factors",
@@ -78,6 +76,8 @@ __all__ = [
     "solve_point",
     "solve_points",
     "solve_series",
+    "validate_call",
+    "validate_executable",
 ]
 
 
@@ -195,7 +195,7 @@ def load_callable(function: str) -> Callable[..., Any]:
     return fn
 
 
-def check_call(fn: Callable[..., Any], options: Mapping[str, Any]) -> None:
+def validate_call(fn: Callable[..., Any], options: Mapping[str, Any]) -> None:
     """Check that ``fn(params, **options)`` binds to the callable's signature (a
     misspelt or unknown option is then known before any solve). A callable whose
     signature cannot be read is not checked.
@@ -222,7 +222,7 @@ def check_call(fn: Callable[..., Any], options: Mapping[str, Any]) -> None:
             f"function(params, **options): {exc}") from None
 
 
-def check_executable(argv0: str) -> None:
+def validate_executable(argv0: str) -> None:
     """Check that the program a command model runs (its argument list's first word) will
     be found: a plain name on ``PATH`` (:func:`shutil.which`), an absolute path an
     executable file. A relative path with a folder in it is refused: the command runs

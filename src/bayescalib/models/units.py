@@ -4,7 +4,7 @@ A parameter's ``unit`` is the unit of every number written for it (prior, bounds
 ground truth) and of every number reported for it. For the fsi model the value is
 set into the model's configuration at the parameter's ``target``, which the model
 reads in one fixed unit (:func:`fsi_target_unit`: Pa for the Young's moduli,
-mm^2/s for the inflow rate, ...). :func:`check_fsi_units` refuses a parameter whose
+mm^2/s for the inflow rate, ...). :func:`validate_fsi_units` refuses a parameter whose
 unit is another one, so that a prior written in kPa is never read as Pa; where the
 unit converts into the target's, the error gives the parameter's numbers in the
 target's unit, ready to paste. For the python and command models the unit is a
@@ -30,10 +30,10 @@ from bayescalib.config import ConfigError
 __all__ = [
     "DIMENSIONLESS",
     "UnitError",
-    "check_fsi_units",
     "conversion_factor",
     "fsi_target_unit",
     "parse_unit",
+    "validate_fsi_units",
 ]
 
 #: spellings of "no unit"
@@ -194,7 +194,7 @@ def _converted(par: Mapping[str, Any], unit: str, c: float) -> str:
     return "{" + ", ".join(parts) + "}"
 
 
-def check_fsi_units(parameters: Sequence[Mapping[str, Any]], where: str = "config") -> None:
+def validate_fsi_units(parameters: Sequence[Mapping[str, Any]], where: str = "config") -> None:
     """Refuse a parameter whose unit is not the unit the fsi model reads its target in.
 
     Parameters

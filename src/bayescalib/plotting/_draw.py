@@ -19,15 +19,15 @@ from matplotlib.collections import PolyCollection
 
 from bayescalib.inference.weights import hpd_thresholds, kde_on_grid, weighted_kde
 
-from ._checks import as_array
+from ._validation import as_array
 from .style import COLORS, DENSITY_CMAP
 
 __all__ = [
-    "check_prior_pdf",
     "draw_hexbin",
     "draw_hpd_contours",
     "draw_marginal",
     "level_text",
+    "validate_prior_pdf",
 ]
 
 _MAX_KDE_EVAL = 3000  # particles used to estimate HPD thresholds (random subset)
@@ -65,7 +65,7 @@ def level_text(p: float) -> str:
     return f"{100 * p:.3g} %"
 
 
-def check_prior_pdf(pdf: Callable | None, name: str) -> Callable | None:
+def validate_prior_pdf(pdf: Callable | None, name: str) -> Callable | None:
     """Wrap a marginal prior density so that bad outputs raise ValueError."""
     if pdf is None:
         return None

@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 from matplotlib.figure import Figure
 
-from ._checks import PathsLike, as_array, as_paths, finish
+from ._validation import PathsLike, as_array, as_paths, finish
 from .style import COLORS, paper_style
 
 __all__ = ["plot_gp_convergence"]

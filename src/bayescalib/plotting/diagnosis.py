@@ -18,7 +18,7 @@ import numpy as np
 from matplotlib.figure import Figure
 from matplotlib.patches import Patch
 
-from ._checks import PathsLike, as_paths, finish
+from ._validation import PathsLike, as_paths, finish
 from .style import COLORS, paper_style
 
 __all__ = ["plot_candidate_ranking", "plot_residual_bands"]

@@ -15,13 +15,13 @@ import numpy as np
 from matplotlib.figure import Figure
 from matplotlib.tri import LinearTriInterpolator, Triangulation
 
-from ._checks import PathsLike, as_array, as_paths, as_points, finish
+from ._validation import PathsLike, as_array, as_paths, as_points, finish
 from .style import COLORS, paper_style
 
 __all__ = ["plot_failed_solve", "plot_fields"]
 
 
-def _check_triangles(triangles, n_points: int) -> np.ndarray:
+def _validate_triangles(triangles, n_points: int) -> np.ndarray:
     t = np.asarray(triangles)
     if t.ndim != 2 or t.shape[1] != 3 or t.shape[0] < 1:
         raise ValueError(f"triangles: expected shape (t, 3) with t >= 1, got {t.shape}")
@@ -106,7 +106,7 @@ def plot_fields(
             raise ValueError(f"{nm}: must be positive, got {val}")
     pts = as_points(points, "points", allow_empty=False)
     n = pts.shape[0]
-    tri = _check_triangles(triangles, n)
+    tri = _validate_triangles(triangles, n)
     vel = as_array(velocity, "velocity", shape=(n, 2)) * velocity_unit_factor
     pres = as_array(pressure, "pressure", shape=(n,)) * pressure_unit_factor
     disp = as_array(displacement, "displacement", shape=(n, 2)) * length_unit_factor

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._checks import as_array
+from ._validation import as_array
 
 __all__ = ["chi2_radius2", "ellipse_axes", "ellipse_points", "mass_outside_box"]
 
@@ -33,7 +33,7 @@ def chi2_radius2(p: float) -> float:
     return float(-2.0 * np.log1p(-p))
 
 
-def _check_cov(cov) -> np.ndarray:
+def _validate_cov(cov) -> np.ndarray:
     c = as_array(cov, "cov", shape=(2, 2))
     if not np.allclose(c, c.T, rtol=1e-8, atol=1e-12 * np.abs(c).max()):
         raise ValueError("cov: covariance matrix must be symmetric")
@@ -60,7 +60,7 @@ def ellipse_axes(cov, p: float) -> tuple[np.ndarray, float]:
     angle : float
         Angle of the major axis to the first coordinate axis [rad], in (-pi/2, pi/2].
     """
-    c = _check_cov(cov)
+    c = _validate_cov(cov)
     vals, vecs = np.linalg.eigh(c)
     r = np.sqrt(chi2_radius2(p))
     major = vecs[:, 1]
@@ -92,7 +92,7 @@ def ellipse_points(mean, cov, p: float, n: int = 241) -> np.ndarray:
         Points with Mahalanobis distance exactly ``sqrt(-2 ln(1 - p))``.
     """
     m = as_array(mean, "mean", shape=(2,))
-    c = _check_cov(cov)
+    c = _validate_cov(cov)
     chol = np.linalg.cholesky(c)
     t = np.linspace(0.0, 2.0 * np.pi, n)
     circle = np.sqrt(chi2_radius2(p)) * np.vstack([np.cos(t), np.sin(t)])
@@ -122,7 +122,7 @@ def mass_outside_box(mean, cov, box, n: int = 2001) -> float:
     from scipy.stats import norm
 
     m = as_array(mean, "mean", shape=(2,))
-    c = _check_cov(cov)
+    c = _validate_cov(cov)
     b = np.asarray(box, dtype=float).reshape(2, 2)
     sx = np.sqrt(c[0, 0])
     lo = max(b[0, 0], m[0] - 10 * sx)

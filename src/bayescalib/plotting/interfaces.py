@@ -26,7 +26,7 @@ from matplotlib.colors import TwoSlopeNorm
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 
-from ._checks import PathsLike, as_array, as_paths, as_points, finish
+from ._validation import PathsLike, as_array, as_paths, as_points, finish
 from .style import COLORS, DIVERGING_CMAP, paper_style
 
 __all__ = ["deflection_profile", "plot_interface_residual", "plot_interfaces"]

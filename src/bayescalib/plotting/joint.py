@@ -16,7 +16,8 @@ from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from matplotlib.patches import Patch
 
-from ._checks import (
+from ._draw import draw_hexbin, draw_hpd_contours, draw_marginal, level_text, validate_prior_pdf
+from ._validation import (
     PathsLike,
     as_array,
     as_bounds,
@@ -27,7 +28,6 @@ from ._checks import (
     as_weights,
     finish,
 )
-from ._draw import check_prior_pdf, draw_hexbin, draw_hpd_contours, draw_marginal, level_text
 from .gaussian import ellipse_points, mass_outside_box
 from .style import COLORS, axis_label, density_unit_label, paper_style
 
@@ -36,7 +36,7 @@ __all__ = ["plot_joint_posterior"]
 Gaussian = tuple[Sequence[float], Sequence[Sequence[float]]]
 
 
-def _check_gaussian(g: Gaussian | None, name: str) -> tuple[np.ndarray, np.ndarray] | None:
+def _validate_gaussian(g: Gaussian | None, name: str) -> tuple[np.ndarray, np.ndarray] | None:
     if g is None:
         return None
     if len(g) != 2:
@@ -130,12 +130,12 @@ def plot_joint_posterior(
         prior_pdfs = (None, None)
     if len(prior_pdfs) != 2:
         raise ValueError("prior_pdfs: expected a pair of callables (or None entries)")
-    priors = [check_prior_pdf(p, f"prior_pdfs[{k}]") for k, p in enumerate(prior_pdfs)]
+    priors = [validate_prior_pdf(p, f"prior_pdfs[{k}]") for k, p in enumerate(prior_pdfs)]
     map_ = None if map is None else as_array(map, "map", shape=(2,))
     mean_ = None if mean is None else as_array(mean, "mean", shape=(2,))
     truth_ = None if truth is None else as_array(truth, "truth", shape=(2,))
-    gauss = _check_gaussian(gaussian, "gaussian")
-    lap = _check_gaussian(laplace, "laplace")
+    gauss = _validate_gaussian(gaussian, "gaussian")
+    lap = _validate_gaussian(laplace, "laplace")
 
     with paper_style():
         # the hexbin's colour bar lies under the joint panel it belongs to (beside the

@@ -17,7 +17,8 @@ from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from matplotlib.patches import Patch
 
-from ._checks import (
+from ._draw import draw_hexbin, draw_hpd_contours, draw_marginal, level_text, validate_prior_pdf
+from ._validation import (
     PathsLike,
     as_array,
     as_bounds,
@@ -28,7 +29,6 @@ from ._checks import (
     as_weights,
     finish,
 )
-from ._draw import check_prior_pdf, draw_hexbin, draw_hpd_contours, draw_marginal, level_text
 from .style import COLORS, axis_label, density_unit_label, paper_style
 
 __all__ = ["plot_marginals_1d", "plot_pair_marginals"]
@@ -109,7 +109,7 @@ def plot_marginals_1d(
         prior_pdfs = [None] * d
     if len(prior_pdfs) != d:
         raise ValueError(f"prior_pdfs: expected {d} entries, got {len(prior_pdfs)}")
-    priors = [check_prior_pdf(p, f"prior_pdfs[{k}]") for k, p in enumerate(prior_pdfs)]
+    priors = [validate_prior_pdf(p, f"prior_pdfs[{k}]") for k, p in enumerate(prior_pdfs)]
     marks = _markers(_opt_vector(map, "map", d), _opt_vector(mean, "mean", d),
                      _opt_vector(truth, "truth", d))
     ncols = min(d, 3) if ncols is None else int(ncols)
@@ -214,7 +214,7 @@ def plot_pair_marginals(
         prior_pdfs = [None] * d
     if len(prior_pdfs) != d:
         raise ValueError(f"prior_pdfs: expected {d} entries, got {len(prior_pdfs)}")
-    priors = [check_prior_pdf(p, f"prior_pdfs[{k}]") for k, p in enumerate(prior_pdfs)]
+    priors = [validate_prior_pdf(p, f"prior_pdfs[{k}]") for k, p in enumerate(prior_pdfs)]
     marks = _markers(_opt_vector(map, "map", d), _opt_vector(mean, "mean", d),
                      _opt_vector(truth, "truth", d))
     point_style = {"posterior mean": ("+", 9), "MAP": ("x", 7), "ground truth": ("*", 10)}

@@ -19,7 +19,15 @@ from matplotlib.colors import Normalize
 from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 
-from ._checks import PathsLike, as_array, as_bounds, as_names_units, as_paths, as_samples, finish
+from ._validation import (
+    PathsLike,
+    as_array,
+    as_bounds,
+    as_names_units,
+    as_paths,
+    as_samples,
+    finish,
+)
 from .style import axis_label, paper_style
 
 __all__ = ["plot_parallel_axes", "select_lines"]

@@ -10,7 +10,7 @@ from matplotlib.figure import Figure
 
 from bayescalib.inference.weights import ess
 
-from ._checks import (
+from ._validation import (
     PathsLike,
     as_array,
     as_bounds,

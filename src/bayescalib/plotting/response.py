@@ -15,7 +15,7 @@ import numpy as np
 from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 
-from ._checks import PathsLike, as_array, as_names_units, as_paths, as_points, finish
+from ._validation import PathsLike, as_array, as_names_units, as_paths, as_points, finish
 from .style import COLORS, axis_label, paper_style
 
 __all__ = ["plot_response_surface"]

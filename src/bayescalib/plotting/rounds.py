@@ -1,5 +1,6 @@
 """Active design rounds: where each round's posterior lay, where its solves went,
-and the two checks of the stop rule per round (:mod:`bayescalib.inference.active`)."""
+and the two checks of the stop rule per round, the trust check and the posterior check
+(:mod:`bayescalib.inference.active`; terms: docs/glossary.md)."""
 
 from __future__ import annotations
 
@@ -9,7 +10,7 @@ from typing import Any
 import numpy as np
 from matplotlib.figure import Figure
 
-from ._checks import PathsLike, as_names_units, as_paths, finish
+from ._validation import PathsLike, as_names_units, as_paths, finish
 from .style import COLORS, axis_label, paper_style
 
 __all__ = ["plot_rounds"]
@@ -40,12 +41,13 @@ def plot_rounds(
     truth: Sequence[float] | None = None,
     failed: np.ndarray | None = None,
     batch_kinds: Sequence[Sequence[str] | None] | None = None,
-    check: Sequence[Mapping[str, Any] | None] | None = None,
+    posterior_check: Sequence[Mapping[str, Any] | None] | None = None,
     max_panels: int = 6,
     dpi: float = 200,
     return_figure: bool = False,
 ):
-    """Posterior and design points per round, and the stop rule's checks.
+    """Posterior and design points per round, and the stop rule's trust check and
+    posterior check.
 
     Parameters
     ----------
@@ -74,10 +76,10 @@ def plot_rounds(
         surrogate), ``"boundary"`` (a midpoint between a failed and a successful solve,
         :func:`bayescalib.inference.active.boundary_points`) or ``"posterior_check"``
         (a check round's posterior draw); absent = all acquired.
-    check : sequence of dict or None, optional
+    posterior_check : sequence of dict or None, optional
         Per round, the posterior check of the previous round's posterior judged there
         (``log_weight_sd`` in nats, ``confirmed``), None where there was none. Drawn in
-        the checks' panel (filled: confirmed); with check rounds the trust check's
+        the stop-rule panel (filled: confirmed); with check rounds the trust check's
         tolerance is drawn as reported, not deciding.
     max_panels : most rounds drawn as panels (first and last always).
     """
@@ -109,17 +111,17 @@ def plot_rounds(
             if batches[r] is not None and len(batches[r]):
                 nb = np.atleast_2d(np.asarray(batches[r], float))
                 kinds = batch_kinds[r] if batch_kinds is not None else None
-                is_check = (np.asarray(kinds) == "check" if kinds is not None
+                is_check_point = (np.asarray(kinds) == "check" if kinds is not None
                             else np.zeros(len(nb), bool))
                 draw = (np.asarray(kinds) == "posterior_check" if kinds is not None
                         else np.zeros(len(nb), bool))
-                if is_check.shape != (len(nb),):
+                if is_check_point.shape != (len(nb),):
                     raise ValueError(f"plot_rounds: round {r} has {len(nb)} batch points "
-                                     f"but {is_check.size} kinds")
+                                     f"but {is_check_point.size} kinds")
                 edge = (np.asarray(kinds) == "boundary" if kinds is not None
                         else np.zeros(len(nb), bool))
-                if np.any(~is_check & ~draw & ~edge):
-                    ax.plot(*nb[~is_check & ~draw & ~edge].T, ls="none", marker="x", ms=5,
+                if np.any(~is_check_point & ~draw & ~edge):
+                    ax.plot(*nb[~is_check_point & ~draw & ~edge].T, ls="none", marker="x", ms=5,
                             color=COLORS["map"], label="chosen for next round")
                 if edge.any():
                     ax.plot(*nb[edge].T, ls="none", marker="s", ms=4, mfc="none",
@@ -128,8 +130,8 @@ def plot_rounds(
                 if draw.any():
                     ax.plot(*nb[draw].T, ls="none", marker="+", ms=6, color=COLORS["map"],
                             label="posterior check's draws, next round")
-                if is_check.any():
-                    ax.plot(*nb[is_check].T, ls="none", marker="D", ms=4, mfc="none",
+                if is_check_point.any():
+                    ax.plot(*nb[is_check_point].T, ls="none", marker="D", ms=4, mfc="none",
                             mec=COLORS["map"], mew=0.8, label="random check point, next round")
             if failed is not None and len(failed):
                 f = np.atleast_2d(np.asarray(failed, float))
@@ -160,16 +162,16 @@ def plot_rounds(
                     label="surrogate error at new solves [nats]")
         ax.axhline(shift_tol, color=COLORS["mean"], ls="--", lw=0.8,
                    label=f"tolerance {shift_tol:g} sd")
-        checks = list(check) if check is not None else [None] * n
-        judged = [r for r in range(n) if checks[r] is not None
-                  and checks[r].get("log_weight_sd") is not None]
+        pcs = list(posterior_check) if posterior_check is not None else [None] * n
+        judged = [r for r in range(n) if pcs[r] is not None
+                  and pcs[r].get("log_weight_sd") is not None]
         ax.axhline(gp_tol, color=COLORS["hist"], ls=":", lw=0.8,
                    label=(f"tolerance {gp_tol:g} nats (reported; the posterior check decides)"
                           if judged else f"tolerance {gp_tol:g} nats"))
         for ok in (True, False):
-            rr_ok = [r for r in judged if bool(checks[r]["confirmed"]) is ok]
+            rr_ok = [r for r in judged if bool(pcs[r]["confirmed"]) is ok]
             if rr_ok:
-                ax.semilogy(rr_ok, [max(checks[r]["log_weight_sd"], 1e-3) for r in rr_ok],
+                ax.semilogy(rr_ok, [max(pcs[r]["log_weight_sd"], 1e-3) for r in rr_ok],
                             ls="none", marker="P", ms=8, color=COLORS["map"],
                             mfc=COLORS["map"] if ok else "none",
                             label="posterior check of the round before: log-weight sd "

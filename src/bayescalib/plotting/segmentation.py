@@ -19,7 +19,7 @@ import numpy as np
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 
-from ._checks import PathsLike, as_paths, as_points, finish
+from ._validation import PathsLike, as_paths, as_points, finish
 from .style import OKABE_ITO, paper_style
 
 __all__ = ["plot_segmentation"]

@@ -26,7 +26,9 @@ def acquire(round_index: int, training_path: str | Path, surrogate_path: str | P
             active: Mapping[str, Any], check: Mapping[str, Any],
             parameters: Sequence[Mapping[str, Any]], out_path: str | Path) -> dict[str, Any]:
     """Active design, end of round ``round_index``: trust check, posterior change,
-    stop rule and the next batch (:func:`bayescalib.inference.rounds.decide`), as JSON."""
+    posterior check of a check round, stop rule and the next batch
+    (:func:`bayescalib.inference.rounds.decide`), as JSON. ``check`` is the
+    ``posterior_check`` section (the rule's param keeps its name)."""
     from bayescalib.inference.parameters import ParameterSpace
     from bayescalib.inference.rounds import Evaluations, decide
 

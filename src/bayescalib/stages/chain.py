@@ -18,7 +18,7 @@ workflow's results::
     <workdir>/active/<r>/training.h5       training table of round r (reused rows first)
     <workdir>/active/<r>/surrogate.h5      surrogate of round r
     <workdir>/active/<r>/particles.h5      SMC on it
-    <workdir>/active/<r>/acquire.json      checks, stop rule and the batch of round r+1
+    <workdir>/active/<r>/acquire.json      trust check, posterior check, stop rule, next batch
     <workdir>/surrogate.h5                 a full search of the surrogate's discrete
                                            choices on the last round's data, when that
                                            round refitted the previous choices
@@ -172,8 +172,8 @@ class FileStore:
         rd = self._folder(r)
         return acquire(r, self.training, self.surrogate, self.particles,
                        None if previous is None else self._folder(r - 1) / "acquire.json",
-                       self.settings.active, self.settings.check, self.parameters,
-                       rd / "acquire.json")
+                       self.settings.active, self.settings.posterior_check,
+                       self.parameters, rd / "acquire.json")
 
 
 def calibrate_rounds(
@@ -194,7 +194,7 @@ def calibrate_rounds(
     reused=None,
     workers: int = 1,
     warm_start: str | Path | None = None,
-    check: Mapping[str, Any] | None = None,
+    posterior_check: Mapping[str, Any] | None = None,
 ) -> dict[str, Any]:
     """Calibrate by active-design rounds in files (see the module docstring).
 
@@ -214,12 +214,12 @@ def calibrate_rounds(
         Evaluations that enter every round as they are
         (:class:`~bayescalib.inference.rounds.Evaluations`, e.g. the base design at
         ``phi = 0``: :func:`training_rows`); None: none.
-    check
+    posterior_check
         Validated ``posterior_check`` section: the rounds' check rounds
         (:func:`bayescalib.inference.active.acquire_round`). None: none (``draws`` 0),
         and a posterior settled and trusted (the trust check within ``gp_tol``) for
-        ``patience`` rounds converges; the diagnosis checks its extended calibrations
-        with solves of their draws itself.
+        ``patience`` rounds converges; the diagnosis tests its extended calibrations
+        with solves of their draws itself (its predictive check).
 
     Returns
     -------
@@ -234,9 +234,10 @@ def calibrate_rounds(
     from bayescalib.inference.rounds import RoundSettings, run_rounds
     from bayescalib.stages.marginalize import marginalize
 
-    check_cfg = validate({"posterior_check": dict(check or {"draws": 0})}, "inference",
-                         where="calibrate_rounds")["posterior_check"]
-    settings = RoundSettings(active, surrogate, smc_cfg, round_smc(smc_cfg, active), check_cfg)
+    posterior_check = validate({"posterior_check": dict(posterior_check or {"draws": 0})},
+                               "inference", where="calibrate_rounds")["posterior_check"]
+    settings = RoundSettings(active, surrogate, smc_cfg, round_smc(smc_cfg, active),
+                             posterior_check)
     work = Path(workdir)
     evaluate = SolvePath(fm, parameters, obs_path, measure_name, measure, likelihood, work,
                          dict(switches or {}), workers, warm_start)

@@ -56,7 +56,7 @@ def discrepancy(run_path: str | Path, obs_path: str | Path, measure_name: str,
         )
     models = model_interfaces(run, len(obs.snapshots))
     for label, snap, model in zip(obs.labels, obs.snapshots, models, strict=True):
-        _check_scales(np.asarray(model.points), np.asarray(snap.points), label, obs_path)
+        _validate_scales(np.asarray(model.points), np.asarray(snap.points), label, obs_path)
     sigma_n2 = _sigma_n2(likelihood)
     options = _measure_options(measure_name, measure, obs)
     total, snaps = 0.0, []
@@ -88,7 +88,7 @@ def discrepancy(run_path: str | Path, obs_path: str | Path, measure_name: str,
 SCALE_FACTOR = 10.0
 
 
-def _check_scales(model: np.ndarray, observed: np.ndarray, label: str, obs_path) -> None:
+def _validate_scales(model: np.ndarray, observed: np.ndarray, label: str, obs_path) -> None:
     """Refuse to compare interfaces whose sizes or positions differ by more than
     :data:`SCALE_FACTOR`: a discrepancy between them would be a number without meaning
     (typically observations in m or um read as mm)."""

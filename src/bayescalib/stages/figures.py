@@ -441,5 +441,5 @@ def rounds_figure(acquire_paths: Sequence[str | Path], particles_paths: Sequence
         gp_tol=active["stop"]["gp_tol"], converged=bool(recs[-1]["converged"]),
         truth=truth, failed=failed, dpi=plots["dpi"],
         batch_kinds=[r["next"].get("kind") if "next" in r else None for r in recs],
-        check=[r.get("posterior_check") for r in recs],
+        posterior_check=[r.get("posterior_check") for r in recs],
     )

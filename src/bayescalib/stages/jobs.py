@@ -41,12 +41,13 @@ def summary(*, out: str, study: str, parameters: Sequence[Mapping[str, Any]],
             training: Sequence[str], particles: Sequence[str], active: Sequence[str] = (),
             convergence: Sequence[str] = (), check: Sequence[str] = ()) -> None:
     """summary.json (rule summary): the study's results, its design, its timings, the
-    GP convergence files and the posterior check."""
+    GP convergence files and the posterior check (``check``: the fixed design's
+    ``posterior_check.json``, the rule's input keeps its name)."""
     from bayescalib.stages.summary import (
         collect_timings,
         design_summary,
         posterior_check_summary,
-        round_check_summary,
+        round_posterior_check_summary,
     )
     from bayescalib.stages.summary import summary as write_summary
 
@@ -58,6 +59,6 @@ def summary(*, out: str, study: str, parameters: Sequence[Mapping[str, Any]],
     if check:  # fixed design: a list, empty when posterior_check.draws is 0
         extra["posterior_check"] = posterior_check_summary(check[0])
     elif strategy == "active":  # the last check of the rounds (None: none ran)
-        extra["posterior_check"] = round_check_summary(list(active))
+        extra["posterior_check"] = round_posterior_check_summary(list(active))
     write_summary(study, parameters, measures, posterior, training, particles, figure_map, out,
                   extra=extra)

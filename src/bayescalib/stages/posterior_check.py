@@ -41,6 +41,7 @@ def posterior_check(sample_runs: Sequence[str | Path], obs_path: str | Path, mea
     posteriors, and asks whether the draws represent the weighted particles' mean and sd
     (a tail the draws missed is not checked by them). Writes ``out_path`` (JSON: the
     check's numbers keyed by parameter name, in the user's units) and returns it.
+    ``check`` is the ``posterior_check`` section (the rule's param keeps its name).
     """
     from bayescalib.inference.active import posterior_moments
     from bayescalib.inference.importance import importance_check

@@ -5,11 +5,12 @@
 intervals, evidence), every measure's line, the failed solves and the absolute fit check;
 the job adds the ``design`` block (:func:`design_summary`: how the solves were chosen and
 whether the calibration converged), the timings (:func:`collect_timings`) and the
-posterior check (:func:`posterior_check_summary`, :func:`round_check_summary`); the
-diagnosis (``scripts/diagnose.py``) reads its design block from :func:`design_summary`
-too. Read back: :func:`run_line`, the line that ends a run (the Snakefile's
-``onsuccess``) and starts ``bayescalib summary``, and :func:`front_page`, the key numbers
-of the report's front page.
+posterior check (:func:`posterior_check_summary`,
+:func:`round_posterior_check_summary`); the diagnosis (``scripts/diagnose.py``) reads its
+design block from :func:`design_summary` too (the terms: docs/glossary.md). Read back:
+:func:`run_line`, the line that ends a run (the Snakefile's ``onsuccess``) and starts
+``bayescalib summary``, and :func:`front_page`, the key numbers of the report's front
+page.
 """
 
 from __future__ import annotations
@@ -25,7 +26,7 @@ from bayescalib.stages.errors import PipelineError
 from bayescalib.stages.files import read_json, read_stage_file, write_json
 
 __all__ = ["collect_timings", "design_summary", "front_page", "posterior_check_summary",
-           "round_check_summary", "run_line", "summary"]
+           "round_posterior_check_summary", "run_line", "summary"]
 
 log = logging.getLogger("bayescalib")
 
@@ -124,9 +125,9 @@ def posterior_check_summary(path: str | Path) -> dict[str, Any]:
     return {"file": str(path), **{k: v for k, v in rec.items() if k != "draws"}}
 
 
-def round_check_summary(acquire_paths: Sequence[str | Path]) -> dict[str, Any] | None:
+def round_posterior_check_summary(acquire_paths: Sequence[str | Path]) -> dict[str, Any] | None:
     """The ``posterior_check`` block of summary.json for an active design: the last
-    check round's verdict (:func:`bayescalib.inference.active.round_check`, ``round``:
+    check round's verdict (:func:`bayescalib.inference.active.round_posterior_check`, ``round``:
     the round whose posterior was checked), with the record it is in; None when the
     rounds ran no check."""
     for path in reversed(list(acquire_paths)):
@@ -263,7 +264,7 @@ def front_page(summary_path: str | Path, embed_figure: bool = False) -> dict[str
                     + ([fmt(truth.get(n))] if truth else []))
     design = s.get("design") or {}
     fit = s.get("fit") or {}
-    check = s.get("posterior_check") or {}
+    posterior_check = s.get("posterior_check") or {}
     from bayescalib.stages.verdict import verdict
 
     figure = _front_figure(s)
@@ -278,4 +279,5 @@ def front_page(summary_path: str | Path, embed_figure: bool = False) -> dict[str
             "truth_known": bool(truth),
             "converged": design.get("converged"), "measure": s.get("measure"),
             "fit": fit.get("words", ""), "fit_consistent": fit.get("consistent"),
-            "check": check.get("words", ""), "check_confirmed": check.get("confirmed")}
+            "check": posterior_check.get("words", ""),
+            "check_confirmed": posterior_check.get("confirmed")}

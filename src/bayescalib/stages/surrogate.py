@@ -134,7 +134,7 @@ def loglik_training_set(tab: Mapping[str, Any]) -> tuple[np.ndarray, np.ndarray]
             f"only {int(finite.sum())} of {len(L)} design points succeeded; at least 3 are "
             "needed to train the surrogate: increase design.n_train or narrow the bounds"
         )
-    _check_distinct(X, finite, tab["names"])
+    _validate_distinct(X, finite, tab["names"])
     from bayescalib.inference.feasibility import marks_infeasible
 
     reasons = [r for r, use in zip(tab["reason"], train_mask, strict=True) if use]
@@ -167,7 +167,7 @@ def loglik_bound(tab: Mapping[str, Any], use: np.ndarray | None = None) -> float
     return float(b.max()) if b.size else None
 
 
-def _check_distinct(X: np.ndarray, use: np.ndarray, names: Sequence[str]) -> None:
+def _validate_distinct(X: np.ndarray, use: np.ndarray, names: Sequence[str]) -> None:
     """Refuse repeated design points: a Sobol design never repeats one, so a repeat
     means run records that do not belong to this design."""
     idx = np.flatnonzero(use)

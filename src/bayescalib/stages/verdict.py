@@ -59,7 +59,8 @@ def _batch_all_failed(rounds: Sequence[Mapping[str, Any]]) -> int:
     return new if new > 0 and failed == new else 0
 
 
-def _not_converged_reason(design: Mapping[str, Any], check: Mapping[str, Any] | None) -> str:
+def _not_converged_reason(design: Mapping[str, Any],
+                          posterior_check: Mapping[str, Any] | None) -> str:
     """The one main reason an active design stopped NOT converged, from its fields."""
     rounds = design.get("rounds") or []
     last = rounds[-1] if rounds else {}
@@ -73,7 +74,7 @@ def _not_converged_reason(design: Mapping[str, Any], check: Mapping[str, Any] | 
         return (f"the solves rise towards a region near {where} that the posterior does not "
                 f"hold, where up to {100 * float(unexplored):.0f} % of its mass could lie")
     confirmed = last.get("posterior_check_confirmed")
-    checked = None if check is None else check.get("round")
+    checked = None if posterior_check is None else posterior_check.get("round")
     if confirmed is False:
         of = "" if checked is None else f" of round {checked}"
         return f"real solves of its draws did not confirm the posterior{of}"
@@ -83,9 +84,9 @@ def _not_converged_reason(design: Mapping[str, Any], check: Mapping[str, Any] | 
     if last.get("settled") is False and last.get("shift_sd") is not None:
         return f"the posterior still moved by {_sd(last['shift_sd'])} sd in the last round"
     draws = design.get("check_draws")
-    if draws and check is not None and check.get("confirmed") is False:
-        return (f"the last check (round {check.get('round')}) did not confirm the posterior "
-                f"and another ({draws} solves) did not fit in the budget")
+    if draws and posterior_check is not None and posterior_check.get("confirmed") is False:
+        return (f"the last check (round {posterior_check.get('round')}) did not confirm the "
+                f"posterior and another ({draws} solves) did not fit in the budget")
     if draws:
         return (f"the posterior settled too late for its check ({draws} solves) to fit in "
                 f"the budget")
@@ -97,7 +98,7 @@ def verdict_sentences(summary: Mapping[str, Any]) -> list[str]:
     (the module docstring). ``summary`` is summary.json as a mapping."""
     fit = summary.get("fit") or {}
     design = summary.get("design") or {}
-    check = summary.get("posterior_check") or None
+    posterior_check = summary.get("posterior_check") or None
     misfit = fit.get("consistent") is False and fit.get("misfit_nats") is not None
     out = [_misfit_sentence(fit)] if misfit else []
     n = design.get("n_solves", summary.get("n_train"))
@@ -107,8 +108,9 @@ def verdict_sentences(summary: Mapping[str, Any]) -> list[str]:
     misfit_advice = ("check likelihood.sigma_n against the data's noise, or run the "
                      "diagnosis (diagnose.enabled: true) for missing physics")
     if converged is True:
-        if check and check.get("confirmed") and check.get("n_draws") is not None:
-            k = int(check["n_draws"]) - int(check.get("n_failed") or 0)
+        if (posterior_check and posterior_check.get("confirmed")
+                and posterior_check.get("n_draws") is not None):
+            k = int(posterior_check["n_draws"]) - int(posterior_check.get("n_failed") or 0)
             out.append(f"Converged after {used}: {k} real solves of the posterior's draws "
                        f"confirm it.")
         else:
@@ -120,15 +122,15 @@ def verdict_sentences(summary: Mapping[str, Any]) -> list[str]:
         spent = budget is not None and n is not None and int(n) >= int(budget)
         head = (f"NOT converged: the budget of {budget} solves is spent and" if spent else
                 f"NOT converged after {used}:")
-        out.append(f"{head} {_not_converged_reason(design, check)}.")
+        out.append(f"{head} {_not_converged_reason(design, posterior_check)}.")
         todo = ("Raise design.active.max_solves and run the same command again (finished "
                 "solves are kept)")
         out.append(todo + ("; if the misfit stays, check likelihood.sigma_n or run the "
                            "diagnosis." if misfit else "."))
     else:  # a fixed design: no stop rule, perhaps a final check with real solves
-        if check and check.get("n_draws") is not None:
-            k = int(check["n_draws"]) - int(check.get("n_failed") or 0)
-            said = "confirm" if check.get("confirmed") else "do NOT confirm"
+        if posterior_check and posterior_check.get("n_draws") is not None:
+            k = int(posterior_check["n_draws"]) - int(posterior_check.get("n_failed") or 0)
+            said = "confirm" if posterior_check.get("confirmed") else "do NOT confirm"
             out.append(f"Convergence not checked (fixed design of {n} solves); {k} real "
                        f"solves of the posterior's draws {said} it.")
         else:
@@ -136,7 +138,7 @@ def verdict_sentences(summary: Mapping[str, Any]) -> list[str]:
                        f"check).")
         if misfit:
             out.append(misfit_advice[0].upper() + misfit_advice[1:] + ".")
-        elif not (check and check.get("confirmed")):
+        elif not (posterior_check and posterior_check.get("confirmed")):
             out.append("Use design.strategy: active to have it checked.")
     return out[:3]
 

@@ -34,7 +34,7 @@ from typing import Any
 from bayescalib.inference.gp.kernels import KERNELS
 from bayescalib.inference.gp.predictor import _SEARCH, GPSurrogate
 from bayescalib.io._atomic_write import atomic_path
-from bayescalib.io.header import check_header, write_header
+from bayescalib.io.header import validate_header, write_header
 
 __all__ = ["load", "read_group", "save", "write_group"]
 
@@ -110,7 +110,7 @@ def load(path: str | Path, device: str = "auto") -> GPSurrogate:
     import h5py
 
     with h5py.File(path, "r") as f:
-        check_header(f, "surrogate", path)
+        validate_header(f, "surrogate", path)
         return read_group(f, device=device)
 
 

@@ -16,7 +16,7 @@ available, both in plane strain (the 2D deformation gradient with ``F_33 = 1``):
 Lamé parameters from Young's modulus and Poisson's ratio (plane strain uses the 3D
 relations): ``lambda = E nu / ((1 + nu)(1 - 2 nu))``, ``mu = E / (2 (1 + nu))``.
 ``nu = 0.5`` makes ``lambda`` infinite; the solver records such a run as failed before
-building anything (:func:`check_poisson`).
+building anything (:func:`poisson_problem`).
 """
 
 from __future__ import annotations
@@ -38,7 +38,7 @@ def lame(E: Any, nu: Any) -> tuple[Any, Any]:
     return lam, mu
 
 
-def check_poisson(nu: float) -> str:
+def poisson_problem(nu: float) -> str:
     """Return a failure reason if ``nu`` is outside the admissible open range (-1, 0.5), else ``""``."""
     if math.isnan(nu):
         return "Poisson ratio is NaN"

@@ -45,11 +45,11 @@ from bayescalib.config import ConfigError, set_dotted, validate
 from bayescalib.io._atomic_write import atomic_path
 from bayescalib.io.runrecord import SolveResult
 from bayescalib.models.fsi.geometry import SOLID_SUBDOMAINS, BiofilmMesh, build_mesh
-from bayescalib.models.fsi.materials import check_poisson
+from bayescalib.models.fsi.materials import poisson_problem
 from bayescalib.models.fsi.physics import (
     SolidPhysics,
-    check_physics,
     physics_parameters,
+    physics_problem,
     springs_active,
     unsupported_combination,
 )
@@ -149,7 +149,7 @@ class FSIModel:
 
     def __init__(self, config: Mapping[str, Any] | None = None):
         self.config = validate(fsi_section(config or {}), "fsi")
-        msg = check_physics(self.config["physics"])
+        msg = physics_problem(self.config["physics"])
         if msg:
             raise ConfigError(msg)
         self.physics: SolidPhysics | None = None
@@ -256,7 +256,7 @@ class FSIModel:
         for k, v in (overrides or {}).items():
             set_dotted(cfg, k, v)
         cfg = validate(cfg, "fsi", where="overrides" if overrides else "")
-        msg = check_physics(cfg["physics"])
+        msg = physics_problem(cfg["physics"])
         if msg:
             raise ConfigError(msg)
         return cfg
@@ -401,7 +401,7 @@ class FSIModel:
         reason = ""  # non-finite values never get here: resolved_config rejects them
         rate = float(cfg["inflow"]["rate"])
         for _, nu in materials.values():
-            reason = reason or check_poisson(nu)
+            reason = reason or poisson_problem(nu)
         reason = reason or unsupported_combination(cfg["physics"])
         base_stats: dict[str, Any] = {
             "ndof": solver.ndof,

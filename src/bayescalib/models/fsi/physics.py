@@ -175,9 +175,9 @@ __all__ = [
     "UM2",
     "Candidate",
     "SolidPhysics",
-    "check_physics",
     "enabled_candidates",
     "physics_parameters",
+    "physics_problem",
     "springs_active",
     "unsupported_combination",
 ]
@@ -258,7 +258,7 @@ def enabled_candidates(physics: Mapping[str, Any]) -> list[str]:
     return [n for n in CANDIDATES if physics[n]["enabled"]]
 
 
-def check_physics(physics: Mapping[str, Any], where: str = "physics") -> str:
+def physics_problem(physics: Mapping[str, Any], where: str = "physics") -> str:
     """Return a message if ``phi`` is non-zero for a switched-off candidate, else ``""``."""
     for name in CANDIDATES:
         sec = physics[name]

@@ -477,7 +477,7 @@ class MonolithicSolver:
             scaled = max(scaled, dd / max(dmax, self.controls.atol_displacement * 1e3, 1e-300))
         return pb_ok, scaled
 
-    def _check(self, deadline: float | None) -> None:
+    def _enforce_deadline(self, deadline: float | None) -> None:
         if deadline is not None and time.perf_counter() > deadline:
             raise _Failure("wall-clock time limit reached", fatal=True)
 
@@ -497,7 +497,7 @@ class MonolithicSolver:
         while True:
             if iters_this_step >= c.max_iterations:
                 break
-            self._check(deadline)
+            self._enforce_deadline(deadline)
             t0 = time.perf_counter()
             self.a.Apply(self.gfu.vec, self._res)
             t1 = time.perf_counter()
@@ -507,7 +507,7 @@ class MonolithicSolver:
                     self.a.AssembleLinearization(self.gfu.vec)
                     t2 = time.perf_counter()
                     stats["t_assemble"] += t2 - t1
-                    self._check(deadline)
+                    self._enforce_deadline(deadline)
                     inv = self.a.mat.Inverse(self._freedofs, inverse="umfpack")
                 except _Failure:
                     raise
