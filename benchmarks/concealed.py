@@ -358,6 +358,14 @@ def _row(study_file: Path, variant: str, root: Path, regions, labels,
                       "converged": e["converged"], "phi": {k: v["mean"] for k, v in e["phi"].items()},
                       "phi_unit": {k: v.get("unit", "-") for k, v in e["phi"].items()}}
                      for e in ext],
+        # candidates the diagnosis set aside (issue 39): why, the estimate, the range
+        "set_aside": [{"candidate": e["candidate"], "reason": e["reason"],
+                       "estimate": e.get("estimate"), "range": e.get("range"),
+                       "unit": e.get("unit", "-")} for e in diag.get("set_aside") or []],
+        # the joint model of the single extensions, when one was calibrated (issue 39)
+        "joint_of_singles": {k: (diag.get("joint_of_singles") or {}).get(k)
+                             for k in ("candidate", "why")}
+        if diag.get("joint_of_singles") else None,
         "plain_words": diag.get("plain_words") or [],
         "job_s": _job_seconds(root),
     }
@@ -434,6 +442,12 @@ def aims(r: dict) -> list[dict]:
     failed = sorted(r.get("failed_signatures") or {})
     add("untestable candidates named", all(f"Not testable: {n}" in words for n in failed)
         if failed else None, ", ".join(failed) or "none untestable")
+    aside = r.get("set_aside")
+    if aside:  # issue 39: nothing set aside unseen (rows before it have no record)
+        add("candidates set aside named", all(
+            f"Set aside: {e['candidate']}" in words or f"Not calibrated: {e['candidate']}"
+            in words or f"Not testable: {e['candidate']}" in words for e in aside),
+            ", ".join(f"{e['candidate']} ({e['reason']})" for e in aside))
     hid = r.get("hidden_candidates") or []
     sigma = r.get("noise_ref_um", r["sigma_um"])
     if not hid and r["hidden"] == "none":
@@ -774,7 +788,8 @@ def write_doc(rows: list[dict], path: Path, *, command: str, figures: list[str],
                        "simultaneous band; shaded: the located intervals (darker: their "
                        "cores, where recorded)."), "",
                       f"![{r['name']} residuals]({figdir.name}/{dst.name})", ""]
-    words = [r for r in ok_rows if r["study"] in ("two_effects", "misregistration")
+    words = [r for r in ok_rows if r["study"] in ("two_effects", "misregistration",
+                                                  "permeability_layer", "growth_out_of_range")
              and r["observations"] == "synthetic" and r["loadings"] == "several"]
     if words:
         L += ["## Plain words of the held-back-style cases", ""]

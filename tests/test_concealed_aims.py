@@ -193,3 +193,17 @@ def test_a_row_names_the_commit_it_was_measured_at(bench, tmp_path):
     (out / "measured" / "concealed_growth.json").write_text('{"commit": "abc", "date": "d"}')
     bench._record_stamp(out, root, started=root.stat().st_mtime + 1e6)
     assert bench._read_stamp(out, root) == {"commit": "abc", "date": "d"}
+
+
+def test_a_candidate_set_aside_must_be_named_in_the_plain_words(bench):
+    # issue 39: nothing set aside unseen (growth out of its prior range)
+    aside = [{"candidate": "growth", "reason": "implausible magnitude", "estimate": 0.15,
+              "range": [-0.06, 0.06], "unit": "-"}]
+    named = _row(chosen="base", verdict="mismatch located; no candidate explains it",
+                 set_aside=aside, plain_words=["Set aside: growth (isotropic growth). ..."])
+    assert _met(bench, named)["candidates set aside named"] is True
+    silent = _row(chosen="base", verdict="mismatch located; no candidate explains it",
+                  set_aside=aside, plain_words=["Verdict: no candidate explains it."])
+    assert _met(bench, silent)["candidates set aside named"] is False
+    # rows measured before the record existed: not applicable, no aim
+    assert "candidates set aside named" not in _met(bench, _row())
