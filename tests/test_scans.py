@@ -332,16 +332,15 @@ def test_the_diagnosis_takes_the_segmentation_uncertainty_as_a_lower_bound():
 
 
 def test_the_segmentation_figure_is_drawn_through_the_job_stage(tmp_path):
-    from bayescalib.execution.jobserver import run_stage
+    from bayescalib.execution.jobserver import run_job
     from bayescalib.stages.observe import observe
 
     section = _files_section(tmp_path)
     observe(section, tmp_path / "observations.h5")
     plots = {"formats": ["png"], "dpi": 50}
-    run_stage("fig_segmentation", {"log": str(tmp_path / "fig.log"),
-                                   "obs": str(tmp_path / "observations.h5"),
-                                   "observations": repr(section), "plots": repr(plots),
-                                   "stem": str(tmp_path / "segmentation")})
+    run_job({"stage": "fig_segmentation", "log": str(tmp_path / "fig.log"),
+             "args": {"obs_path": str(tmp_path / "observations.h5"), "observations": section,
+                      "plots": plots, "stem": str(tmp_path / "segmentation")}})
     assert (tmp_path / "segmentation.png").stat().st_size > 5000
 
 
