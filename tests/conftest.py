@@ -1,11 +1,22 @@
 """Shared fixtures. The workflow fixtures run Snakemake on the analytic stand-in
 model (tests/data/analytic_study.yaml); the finished run is shared by every
-workflow test of the session and must not be modified (copy it first)."""
+workflow test of the session and must not be modified (copy it first).
+
+The tests run with one BLAS thread, as the workflow's jobs do (the job server and the
+diagnosis job set it): the GP fits of in-process calibrations work on small matrices,
+where a second OpenBLAS thread only spins against the other processes (a surrogate
+search 13-125 times slower on a shared machine, docs/surrogate.md). Set before NumPy is
+imported."""
 
 from __future__ import annotations
 
-import pytest
-import yaml
+import os
+
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
+import pytest  # noqa: E402
+import yaml  # noqa: E402
 from _gaussian import importance_sample
 from _workflow_helpers import DATA, setup_study, smk
 
