@@ -11,6 +11,7 @@ import pytest
 from bayescalib.inference.feasibility import (
     FailedRegion,
     failure_radii,
+    fit_targets,
     marks_infeasible,
     says_nothing_of_the_model,
 )
@@ -91,3 +92,11 @@ def test_the_surrogate_keeps_its_failed_points_through_a_file_and_nan_marks_none
     old = GPSurrogate.load(tmp_path / "s.h5")
     assert old.X_failed is None
     np.testing.assert_array_equal(old.loglik(P), old.predict(P))
+
+
+def test_the_surrogate_leaves_out_machine_failures_and_keeps_the_model_s():
+    """fit_targets: values kept; a time limit (the machine's) becomes NaN and is left out;
+    a solver failure stays -inf and marks the infeasible region."""
+    y = fit_targets(np.array([-1.5, -np.inf, -np.inf]),
+                    ["", "killed after exceeding the time limit (90 s)", "Newton diverged"])
+    assert y[0] == -1.5 and np.isnan(y[1]) and y[2] == -np.inf

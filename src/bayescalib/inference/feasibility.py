@@ -54,7 +54,8 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["FailedRegion", "failure_radii", "marks_infeasible", "says_nothing_of_the_model"]
+__all__ = ["FailedRegion", "failure_radii", "fit_targets", "marks_infeasible",
+           "says_nothing_of_the_model"]
 
 #: failure reasons (run records, bayescalib.models.forward and the FSI solver) that
 #: depend on the machine, not on the parameters
@@ -77,6 +78,16 @@ def marks_infeasible(solved: np.ndarray, reasons: list[str]) -> np.ndarray:
         raise ValueError(f"marks_infeasible: {solved.size} points and {len(reasons)} reasons")
     return np.array([not ok and not says_nothing_of_the_model(r)
                      for ok, r in zip(solved.tolist(), reasons, strict=True)], bool)
+
+
+def fit_targets(loglik: np.ndarray, reasons: list[str]) -> np.ndarray:
+    """The log-likelihood values a surrogate is fitted to, (n,): a failure for the
+    machine's sake (no value and no infeasible region, :func:`says_nothing_of_the_model`)
+    as NaN, left out; any other failure kept as -inf, marking where the model cannot be
+    solved."""
+    L = np.asarray(loglik, float).reshape(-1)
+    finite = np.isfinite(L)
+    return np.where(~finite & ~marks_infeasible(finite, reasons), np.nan, L)
 
 
 def failure_radii(U_ok: np.ndarray, U_failed: np.ndarray) -> np.ndarray:

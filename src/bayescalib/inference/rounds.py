@@ -286,7 +286,7 @@ def fit_surrogate(rows: Evaluations, surrogate: Mapping[str, Any], bounds: np.nd
     -------
     GPSurrogate or EmulatedLikelihood
     """
-    from bayescalib.inference.feasibility import marks_infeasible
+    from bayescalib.inference.feasibility import fit_targets, marks_infeasible
 
     bound = rows.likelihood_bound()
     if surrogate["target"] == "outputs":
@@ -303,9 +303,8 @@ def fit_surrogate(rows: Evaluations, surrogate: Mapping[str, Any], bounds: np.nd
         return EmulatedLikelihood(em, np.zeros(R.shape[1]), offset=bound)
     from bayescalib.inference.gp.selection import fit_round
 
-    finite = np.isfinite(rows.loglik)
-    y = np.where(~finite & ~marks_infeasible(finite, list(rows.reason)), np.nan, rows.loglik)
-    return fit_round(rows.X, y, dict(surrogate), bounds, bound=bound, previous=previous)
+    return fit_round(rows.X, fit_targets(rows.loglik, list(rows.reason)), dict(surrogate),
+                     bounds, bound=bound, previous=previous)
 
 
 def decide(r: int, rows: Evaluations, surrogate, result, space, active: Mapping[str, Any],

@@ -55,10 +55,7 @@ def train_surrogate(training_path: str | Path, surrogate: Mapping[str, Any],
     tab = read_stage_file(training_path, "training table")
     use = tab["is_train"].astype(bool)
     loglik_training_set(tab)  # refuses too few values and repeated points
-    rows = Evaluations.from_rows({k: (tab[k][use] if k != "reason" else
-                                      [r for r, u in zip(tab["reason"], use, strict=True) if u])
-                                  for k in ("X", "loglik", "status", "reason", "bound",
-                                            "n_measurements", "residuals", "D")})
+    rows = Evaluations.from_rows(tab).take(use)
     if surrogate["target"] == "outputs":
         if rows.residuals.shape[1] == 0:
             raise PipelineError(
@@ -135,11 +132,9 @@ def loglik_training_set(tab: Mapping[str, Any]) -> tuple[np.ndarray, np.ndarray]
             "needed to train the surrogate: increase design.n_train or narrow the bounds"
         )
     _validate_distinct(X, finite, tab["names"])
-    from bayescalib.inference.feasibility import marks_infeasible
+    from bayescalib.inference.feasibility import fit_targets
 
-    reasons = [r for r, use in zip(tab["reason"], train_mask, strict=True) if use]
-    # a failure for the machine's sake: no value and no infeasible region (feasibility)
-    return X, np.where(~finite & ~marks_infeasible(finite, reasons), np.nan, L)
+    return X, fit_targets(L, [r for r, use in zip(tab["reason"], train_mask, strict=True) if use])
 
 
 def _full_search(surrogate_path: str | Path) -> bool:
