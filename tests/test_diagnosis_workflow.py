@@ -30,7 +30,12 @@ def _diagnosis(tmp, cfg):
 
 @pytest.mark.extended
 def test_hidden_slip_is_located_named_modelled_and_improves_the_fit(tmp_path, concealed):
-    d, root = _diagnosis(tmp_path, concealed)
+    # a budget of 192 new solves for the extension: with the study's 128 its rounds end
+    # one round short of the stop rule (an unheld basin at the nu = -0.8 bound seen in the
+    # last round, whose batch the budget cut), and whether they do hangs on the GP fit's
+    # optimum to 1e-6 (two BLAS threads converged at round 9, one did not)
+    cfg = {**concealed, "diagnose": {**concealed["diagnose"], "max_solves": 192}}
+    d, root = _diagnosis(tmp_path, cfg)
     assert d["check"]["adequate"] is False
     assert d["check"]["located"], "no mismatch interval located"
     assert d["attribution"]["ranking"][0]["candidate"] == "base_slip"
