@@ -43,7 +43,7 @@ rule train_round:
         f"{R}/benchmarks/train_surrogate/round_{{r}}.tsv"
     log:
         f"{R}/logs/active/{{r}}/train_surrogate.log",
-    threads: 1
+    threads: 2  # alone in its round: a full search's candidates on both cores (same fit)
     shell:
         TRAIN_JOB
 

@@ -171,7 +171,8 @@ SOLVE_JOB = (
     f"{' base {input.base:q}' if _WARM else ''}"
 )
 # an active round's fit: previous is the previous round's surrogate (none in round 0),
-# whose discrete choices it refits between full searches (surrogate.reselect_growth)
+# whose discrete choices it refits between full searches (surrogate.reselect_growth,
+# surrogate.reselect_error); a full search fits its candidates on the job's threads
 TRAIN_JOB = (
     '"$BAYESCALIB_PYTHON" -I -S "$BAYESCALIB_JOB_CLIENT"'
     " train_surrogate log {log:q} out {output:q} training {input.training:q}"

@@ -155,7 +155,8 @@ def _train_surrogate(args: Mapping[str, str]) -> None:
     previous = args.get("previous") or []  # a list: empty in round 0 and for a measure
     train_surrogate(args["training"], _literal(args["surrogate"]), _literal(args["parameters"]),
           args["out"], reuse=args.get("reuse") or (),
-          previous=previous[0] if isinstance(previous, list) and previous else None)
+          previous=previous[0] if isinstance(previous, list) and previous else None,
+          threads=_granted_threads())
 
 
 def _granted_threads() -> int:

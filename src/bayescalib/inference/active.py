@@ -961,13 +961,15 @@ def calibrate(loglik: Callable[[np.ndarray], np.ndarray], space, *, bound: float
               smc: Mapping[str, Any] | None = None, seed: int = 0,
               callback: Callable[[dict[str, Any]], None] | None = None,
               n_measurements: int | None = None,
-              posterior_check: Mapping[str, Any] | None = None) -> ActiveResult:
+              posterior_check: Mapping[str, Any] | None = None,
+              threads: int = 1) -> ActiveResult:
     """Active-design calibration of a log-likelihood given as a Python function.
 
     Runs the rounds of the pipeline's ``active`` stage in-process: the same
     surrogate fit (:func:`~bayescalib.inference.gp.selection.fit_round`: the discrete
-    choices searched in full in round 0 and when the data have grown by
-    ``surrogate.reselect_growth``, refitted between), SMC and :func:`acquire_round` as
+    choices searched in full in round 0, when the data have grown by
+    ``surrogate.reselect_growth`` and when the previous round's surrogate mispredicted
+    the new values by more than ``surrogate.reselect_error``, refitted between), SMC and :func:`acquire_round` as
     the Snakemake rules. The result's surrogate is a full search on all evaluations
     (the last round's when it was one; else fitted again, and its SMC run again).
 
@@ -993,6 +995,9 @@ def calibrate(loglik: Callable[[np.ndarray], np.ndarray], space, *, bound: float
         Partial ``posterior_check`` section: the size of the rounds' check rounds
         (``draws`` equally weighted draws of a settled posterior, evaluated as a batch)
         and the thresholds of their verdict (:func:`round_check`).
+    threads
+        Processes of the surrogate's full searches (the same surrogates, bit for bit:
+        :func:`~bayescalib.inference.gp.selection.fit_from_config`).
     """
     from bayescalib.config import round_smc, validate
     from bayescalib.inference.design import sobol_design
@@ -1011,7 +1016,8 @@ def calibrate(loglik: Callable[[np.ndarray], np.ndarray], space, *, bound: float
     gp = None
     r = 0
     while True:
-        gp = fit_round(X, L, cfg["surrogate"], space.bounds, bound=bound, previous=gp)
+        gp = fit_round(X, L, cfg["surrogate"], space.bounds, bound=bound, previous=gp,
+                       threads=threads)
         res = smc_from_config(gp.loglik, space, smc_round)
         rec = acquire_round(r, X, L, gp, res.particles, res.weights, res.log_evidence, space,
                             a, previous, cfg["posterior_check"])
@@ -1027,7 +1033,8 @@ def calibrate(loglik: Callable[[np.ndarray], np.ndarray], space, *, bound: float
                 fit = fit_check(L, np.full(L.shape, float(bound)),
                                 np.full(L.shape, float(n_measurements)))
             if gp.selection != "search":  # the result's surrogate: the best choice for all data
-                gp = fit_from_config(X, L, cfg["surrogate"], space.bounds, bound=bound)
+                gp = fit_from_config(X, L, cfg["surrogate"], space.bounds, bound=bound,
+                                     threads=threads)
                 res = smc_from_config(gp.loglik, space, cfg["smc"])
             elif smc_round != cfg["smc"]:  # the rounds sampled lighter: the result in full
                 res = smc_from_config(gp.loglik, space, cfg["smc"])

@@ -687,14 +687,19 @@ def _space(parameters: Sequence[Mapping[str, Any]]):
 
 def train_surrogate(training_path: str | Path, surrogate: Mapping[str, Any],
           parameters: Sequence[Mapping[str, Any]], out_path: str | Path, *,
-          reuse: Sequence[str | Path] = (), previous: str | Path | None = None) -> None:
+          reuse: Sequence[str | Path] = (), previous: str | Path | None = None,
+          threads: int = 1) -> None:
     """Fit the GP surrogate on the training points (failed runs left out).
 
     ``previous``: the surrogate file of the previous active round. Its discrete choices
     (kernel, output, inputs, frame) are refitted instead of searched again until the
-    training set has grown by ``surrogate.reselect_growth`` since their last full search
+    training set has grown by ``surrogate.reselect_growth`` since their last full search,
+    or until it mispredicts the new values by more than ``surrogate.reselect_error``
     (:func:`bayescalib.inference.gp.selection.fit_round`). None (round 0, a fixed design,
     the study's final surrogate): a full search.
+
+    ``threads``: the job's granted cores; a full search fits its candidates on that many
+    processes (the same surrogate, bit for bit).
 
     ``reuse``: (training table, surrogate) of an earlier fit with the same settings
     (the last active round's); when the training table holds the same content and that
@@ -719,7 +724,8 @@ def train_surrogate(training_path: str | Path, surrogate: Mapping[str, Any],
         return
     prev = None if previous is None else read_stage_file(previous, "surrogate", device="cpu")
     try:
-        gp = fit_round(X, L, dict(surrogate), space.bounds, bound=bound, previous=prev)
+        gp = fit_round(X, L, dict(surrogate), space.bounds, bound=bound, previous=prev,
+                       threads=threads)
     except (RuntimeError, ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:
         Lf = L[finite]
         raise PipelineError(
@@ -735,7 +741,8 @@ def train_surrogate(training_path: str | Path, surrogate: Mapping[str, Any],
         ) from None
     gp.save(out_path)
     log.info("GP surrogate on %d points (%d excluded, %d of them marking where the model "
-             "cannot be solved): %s", gp.n_train, gp.n_excluded, gp.n_failed,
+             "cannot be solved), choices %s (%s): %s", gp.n_train, gp.n_excluded,
+             gp.n_failed, gp.selection, gp.selection_reason or "reason not recorded",
              gp.hyperparameters)
 
 

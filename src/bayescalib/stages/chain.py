@@ -109,6 +109,9 @@ def calibrate_rounds(
         Validated ``design.active`` section. ``max_solves`` counts the reused rows too.
     switches
         Forward-model settings added to every solve (e.g. ``physics.growth.enabled``).
+    workers
+        Processes of the solves, and of the surrogate's full searches once a round's
+        solves are done (the same surrogate as one process, bit for bit).
     reused
         Training rows that enter every round as they are (:func:`training_rows`, with
         ``X`` of shape (m, d)); e.g. the base design at ``phi = 0``.
@@ -180,7 +183,8 @@ def calibrate_rounds(
                        rows["reason"], names, len(rows["loglik"]), bound=rows["bound"],
                        n_measurements=rows["n_measurements"], residuals=rows["residuals"])
         train_surrogate(training, surrogate, parameters, rd / "surrogate.h5",
-                        previous=None if r == 0 else work / "active" / str(r - 1) / "surrogate.h5")
+                        previous=None if r == 0 else work / "active" / str(r - 1) / "surrogate.h5",
+                        threads=workers)  # the round's solves are done: the search's
         smc(rd / "surrogate.h5", round_smc(smc_cfg, active), parameters, rd / "particles.h5")
         rec = acquire(r, training, rd / "surrogate.h5", rd / "particles.h5", previous, active,
                       check_cfg, parameters, rd / "acquire.json")
@@ -193,7 +197,7 @@ def calibrate_rounds(
     particles, final = rd / "particles.h5", rd / "surrogate.h5"
     if not _full_search(final):  # the last round refitted its choices: the result searches them
         final = work / "surrogate.h5"
-        train_surrogate(training, surrogate, parameters, final)
+        train_surrogate(training, surrogate, parameters, final, threads=workers)
         particles = work / "particles.h5"
         smc(final, smc_cfg, parameters, particles)
     elif round_smc(smc_cfg, active) != dict(smc_cfg):  # the rounds sampled lighter
