@@ -1,4 +1,17 @@
 """Rule `diagnose`: model-form diagnosis of the calibrated study."""
+import os
+
+# One BLAS thread, as in the workflow's other jobs (bayescalib.execution.jobserver), set
+# before numpy is imported: Snakemake gives this job's BLAS all its threads (the cores),
+# which its solve workers use as processes. Its GP fits are small matrices that gain
+# nothing from BLAS threads, and on a shared 2-core machine two OpenBLAS threads cost a
+# full surrogate search 13x the wall time and 25x the CPU time of one (sloppy4d, 80
+# points, 12 candidates: 378 s / 56 s against 28 s / 2.2 s at load 12-22;
+# OPENBLAS_NUM_THREADS=2 or 1 python benchmarks/bench_search_threads.py --problems
+# sloppy4d --n 80 --threads 1; docs/surrogate.md, issue 38).
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ[_var] = "1"
+
 from bayescalib.diagnosis.report import write_diagnosis
 from bayescalib.diagnosis.stage import run_diagnosis
 from bayescalib.stages import design_summary, setup_logging
