@@ -610,9 +610,26 @@ def run_active(prob: Problem, budget: int, seed: int, variant: str = "active") -
     import bayescalib.inference.gp.selection as surrogate_module
 
     fit_orig = surrogate_module.fit_round  # each round's surrogate: a search or a refit
+    fit_cpu, depth = [0.0], [0]  # CPU s of the surrogate fits (searches and refits)
+
+    def cpu_now() -> float:  # this process's and its waited-for children's (forked fits)
+        t = os.times()
+        return t.user + t.system + t.children_user + t.children_system
+
+    def timed(fn):
+        def run(*args, **kwargs):
+            depth[0] += 1
+            c0 = cpu_now()
+            try:
+                return fn(*args, **kwargs)
+            finally:
+                depth[0] -= 1
+                if depth[0] == 0:  # a search inside fit_round counted once
+                    fit_cpu[0] += cpu_now() - c0
+        return run
 
     def fit_recorded(*args, **kwargs):
-        gp = fit_orig(*args, **kwargs)
+        gp = timed(fit_orig)(*args, **kwargs)
         fitted.append(gp)
         return gp
 
@@ -643,11 +660,10 @@ def run_active(prob: Problem, budget: int, seed: int, variant: str = "active") -
 
     def counted(*args: Any, **kwargs: Any) -> Any:  # full searches of the discrete choices
         searches[0] += 1
-        return full_search(*args, **kwargs)
+        return timed(full_search)(*args, **kwargs)
 
     sur.fit_from_config = counted
-    if TRACE:
-        sur.fit_round = fit_recorded
+    sur.fit_round = fit_recorded
     try:
         res = calibrate(
             f, space, bound=prob.B,
@@ -693,6 +709,13 @@ def run_active(prob: Problem, budget: int, seed: int, variant: str = "active") -
             "fit": None if res.fit is None else res.fit["words"],
             "n_initial": n0,
             "n_searches": searches[0],
+            "fit_cpu_s": fit_cpu[0],
+            # each round's surrogate: why its choices were searched or refitted, and the
+            # previous round's largest error at the new values in the posterior region
+            "selection": [{"reason": g.selection_reason,
+                           "error": None if not np.isfinite(g.selection_error)
+                           else float(g.selection_error)}
+                          for g in fitted[:res.n_rounds]],  # not the result's search after them
             "acquisition": variant,
             "rounds": history,
             "trace": trace,
@@ -1073,7 +1096,7 @@ def run_one(prob: Problem, method: str, budget: int, seed: int) -> dict[str, Any
     return rec
 
 
-NUMERIC = ["n_evals", "n_rounds", "n_searches", "wall_s", "cpu_s", "hellinger", "mean_err", "sd_err", "kl_gauss"]
+NUMERIC = ["n_evals", "n_rounds", "n_searches", "fit_cpu_s", "wall_s", "cpu_s", "hellinger", "mean_err", "sd_err", "kl_gauss"]
 
 
 def summarize(runs: list[dict[str, Any]]) -> dict[str, Any]:
@@ -1123,6 +1146,13 @@ def _fmt(v, nd=3) -> str:
     return str(v)
 
 
+def cell_of(s: dict[str, Any], k: str, nd: int = 3) -> str:
+    """A summary's median of ``k`` with its range over seeds in brackets."""
+    v = _fmt(s.get(k), nd)
+    rng = s.get(k + "_range")
+    return v if rng is None else f"{v} ({_fmt(rng[0], nd)}-{_fmt(rng[1], nd)})"
+
+
 def table(
     results: dict[str, Any], problems: list[str], methods: list[str], seeds: str, partial: bool = False
 ) -> str:
@@ -1164,6 +1194,8 @@ def table(
                              f"{s['n_check_confirmed']} (its draws counted in evals)")
             if "n_searches" in s:
                 notes.append(f"{_fmt(s['n_searches'], 3)} full searches of the surrogate's choices")
+            if "fit_cpu_s" in s:
+                notes.append(f"surrogate fits {cell_of(s, 'fit_cpu_s')} CPU s")
             if s.get("fit"):
                 notes.append("fit: " + _short(s["fit"].split(" (p = ")[0], 120))
             if s.get("gpry_config", "default") != "default":
@@ -1173,9 +1205,7 @@ def table(
             if s.get("hellinger_from", "").startswith("hist"):
                 notes.append(f"Hellinger from {s['hellinger_from']} histograms")
             def cell(k: str, nd: int = 3, s: dict[str, Any] = s) -> str:
-                v = _fmt(s.get(k), nd)
-                rng = s.get(k + "_range")
-                return v if rng is None else f"{v} ({_fmt(rng[0], nd)}-{_fmt(rng[1], nd)})"
+                return cell_of(s, k, nd)
 
             hel = cell("hellinger") if pr["d"] == 2 else "-"
             rows.append(

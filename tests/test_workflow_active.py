@@ -278,7 +278,9 @@ def _stamps(tmp: Path, name: str) -> dict[str, int]:
 def test_the_rounds_search_the_surrogates_choices_when_the_design_grew_by_half(active_run):
     """surrogate.reselect_growth (0.5 here) through the workflow: round r reads round
     r-1's surrogate file; it searches the choices in full in round 0 and when its n is
-    at least 1.5 times that of the last search, else it refits (n of the search kept)."""
+    at least 1.5 times that of the last search, or when the previous round's surrogate
+    mispredicted the new values (surrogate.reselect_error), else it refits (n of the
+    search kept); each file says why."""
     import h5py
 
     f = RESELECT_GROWTH
@@ -288,11 +290,18 @@ def test_the_rounds_search_the_surrogates_choices_when_the_design_grew_by_half(a
     for path in rounds:
         with h5py.File(path) as h:
             n, sel, sel_n = h["X_train"].shape[0], h.attrs["selection"], h.attrs["selection_n"]
+            why = h.attrs["selection_reason"]
+            why = why.decode() if isinstance(why, bytes) else str(why)
         if n_search is None or n >= (1 + f) * n_search:
-            assert (sel, sel_n) == ("search", n), path
+            assert (sel, sel_n, why) == ("search", n, "round 0" if n_search is None
+                                         else "growth"), path
+            n_search = n
+        elif sel == "search":
+            assert sel_n == n and why in ("mispredicted", "refit rejected"), path
             n_search = n
         else:
-            assert (sel, sel_n) == ("refit", n_search), path
+            assert sel_n == n_search and why in ("predicted well",
+                                                 "no new value in the region"), path
 
 
 def test_a_plot_setting_reruns_no_round(active_run, base_study, tmp_path):

@@ -31,8 +31,9 @@ rule train_round:
         "../envs/bayescalib.yaml"
     input:
         training_path=f"{ACTIVE_DIR}/{{r}}/training.h5",
-        # the previous round's choices of the surrogate (rounds run in order already;
-        # none in round 0: an empty input)
+        # the previous round's choices of the surrogate, refitted between full searches
+        # (surrogate.reselect_growth, surrogate.reselect_error; rounds run in order
+        # already; none in round 0: an empty input)
         previous=lambda wc: f"{ACTIVE_DIR}/{int(wc.r) - 1}/surrogate.h5" if int(wc.r) > 0 else [],
     output:
         out_path=f"{ACTIVE_DIR}/{{r}}/surrogate.h5",
@@ -42,7 +43,7 @@ rule train_round:
     log:
         f"{R}/logs/active/{{r}}/train_surrogate.log",
         benchmark=f"{R}/benchmarks/train_surrogate/round_{{r}}.tsv",
-    threads: 1
+    threads: 2  # alone in its round: a full search's candidates on both cores (same fit)
     shell:
         job(locals(), "train_surrogate")
 

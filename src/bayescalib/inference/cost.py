@@ -239,6 +239,8 @@ def study_gp_seconds(cfg: Mapping[str, Any], *, restarts: int | None = None) -> 
     sizes = design_sizes(cfg["design"])
     growth = float(sur["reselect_growth"])
     total, searched = 0.0, None
+    # the growth schedule's searches; a misprediction (surrogate.reselect_error) can add
+    # some, which cannot be known before the rounds run
     for n in sizes:
         full = searched is None or growth <= 0 or n >= (1.0 + growth) * searched
         searched = n if full else searched

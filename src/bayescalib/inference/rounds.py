@@ -259,7 +259,7 @@ class RoundSettings:
 
 
 def fit_surrogate(rows: Evaluations, surrogate: Mapping[str, Any], bounds: np.ndarray,
-                  previous: Any = None):
+                  previous: Any = None, *, threads: int = 1):
     """The surrogate of a round (step 1 of the module docstring).
 
     ``surrogate.target: loglik``: the GP of the log-likelihood values
@@ -280,7 +280,12 @@ def fit_surrogate(rows: Evaluations, surrogate: Mapping[str, Any], bounds: np.nd
         (d, 2) design box.
     previous
         The previous round's surrogate (its discrete choices refitted until the data
-        have grown by ``surrogate.reselect_growth``); None: a full search.
+        have grown by ``surrogate.reselect_growth`` or it mispredicts the new values by
+        more than ``surrogate.reselect_error``); None: a full search.
+    threads
+        Processes of a full search of the GP's discrete choices (the same surrogate,
+        bit for bit: :func:`~bayescalib.inference.gp.selection.fit_from_config`); the
+        output emulator is fitted in this process.
 
     Returns
     -------
@@ -304,7 +309,7 @@ def fit_surrogate(rows: Evaluations, surrogate: Mapping[str, Any], bounds: np.nd
     from bayescalib.inference.gp.selection import fit_round
 
     return fit_round(rows.X, fit_targets(rows.loglik, list(rows.reason)), dict(surrogate),
-                     bounds, bound=bound, previous=previous)
+                     bounds, bound=bound, previous=previous, threads=threads)
 
 
 def decide(r: int, rows: Evaluations, surrogate, result, space, active: Mapping[str, Any],
@@ -361,13 +366,16 @@ class RoundStore(Protocol):
 
 @dataclass
 class MemoryStore:
-    """The rounds' products as objects in this process."""
+    """The rounds' products as objects in this process; ``threads``: the processes of
+    the surrogate's full searches (:func:`fit_surrogate`)."""
 
     space: Any
     settings: RoundSettings
+    threads: int = 1
 
     def fit(self, r: int | None, rows: Evaluations, previous: Any) -> Any:
-        return fit_surrogate(rows, self.settings.surrogate, self.space.bounds, previous)
+        return fit_surrogate(rows, self.settings.surrogate, self.space.bounds, previous,
+                             threads=self.threads)
 
     def sample(self, r: int | None, surrogate: Any, smc: Mapping[str, Any]) -> Any:
         from bayescalib.inference.smc import smc_from_config
@@ -494,13 +502,15 @@ def run_rounds(evaluate: Evaluator, store: RoundStore, settings: RoundSettings,
 
 # ------------------------------------------------------------------- in memory
 def calibrate_in_memory(evaluate: Evaluator, space, settings: RoundSettings, *, seed: int = 0,
-                        callback: Callable[[dict[str, Any]], None] | None = None) -> RoundsResult:
-    """:func:`run_rounds` in memory (:class:`MemoryStore`), round 0 a scrambled Sobol
-    design of ``design.active.n_initial`` points over the box (seed ``seed``)."""
+                        callback: Callable[[dict[str, Any]], None] | None = None,
+                        threads: int = 1) -> RoundsResult:
+    """:func:`run_rounds` in memory (:class:`MemoryStore`, its full searches on
+    ``threads`` processes), round 0 a scrambled Sobol design of
+    ``design.active.n_initial`` points over the box (seed ``seed``)."""
     from bayescalib.inference.design import sobol_design
 
     initial = sobol_design(space.bounds, int(settings.active["n_initial"]), seed)
-    return run_rounds(evaluate, MemoryStore(space, settings), settings, initial,
+    return run_rounds(evaluate, MemoryStore(space, settings, threads), settings, initial,
                       callback=callback)
 
 
@@ -510,7 +520,8 @@ def calibrate(loglik: Callable[[np.ndarray], np.ndarray], space, *, bound: float
               smc: Mapping[str, Any] | None = None, seed: int = 0,
               callback: Callable[[dict[str, Any]], None] | None = None,
               n_measurements: int | None = None,
-              posterior_check: Mapping[str, Any] | None = None) -> RoundsResult:
+              posterior_check: Mapping[str, Any] | None = None,
+              threads: int = 1) -> RoundsResult:
     """Calibrate a log-likelihood given as a Python function, in rounds in memory
     (:func:`calibrate_in_memory` with :class:`LoglikFunction`).
 
@@ -532,11 +543,14 @@ def calibrate(loglik: Callable[[np.ndarray], np.ndarray], space, *, bound: float
     n_measurements
         Number of measurements behind the Gaussian log-likelihood: with ``bound``, the
         result's ``fit`` checks the best evaluation against the noise model.
+    threads
+        Processes of the surrogate's full searches (the same surrogates, bit for bit:
+        :func:`~bayescalib.inference.gp.selection.fit_from_config`).
     """
     settings = RoundSettings.from_sections(active=active, surrogate=surrogate, smc=smc,
                                            posterior_check=posterior_check)
     return calibrate_in_memory(LoglikFunction(loglik, bound, n_measurements), space, settings,
-                               seed=seed, callback=callback)
+                               seed=seed, callback=callback, threads=threads)
 
 
 def calibrate_outputs(outputs: Callable[[np.ndarray], np.ndarray], y: Sequence[float], space, *,

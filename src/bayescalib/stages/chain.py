@@ -126,6 +126,9 @@ class FileStore:
     workdir : the folder of the files.
     parameters : the parameter list.
     settings : :class:`~bayescalib.inference.rounds.RoundSettings`.
+    threads : processes of the surrogate's full searches (the ``threads`` of
+        :func:`bayescalib.stages.surrogate.train_surrogate`; the same surrogate as one
+        process, bit for bit).
     training, surrogate, particles : the files last written of each kind (after the
         rounds: the result's).
     """
@@ -133,6 +136,7 @@ class FileStore:
     workdir: str | Path
     parameters: Sequence[Mapping[str, Any]]
     settings: Any
+    threads: int = 1
     training: Path | None = None
     surrogate: Path | None = None
     particles: Path | None = None
@@ -154,7 +158,7 @@ class FileStore:
         prev = None if previous is None else self.surrogate
         self.surrogate = self._folder(r) / "surrogate.h5"
         train_surrogate(self.training, self.settings.surrogate, self.parameters,
-                        self.surrogate, previous=prev)
+                        self.surrogate, previous=prev, threads=self.threads)
         return read_stage_file(self.surrogate, "surrogate")
 
     def sample(self, r: int | None, surrogate: Any, smc: Mapping[str, Any]) -> Any:
@@ -210,6 +214,9 @@ def calibrate_rounds(
         Validated ``design.active`` section. ``max_solves`` counts the reused rows too.
     switches
         Forward-model settings added to every solve (e.g. ``physics.growth.enabled``).
+    workers
+        Processes of the solves, and of the surrogate's full searches once a round's
+        solves are done (the same surrogate as one process, bit for bit).
     reused
         Evaluations that enter every round as they are
         (:class:`~bayescalib.inference.rounds.Evaluations`, e.g. the base design at
@@ -241,7 +248,7 @@ def calibrate_rounds(
     work = Path(workdir)
     evaluate = SolvePath(fm, parameters, obs_path, measure_name, measure, likelihood, work,
                          dict(switches or {}), workers, warm_start)
-    store = FileStore(work, parameters, settings)
+    store = FileStore(work, parameters, settings, threads=workers)
     n_reused = 0 if reused is None else len(reused)
     res = run_rounds(evaluate, store, settings, initial, done=reused)
     summary = marginalize(store.particles, store.surrogate, posterior_cfg, parameters,

@@ -7,8 +7,9 @@ shape its infeasible region, :mod:`bayescalib.inference.feasibility`); a table w
 few values or with repeated points is refused (:func:`loglik_training_set`, which the
 GP convergence stage, :mod:`bayescalib.stages.convergence`, fits too). An active
 round refits the previous round's discrete choices until the training set has grown
-enough; a fit whose training table is the same as an earlier full search's reuses its
-file (:func:`bayescalib.stages.files.reuse_output`).
+enough or they mispredict the round's new values; a full search fits its candidates on
+the job's threads; a fit whose training table is the same as an earlier full search's
+reuses its file (:func:`bayescalib.stages.files.reuse_output`).
 """
 
 from __future__ import annotations
@@ -30,14 +31,20 @@ log = logging.getLogger("bayescalib")
 
 def train_surrogate(training_path: str | Path, surrogate: Mapping[str, Any],
           parameters: Sequence[Mapping[str, Any]], out_path: str | Path, *,
-          reuse: Sequence[str | Path] = (), previous: str | Path | None = None) -> None:
+          reuse: Sequence[str | Path] = (), previous: str | Path | None = None,
+          threads: int = 1) -> None:
     """Fit the GP surrogate on the training points (failed runs left out).
 
     ``previous``: the surrogate file of the previous active round. Its discrete choices
     (kernel, output, inputs, frame) are refitted instead of searched again until the
-    training set has grown by ``surrogate.reselect_growth`` since their last full search
+    training set has grown by ``surrogate.reselect_growth`` since their last full search,
+    or until it mispredicts the new values by more than ``surrogate.reselect_error``
     (:func:`bayescalib.inference.gp.selection.fit_round`). None or empty (round 0, a fixed
     design, the study's final surrogate; a rule's absent input): a full search.
+
+    ``threads``: the job's granted cores (the job server passes the rule's ``threads``);
+    a full search fits its candidates on that many processes (the same surrogate, bit
+    for bit).
 
     ``reuse``: (training table, surrogate) of an earlier fit with the same settings
     (the last active round's); when the training table holds the same content and that
@@ -70,7 +77,7 @@ def train_surrogate(training_path: str | Path, surrogate: Mapping[str, Any],
     prev = None if not previous else read_stage_file(previous, "surrogate", device="cpu")
     try:
         fitted = fit_surrogate(rows, surrogate, ParameterSpace.from_config(parameters).bounds,
-                               prev)
+                               prev, threads=threads)
     except (RuntimeError, ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:
         raise PipelineError(_fit_failure(rows, surrogate, training_path, exc)) from None
     fitted.save(out_path)
@@ -82,8 +89,9 @@ def train_surrogate(training_path: str | Path, surrogate: Mapping[str, Any],
                  em.discarded, em.log_inputs)
     else:
         log.info("GP surrogate on %d points (%d excluded, %d of them marking where the "
-                 "model cannot be solved): %s", fitted.n_train, fitted.n_excluded,
-                 fitted.n_failed, fitted.hyperparameters)
+                 "model cannot be solved), choices %s (%s): %s", fitted.n_train,
+                 fitted.n_excluded, fitted.n_failed, fitted.selection,
+                 fitted.selection_reason or "reason not recorded", fitted.hyperparameters)
 
 
 def _fit_failure(rows, surrogate: Mapping[str, Any], training_path: str | Path,

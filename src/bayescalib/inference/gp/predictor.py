@@ -170,6 +170,15 @@ class GPSurrogate:
         choice refitted, :func:`~bayescalib.inference.gp.selection.fit_round`).
     selection_n : number of training values at the last full search of those choices
         (-1: unknown, e.g. a file written before it was recorded).
+    selection_reason : why the choices were searched or refitted
+        (:func:`~bayescalib.inference.gp.selection.fit_round`: ``"round 0"``,
+        ``"growth"``, ``"mispredicted"``, ``"settings changed"``, ``"refit rejected"``
+        for a search; ``"predicted well"``, ``"no new value in the region"`` for a
+        refit); ``""``: not recorded (a search outside :func:`fit_round`, or a file
+        written before the record).
+    selection_error : the largest error (nats) of the previous round's surrogate at the
+        new values in the posterior region, which decided between refit and search
+        (NaN: not measured).
     X_failed : (F, d) design points whose solve failed (finite inputs, L = -inf; NaN
         marks a failure that says nothing of the model, left out), in user units, or None: with them :meth:`loglik` is -inf where they mark the model
         infeasible (:mod:`bayescalib.inference.feasibility`).
@@ -206,6 +215,8 @@ class GPSurrogate:
     mean_top: float = float("nan")
     selection: str = _SEARCH
     selection_n: int = -1
+    selection_reason: str = ""
+    selection_error: float = float("nan")
     nugget_fitted: bool = False
     X_failed: np.ndarray | None = None
     _cache: dict[str, Any] = field(default_factory=dict, repr=False)

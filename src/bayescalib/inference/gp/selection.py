@@ -23,9 +23,19 @@ Re-deciding the discrete choices (``surrogate.reselect_growth``; :func:`fit_roun
     schedule: O(log n) searches in a run), and in the other rounds refits only the
     previous choice on all current data (one GP fit; principal frame recomputed,
     warm-started from the previous hyperparameters), with a fall-back to the full search
-    when that refit fails or overshoots the bound. The choice and n_search travel with
-    the surrogate (``GPSurrogate.selection`` / ``selection_n``, stored in its file). The
-    surrogate of the study's result is always a full search.
+    when that refit fails or overshoots the bound. Between growth steps the previous
+    round's surrogate is also judged out of sample: when it mispredicted the values just
+    solved in the posterior region by more than ``surrogate.reselect_error`` nats (the
+    trust check's region), the choices are searched at once. The choice, n_search and
+    why (``GPSurrogate.selection`` / ``selection_n`` / ``selection_reason`` /
+    ``selection_error``) travel with the surrogate, stored in its file. The surrogate of
+    the study's result is always a full search.
+
+Competing fits in parallel (``threads``)
+    The candidates of a full search are independent seeded fits: with ``threads`` > 1
+    (the job's granted cores) they run on a pool of forked processes
+    (:func:`_fit_candidates`) and are compared in the serial order, so the result is the
+    serial search's, bit for bit.
 
 The measurements behind the ``auto`` thresholds (:data:`ARD_FROM_DIM`,
 :data:`LOG_INPUTS_FROM_DIM` and :data:`~bayescalib.inference.gp.inputs.LOG_INPUTS_NOTE`)
@@ -194,6 +204,49 @@ def _fit_candidate(X: np.ndarray, y: np.ndarray, kw: dict[str, Any], bounds: np.
     return gp
 
 
+def _fit_one(args: tuple) -> GPSurrogate | None:
+    """:func:`_fit_candidate` in a worker process of :func:`_fit_candidates`; its
+    prediction cache (rebuilt on demand) is not sent back."""
+    gp = _fit_candidate(*args)
+    if gp is not None:
+        gp._cache.clear()
+    return gp
+
+
+def _can_fork() -> bool:
+    """Whether the candidates may be fitted in forked processes: the platform forks, this
+    process is not itself a pool's (daemonic) worker, and it has not initialized CUDA (a
+    forked child cannot use it)."""
+    import multiprocessing as mp
+    import sys
+
+    if "fork" not in mp.get_all_start_methods() or mp.current_process().daemon:
+        return False
+    torch = sys.modules.get("torch")
+    try:
+        return not (torch is not None and torch.cuda.is_initialized())
+    except AttributeError:  # pragma: no cover - a torch without cuda
+        return True
+
+
+def _fit_candidates(X: np.ndarray, y: np.ndarray, kw: dict[str, Any], bounds: np.ndarray,
+                    bound: float | None, candidates: list, threads: int
+                    ) -> list[GPSurrogate | None]:
+    """:func:`_fit_candidate` of every candidate, in their order: serially, or with
+    ``threads`` > 1 on a pool of that many forked processes (at most one per candidate).
+    Each fit is independent and seeded (``kw["seed"]``), so the fits are those of the
+    serial loop, bit for bit; where processes cannot be forked (:func:`_can_fork`) the
+    loop is serial."""
+    n = min(int(threads), len(candidates))
+    if n <= 1 or not _can_fork():
+        return [_fit_candidate(X, y, kw, bounds, bound, c) for c in candidates]
+    import multiprocessing as mp
+
+    with mp.get_context("fork").Pool(n) as pool:
+        return pool.map(_fit_one, [(X, y, kw, bounds, bound, c) for c in candidates],
+                        chunksize=1)
+
+
 def _evidence_of_L(gp: GPSurrogate) -> float:
     """The evidence of the log-likelihood values (the warped GP's carried to L by the
     Jacobian of the warping, :func:`fit_from_config`)."""
@@ -215,7 +268,8 @@ def surrogate_settings(**settings: Any) -> dict[str, Any]:
 
 
 def fit_from_config(X: np.ndarray, y: np.ndarray, surrogate: dict[str, Any],
-                    bounds: np.ndarray, *, bound: float | None = None) -> GPSurrogate:
+                    bounds: np.ndarray, *, bound: float | None = None,
+                    threads: int = 1) -> GPSurrogate:
     """:func:`fit_gp` with the settings of a validated ``surrogate`` config section.
 
     ``surrogate["output"]`` chooses what the GP models when the log-likelihood's
@@ -246,11 +300,16 @@ def fit_from_config(X: np.ndarray, y: np.ndarray, surrogate: dict[str, Any],
     with a single length scale or in one or two dimensions, ``linear`` (see
     :data:`~bayescalib.inference.gp.inputs.LOG_INPUTS_NOTE`). Without an input that
     qualifies, ``log`` and ``auto`` are ``linear``.
+
+    ``threads`` > 1 (the job's granted cores): the candidates are fitted by that many
+    forked worker processes (:func:`_fit_candidates`), each candidate alone with its own
+    seeded starts as in the serial search, and compared in the serial order: the same
+    winner, bit for bit.
     """
     kw, candidates = _search_settings(X, y, surrogate, bounds, bound)
     best, best_ev = None, -math.inf
-    for candidate in candidates:
-        gp = _fit_candidate(X, y, kw, bounds, bound, candidate)
+    fits = _fit_candidates(X, y, kw, bounds, bound, candidates, threads)
+    for candidate, gp in zip(candidates, fits, strict=True):
         if gp is None:
             continue
         ev = _evidence_of_L(gp)
@@ -285,26 +344,62 @@ def _matches(candidate: tuple[str, bool, np.ndarray | None, np.ndarray | None],
 REFIT_WARM_START = True
 
 
+def _misprediction(previous: GPSurrogate, X: np.ndarray, y: np.ndarray) -> float | None:
+    """The largest error (nats) of ``previous`` at the new values: the rows of (X, y) with
+    a finite value that are not among ``previous.X_train``, in the posterior region as
+    the trust check defines it (:func:`~bayescalib.inference.active.trust_check`: the real
+    or the predicted value within chi2_d(REGION_LEVEL) / 2 of the best value now). None
+    when no new value lies in that region (nothing to judge the choice by)."""
+    from bayescalib.inference.active import trust_check
+
+    Xa, ya = np.asarray(X, float), np.asarray(y, float).reshape(-1)
+    ok = np.isfinite(ya) & np.all(np.isfinite(Xa), axis=1)
+    known = {row.tobytes() for row in np.ascontiguousarray(previous.X_train, float)}
+    new = ok & np.array([row.tobytes() not in known for row in np.ascontiguousarray(Xa)],
+                        bool)
+    if not new.any():
+        return None
+    mean = np.asarray(previous.predict(Xa[new]), float)
+    trust = trust_check(mean, np.zeros_like(mean), ya[new], float(ya[ok].max()),
+                        Xa.shape[1], math.inf)
+    return trust["max_abs_error"]
+
+
+def _searched(gp: GPSurrogate, reason: str, error: float | None) -> GPSurrogate:
+    gp.selection_reason = reason
+    gp.selection_error = math.nan if error is None else float(error)
+    return gp
+
+
 def fit_round(X: np.ndarray, y: np.ndarray, surrogate: dict[str, Any], bounds: np.ndarray, *,
-              bound: float | None = None, previous: GPSurrogate | None = None) -> GPSurrogate:
+              bound: float | None = None, previous: GPSurrogate | None = None,
+              threads: int = 1) -> GPSurrogate:
     """The surrogate of one round of the active design: :func:`fit_from_config` (the full
     search of the discrete choices: kernel x output x input scale x frame) only when the
-    training set has grown enough since the last full search, else a refit of the
-    previous round's choice.
+    training set has grown enough since the last full search or the previous round's
+    surrogate mispredicted the new values, else a refit of the previous round's choice.
 
-    Rule (``surrogate["reselect_growth"]`` = f >= 0). With n the number of finite
-    training values now and n_s that of the last full search (``previous.selection_n``),
-    the candidates are searched in full when
+    Rule (``surrogate["reselect_growth"]`` = f >= 0, ``surrogate["reselect_error"]`` =
+    e > 0 nats). With n the number of finite training values now and n_s that of the last
+    full search (``previous.selection_n``), the candidates are searched in full when
 
-        previous is None, f = 0, n_s is unknown, or n >= (1 + f) n_s,
+    - previous is None (reason ``"round 0"``: also a fixed design and a study's surrogate),
+    - f = 0, n_s is unknown, or n >= (1 + f) n_s (``"growth"``),
+    - the previous choice is not among the candidates of ``surrogate`` (``"settings
+      changed"``),
+    - the previous surrogate predicted the new values (rows not in its training set) in
+      the posterior region (the trust check's region: the real or the predicted value
+      within chi2_d(0.99) / 2 of the best value, :func:`_misprediction`) with a largest
+      error above e (``"mispredicted"``): the out-of-sample check of the previous choice,
+      the same test as the rounds' trust check at the points just solved.
 
-    and when the previous choice is not among the candidates of ``surrogate`` (the
-    settings changed). Otherwise only the previous choice is fitted, on all current data
-    (the principal frame, if chosen, recomputed from them), its first optimizer start at
-    the previous kernel variance and length scales, and fitted nugget (warm start: with a
-    fitted nugget one start more, before the default ones; the other ``restarts - 1``
-    starts as in :func:`fit_gp`). A refit that fails, or a model of L whose mean exceeds
-    the bound inside the box (:func:`_overshoots`), falls back to the full search. With
+    Otherwise only the previous choice is fitted (``"predicted well"``, or ``"no new
+    value in the region"``), on all current data (the principal frame, if chosen,
+    recomputed from them), its first optimizer start at the previous kernel variance and
+    length scales, and fitted nugget (warm start: with a fitted nugget one start more,
+    before the default ones; the other ``restarts - 1`` starts as in :func:`fit_gp`). A
+    refit that fails, or a model of L whose mean exceeds the bound inside the box
+    (:func:`_overshoots`), falls back to the full search (``"refit rejected"``). With
     f = 0 the result is that of :func:`fit_from_config`, bit for bit.
 
     The discrete choices are chosen by the evidence among models fitted to the same
@@ -312,6 +407,8 @@ def fit_round(X: np.ndarray, y: np.ndarray, surrogate: dict[str, Any], bounds: n
     change slowly as a design grows by small batches, so re-deciding them every round
     mostly refits the same choice. The refit keeps the choice's continuous
     hyperparameters (variance, length scales, quadratic mean) optimal for current data.
+    A choice that mispredicts what the round just solved where the posterior lives is
+    in doubt, and is searched again at once instead of at the next growth step.
 
     Parameters
     ----------
@@ -327,16 +424,31 @@ def fit_round(X: np.ndarray, y: np.ndarray, surrogate: dict[str, Any], bounds: n
         Upper bound of the log-likelihood; None: unknown.
     previous
         The previous round's surrogate (None: round 0).
+    threads
+        Processes of a full search (:func:`fit_from_config`); the job's granted cores.
 
     Returns
     -------
     GPSurrogate
         With ``selection`` ``"search"`` (and ``selection_n`` = its n) after a full search,
-        ``"refit"`` (``selection_n`` carried over from ``previous``) after a refit.
+        ``"refit"`` (``selection_n`` carried over from ``previous``) after a refit;
+        ``selection_reason`` the reason above and ``selection_error`` the previous
+        surrogate's largest error at the new values in the region (NaN: none, or no
+        previous).
     """
+    def search(reason: str, error: float | None = None) -> GPSurrogate:
+        gp = fit_from_config(X, y, surrogate, bounds, bound=bound, threads=threads)
+        return _searched(gp, reason, error)
+
     if previous is None:
-        return fit_from_config(X, y, surrogate, bounds, bound=bound)
+        return search("round 0")
+    if previous.dim != np.shape(X)[1]:
+        log.info("surrogate: the previous round's surrogate has %d inputs, the data %d: "
+                 "full search", previous.dim, np.shape(X)[1])
+        return search("settings changed")
     growth = float(surrogate["reselect_growth"])
+    tol = float(surrogate["reselect_error"])
+    error = _misprediction(previous, X, y)
     ya = np.asarray(y, float).reshape(-1)
     n = int((np.isfinite(ya) & np.all(np.isfinite(np.asarray(X, float)), axis=1)).sum())
     n_s = int(previous.selection_n)
@@ -344,15 +456,20 @@ def fit_round(X: np.ndarray, y: np.ndarray, surrogate: dict[str, Any], bounds: n
         if growth > 0 and n_s >= 1:
             log.info("surrogate: %d training values, %.3g times the %d of the last search "
                      "of the discrete choices: searched again", n, n / n_s, n_s)
-        return fit_from_config(X, y, surrogate, bounds, bound=bound)
+        return search("growth", error)
     kw, candidates = _search_settings(X, y, surrogate, bounds, bound)
     same = [c for c in candidates if _matches(c, previous)]
+    what = _describe(previous.kernel, previous.warped, previous.log_offset, previous.rotation)
     if not same or kw["ard"] != previous.ard or kw["mean"] != previous.mean_function \
             or (kw["nugget"] == "fit") != previous.nugget_fitted:
         log.info("surrogate: the previous choice (%s) is not among the candidates of the "
-                 "settings: full search", _describe(previous.kernel, previous.warped,
-                                                    previous.log_offset, previous.rotation))
-        return fit_from_config(X, y, surrogate, bounds, bound=bound)
+                 "settings: full search", what)
+        return search("settings changed", error)
+    if error is not None and error > tol:
+        log.info("surrogate: the previous choice (%s) missed the new values in the "
+                 "posterior region by up to %.3g nats (surrogate.reselect_error %.3g): "
+                 "full search", what, error, tol)
+        return search("mispredicted", error)
     candidate = same[0]
     warm = (float(previous.variance), np.array(previous.lengthscale, float),
             float(previous.nugget) if previous.nugget_fitted else None) \
@@ -361,9 +478,11 @@ def fit_round(X: np.ndarray, y: np.ndarray, surrogate: dict[str, Any], bounds: n
     if gp is None:
         log.info("surrogate: the refit of %s was rejected: full search",
                  _describe(*candidate))
-        return fit_from_config(X, y, surrogate, bounds, bound=bound)
+        return search("refit rejected", error)
     gp.selection, gp.selection_n = _REFIT, n_s
+    _searched(gp, "no new value in the region" if error is None else "predicted well", error)
     log.info("surrogate: %s refitted on %d values (choices searched at %d; next search "
-             "from %d), evidence of L %.6g", _describe(*candidate), n, n_s,
-             math.ceil((1.0 + growth) * n_s), _evidence_of_L(gp))
+             "from %d; largest error at the new values in the region %s nats), evidence "
+             "of L %.6g", _describe(*candidate), n, n_s, math.ceil((1.0 + growth) * n_s),
+             "-" if error is None else f"{error:.3g}", _evidence_of_L(gp))
     return gp

@@ -11,7 +11,8 @@ the mean's hyperparameters (``lengthscale``; attributes ``kernel`` (the GPy clas
 ``mean_factor`` / ``mean_misfit_min`` / ``mean_top`` for the quadratic mean), the output
 transform (``bound``, NaN when unknown, and ``warp``) and metadata (``ard``,
 ``n_excluded``, ``log_marginal_likelihood``, ``optimizer``, ``restarts``, ``selection``,
-``selection_n``, ``nugget_mode``, and ``X_failed`` when solves failed). An output emulator
+``selection_n``, ``selection_reason``, ``selection_error``, ``nugget_mode``, and
+``X_failed`` when solves failed). An output emulator
 stores one such group per output coordinate (:mod:`bayescalib.inference.emulator`).
 
 :func:`read_group` rebuilds the :class:`~bayescalib.inference.gp.predictor.GPSurrogate`
@@ -19,6 +20,7 @@ from the stored factors, so its predictions are reproduced exactly. Attributes a
 within a layout version are read with the value that files written before them meant:
 no ``kernel``, Matérn 3/2; no ``bound``, no warping (version 1); no ``mean_function``, the
 constant mean (version 2); no ``selection``, a full search with n unknown; no
+``selection_reason`` / ``selection_error``, the reason not known (``""``, NaN); no
 ``nugget_mode``, the fixed nugget; no ``X_failed``, no failed points known.
 The header's ``format`` attribute (``bayescalib.GPSurrogate``) is a label of the kind,
 not an import path; no module path is stored, so the file does not depend on where the
@@ -100,6 +102,8 @@ def write_group(gp: GPSurrogate, f) -> None:
     # added within format version 3 (readers ignore unknown attributes)
     f.attrs["selection"] = gp.selection
     f.attrs["selection_n"] = int(gp.selection_n)
+    f.attrs["selection_reason"] = gp.selection_reason
+    f.attrs["selection_error"] = float(gp.selection_error)
     f.attrs["nugget_mode"] = "fit" if gp.nugget_fitted else "fixed"
     if gp.X_failed is not None:
         f.create_dataset("X_failed", data=gp.X_failed)
@@ -147,6 +151,9 @@ def read_group(f, device: str = "auto") -> GPSurrogate:
         # files written before the selection was recorded: a full search, n unknown
         selection=_plain_str(f.attrs.get("selection", _SEARCH)),
         selection_n=int(f.attrs.get("selection_n", -1)),
+        # files written before the reason was recorded: not known
+        selection_reason=_plain_str(f.attrs.get("selection_reason", "")),
+        selection_error=float(f.attrs.get("selection_error", float("nan"))),
         # files written before the fitted nugget: the fixed rule
         nugget_fitted=_plain_str(f.attrs.get("nugget_mode", "fixed")) == "fit",
         # files written before the failed points were kept: none known
