@@ -16,12 +16,14 @@ from bayescalib.diagnosis import stage
 from bayescalib.inference import posterior
 
 
-def _cal(tmp_path, converged=False, n_rounds=3):
-    last = tmp_path / "active" / str(n_rounds - 1)
+def _cal(tmp_path, converged=False, n_rounds=3, result_searched=False):
+    """A calibration's record: its result is the last round's files, or (the last round
+    refitted its choices) a full search in the calibration's folder."""
+    last = tmp_path if result_searched else tmp_path / "active" / str(n_rounds - 1)
     return {"converged": converged, "rounds": [{"round": r} for r in range(n_rounds)],
             "particles": str(last / "particles.h5"), "surrogate": str(last / "surrogate.h5"),
             "posterior": {"mean": {"phi_x": 9.0}}, "log_evidence": 50.0,
-            "parameters": [{"name": "phi_x"}]}
+            "parameters": [{"name": "phi_x"}], "workdir": str(tmp_path)}
 
 
 @pytest.fixture
@@ -58,10 +60,16 @@ def _pick(cal, last_rms, tmp_path):
                                          _model())
 
 
-def test_the_round_before_is_reported_when_real_solves_confirm_it_better(tmp_path, rechecks):
+@pytest.mark.parametrize("result_searched", [False, True])
+def test_the_round_before_is_reported_when_real_solves_confirm_it_better(
+        tmp_path, rechecks, result_searched):
+    """Whether the result is the last round's files or a full search fitted after the
+    rounds (in the folder above them), the round before is found in the rounds' folder
+    (the second case read a folder named after the round beside the calibrations)."""
     rms, calls = rechecks
     rms[1] = 1.67e-3  # two_effects (concealed): round 26 at 1.67 um, its last round at 5.34 um
-    cal, after, _, rechecked = _pick(_cal(tmp_path), 5.34e-3, tmp_path)
+    cal, after, _, rechecked = _pick(_cal(tmp_path, result_searched=result_searched),
+                                     5.34e-3, tmp_path)
     assert rechecked == {2: 5.34e-3, 1: 1.67e-3}
     assert after.rms == 1.67e-3 and calls == ["x/round_1"]
     assert cal["reported_round"] == 1

@@ -397,7 +397,8 @@ def _better_confirmed_round(ctx: DiagnosisContext, cal: dict[str, Any], after,
     if cal["converged"] or len(rounds) < 2 or after is None:
         return cal, after, n_fail_after, None
     last = int(rounds[-1]["round"])
-    rd = Path(cal["particles"]).parent.parent / str(last - 1)
+    # the round's own files: the result's may be a full search in the folder above them
+    rd = Path(cal["workdir"]) / "active" / str(last - 1)
     try:
         alt, n_fail_alt, _ = _predictive_check_at_draws(
             ctx, model, rd / "particles.h5", f"{model.tag}/round_{last - 1}",

@@ -234,8 +234,10 @@ def calibrate_rounds(
         ``parameters``, ``log_evidence``, ``posterior`` (the summary of
         :func:`bayescalib.inference.posterior.summarize`), ``converged``, ``reason``,
         ``fit``, ``rounds`` (the acquire records), ``n_new``, ``n_reused``,
-        ``n_failed`` (of the new solves) and the paths ``training``, ``surrogate``,
-        ``particles``.
+        ``n_failed`` (of the new solves), the paths ``training``, ``surrogate``,
+        ``particles`` of the result (the last round's files, or the result's own full
+        search in ``workdir`` when the last round refitted its choices) and ``workdir``
+        (round r's files are in ``workdir/active/r``).
     """
     from bayescalib.config import round_smc, validate
     from bayescalib.inference.rounds import RoundSettings, run_rounds
@@ -262,4 +264,4 @@ def calibrate_rounds(
             "converged": res.converged, "reason": res.reason, "fit": res.fit,
             "rounds": res.rounds, "n_new": n_new, "n_reused": n_reused, "n_failed": n_failed,
             "training": str(store.training), "surrogate": str(store.surrogate),
-            "particles": str(store.particles)}
+            "particles": str(store.particles), "workdir": str(work)}
