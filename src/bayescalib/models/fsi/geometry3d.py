@@ -12,6 +12,13 @@ channel), centre ``(x_c, 0, z_c)`` = ``(centre, 0, centre_z)`` (``centre_z`` nul
 middle of the width, ``W / 2``). It is an exact OpenCascade ellipsoid cut by the
 channel box, so the mesh is curved onto the true surface (``mesh.Curve``).
 
+``shape: ridge`` is the 2D model's half-ellipse (width, height, centre) extruded across
+the whole width: a colony that touches both side walls. With symmetry side walls
+(``side_walls: slip``: ``u_z = d_z = 0`` there, the other components free) its solution
+does not depend on z and is the 2D plane-strain solution at the rate ``Q / W`` per
+unit width, which makes it the 3D model's check against the 2D one. Its side faces
+are part of ``side``.
+
 Boundary names: ``inlet`` (x = 0), ``outlet`` (x = L), ``top`` (y = H), ``floor`` (the
 fluid's part of y = 0), ``side`` (z = 0 and z = W), ``biofilm_floor`` (the clamped
 base of the colony, an ellipse in y = 0) and ``interface`` (fluid–biofilm). Regions:
@@ -32,7 +39,7 @@ from typing import Any
 
 import numpy as np
 
-from bayescalib.models.fsi.geometry import BiofilmMesh, generate_mesh
+from bayescalib.models.fsi.geometry import BiofilmMesh, _outline_face, generate_mesh
 
 __all__ = ["build_mesh_3d", "colony_axes", "interface_surface"]
 
@@ -78,7 +85,8 @@ def build_mesh_3d(geometry: dict[str, Any], mesh_cfg: dict[str, Any]) -> Biofilm
     Parameters
     ----------
     geometry : dict
-        Validated ``geometry`` section with ``dim: 3`` and ``shape: half_ellipse`` (mm).
+        Validated ``geometry`` section with ``dim: 3`` and ``shape: half_ellipse`` or
+        ``ridge`` (mm).
     mesh_cfg : dict
         ``mesh`` section with the preset resolved: ``h_interface``, ``h_solid``,
         ``h_bulk`` (mm), ``grading``, ``curve_order``.
@@ -92,13 +100,12 @@ def build_mesh_3d(geometry: dict[str, Any], mesh_cfg: dict[str, Any]) -> Biofilm
     import ngsolve as ng
     from netgen.occ import Axes, Box, Ellipsoid, Glue, OCCGeometry, Pnt, X, Y, Z
 
-    if geometry["shape"] != "half_ellipse":
-        raise ValueError(f"geometry.shape: the 3D model has the half_ellipse shape only, "
-                         f"not '{geometry['shape']}'")
+    if geometry["shape"] not in ("half_ellipse", "ridge"):
+        raise ValueError(f"geometry.shape: the 3D model has the half_ellipse and ridge "
+                         f"shapes only, not '{geometry['shape']}'")
     L = float(geometry["length"])
     H = float(geometry["channel_height"])
     W = float(geometry["channel_width"])
-    centre, (a, b, c) = colony_axes(geometry)
     box = Box(Pnt(0, 0, 0), Pnt(L, H, W))
     box.faces.Min(X).name = "inlet"
     box.faces.Max(X).name = "outlet"
@@ -106,13 +113,24 @@ def build_mesh_3d(geometry: dict[str, Any], mesh_cfg: dict[str, Any]) -> Biofilm
     box.faces.Max(Y).name = "top"
     box.faces.Min(Z).name = "side"
     box.faces.Max(Z).name = "side"
-    # radii r1, r2, r3 along the axes' x direction (h = X), y = n x h = Y and n = Z
-    ellipsoid = Ellipsoid(Axes(Pnt(*centre), n=Z, h=X), a, b, c)
-    ellipsoid.faces.name = "interface"
-    colony = ellipsoid * box
+    if geometry["shape"] == "ridge":
+        patch, lo, hi, b = _outline_face({**geometry, "shape": "half_ellipse"})
+        centre = np.array([float(geometry["centre"]), 0.0, 0.5 * W])
+        a, c = 0.5 * (hi - lo), np.inf
+        colony = patch.Extrude(W * Z)
+        colony.faces.name = "interface"
+        colony.faces.Min(Z).name = "side"
+        colony.faces.Max(Z).name = "side"
+        cutter = colony
+    else:
+        centre, (a, b, c) = colony_axes(geometry)
+        # radii r1, r2, r3 along the axes' x direction (h = X), y = n x h = Y and n = Z
+        cutter = Ellipsoid(Axes(Pnt(*centre), n=Z, h=X), a, b, c)
+        cutter.faces.name = "interface"
+        colony = cutter * box
     colony.faces.Min(Y).name = "biofilm_floor"
     colony.solids.name = "biofilm"
-    fluid = box - ellipsoid
+    fluid = box - cutter
     fluid.solids.name = "fluid"
     shape = Glue([fluid, colony])
     h_if = float(mesh_cfg["h_interface"])
@@ -142,7 +160,8 @@ def interface_surface(mesh: Any, boundary: str, centre: np.ndarray,
     centre, semi_axes : ndarray, shape (3,)
         Centre and semi-axes (mm) of the ellipsoid the surface lies on: a triangle's
         normal must point along the ellipsoid's outward normal, the gradient of
-        ``sum(((x - centre) / semi_axes)^2)`` at its centroid.
+        ``sum(((x - centre) / semi_axes)^2)`` at its centroid (an infinite semi-axis:
+        an elliptic cylinder, the ridge).
 
     Returns
     -------

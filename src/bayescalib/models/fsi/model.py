@@ -122,14 +122,17 @@ def dim3_problem(cfg: Mapping[str, Any]) -> str:
     """What a validated fsi config asks of the 3D model that it does not have, or ``""``.
 
     The 3D model (``geometry.dim: 3``) is the base model: one half-ellipsoidal colony
-    (no polyline or scan shape, no subdomains) and no candidate physics; its mesh
-    presets are :data:`MESH_PRESETS_3D`.
+    or a ridge across the width (no polyline or scan shape, no subdomains) and no
+    candidate physics; its mesh presets are :data:`MESH_PRESETS_3D`. The ridge is a 3D
+    shape only.
     """
     geo = cfg["geometry"]
     if int(geo["dim"]) != 3:
-        return ""
-    if geo["shape"] != "half_ellipse":
-        return f"geometry.shape: the 3D model has the half_ellipse shape only, not '{geo['shape']}'"
+        return "geometry.shape: ridge is a 3D shape (geometry.dim: 3)" \
+            if geo["shape"] == "ridge" else ""
+    if geo["shape"] not in ("half_ellipse", "ridge"):
+        return (f"geometry.shape: the 3D model has the half_ellipse and ridge shapes only, "
+                f"not '{geo['shape']}'")
     if geo["subdomains"]["enabled"]:
         return "geometry.subdomains: not available in the 3D model (geometry.dim: 3)"
     on = [n for n, c in cfg["physics"].items() if c.get("enabled")]

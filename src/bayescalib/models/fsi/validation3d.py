@@ -32,6 +32,15 @@ Fluid alone: developed flow in a rectangular duct
     pressure drop relation, White, *Viscous Fluid Flow*, eq. 3-48). The computed
     values: ``u_x`` at the centre ``(l/2, H/2, W/2)``, and the pressure drop between
     ``x = l/4`` and ``x = 3 l/4`` on the centreline against ``G l / 2``.
+
+The 2D model as a limit: the extruded patch
+    The 3D flow cell with the 2D model's half-ellipse extruded across the whole width
+    (``shape: ridge``) and symmetry side walls (``side_walls: slip``) at the rate
+    ``Q = q W`` is the 2D plane-strain problem at the rate ``q`` per unit width: its
+    solution does not depend on z and has ``d_z = 0``. Compared: the 3D displacement
+    at the mid-plane ``z = W/2`` at the 2D model's interface vertices against the 2D
+    model's (both discretization errors enter: the two meshes differ), its variation
+    between ``z = W/4`` and ``W/2``, and the largest ``|d_z|`` on the interface.
 """
 
 from __future__ import annotations
@@ -45,7 +54,8 @@ from bayescalib.models.fsi.geometry import generate_mesh
 from bayescalib.models.fsi.problem import FSIProblem
 from bayescalib.models.fsi.solver import MonolithicSolver, SolverControls
 
-__all__ = ["CantileverResult", "DuctResult", "cantilever", "cantilever_reference", "duct_flow"]
+__all__ = ["CantileverResult", "DuctResult", "PlaneLimitResult", "cantilever", "cantilever_reference",
+           "duct_flow", "plane_limit"]
 
 
 @dataclass
@@ -222,3 +232,78 @@ def duct_flow(*, length: float = 2.0, height: float = 1.0, width: float = 1.0,
     drop = p(mesh(0.25 * length, yc, zc)) - p(mesh(0.75 * length, yc, zc))
     return DuctResult(float(u(mesh(0.5 * length, yc, zc))[0]), u_exact, float(drop),
                       0.5 * G * length, solver.ndof, out.ok)
+
+
+@dataclass
+class PlaneLimitResult:
+    """The 3D ridge with symmetry side walls against the 2D model (mm).
+
+    Attributes
+    ----------
+    max_displacement_2d
+        Largest interface displacement of the 2D model.
+    max_difference
+        Largest ``|d_3D(x, y, W/2) - d_2D(x, y)|`` over the 2D interface vertices
+        (x, y components).
+    max_out_of_plane
+        Largest ``|d_z|`` of the 3D interface vertices (zero in the limit).
+    max_z_variation
+        Largest ``|d_3D(x, y, W/4) - d_3D(x, y, W/2)|`` over the 2D interface vertices.
+    ndof_3d, ndof_2d
+        Unknowns of the two solves.
+    ok
+        Whether both solves converged.
+    """
+
+    max_displacement_2d: float
+    max_difference: float
+    max_out_of_plane: float
+    max_z_variation: float
+    ndof_3d: int
+    ndof_2d: int
+    ok: bool
+
+
+def plane_limit(mesh3d: dict, mesh2d: dict, *, rate: float = 100.0,
+                width: float = 1.0) -> PlaneLimitResult:
+    """Solve the 2D model and its extrusion (``shape: ridge``, slip side walls).
+
+    Parameters
+    ----------
+    mesh3d, mesh2d : dict
+        ``mesh`` sections of the 3D and the 2D model.
+    rate : float
+        The 2D model's inflow rate, mm^2/s; the 3D model gets ``rate * width`` mm^3/s.
+    width : float
+        Channel width, mm.
+
+    Returns
+    -------
+    PlaneLimitResult
+    """
+    from bayescalib.models.fsi.model import FSIModel
+
+    m2 = FSIModel({"mesh": mesh2d, "inflow": {"rate": rate}})
+    r2 = m2.solve()
+    m3 = FSIModel({"geometry": {"dim": 3, "shape": "ridge", "side_walls": "slip",
+                                "channel_width": width},
+                   "mesh": mesh3d, "inflow": {"rate": rate * width}})
+    r3 = m3.solve()
+    solver = m3.solver
+    assert solver is not None
+    d3 = solver.gfu.components[solver.i_d]
+    mesh = solver.mesh
+    ref2 = r2.interface_reference
+    disp2 = r2.interface_current - ref2
+
+    def at(z: float) -> np.ndarray:
+        return np.array([d3(mesh(float(x), float(y), z)) for x, y in ref2], dtype=float)
+
+    mid, quarter = at(0.5 * width), at(0.25 * width)
+    disp3 = r3.interface_current - r3.interface_reference
+    return PlaneLimitResult(
+        max_displacement_2d=float(np.max(np.linalg.norm(disp2, axis=1))),
+        max_difference=float(np.max(np.linalg.norm(mid[:, :2] - disp2, axis=1))),
+        max_out_of_plane=float(np.max(np.abs(disp3[:, 2]))),
+        max_z_variation=float(np.max(np.linalg.norm(quarter - mid, axis=1))),
+        ndof_3d=int(r3.stats["ndof"]), ndof_2d=int(r2.stats["ndof"]), ok=r2.ok and r3.ok)
