@@ -2,8 +2,9 @@
 
 A run record holds the inputs (dotted config keys in user units: Pa, mm, mm^2/s), the
 status (``"ok"`` or ``"failed"`` with a reason — a failed solve is data, paper Sec. 4.3),
-solver statistics and timing, and the undeformed and deformed fluid–solid interface as
-ordered node coordinates (mm) with segments.
+solver statistics and timing, and the undeformed and deformed fluid–solid interface:
+in 2D ordered node coordinates (mm) with segments, in 3D a triangulated surface
+(vertices (n, 3), triangles (m, 3) with normals into the fluid).
 
 File layout (the ``run`` kind of :mod:`bayescalib.io.header`)::
 
@@ -14,7 +15,8 @@ File layout (the ``run`` kind of :mod:`bayescalib.io.header`)::
     /stats                attrs: numbers and strings
     /interface/reference  (n, 2) float64, mm
     /interface/current    (n, 2) float64, mm
-    /interface/segments   (n - 1, 2) int64
+    /interface/segments   (n - 1, 2) int64 (a curve), or
+    /interface/triangles  (m, 3) int64 (a surface; then reference and current are (n, 3))
     /loadings/<k>/current (n, 2) float64, mm: optional, one per loading of a series
                           (attrs: label, factor, value = the loaded parameter's value)
 
@@ -90,11 +92,15 @@ class SolveResult:
     wall_time
         Seconds.
     interface_reference
-        (n, 2) undeformed interface nodes in mm, ordered upstream foot -> downstream foot.
+        (n, 2) undeformed interface nodes in mm, ordered upstream foot -> downstream foot;
+        (n, 3) vertices of a surface (3D model).
     interface_current
-        (n, 2) deformed interface nodes in mm (last converged state for a failed run).
+        (n, 2) or (n, 3) deformed interface nodes in mm (last converged state for a
+        failed run).
     segments
-        (n - 1, 2) int indices into the node arrays.
+        The cells: (n - 1, 2) int indices into the node arrays (a curve), or (m, 3)
+        triangles of a surface (``cells`` of
+        :class:`bayescalib.geometry.interface.Interface`, normals into the fluid).
     max_displacement
         Max interface node displacement, mm.
     stats
@@ -163,7 +169,8 @@ def write_run(path: str | Path, result: SolveResult) -> None:
         g = f.create_group("interface")
         g.create_dataset("reference", data=np.asarray(result.interface_reference, dtype=np.float64))
         g.create_dataset("current", data=np.asarray(result.interface_current, dtype=np.float64))
-        g.create_dataset("segments", data=np.asarray(result.segments, dtype=np.int64))
+        cells = np.asarray(result.segments, dtype=np.int64)
+        g.create_dataset(_cells_name(cells), data=cells)
         if result.loadings:
             g = f.create_group("loadings")
             for k, ld in enumerate(result.loadings):
@@ -173,6 +180,14 @@ def write_run(path: str | Path, result: SolveResult) -> None:
                 d.attrs["value"] = float(ld.value)
         f.flush()
         f.attrs["complete"] = 1
+
+
+def _cells_name(cells: np.ndarray) -> str:
+    """Dataset name of an interface's cells: ``segments`` (k, 2) or ``triangles`` (k, 3)."""
+    if cells.ndim != 2 or cells.shape[1] not in (2, 3):
+        raise ValueError(f"interface cells must be segments (k, 2) or triangles (k, 3), "
+                         f"got shape {cells.shape}")
+    return "segments" if cells.shape[1] == 2 else "triangles"
 
 
 def _plain(v):
@@ -213,7 +228,8 @@ def read_run(path: str | Path) -> SolveResult:
                 wall_time=float(_plain(a["wall_time"])),
                 interface_reference=np.array(f["interface/reference"], dtype=float),
                 interface_current=np.array(f["interface/current"], dtype=float),
-                segments=np.array(f["interface/segments"], dtype=np.int64),
+                segments=np.array(f["interface/triangles" if "triangles" in f["interface"]
+                                    else "interface/segments"], dtype=np.int64),
                 max_displacement=float(_plain(a["max_displacement"])),
                 stats={k: _plain(v) for k, v in f["stats"].attrs.items()},
                 loadings=[
@@ -229,10 +245,11 @@ def read_run(path: str | Path) -> SolveResult:
     n = res.interface_reference.shape
     if (
         len(n) != 2
-        or n[1] != 2
+        or n[1] not in (2, 3)
         or res.interface_current.shape != n
         or res.segments.ndim != 2
-        or res.segments.shape[1] != 2
+        or res.segments.shape[1] not in (2, 3)
+        or (res.segments.shape[1] == 3 and n[1] != 3)
         or res.status not in ("ok", "failed")
     ):
         raise RunFileError(f"run file '{path}' is inconsistent (interface arrays or status)")

@@ -2,14 +2,19 @@
 
 The solid is described in the reference configuration by the first Piola–Kirchhoff
 stress ``P = F S`` with the deformation gradient ``F = I + grad d``. Two laws are
-available, both in plane strain (the 2D deformation gradient with ``F_33 = 1``):
+available, in plane strain for a 2D problem (the 2D deformation gradient with
+``F_33 = 1``: the out-of-plane entries ``C_33 = 1``, ``E_33 = 0`` enter the traces
+below as constants) and in full 3D for a 3D one (``F`` a 3 x 3 tensor; the same
+formulas with no out-of-plane constants). One implementation serves both: the
+dimension is read from the shape of ``F``.
 
 * ``svk`` — St. Venant–Kirchhoff (the paper's model):
   ``S = lambda tr(E) I + 2 mu E`` with Green–Lagrange strain ``E = (F^T F - I)/2``.
   It is not polyconvex: under strong compression it has a limit point, which is why
   soft parameters (low E) can fail to reach the full load (see NOTES-fsi.md).
 * ``neo_hooke`` — compressible neo-Hooke with the energy
-  ``W = mu/2 (tr C - 2 - 2 ln J) + lambda/2 (ln J)^2`` (plane strain), giving
+  ``W = mu/2 (tr C - 3 - 2 ln J) + lambda/2 (ln J)^2`` (3D trace; in plane strain
+  ``tr C = C_11 + C_22 + 1``), giving
   ``S = mu (I - C^-1) + lambda ln J C^-1``. It reduces to the same linear elasticity as
   SVK for small strains.
 
@@ -61,7 +66,8 @@ def piola1(law: str, F: Any, E: Any, nu: Any, *, growth: Any = None,
     law
         ``"svk"`` or ``"neo_hooke"``.
     F
-        Deformation gradient, a (2, 2) NGSolve coefficient function (dimensionless).
+        Deformation gradient, a (2, 2) (plane strain) or (3, 3) NGSolve coefficient
+        function (dimensionless).
     E, nu
         Young's modulus (solver stress units) and Poisson ratio; floats or NGSolve
         ``Parameter`` objects (so that a compiled form can be reused for new values).
@@ -76,12 +82,14 @@ def piola1(law: str, F: Any, E: Any, nu: Any, *, growth: Any = None,
     Returns
     -------
     CoefficientFunction
-        (2, 2) stress in the units of ``E``.
+        (2, 2) or (3, 3) stress (the shape of ``F``) in the units of ``E``.
     """
     import ngsolve as ng
 
     lam, mu = lame(E, nu)
-    Id = ng.Id(2)
+    dim = int(F.dims[0])
+    plane = dim == 2   # plane strain: the out-of-plane constants C_33, E_33 below
+    Id = ng.Id(dim)
     C = F.trans * F
     if law not in LAWS:
         raise ValueError(f"unknown material law '{law}'; expected one of {LAWS}")
@@ -95,15 +103,21 @@ def piola1(law: str, F: Any, E: Any, nu: Any, *, growth: Any = None,
         lnJ_shift = 3.0 * ng.log(g)
     if law == "svk":
         Egl = 0.5 * (Ce - Id)
-        e33 = 0.5 * (c33 - 1.0)
-        trE = ng.Trace(Egl) + e33
+        if plane:
+            e33 = 0.5 * (c33 - 1.0)
+            trE = ng.Trace(Egl) + e33
+            EE = ng.InnerProduct(Egl, Egl) + e33 * e33
+        else:
+            trE = ng.Trace(Egl)
+            EE = ng.InnerProduct(Egl, Egl)
         S = lam * trE * Id + 2 * mu * Egl
-        W = 0.5 * lam * trE * trE + mu * (ng.InnerProduct(Egl, Egl) + e33 * e33)
+        W = 0.5 * lam * trE * trE + mu * EE
     else:
         Cinv = ng.Inv(Ce)
         lnJ = ng.log(ng.Det(F)) - lnJ_shift
         S = mu * (Id - Cinv) + lam * lnJ * Cinv
-        W = 0.5 * mu * (ng.Trace(Ce) + c33 - 3.0 - 2.0 * lnJ) + 0.5 * lam * lnJ * lnJ
+        trC = ng.Trace(Ce) + c33 if plane else ng.Trace(Ce)
+        W = 0.5 * mu * (trC - 3.0 - 2.0 * lnJ) + 0.5 * lam * lnJ * lnJ
     P = F * S if g is None else g * (F * S)
     if stiffening is not None:
         P = ng.exp(2.0 * stiffening * W / mu) * P

@@ -6,6 +6,21 @@ parabolic inflow of volume rate ``inflow.rate`` (mm^2/s) on the left, no-slip on
 top and biofilm base, do-nothing outflow on the right, St. Venant–Kirchhoff (or
 compressible neo-Hooke) biofilm in plane strain with E, nu per subdomain.
 
+3D (``geometry.dim: 3``). The same model class, solver core and weak form
+(:mod:`bayescalib.models.fsi.solver` is written for any dimension) on the 3D flow cell
+of :mod:`bayescalib.models.fsi.geometry3d`: a rectangular channel (length x, height y,
+width z) with a half-ellipsoidal colony on the floor, the full 3D laws of
+:mod:`bayescalib.models.fsi.materials`, the developed rectangular-duct inflow profile
+(:mod:`bayescalib.models.fsi.duct`) of volume rate ``inflow.rate`` (mm^3/s), no-slip on
+floor, top and side walls (or symmetry side walls, ``geometry.side_walls: slip``),
+do-nothing outflow. Its interface is a triangulated surface: ``interface_reference`` and
+``interface_current`` are (n, 3), ``segments`` holds the (m, 3) triangles (normals into
+the fluid). It is the base model only (:func:`dim3_problem`), with its own mesh presets
+(:data:`MESH_PRESETS_3D`). The 3D model is a value of the existing section rather than
+a new model type, so that everything else of the section (fluid, material, inflow,
+solver, the warm starts and series of loadings) and the one solve path
+(:func:`bayescalib.models.forward.solve_points`) serve both unchanged.
+
 Units. Config and outputs use mm, Pa, mm^2/s (density kg/m^3, viscosity Pa s). The
 solver works in mm, s, mg, where water has rho = 1 mg/mm^3 and mu = 1 mg/(mm s) and
 stresses are in mPa: E = 400 Pa is 4e5 in solver units (factor :data:`PA`).
@@ -23,7 +38,8 @@ only, re-factorized as soon as they stop contracting — for a sequence of nearb
 parameters no factorization is needed at all (see ``benchmarks/bench_fsi.py``).
 
 Outputs: :class:`bayescalib.io.runrecord.SolveResult` with the interface vertices ordered
-from the upstream to the downstream foot (reference and deformed, mm), parameters in
+from the upstream to the downstream foot (2D; in 3D the surface's vertices and
+triangles; reference and deformed, mm), parameters in
 user units and solver statistics (DOFs, factorizations, phase timings, ``min_det_F``,
 ``max_interface_velocity`` as a slip check).
 """
@@ -56,7 +72,7 @@ from bayescalib.models.fsi.physics import (
 from bayescalib.models.fsi.problem import FSIProblem
 from bayescalib.models.fsi.solver import MonolithicSolver, SolverControls
 
-__all__ = ["MESH_PRESETS", "PA", "FSIModel", "fsi_section"]
+__all__ = ["MESH_PRESETS", "MESH_PRESETS_3D", "PA", "FSIModel", "dim3_problem", "fsi_section"]
 
 #: Pa -> solver stress units mg/(mm s^2) (= mPa)
 PA = 1.0e3
@@ -71,7 +87,17 @@ PA_S = 1.0e3
 MESH_PRESETS = {
     "paper": {"h_interface": 0.017, "h_bulk": 0.12, "h_solid": 0.06, "grading": 0.7},
     "coarse": {"h_interface": 0.035, "h_bulk": 0.16, "h_solid": 0.07, "grading": 0.5},
+    "very_coarse": {"h_interface": 0.07, "h_bulk": 0.25, "h_solid": 0.1, "grading": 0.5},
     "fine": {"h_interface": 0.0085, "h_bulk": 0.04, "h_solid": 0.017, "grading": 0.3},
+}
+#: mesh presets of the 3D flow cell (``geometry.dim: 3``; tetrahedra, sizes in mm), sized
+#: for one core of a 2-core machine (``benchmarks/bench_fsi3d.py`` measures them):
+#: ``very_coarse`` solves in seconds (tests), ``coarse`` in about a minute, ``paper`` in
+#: a few. There is no 3D ``fine``.
+MESH_PRESETS_3D = {
+    "very_coarse": {"h_interface": 0.15, "h_bulk": 0.4, "h_solid": 0.2, "grading": 0.5},
+    "coarse": {"h_interface": 0.08, "h_bulk": 0.25, "h_solid": 0.12, "grading": 0.5},
+    "paper": {"h_interface": 0.06, "h_bulk": 0.2, "h_solid": 0.1, "grading": 0.4},
 }
 
 #: config keys that change the mesh or the compiled forms (everything else is a value)
@@ -90,6 +116,32 @@ def fsi_section(config: Mapping[str, Any]) -> dict[str, Any]:
             raise ConfigError("key 'forward_model.fsi' must be a mapping")
         return dict(fm.get("fsi") or {})
     return dict(config)
+
+
+def dim3_problem(cfg: Mapping[str, Any]) -> str:
+    """What a validated fsi config asks of the 3D model that it does not have, or ``""``.
+
+    The 3D model (``geometry.dim: 3``) is the base model: one half-ellipsoidal colony
+    or a ridge across the width (no polyline or scan shape, no subdomains) and no
+    candidate physics; its mesh presets are :data:`MESH_PRESETS_3D`. The ridge is a 3D
+    shape only.
+    """
+    geo = cfg["geometry"]
+    if int(geo["dim"]) != 3:
+        return "geometry.shape: ridge is a 3D shape (geometry.dim: 3)" \
+            if geo["shape"] == "ridge" else ""
+    if geo["shape"] not in ("half_ellipse", "ridge"):
+        return (f"geometry.shape: the 3D model has the half_ellipse and ridge shapes only, "
+                f"not '{geo['shape']}'")
+    if geo["subdomains"]["enabled"]:
+        return "geometry.subdomains: not available in the 3D model (geometry.dim: 3)"
+    on = [n for n, c in cfg["physics"].items() if c.get("enabled")]
+    if on:
+        return f"physics: no candidate physics in the 3D model yet (enabled: {', '.join(on)})"
+    if cfg["mesh"]["preset"] not in MESH_PRESETS_3D:
+        return (f"mesh.preset: no 3D preset '{cfg['mesh']['preset']}' "
+                f"(3D presets: {', '.join(MESH_PRESETS_3D)})")
+    return ""
 
 
 def _get(cfg: Mapping[str, Any], dotted: str) -> Any:
@@ -149,7 +201,7 @@ class FSIModel:
 
     def __init__(self, config: Mapping[str, Any] | None = None):
         self.config = validate(fsi_section(config or {}), "fsi")
-        msg = physics_problem(self.config["physics"])
+        msg = physics_problem(self.config["physics"]) or dim3_problem(self.config)
         if msg:
             raise ConfigError(msg)
         self.physics: SolidPhysics | None = None
@@ -171,23 +223,32 @@ class FSIModel:
             return
         t0 = time.perf_counter()
         ng.SetNumThreads(1)
+        dim = int(cfg["geometry"]["dim"])
         mesh_cfg = dict(cfg["mesh"])
-        for name, value in MESH_PRESETS[mesh_cfg["preset"]].items():
+        presets = MESH_PRESETS if dim == 2 else MESH_PRESETS_3D
+        for name, value in presets[mesh_cfg["preset"]].items():
             if mesh_cfg.get(name) is None:
                 mesh_cfg[name] = value
-        geo = build_mesh(cfg["geometry"], mesh_cfg)
         H = float(cfg["geometry"]["channel_height"])
         law = cfg["material"]["law"]
+        if dim == 3:
+            from bayescalib.models.fsi.geometry3d import build_mesh_3d
 
-        def profile():
-            # parabolic profile with unit volume rate (scaled by the rate in solve())
-            return ng.CoefficientFunction((6.0 * ng.y * (H - ng.y) / H**3, 0.0))
+            geo = build_mesh_3d(cfg["geometry"], mesh_cfg)
+            profile, clamp = _channel_3d(cfg["geometry"])
+        else:
+            geo = build_mesh(cfg["geometry"], mesh_cfg)
+
+            def profile():
+                # parabolic profile with unit volume rate (scaled by the rate in solve())
+                return ng.CoefficientFunction((6.0 * ng.y * (H - ng.y) / H**3, 0.0))
+
+            clamp = {
+                "velocity_dirichlet": "inlet|floor|top|biofilm_floor",
+                "displacement_dirichlet": "inlet|outlet|floor|top|biofilm_floor",
+            }
 
         physics = SolidPhysics(cfg["physics"], geo.patch_height)
-        clamp = {
-            "velocity_dirichlet": "inlet|floor|top|biofilm_floor",
-            "displacement_dirichlet": "inlet|outlet|floor|top|biofilm_floor",
-        }
         if physics.springs:
             # imperfect attachment: the base and the ALE mesh on the floor slide in x
             clamp.update(
@@ -214,8 +275,8 @@ class FSIModel:
         self.solver = MonolithicSolver(problem)
         self.physics = physics
         self._unit_inflow = self.solver._inflow_val.copy()
-        # the odd part of the skewed inflow (candidate inflow_skew), unit volume rate
-        self._unit_skew = self.solver.inflow_values(ng.CoefficientFunction(
+        # the odd part of the skewed inflow (candidate inflow_skew, 2D), unit volume rate
+        self._unit_skew = None if dim == 3 else self.solver.inflow_values(ng.CoefficientFunction(
             (6.0 * ng.y * (H - ng.y) / H**3 * (2.0 * ng.y / H - 1.0), 0.0)))
         self.geometry = geo
         self._key = key
@@ -256,7 +317,7 @@ class FSIModel:
         for k, v in (overrides or {}).items():
             set_dotted(cfg, k, v)
         cfg = validate(cfg, "fsi", where="overrides" if overrides else "")
-        msg = physics_problem(cfg["physics"])
+        msg = physics_problem(cfg["physics"]) or dim3_problem(cfg)
         if msg:
             raise ConfigError(msg)
         return cfg
@@ -414,6 +475,9 @@ class FSIModel:
             "build_time": float(self.build_time if built else 0.0),
             "units": "mm, Pa, mm^2/s, s",
         }
+        if solver.dim == 3:
+            base_stats.update(dim=3, n_interface_triangles=len(geo.segments),
+                              units="mm, Pa, mm^3/s, s")
         if reason:
             solver.reset()
             return self._result("failed", reason, params, 0.0, 0, 0, t_start, base_stats)
@@ -525,21 +589,16 @@ class FSIModel:
         return [results[k] for k in range(len(f))]
 
     def _interface_displacement(self) -> np.ndarray:
-        """(n, 2) displacement (mm) of the interface vertices in the current state."""
+        """(n, dim) displacement (mm) of the interface vertices in the current state."""
         assert self.solver is not None and self.geometry is not None
         s = self.solver
-        dblock = s.block(s.i_d)
-        nd = dblock.shape[0] // 2
-        v = self.geometry.interface_vertices
-        # H1 vertex DOFs are the vertex values (hierarchical higher-order basis)
-        return np.column_stack([dblock[v], dblock[nd + v]])
+        return _vertex_values(s.block(s.i_d), self.geometry.interface_vertices, s.dim)
 
     def _max_interface_velocity(self) -> float:
         assert self.solver is not None and self.geometry is not None
-        ub = self.solver.block(0)
-        nd = ub.shape[0] // 2
-        v = self.geometry.interface_vertices
-        return float(np.max(np.hypot(ub[v], ub[nd + v])))
+        ub = _vertex_values(self.solver.block(0), self.geometry.interface_vertices,
+                            self.solver.dim)
+        return float(np.max(_norms(ub)))
 
     def _result(self, status, reason, params, load_fraction, iters, steps, t_start, stats) -> SolveResult:
         assert self.geometry is not None
@@ -563,7 +622,7 @@ class FSIModel:
             interface_reference=ref,
             interface_current=cur,
             segments=self.geometry.segments.copy(),
-            max_displacement=float(np.max(np.hypot(disp[:, 0], disp[:, 1]))),
+            max_displacement=float(np.max(_norms(disp))),
             stats=stats,
         )
 
@@ -574,3 +633,79 @@ class FSIModel:
         assert self.solver is not None
         write_fields_vtu(path, self.solver)
 
+
+
+def _vertex_values(block: np.ndarray, vertices: np.ndarray, dim: int) -> np.ndarray:
+    """Values at mesh vertices of a vector P``k`` field from its state block.
+
+    Parameters
+    ----------
+    block : ndarray, shape (dim * N,)
+        The field's entries of the state vector: NGSolve's ``VectorH1`` holds ``dim``
+        component blocks of ``N`` DOFs each, and the first DOFs of a block are the
+        vertex values (hierarchical higher-order basis).
+    vertices : ndarray, shape (n,)
+        Mesh vertex numbers.
+    dim : int
+        Space dimension.
+
+    Returns
+    -------
+    ndarray, shape (n, dim)
+    """
+    nd = block.shape[0] // dim
+    return np.column_stack([block[k * nd + vertices] for k in range(dim)])
+
+
+def _norms(v: np.ndarray) -> np.ndarray:
+    """Euclidean norms of the rows of ``v`` (shape (n, 2) or (n, 3)); in 2D
+    ``np.hypot``, as the 2D model has always computed them (bit for bit)."""
+    if v.shape[1] == 2:
+        return np.hypot(v[:, 0], v[:, 1])
+    return np.linalg.norm(v, axis=1)
+
+
+def _channel_3d(geometry: Mapping[str, Any]) -> tuple[Any, dict[str, Any]]:
+    """Inflow profile (unit volume rate) and Dirichlet boundaries of the 3D channel.
+
+    No-slip side walls (``side_walls: no_slip``): the developed rectangular-duct
+    profile (:func:`bayescalib.models.fsi.duct.duct_velocity` divided by its rate), so
+    that the flow arrives fully developed as the 2D model's parabola does; no-slip on
+    ``inlet|floor|top|side|biofilm_floor``, the ALE displacement zero on the channel
+    walls. Slip side walls (symmetry planes, ``slip``): ``u_z = 0`` and ``d_z = 0`` on
+    ``side`` (the other components free: the mesh, and a colony touching the wall,
+    slide along it), and the 2D parabola ``6 Q y (H - y) / (H^3 W)``, uniform in z.
+
+    Returns
+    -------
+    profile : callable
+        ``profile()`` gives the (3,) NGSolve coefficient function of the inflow velocity
+        at unit volume rate (mm/s per mm^3/s).
+    clamp : dict
+        The Dirichlet keyword arguments of :class:`FSIProblem`.
+    """
+    import ngsolve as ng
+
+    from bayescalib.models.fsi.duct import duct_flow_rate, duct_velocity
+
+    H = float(geometry["channel_height"])
+    W = float(geometry["channel_width"])
+    walls = "inlet|floor|top|biofilm_floor"
+    if geometry["side_walls"] == "slip":
+        def profile():
+            return ng.CoefficientFunction((6.0 * ng.y * (H - ng.y) / (H**3 * W), 0.0, 0.0))
+
+        return profile, {
+            "velocity_dirichlet_xy": (walls, walls, walls + "|side"),
+            "displacement_dirichlet_xy": (walls + "|outlet", walls + "|outlet",
+                                          walls + "|outlet|side"),
+            "velocity_dirichlet": walls + "|side",
+            "displacement_dirichlet": walls + "|outlet|side",
+        }
+    rate = duct_flow_rate(H, W)
+
+    def profile():
+        return ng.CoefficientFunction((duct_velocity(ng.y, ng.z, H, W, lib=ng) / rate, 0.0, 0.0))
+
+    return profile, {"velocity_dirichlet": walls + "|side",
+                     "displacement_dirichlet": walls + "|outlet|side"}

@@ -24,7 +24,8 @@ class FSIProblem:
     Attributes
     ----------
     mesh
-        NGSolve mesh (already curved if wanted), 2D.
+        NGSolve mesh (already curved if wanted), 2D (triangles) or 3D (tetrahedra); the
+        forms are the same in both (:mod:`bayescalib.models.fsi.solver`).
     fluid
         Material name (regex) of the fluid region, or ``None`` for a solid-only problem.
     solids
@@ -45,7 +46,8 @@ class FSIProblem:
     rho_solid
         Solid reference density (only used with ``body_force``).
     body_force
-        Acceleration (gx, gy) acting on the solid, scaled by the load factor (CSM1 gravity).
+        Acceleration (gx, gy) — in 3D (gx, gy, gz) — acting on the solid, scaled by the
+        load factor (CSM1 gravity, the 3D cantilever).
     interface
         Boundary name of the fluid–solid interface (output and checks), or ``None``.
     ale_weight
@@ -66,9 +68,10 @@ class FSIProblem:
         stress factor, growth, stiffening, body force, base springs, a permeable solid
         with a pore pressure (needs ``fluid`` and ``interface``); ``None`` for none.
     velocity_dirichlet_xy, displacement_dirichlet_xy
-        Component-wise Dirichlet boundaries ``(x regex, y regex)``; when given they
-        replace ``velocity_dirichlet`` / ``displacement_dirichlet`` (e.g. a base that
-        may slide tangentially).
+        Component-wise Dirichlet boundaries ``(x regex, y regex)`` — in 3D
+        ``(x regex, y regex, z regex)``; when given they replace ``velocity_dirichlet`` /
+        ``displacement_dirichlet`` (e.g. a base that may slide tangentially, or the
+        symmetry walls ``z = const`` of the 3D channel).
     spring_boundary
         Boundary with tangential springs of stiffness ``physics.spring_stiffness``
         (traction ``-k d_x``), or ``None``.
@@ -87,7 +90,7 @@ class FSIProblem:
     rho_fluid: float = 1.0
     mu_fluid: float = 1.0
     rho_solid: float = 1.0
-    body_force: tuple[float, float] = (0.0, 0.0)
+    body_force: tuple[float, ...] = (0.0, 0.0)
     interface: str | None = None
     ale_weight: float = 1e-6
     length_scale: float = 1.0
@@ -95,8 +98,8 @@ class FSIProblem:
     viscous_form: str = "gradient"
     compile: str = "tree"
     physics: Any = None
-    velocity_dirichlet_xy: tuple[str, str] | None = None
-    displacement_dirichlet_xy: tuple[str, str] | None = None
+    velocity_dirichlet_xy: tuple[str, ...] | None = None
+    displacement_dirichlet_xy: tuple[str, ...] | None = None
     spring_boundary: str | None = None
     extra: dict[str, Any] = field(default_factory=dict)
 

@@ -2,7 +2,10 @@
 
 Formulation
 -----------
-All fields live on the reference (undeformed) mesh. Unknowns: velocity ``u`` (P2, one
+The forms below are written for any space dimension: the same code solves a 2D problem
+(triangles; the solid in plane strain, :func:`bayescalib.models.fsi.materials.piola1`)
+and a 3D one (tetrahedra; ``I`` is then the 3 x 3 identity and ``F`` a 3 x 3 tensor),
+the dimension being that of the mesh. All fields live on the reference (undeformed) mesh. Unknowns: velocity ``u`` (P2, one
 space over fluid *and* solid), pressure ``p`` (P1, fluid only: Taylor–Hood) and
 displacement ``d`` (P2, over both; in the fluid it is the ALE mesh displacement). With
 ``F = I + grad d``, ``J = det F`` the steady weak form is
@@ -138,13 +141,18 @@ class SolveOutcome:
     timings: dict[str, float] = field(default_factory=dict)
 
 
-def _vector_space(mesh, order: int, dirichlet: str, dirichlet_xy: tuple[str, str] | None):
-    """P``order`` vector H1 space, Dirichlet on ``dirichlet`` or per component."""
+def _vector_space(mesh, order: int, dirichlet: str, dirichlet_xy: tuple[str, ...] | None):
+    """P``order`` vector H1 space, Dirichlet on ``dirichlet`` or per component
+    (``dirichlet_xy``: one regex per space dimension)."""
     import ngsolve as ng
 
     if dirichlet_xy is None:
         return ng.VectorH1(mesh, order=order, dirichlet=dirichlet)
-    return ng.VectorH1(mesh, order=order, dirichletx=dirichlet_xy[0], dirichlety=dirichlet_xy[1])
+    if len(dirichlet_xy) != mesh.dim:
+        raise ValueError(f"component-wise Dirichlet boundaries: {len(dirichlet_xy)} given "
+                         f"for a {mesh.dim}D mesh")
+    names = ("dirichletx", "dirichlety", "dirichletz")
+    return ng.VectorH1(mesh, order=order, **dict(zip(names, dirichlet_xy)))
 
 
 def _compiled(cf, mode: str):
@@ -180,6 +188,8 @@ class MonolithicSolver:
         self.problem = pb = problem
         mesh = pb.mesh
         self.mesh = mesh
+        #: space dimension (2 or 3); 3D meshes must be tetrahedral
+        self.dim = int(mesh.dim)
         order = pb.order
         self.has_fluid = pb.fluid is not None
         self.has_solid = bool(pb.solids)
@@ -226,13 +236,15 @@ class MonolithicSolver:
             mask = np.array(list(V.GetDofs(mesh.Boundaries(pb.inflow))), dtype=bool)
             mask &= ~np.array(list(V.FreeDofs()), dtype=bool)
             self._inflow_local = np.nonzero(mask)[0]
-            # VectorH1 DOFs: component blocks of size V.ndof // 2
+            # VectorH1 DOFs: component blocks of size V.ndof // dim
             self._inflow_idx = self._inflow_local + X.Range(0).start
             self._inflow_val = self.inflow_values(pb.inflow_profile())
         self._x = x
         self._freedofs = X.FreeDofs()
         for i in self._contact_line_dofs():
             self._freedofs.Set(X.Range(0).start + i)
+        for i in self._unseen_pressure_dofs():
+            self._freedofs.Clear(X.Range(self.i_p).start + i)
         self._free = np.array(list(self._freedofs), dtype=bool)
         self._ranges = [(X.Range(i).start, X.Range(i).stop) for i in range(self.ncomp)]
         self._res = self.gfu.vec.CreateVector()
@@ -240,8 +252,8 @@ class MonolithicSolver:
         self._ir_points = None
         self._from_rest = False
         if self.has_solid:
-            self._detF = ng.Det(ng.Id(2) + ng.Grad(self.gfu.components[self.i_d]))
-            ir = ng.IntegrationRule(ng.TRIG, 2 * order)
+            self._detF = ng.Det(ng.Id(self.dim) + ng.Grad(self.gfu.components[self.i_d]))
+            ir = ng.IntegrationRule(ng.TRIG if self.dim == 2 else ng.TET, 2 * order)
             self._ir_points = mesh.MapToAllElements(ir, ng.VOL)
 
     def _contact_line_dofs(self) -> list[int]:
@@ -276,6 +288,38 @@ class MonolithicSolver:
                 on_dirichlet |= verts
         return sorted(on_spring & on_dirichlet)
 
+    def _unseen_pressure_dofs(self) -> list[int]:
+        """Pressure DOFs that no free velocity DOF sees (3D only), to be held at zero.
+
+        The pressure enters the equations only through ``int p div v`` over the fluid
+        elements that hold its DOF. In 3D, Netgen may put a tetrahedron into a corner of
+        the channel where three Dirichlet walls meet (the inflow and two no-slip walls):
+        its four vertices and six edges all lie on them, so every P2 velocity DOF of it
+        is prescribed, and a corner vertex that belongs to this element only carries a
+        P1 pressure DOF with no equation of its own (a zero row and column: UMFPACK
+        reports a singular matrix). Such DOFs are taken out of the unknowns (value 0);
+        no other unknown depends on them, so the solution is unchanged elsewhere. A 2D
+        mesh has no such element (a corner triangle's third edge is interior): nothing
+        is done there.
+        """
+        if not self.has_fluid or self.dim != 3:
+            return []
+        import ngsolve as ng
+
+        free_v = self.Vspace.FreeDofs()
+        Q = self.X.components[self.i_p]
+        fluid = self.mesh.Materials(self.problem.fluid).Mask()
+        seen: set[int] = set()
+        held: set[int] = set()
+        for el in self.mesh.Elements(ng.VOL):
+            if not fluid[el.index]:
+                continue
+            qd = [d for d in Q.GetDofNrs(el) if d >= 0]
+            held.update(qd)
+            if any(free_v[d] for d in self.Vspace.GetDofNrs(el) if d >= 0):
+                seen.update(qd)
+        return sorted(held - seen)
+
     def inflow_values(self, profile) -> np.ndarray:
         """Values of the velocity profile ``profile`` (vector coefficient function) at the
         inflow Dirichlet DOFs, in the order of the solver's inflow data."""
@@ -296,10 +340,10 @@ class MonolithicSolver:
         u, v = trials[0], tests[0]
         if self.has_solid:
             d, w = trials[self.i_d], tests[self.i_d]
-            F = F_fluid = ng.Id(2) + ng.Grad(d)
+            F = F_fluid = ng.Id(self.dim) + ng.Grad(d)
         else:
             d = w = None
-            F = F_fluid = ng.Id(2)
+            F = F_fluid = ng.Id(self.dim)
         a = ng.BilinearForm(X, symmetric=False)
         fluid_form = None
         if self.has_fluid:
@@ -433,8 +477,9 @@ class MonolithicSolver:
             # else at full value (a factor of exactly 1 leaves them bitwise as set)
             physics.set_load_factor(min(lam, 1.0) if self._from_rest else 1.0)
 
-    def fluid_force(self, boundary: str) -> tuple[float, float]:
-        """Force of the fluid on ``boundary`` (regex), ``(Fx, Fy)``, from the fluid residual.
+    def fluid_force(self, boundary: str) -> tuple[float, ...]:
+        """Force of the fluid on ``boundary`` (regex), ``(Fx, Fy)`` (3D: ``(Fx, Fy, Fz)``),
+        from the fluid residual.
 
         The residual of the fluid momentum form, tested with a function that is the unit
         vector on ``boundary`` and zero on all other boundaries, equals the boundary
@@ -449,12 +494,12 @@ class MonolithicSolver:
         self._fluid_form.Apply(self.gfu.vec, res)
         r = res.FV().NumPy()
         out = []
-        for comp in ((1.0, 0.0), (0.0, 1.0)):
+        for comp in np.eye(self.dim):
             wv = ng.GridFunction(self.Vspace)
-            wv.Set(ng.CoefficientFunction(comp), ng.BND, definedon=self.mesh.Boundaries(boundary))
+            wv.Set(ng.CoefficientFunction(tuple(float(c) for c in comp)), ng.BND, definedon=self.mesh.Boundaries(boundary))
             s, e = self._ranges[0]
             out.append(-float(np.dot(r[s:e], wv.vec.FV().NumPy())))
-        return out[0], out[1]
+        return tuple(out)
 
     # ------------------------------------------------------------------ solving
     def _converged(self, du: np.ndarray) -> tuple[bool, float]:

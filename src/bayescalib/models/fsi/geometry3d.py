@@ -1,0 +1,189 @@
+"""3D flow cell: a rectangular channel with a half-ellipsoidal colony on its floor.
+
+Domain: the box ``[0, L] x [0, H] x [0, W]`` (length ``x``, height ``y``, width ``z``;
+lengths in mm; ``geometry.length``, ``channel_height``, ``channel_width``) with the
+biofilm colony attached to the floor ``y = 0``. The colony is the upper half
+(``y >= 0``) of the ellipsoid
+
+    ((x - x_c) / a)^2 + (y / b)^2 + ((z - z_c) / c)^2 <= 1,
+
+``a = width / 2`` (along the flow), ``b = height``, ``c = depth / 2`` (across the
+channel), centre ``(x_c, 0, z_c)`` = ``(centre, 0, centre_z)`` (``centre_z`` null: the
+middle of the width, ``W / 2``). It is an exact OpenCascade ellipsoid cut by the
+channel box, so the mesh is curved onto the true surface (``mesh.Curve``).
+
+``shape: ridge`` is the 2D model's half-ellipse (width, height, centre) extruded across
+the whole width: a colony that touches both side walls. With symmetry side walls
+(``side_walls: slip``: ``u_z = d_z = 0`` there, the other components free) its solution
+does not depend on z and is the 2D plane-strain solution at the rate ``Q / W`` per
+unit width, which makes it the 3D model's check against the 2D one. Its side faces
+are part of ``side``.
+
+Boundary names: ``inlet`` (x = 0), ``outlet`` (x = L), ``top`` (y = H), ``floor`` (the
+fluid's part of y = 0), ``side`` (z = 0 and z = W), ``biofilm_floor`` (the clamped
+base of the colony, an ellipse in y = 0) and ``interface`` (fluid–biofilm). Regions:
+``fluid`` and ``biofilm``. Tetrahedral mesh, graded from ``h_interface`` on the
+interface and the base to ``h_solid`` inside the colony and ``h_bulk`` elsewhere.
+
+The interface output is a triangulated surface: the vertices of the mesh's boundary
+triangles on ``interface`` (the straight-sided triangles through the curved elements'
+vertices), numbered ``0 .. n-1``, and the triangles ``(m, 3)`` into them, oriented by
+the right-hand rule so that the normal points out of the colony into the fluid (the
+convention of :class:`bayescalib.geometry.interface.Interface`, which the RKHS
+surface-current measure takes as it is).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from bayescalib.models.fsi.geometry import BiofilmMesh, _outline_face, generate_mesh
+
+__all__ = ["build_mesh_3d", "colony_axes", "interface_surface"]
+
+
+def colony_axes(geometry: dict[str, Any]) -> tuple[np.ndarray, np.ndarray]:
+    """Centre and semi-axes of the half-ellipsoidal colony.
+
+    Parameters
+    ----------
+    geometry : dict
+        Validated ``geometry`` section with ``dim: 3`` (mm).
+
+    Returns
+    -------
+    centre : ndarray, shape (3,)
+        ``(x_c, 0, z_c)``, mm.
+    semi_axes : ndarray, shape (3,)
+        ``(a, b, c)`` along x, y, z, mm.
+
+    Raises
+    ------
+    ValueError
+        When the colony does not lie inside the channel.
+    """
+    L = float(geometry["length"])
+    H = float(geometry["channel_height"])
+    W = float(geometry["channel_width"])
+    zc = geometry.get("centre_z")
+    zc = 0.5 * W if zc is None else float(zc)
+    centre = np.array([float(geometry["centre"]), 0.0, zc])
+    axes = np.array([0.5 * float(geometry["width"]), float(geometry["height"]),
+                     0.5 * float(geometry["depth"])])
+    if (centre[0] - axes[0] <= 0 or centre[0] + axes[0] >= L or axes[1] >= H
+            or centre[2] - axes[2] <= 0 or centre[2] + axes[2] >= W):
+        raise ValueError("geometry: the half-ellipsoid (centre ± width/2, height, "
+                         "centre_z ± depth/2) must lie inside the channel")
+    return centre, axes
+
+
+def build_mesh_3d(geometry: dict[str, Any], mesh_cfg: dict[str, Any]) -> BiofilmMesh:
+    """Mesh the 3D flow cell.
+
+    Parameters
+    ----------
+    geometry : dict
+        Validated ``geometry`` section with ``dim: 3`` and ``shape: half_ellipse`` or
+        ``ridge`` (mm).
+    mesh_cfg : dict
+        ``mesh`` section with the preset resolved: ``h_interface``, ``h_solid``,
+        ``h_bulk`` (mm), ``grading``, ``curve_order``.
+
+    Returns
+    -------
+    BiofilmMesh
+        ``interface_reference`` (n, 3) mm, ``segments`` the (m, 3) triangles of the
+        interface (normals into the fluid), ``patch_height`` = ``b``.
+    """
+    import ngsolve as ng
+    from netgen.occ import Axes, Box, Ellipsoid, Glue, OCCGeometry, Pnt, X, Y, Z
+
+    if geometry["shape"] not in ("half_ellipse", "ridge"):
+        raise ValueError(f"geometry.shape: the 3D model has the half_ellipse and ridge "
+                         f"shapes only, not '{geometry['shape']}'")
+    L = float(geometry["length"])
+    H = float(geometry["channel_height"])
+    W = float(geometry["channel_width"])
+    box = Box(Pnt(0, 0, 0), Pnt(L, H, W))
+    box.faces.Min(X).name = "inlet"
+    box.faces.Max(X).name = "outlet"
+    box.faces.Min(Y).name = "floor"
+    box.faces.Max(Y).name = "top"
+    box.faces.Min(Z).name = "side"
+    box.faces.Max(Z).name = "side"
+    if geometry["shape"] == "ridge":
+        patch, lo, hi, b = _outline_face({**geometry, "shape": "half_ellipse"})
+        centre = np.array([float(geometry["centre"]), 0.0, 0.5 * W])
+        a, c = 0.5 * (hi - lo), np.inf
+        colony = patch.Extrude(W * Z)
+        colony.faces.name = "interface"
+        colony.faces.Min(Z).name = "side"
+        colony.faces.Max(Z).name = "side"
+        cutter = colony
+    else:
+        centre, (a, b, c) = colony_axes(geometry)
+        # radii r1, r2, r3 along the axes' x direction (h = X), y = n x h = Y and n = Z
+        cutter = Ellipsoid(Axes(Pnt(*centre), n=Z, h=X), a, b, c)
+        cutter.faces.name = "interface"
+        colony = cutter * box
+    colony.faces.Min(Y).name = "biofilm_floor"
+    colony.solids.name = "biofilm"
+    fluid = box - cutter
+    fluid.solids.name = "fluid"
+    shape = Glue([fluid, colony])
+    h_if = float(mesh_cfg["h_interface"])
+    for f in shape.faces:
+        if f.name in ("interface", "biofilm_floor"):
+            f.maxh = h_if
+    for s in shape.solids:
+        if s.name == "biofilm":
+            s.maxh = float(mesh_cfg["h_solid"])
+    mesh = ng.Mesh(generate_mesh(OCCGeometry(shape), maxh=float(mesh_cfg["h_bulk"]),
+                                 grading=float(mesh_cfg["grading"])))
+    mesh.Curve(int(mesh_cfg["curve_order"]))
+    verts, coords, tris = interface_surface(mesh, "interface", centre, np.array([a, b, c]))
+    return BiofilmMesh(mesh, ["biofilm"], verts, coords, tris, b)
+
+
+def interface_surface(mesh: Any, boundary: str, centre: np.ndarray,
+                      semi_axes: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The triangulated interface of a 3D mesh, oriented out of an ellipsoidal solid.
+
+    Parameters
+    ----------
+    mesh
+        NGSolve 3D mesh.
+    boundary
+        Boundary name of the surface.
+    centre, semi_axes : ndarray, shape (3,)
+        Centre and semi-axes (mm) of the ellipsoid the surface lies on: a triangle's
+        normal must point along the ellipsoid's outward normal, the gradient of
+        ``sum(((x - centre) / semi_axes)^2)`` at its centroid (an infinite semi-axis:
+        an elliptic cylinder, the ridge).
+
+    Returns
+    -------
+    vertices : (n,) int
+        Mesh vertex numbers of the surface, ascending.
+    coords : (n, 3) float
+        Their coordinates, mm.
+    triangles : (m, 3) int
+        Indices into ``coords``; ``(p1 - p0) x (p2 - p0)`` points into the fluid.
+    """
+    import ngsolve as ng
+
+    tris = [[v.nr for v in el.vertices] for el in mesh.Elements(ng.BND) if el.mat == boundary]
+    if not tris:
+        raise ValueError(f"mesh has no boundary named '{boundary}'")
+    tri = np.array(tris, dtype=int)
+    verts, local = np.unique(tri, return_inverse=True)
+    local = local.reshape(tri.shape)
+    coords = np.array([mesh.vertices[int(v)].point for v in verts], dtype=float)
+    p = coords[local]
+    normal = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    outward = (p.mean(axis=1) - centre) / np.asarray(semi_axes, dtype=float) ** 2
+    flip = np.einsum("ij,ij->i", normal, outward) < 0
+    local[flip] = local[flip][:, ::-1]
+    return verts, coords, local.astype(np.int64)
