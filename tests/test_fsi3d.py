@@ -177,3 +177,22 @@ def test_the_extruded_ridge_on_the_coarse_mesh_is_closer_to_the_2d_model():
 def test_a_ridge_is_3d_only():
     with pytest.raises(ConfigError, match="ridge is a 3D shape"):
         FSIModel({"geometry": {"shape": "ridge"}})
+
+
+@pytest.mark.parametrize("cfg, key, base_key", [
+    ({}, "08ea6d3dec7a3b19", "08ea6d3dec7a3b19"),
+    ({"mesh": {"preset": "coarse"}}, "9fd66261d542c096", "9fd66261d542c096"),
+    ({"geometry": {"width": 0.5}, "physics": {"permeability": {"enabled": True}}},
+     "824fbe51401fd016", "9b0f6c49428e27fd"),
+])
+def test_2d_saved_states_keep_the_keys_they_had_before_the_3d_model(cfg, key, base_key):
+    """A 2D state's key leaves out the 3D-only geometry keys, so the warm-start states
+    that 2D studies saved before the 3D model existed are still taken (the keys are
+    those of commit bed5275, computed there)."""
+    from bayescalib.config import validate
+    from bayescalib.models.fsi.model import _space_key
+
+    v = validate(cfg, "fsi")
+    assert (_space_key(v), _space_key(v, base=True)) == (key, base_key)
+    v3 = validate({**cfg, "geometry": {**cfg.get("geometry", {}), "dim": 3}}, "fsi")
+    assert _space_key(v3) != key  # a 3D mesh is another state layout

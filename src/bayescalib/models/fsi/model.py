@@ -151,6 +151,11 @@ def _get(cfg: Mapping[str, Any], dotted: str) -> Any:
     return node
 
 
+#: geometry keys only the 3D model reads (``geometry.dim`` 3); a 2D model's state key
+#: leaves them out, so the states saved before they existed stay valid warm starts
+GEOMETRY_3D_KEYS = ("dim", "channel_width", "depth", "centre_z", "side_walls")
+
+
 def _space_key(cfg: Mapping[str, Any], *, base: bool = False) -> str:
     """Key of what fixes the layout of a state vector (mesh and spaces): a state saved
     with one key is a valid initial guess for any model with the same key, whatever
@@ -158,6 +163,9 @@ def _space_key(cfg: Mapping[str, Any], *, base: bool = False) -> str:
     ``permeability``) adds the pore-pressure block; ``base=True`` gives the key of the
     same model without it (whose states are embedded for a warm start)."""
     data = {k: _get(cfg, k) for k in ("geometry", "mesh", "solver.order")}
+    if cfg["geometry"]["dim"] == 2:  # a 2D state's key as before the 3D model's keys
+        data["geometry"] = {k: v for k, v in data["geometry"].items()
+                            if k not in GEOMETRY_3D_KEYS}
     if not base and cfg["physics"]["permeability"]["enabled"]:
         data["pore_pressure"] = True
     return hashlib.sha256(json.dumps(data, sort_keys=True).encode()).hexdigest()[:16]
