@@ -787,8 +787,8 @@ def _segment(image: np.ndarray, *, smooth: float, threshold: float | str,
     from scipy.ndimage import gaussian_filter, label
 
     img = np.asarray(image, dtype=float)
-    if img.ndim != 2:
-        raise ValueError(f"image must be 2D, got shape {img.shape}")
+    if img.ndim not in (2, 3):  # a 3D volume: bayescalib.geometry.volume
+        raise ValueError(f"image must be 2D (or a 3D volume), got shape {img.shape}")
     if not np.isfinite(img).all():
         raise ValueError("image contains NaN/inf")
     if not (np.isfinite(smooth) and smooth >= 0):

@@ -47,6 +47,7 @@ from typing import Any
 import numpy as np
 
 from bayescalib.geometry.interface import Interface, InterfaceError, segment_intersections
+from bayescalib.geometry.surface import UNITS  # length unit -> factor to mm
 from bayescalib.io._atomic_write import atomic_path
 
 __all__ = [
@@ -68,8 +69,6 @@ __all__ = [
     "write_mask_png",
 ]
 
-#: length unit -> factor to mm
-UNITS: dict[str, float] = {"m": 1000.0, "mm": 1.0, "um": 1.0e-3}
 
 CSV_SUFFIXES = {".csv"}
 VTK_SUFFIXES = {".vtp", ".vtu", ".vtk"}

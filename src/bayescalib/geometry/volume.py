@@ -1,0 +1,261 @@
+"""The interface surface of a colony from an OCT volume (3D greyscale stack or mask).
+
+The 3D analogue of :mod:`bayescalib.geometry.imaging`, with its conventions:
+
+Volume and coordinates
+----------------------
+A volume is an array ``(nz, ny, nx)``: a stack of ``nz`` B-scans, each an image of
+``ny`` rows (row 0 at the top, depth) and ``nx`` columns, or such a sequence of 2D
+B-scans. With voxel sizes ``(dx, dy, dz)`` and ``origin = (x0, y0, z0)`` the position of
+the centre of voxel ``[0, ny - 1, 0]`` (the bottom-left pixel of the first B-scan),
+voxel ``[k, row, col]`` lies at
+
+    ``x = x0 + col dx``, ``y = y0 + (ny - 1 - row) dy``, ``z = z0 + k dz``,
+
+the 3D model's frame (:mod:`bayescalib.models.fsi.geometry3d`: x along the flow, y up,
+z across; each B-scan is a plane ``z = const``, as in 2D). Sizes and origin are given
+in ``units`` (``"mm"``, ``"um"`` or ``"m"``); there are no defaults.
+
+Steps
+-----
+1. *Mask or scan* (``kind="auto"``: exactly two distinct values make a mask, the
+   foreground the brighter one). A scan is segmented by the 2D segmentation's own
+   function, in 3D (:func:`bayescalib.geometry.imaging.segment_scan`: Gaussian
+   pre-filter of ``smooth`` voxels along every axis, a threshold in the scan's
+   intensity or Otsu's, removal of foreground specks and background holes smaller
+   than ``min_size`` voxels, 6-connected), with the schema's defaults
+   (:func:`bayescalib.geometry.imaging.segmentation_options`).
+2. *Floor* (``floor="auto"``): the 2D rules (:func:`bayescalib.geometry.imaging.find_floor`:
+   a bright band, a thin full-extent band, the bottom of the foreground, or the
+   volume's bottom face) applied to the layers ``row`` of the volume (every layer's
+   voxels are the "columns" of the 2D rule). A number is a y in ``units``, rounded to the
+   nearest layer edge; None is the volume's bottom face. Voxels below the floor are the
+   substrate, whatever their segmentation.
+3. *One colony, inside the volume.* The foreground above the floor is split into
+   26-connected components; more than one is refused with their number and sizes
+   (voxels, mm^3), unless ``component`` picks one (0 = the largest). A colony with
+   voxels on a side face (x, z) or the top face of the volume is cut off by the field
+   of view: refused, naming the faces. An empty mask (or a segmentation without
+   foreground or background) is refused.
+4. *Marching cubes* (:func:`skimage.measure.marching_cubes`, Lewiner, at level 0.5) of
+   the colony on a full substrate slab (two layers below the floor), padded with
+   background: a closed surface whose slab face lies on the floor plane exactly, so
+   that the cut at the floor (:func:`bayescalib.geometry.surface.colony_surface`)
+   leaves the colony's surface with its rim on the floor. On a binary volume every
+   vertex is the midpoint of a voxel edge between a foreground and a background
+   centre, so it lies within half a voxel of the true boundary.
+5. *Smoothing*: ``iterations`` Taubin steps (default
+   :data:`bayescalib.geometry.surface.TAUBIN_ITERATIONS`), which take out the
+   staircase; then the orientation (normals into the fluid).
+
+The accuracy on a half-ellipsoid (tests/test_surface3d.py) is stated there: vertices
+within half a voxel of the true surface, volume and area within a few per cent.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+
+from bayescalib.geometry.interface import Interface
+from bayescalib.geometry.surface import TAUBIN_ITERATIONS, SurfaceError, colony_surface, unit_factor
+
+__all__ = ["volume_surface"]
+
+_FACES = (("z min", 0, 0), ("z max", 0, -1), ("y max (top)", 1, 0), ("x min", 2, 0),
+          ("x max", 2, -1))
+
+
+def _triple(value: Any, what: str, where: str, unit: str) -> np.ndarray:
+    if value is None:
+        raise SurfaceError(f"{where}: no {what} given: pass {what}=(x, y, z) in {unit} "
+                           "(there is no default)")
+    v = np.asarray(value, dtype=float)
+    if v.ndim == 0 and what == "voxel_size":
+        v = np.full(3, float(v))
+    if v.shape != (3,) or not np.isfinite(v).all():
+        raise SurfaceError(f"{where}: {what} must be three finite numbers (x, y, z) in "
+                           f"{unit}, got {value!r}")
+    if what == "voxel_size" and np.any(v <= 0):
+        raise SurfaceError(f"{where}: voxel_size must be > 0 {unit} along x, y and z, "
+                           f"got {value!r}")
+    return v
+
+
+def volume_surface(
+    volume: np.ndarray | Sequence[np.ndarray],
+    *,
+    voxel_size: float | Sequence[float] | None,
+    units: str | None,
+    origin: Sequence[float] | None,
+    kind: str = "auto",
+    segmentation: Mapping[str, Any] | None = None,
+    floor: float | str | None = "auto",
+    component: int | None = None,
+    iterations: int = TAUBIN_ITERATIONS,
+    name: str = "volume",
+) -> tuple[Interface, dict[str, Any]]:
+    """The fluid-biofilm surface of a colony in an OCT volume (module docstring).
+
+    Parameters
+    ----------
+    volume : ndarray, shape (nz, ny, nx), or sequence of nz arrays (ny, nx)
+        Greyscale scan (biofilm bright) or mask (bool or two values); B-scan rows from
+        the top.
+    voxel_size : float or (float, float, float)
+        ``(dx, dy, dz)`` in ``units`` (one number: cubic voxels).
+    units : {"mm", "um", "m"}
+        The unit of ``voxel_size``, ``origin`` and a numeric ``floor``.
+    origin : (float, float, float)
+        Position ``(x, y, z)`` of the centre of voxel ``[0, ny - 1, 0]``, in ``units``.
+    kind : {"auto", "mask", "scan"}
+    segmentation : mapping, optional
+        ``smooth`` (voxels), ``threshold`` (intensity or ``"otsu"``), ``min_size``
+        (voxels); missing ones take the schema's defaults.
+    floor : "auto", float or None
+        The substrate plane: found (step 2), a y in ``units``, or the volume's bottom face.
+    component : int, optional
+        Which colony to keep when there are several (0 = the largest).
+    iterations : int
+        Taubin smoothing iterations (0 = the raw marching-cubes surface).
+    name : str
+        The source, in error messages.
+
+    Returns
+    -------
+    surface : Interface
+        Vertices ``(n, 3)`` and triangles ``(m, 3)`` in mm, normals into the fluid, the
+        base on the floor left out.
+    info : dict
+        ``shape`` [nz, ny, nx], ``kind``, ``threshold``, ``threshold_method``,
+        ``voxel_size_mm``, ``origin_mm``, ``floor`` (``method``, ``row`` the layer edge,
+        ``y_mm`` where the surface is cut; ``edge_y_mm`` a bright band's own top edge,
+        the substrate's surface, below the cut by the band's blurred halo, else None),
+        ``colonies`` (components above the floor), ``colony_voxels``, and
+        the surface's (:func:`bayescalib.geometry.surface.colony_surface`):
+        ``volume_mm3``, ``area_mm2``, ``volume_change``, ``smoothing_iterations``.
+
+    Raises
+    ------
+    SurfaceError
+        Naming the value: no unit, voxel size or origin; not 3D; NaN/inf; a single
+        value; no foreground or no background; several colonies; a colony touching the
+        volume's border.
+    """
+    from scipy.ndimage import label
+    from skimage import measure
+
+    from bayescalib.geometry import imaging
+
+    f = unit_factor(units, name, "units")
+    vox = _triple(voxel_size, "voxel_size", name, str(units)) * f
+    org = _triple(origin, "origin", name, str(units)) * f
+    if kind not in ("auto", "mask", "scan"):
+        raise SurfaceError(f"{name}: kind must be 'auto', 'mask' or 'scan', got {kind!r}")
+    try:
+        vol = np.asarray(np.stack([np.asarray(b) for b in volume]) if not isinstance(
+            volume, np.ndarray) else volume)
+    except ValueError as exc:
+        raise SurfaceError(f"{name}: the B-scans differ in shape ({exc})") from None
+    if vol.ndim != 3 or min(vol.shape) < 2:
+        raise SurfaceError(f"{name}: a volume is an array (nz, ny, nx) of at least 2 voxels "
+                           f"along each axis (or a list of 2D B-scans), got shape {vol.shape}")
+    img = vol.astype(float)
+    if not np.isfinite(img).all():
+        raise SurfaceError(f"{name}: the volume contains NaN/inf values")
+    lo, hi = float(img.min()), float(img.max())
+    if lo == hi:
+        raise SurfaceError(f"{name}: the volume has a single value ({lo:g}): empty, "
+                           "nothing to segment")
+    if kind == "auto":
+        kind = "mask" if np.unique(img).size == 2 else "scan"
+    smoothed, blur = None, 0.0
+    if kind == "mask":
+        t = 0.5 * (lo + hi)
+        mask, method = img > t, "midpoint"
+    else:
+        opts = imaging.segmentation_options(segmentation)
+        try:
+            mask, smoothed, t = imaging._segment(img, smooth=float(opts["smooth"]),
+                                                 threshold=opts["threshold"],
+                                                 min_size=int(opts["min_size"]))
+        except ValueError as exc:
+            raise SurfaceError(f"{name}: segmentation: {exc}") from None
+        method, blur = ("otsu" if opts["threshold"] == "otsu" else "given"), float(opts["smooth"])
+        where = f"(threshold {t:.6g} in the intensity range {lo:g} to {hi:g}, {method})"
+        if not mask.any():
+            raise SurfaceError(f"{name}: the segmentation finds no foreground (biofilm) {where}")
+        if mask.all():
+            raise SurfaceError(f"{name}: the segmentation finds no background (fluid) {where}")
+    nz, ny, nx = mask.shape
+    dx, dy, dz = vox
+    # ---- floor: a layer edge (row - 0.5 between rows row - 1 and row)
+    if floor == "auto":
+        flat = mask.transpose(1, 0, 2).reshape(ny, -1)
+        sm = None if smoothed is None else smoothed.transpose(1, 0, 2).reshape(ny, -1)
+        found = imaging.find_floor(flat, sm, blur, t if kind == "scan" else None)
+        method_f = found["method"]
+        row = ny - 0.5 if found["row"] is None else float(found["row"])
+        edge_row = found.get("edge_row")
+    elif floor is None:
+        method_f, row, edge_row = "volume bottom", ny - 0.5, None
+    elif isinstance(floor, str):
+        raise SurfaceError(f"{name}: floor must be 'auto', a number (y in {units}) or None, "
+                           f"got {floor!r}")
+    else:
+        y_f = float(floor) * f
+        if not np.isfinite(y_f):
+            raise SurfaceError(f"{name}: floor must be finite, got {floor!r}")
+        edge = (ny - 1) - (y_f - org[1]) / dy
+        row = float(np.clip(np.round(edge + 0.5), 0, ny)) - 0.5
+        method_f, edge_row = "given", None
+    n_above = round(row + 0.5)
+    y_floor = float(org[1] + (ny - 1 - row) * dy)
+    part = mask[:, :n_above, :]
+    if not part.any():
+        raise SurfaceError(f"{name}: no foreground (biofilm) above the floor y = {y_floor:g} mm "
+                           f"({method_f}): the mask is empty there")
+    # ---- one colony
+    lab, n_comp = label(part, structure=np.ones((3, 3, 3), dtype=bool))
+    sizes = np.bincount(lab.ravel())[1:]
+    order = np.argsort(-sizes, kind="stable")
+    cell = float(dx * dy * dz)
+    if n_comp > 1 and component is None:
+        listed = ", ".join(f"#{k}: {int(sizes[j])} voxels ({sizes[j] * cell:.4g} mm^3)"
+                           for k, j in enumerate(order[:5]))
+        raise SurfaceError(
+            f"{name}: {n_comp} separate colonies (26-connected foreground components above "
+            f"the floor; by decreasing size {listed}{', ...' if n_comp > 5 else ''}): one "
+            "colony is expected; pick one with component=k (0 = the largest), crop the "
+            "volume to one colony, or raise segmentation min_size to drop specks")
+    k = 0 if component is None else int(component)
+    if not 0 <= k < n_comp:
+        raise SurfaceError(f"{name}: component={component} but the volume has {n_comp} "
+                           f"colon{'ies' if n_comp != 1 else 'y'} (0 .. {n_comp - 1})")
+    colony = lab == order[k] + 1
+    touching = [f"{face} ({int(np.count_nonzero(np.take(colony, i, axis=ax)))} voxels)"
+                for face, ax, i in _FACES if np.take(colony, i, axis=ax).any()]
+    if touching:
+        raise SurfaceError(
+            f"{name}: the colony touches the volume's border on the {', '.join(touching)} "
+            "face(s): it is cut off by the field of view; a colony must be surrounded by "
+            "fluid on the sides and the top (image a larger region, or crop less)")
+    # ---- marching cubes on the colony over a substrate slab, padded with background
+    work = np.concatenate([colony, np.ones((nz, 2, nx), dtype=bool)], axis=1)
+    work = np.pad(work, 1).astype(np.float32)
+    verts, faces, _, _ = measure.marching_cubes(work, 0.5, allow_degenerate=False)
+    idx = verts - 1.0  # indices (k, row, col) of the unpadded volume
+    pts = np.column_stack([org[0] + idx[:, 2] * dx, org[1] + (ny - 1 - idx[:, 1]) * dy,
+                           org[2] + idx[:, 0] * dz])
+    surf, sinfo = colony_surface(pts, faces.astype(np.int64), floor=y_floor,
+                                 iterations=iterations, name=name)
+    info = {"shape": [nz, ny, nx], "kind": kind, "threshold": t, "threshold_method": method,
+            "voxel_size_mm": vox.tolist(), "origin_mm": org.tolist(),
+            "floor": {"method": method_f, "row": row, "y_mm": y_floor, "edge_y_mm": None
+                      if edge_row is None else float(org[1] + (ny - 1 - edge_row) * dy)},
+            "colonies": int(n_comp), "colony_voxels": int(sizes[order[k]]),
+            **{key: sinfo[key] for key in ("volume_mm3", "area_mm2", "volume_change",
+                                           "smoothing_iterations")}}
+    return surf, info
