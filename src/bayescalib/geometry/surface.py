@@ -50,7 +50,7 @@ from bayescalib.geometry.interface import Interface, InterfaceError
 
 __all__ = ["CLIP_EPS", "TAUBIN_ITERATIONS", "TAUBIN_LAMBDA", "TAUBIN_MU", "UNITS",
            "SurfaceError", "boundary_edges", "colony_surface", "enclosed_volume",
-           "mesh_components", "plane_section", "taubin_smooth", "unit_factor"]
+           "mesh_components", "pick_component", "plane_section", "taubin_smooth", "unit_factor"]
 
 #: length unit -> factor to mm
 UNITS: dict[str, float] = {"m": 1000.0, "mm": 1.0, "um": 1.0e-3}
@@ -210,6 +210,26 @@ def enclosed_volume(points: np.ndarray, triangles: np.ndarray, floor: float) -> 
     return float(np.einsum("md,md->", area_vec, c) / 3.0)
 
 
+def pick_component(sizes: np.ndarray, component: int | None, name: str, *, what: str,
+                   describe: Any, hint: str) -> int:
+    """The index of the component to keep: the only one, or ``component`` (0 = the
+    largest of ``sizes``); several without a choice, or a choice out of range, raise
+    :class:`SurfaceError` listing the largest five (``describe(index)``), ``what`` they are
+    and ``hint`` (what else to do)."""
+    order = np.argsort(-np.asarray(sizes), kind="stable")
+    n = len(order)
+    if n > 1 and component is None:
+        listed = ", ".join(f"#{k}: {describe(j)}" for k, j in enumerate(order[:5]))
+        raise SurfaceError(
+            f"{name}: {n} {what}; by decreasing size {listed}{', ...' if n > 5 else ''}): one "
+            f"colony is expected; pick one with component=k (0 = the largest), {hint}")
+    k = 0 if component is None else int(component)
+    if not 0 <= k < n:
+        raise SurfaceError(f"{name}: component={component} but there are {n} component(s) "
+                           f"(0 .. {n - 1})")
+    return int(order[k])
+
+
 def colony_surface(
     points: np.ndarray,
     triangles: np.ndarray,
@@ -283,20 +303,13 @@ def colony_surface(
     lab = mesh_components(tri, pts.shape[0])
     sizes = np.bincount(lab, weights=area)
     counts = np.bincount(lab)
+    chosen = pick_component(
+        sizes, component, name, what="separate pieces (connected components",
+        describe=lambda j: f"{int(counts[j])} triangles, {sizes[j]:.4g} mm^2",
+        hint="or crop the data to one colony")
     order = np.argsort(-sizes, kind="stable")
-    if len(order) > 1 and component is None:
-        listed = ", ".join(f"#{k}: {int(counts[j])} triangles, {sizes[j]:.4g} mm^2"
-                           for k, j in enumerate(order[:5]))
-        raise SurfaceError(
-            f"{name}: the surface has {len(order)} separate pieces (connected components; "
-            f"by decreasing area {listed}{', ...' if len(order) > 5 else ''}): one colony is "
-            "expected; pick one with component=k (0 = the largest), or crop the data to one "
-            "colony")
-    k = 0 if component is None else int(component)
-    if not 0 <= k < len(order):
-        raise SurfaceError(f"{name}: component={component} but the surface has "
-                           f"{len(order)} component(s) (0 .. {len(order) - 1})")
-    pts, tri = _compact(pts, tri, lab == order[k])
+    k = int(np.flatnonzero(order == chosen)[0])
+    pts, tri = _compact(pts, tri, lab == chosen)
     rim = boundary_edges(tri)
     if floor is None:
         if rim.size == 0:

@@ -60,7 +60,13 @@ from typing import Any
 import numpy as np
 
 from bayescalib.geometry.interface import Interface
-from bayescalib.geometry.surface import TAUBIN_ITERATIONS, SurfaceError, colony_surface, unit_factor
+from bayescalib.geometry.surface import (
+    TAUBIN_ITERATIONS,
+    SurfaceError,
+    colony_surface,
+    pick_component,
+    unit_factor,
+)
 
 __all__ = ["volume_surface"]
 
@@ -220,21 +226,13 @@ def volume_surface(
     # ---- one colony
     lab, n_comp = label(part, structure=np.ones((3, 3, 3), dtype=bool))
     sizes = np.bincount(lab.ravel())[1:]
-    order = np.argsort(-sizes, kind="stable")
     cell = float(dx * dy * dz)
-    if n_comp > 1 and component is None:
-        listed = ", ".join(f"#{k}: {int(sizes[j])} voxels ({sizes[j] * cell:.4g} mm^3)"
-                           for k, j in enumerate(order[:5]))
-        raise SurfaceError(
-            f"{name}: {n_comp} separate colonies (26-connected foreground components above "
-            f"the floor; by decreasing size {listed}{', ...' if n_comp > 5 else ''}): one "
-            "colony is expected; pick one with component=k (0 = the largest), crop the "
-            "volume to one colony, or raise segmentation min_size to drop specks")
-    k = 0 if component is None else int(component)
-    if not 0 <= k < n_comp:
-        raise SurfaceError(f"{name}: component={component} but the volume has {n_comp} "
-                           f"colon{'ies' if n_comp != 1 else 'y'} (0 .. {n_comp - 1})")
-    colony = lab == order[k] + 1
+    chosen = pick_component(
+        sizes, component, name,
+        what="separate colonies (26-connected foreground components above the floor",
+        describe=lambda j: f"{int(sizes[j])} voxels ({sizes[j] * cell:.4g} mm^3)",
+        hint="crop the volume to one colony, or raise segmentation min_size to drop specks")
+    colony = lab == chosen + 1
     touching = [f"{face} ({int(np.count_nonzero(np.take(colony, i, axis=ax)))} voxels)"
                 for face, ax, i in _FACES if np.take(colony, i, axis=ax).any()]
     if touching:
@@ -255,7 +253,7 @@ def volume_surface(
             "voxel_size_mm": vox.tolist(), "origin_mm": org.tolist(),
             "floor": {"method": method_f, "row": row, "y_mm": y_floor, "edge_y_mm": None
                       if edge_row is None else float(org[1] + (ny - 1 - edge_row) * dy)},
-            "colonies": int(n_comp), "colony_voxels": int(sizes[order[k]]),
+            "colonies": int(n_comp), "colony_voxels": int(sizes[chosen]),
             **{key: sinfo[key] for key in ("volume_mm3", "area_mm2", "volume_change",
                                            "smoothing_iterations")}}
     return surf, info

@@ -7,7 +7,8 @@ Sources (all coordinates end up in mm):
   from an explicit :class:`numpy.random.Generator` (:func:`add_noise`);
 * CSV (``.csv``): an ordered curve, header row naming the columns ``x,y`` (2D;
   extra columns ignored). ``x,y,z`` is accepted when z is constant (a planar
-  curve; 3D observations must be surfaces, read from VTK). A last row equal
+  curve; 3D observations must be surfaces, read from VTK, or with
+  :func:`bayescalib.io.surfaces.read_surface` from STL/PLY/VTK with the colony's checks). A last row equal
   to the first closes the curve. Values are in ``units`` (m, mm or um);
 * VTK (``.vtp``, ``.vtu``, ``.vtk``, read with the ``vtk`` package): line /
   polyline cells give a 2D polyline (all z equal), polygon / triangle / strip
@@ -429,13 +430,11 @@ def _validate_vtk_cell_ids(data, where: str) -> None:
             )
 
 
-def _read_vtk(path: Path, units: str, where: str) -> Interface:
+def _as_polydata(data, where: str):
+    """A VTK reader's output as polydata, after the checks every VTK-read file gets: points
+    present (an unreadable legacy file gives a bare vtkDataObject), cell ids in range."""
     import vtk
-    from vtk.util.numpy_support import vtk_to_numpy
 
-    _validate_vtk_header(path, where)
-    data = _vtk_reader(path)
-    # an unreadable legacy file gives a bare vtkDataObject (no points at all)
     if not isinstance(data, vtk.vtkDataSet) or data.GetNumberOfPoints() == 0:
         raise ObservationError(f"{where}: the VTK file holds no points (empty or unreadable)")
     _validate_vtk_cell_ids(data, where)
@@ -444,6 +443,15 @@ def _read_vtk(path: Path, units: str, where: str) -> Interface:
         geo.SetInputData(data)
         geo.Update()
         data = geo.GetOutput()
+    return data
+
+
+def _read_vtk(path: Path, units: str, where: str) -> Interface:
+    import vtk
+    from vtk.util.numpy_support import vtk_to_numpy
+
+    _validate_vtk_header(path, where)
+    data = _as_polydata(_vtk_reader(path), where)
     if data.GetNumberOfPolys() or data.GetNumberOfStrips():
         tri = vtk.vtkTriangleFilter()
         tri.SetInputData(data)

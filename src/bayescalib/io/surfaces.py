@@ -40,7 +40,7 @@ from bayescalib.geometry.interface import Interface
 from bayescalib.geometry.surface import UNITS, SurfaceError, colony_surface
 from bayescalib.io.observations import (
     ObservationError,
-    _validate_vtk_cell_ids,
+    _as_polydata,
     _validate_vtk_header,
     _vtk_reader,
     validate_domain,
@@ -192,14 +192,7 @@ def read_surface(
             f"{where}: no length unit: a surface file has none of its own; pass units= one "
             f"of {', '.join(repr(k) for k in UNITS)} (or write 'unit mm' in its header)")
     f = UNITS[u]
-    if not isinstance(data, vtk.vtkDataSet) or data.GetNumberOfPoints() == 0:
-        raise ObservationError(f"{where}: the file holds no points (empty or unreadable)")
-    _validate_vtk_cell_ids(data, where)
-    if not isinstance(data, vtk.vtkPolyData):
-        geo = vtk.vtkGeometryFilter()
-        geo.SetInputData(data)
-        geo.Update()
-        data = geo.GetOutput()
+    data = _as_polydata(data, where)
     if not (data.GetNumberOfPolys() or data.GetNumberOfStrips()):
         raise ObservationError(f"{where}: no triangles or polygons (empty, or lines/points "
                                "only): not a surface")
