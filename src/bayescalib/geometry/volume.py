@@ -38,8 +38,8 @@ Steps
    of view: refused, naming the faces. An empty mask (or a segmentation without
    foreground or background) is refused.
 4. *Marching cubes* (:func:`skimage.measure.marching_cubes`, Lewiner, at level 0.5) of
-   the colony on a full substrate slab (two layers below the floor), padded with
-   background: a closed surface whose slab face lies on the floor plane exactly, so
+   the colony (in its bounding box) on a substrate slab (two layers below the floor),
+   padded with background: a closed surface whose slab face lies on the floor plane exactly, so
    that the cut at the floor (:func:`bayescalib.geometry.surface.colony_surface`)
    leaves the colony's surface with its rim on the floor. On a binary volume every
    vertex is the midpoint of a voxel edge between a foreground and a background
@@ -241,10 +241,14 @@ def volume_surface(
             "face(s): it is cut off by the field of view; a colony must be surrounded by "
             "fluid on the sides and the top (image a larger region, or crop less)")
     # ---- marching cubes on the colony over a substrate slab, padded with background
-    work = np.concatenate([colony, np.ones((nz, 2, nx), dtype=bool)], axis=1)
+    # (only the colony's bounding box: the rest of the slab is cut away anyway)
+    k0, r0, c0 = (int(np.flatnonzero(colony.any(axis=ax))[0]) for ax in ((1, 2), (0, 2), (0, 1)))
+    k1, c1 = (int(np.flatnonzero(colony.any(axis=ax))[-1]) + 1 for ax in ((1, 2), (0, 1)))
+    box = colony[k0:k1, r0:, c0:c1]
+    work = np.concatenate([box, np.ones((k1 - k0, 2, c1 - c0), dtype=bool)], axis=1)
     work = np.pad(work, 1).astype(np.float32)
     verts, faces, _, _ = measure.marching_cubes(work, 0.5, allow_degenerate=False)
-    idx = verts - 1.0  # indices (k, row, col) of the unpadded volume
+    idx = verts - 1.0 + [k0, r0, c0]  # indices (k, row, col) of the volume
     pts = np.column_stack([org[0] + idx[:, 2] * dx, org[1] + (ny - 1 - idx[:, 1]) * dy,
                            org[2] + idx[:, 0] * dz])
     surf, sinfo = colony_surface(pts, faces.astype(np.int64), floor=y_floor,
