@@ -43,11 +43,13 @@ def ellipsoid_distance(p, a=A, b=B, c=C, xc=XC, zc=ZC):
 
 
 def half_ellipsoid_mask(s=S, shape=(NZ, NY, NX), origin=(0.0, None, 0.0)):
-    """Mask of the half-ellipsoid; the floor y = 0 is the bottom face of the volume."""
+    """Mask of the half-ellipsoid; the floor y = 0 is the bottom face of the volume.
+    ``s``: voxel size, or ``(dx, dy, dz)``, mm."""
+    dx, dy, dz = np.broadcast_to(np.asarray(s, dtype=float), (3,))
     nz, ny, nx = shape
-    y0 = 0.5 * s if origin[1] is None else origin[1]
+    y0 = 0.5 * dy if origin[1] is None else origin[1]
     k, r, col = np.meshgrid(np.arange(nz), np.arange(ny), np.arange(nx), indexing="ij")
-    x, y, z = origin[0] + col * s, y0 + (ny - 1 - r) * s, origin[2] + k * s
+    x, y, z = origin[0] + col * dx, y0 + (ny - 1 - r) * dy, origin[2] + k * dz
     return ((x - XC) / A) ** 2 + (y / B) ** 2 + ((z - ZC) / C) ** 2 <= 1, (origin[0], y0, origin[2])
 
 
@@ -123,6 +125,22 @@ def test_volume_surface_from_b_scans_and_in_um(mc_surfaces):
                                origin=[1000 * v for v in org])
     np.testing.assert_allclose(got.points, surf.points, atol=1e-12)
     assert info["voxel_size_mm"] == pytest.approx([S, S, S])
+
+
+def test_volume_surface_with_anisotropic_voxels():
+    # OCT voxels differ per axis (axial y finer than lateral x, B-scan spacing z coarser):
+    # (dx, dy, dz) = (10, 5, 20) um maps array axes (k, row, col) to (z, y, x)
+    vox = (0.01, 0.005, 0.02)
+    mask, org = half_ellipsoid_mask(vox, (40, 40, 100))
+    surf, info = volume_surface(mask, voxel_size=[1000 * v for v in vox], units="um",
+                                origin=[1000 * v for v in org])
+    d = ellipsoid_distance(surf.points)
+    # within half the largest voxel edge above the lowest layer, one edge in it
+    assert np.abs(d[surf.points[:, 1] > vox[1]]).max() <= 0.5 * max(vox)
+    assert np.abs(d).max() <= max(vox)
+    assert info["volume_mm3"] == pytest.approx(2 / 3 * math.pi * A * B * C, rel=0.01)
+    lo, hi = surf.bounds
+    np.testing.assert_allclose(hi - lo, [2 * A, B, 2 * C], atol=max(vox))
 
 
 def test_volume_surface_of_a_noisy_scan_over_a_bright_substrate():
