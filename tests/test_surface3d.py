@@ -253,6 +253,25 @@ def test_plane_section_of_the_marching_cubes_surface(mc_surfaces):
     assert p[0, 0] < XC < p[-1, 0]
 
 
+def test_plane_section_agrees_with_the_2d_tracing_of_the_b_scan(mc_surfaces):
+    # the B-scan k of the volume traced in 2D (imaging.mask_contour, as a 2D observation)
+    # and the section of the volume's 3D surface at its z: the same curve within a voxel,
+    # in the same order and orientation
+    from bayescalib.geometry.imaging import mask_contour
+
+    mask, org, _, (surf, _) = mc_surfaces
+    k = 45
+    traced = mask_contour(mask[k], S, (org[0], org[1]))
+    sec = plane_section(surf, (0.0, 0.0, org[2] + k * S))
+    d, _, _ = closest_points(sec.points, traced)
+    assert np.abs(d[sec.points[:, 1] > S]).max() <= 0.5 * S
+    assert np.abs(d).max() <= S
+    for c in (traced, sec):
+        assert c.points[0, 0] < XC < c.points[-1, 0]
+        top = np.abs(c.centres[:, 0] - XC) < 0.1
+        assert np.all(c.normals[top, 1] > 0.5)
+
+
 def test_plane_section_errors():
     surf = half_ellipsoid_mesh(10, 30)
     with pytest.raises(SurfaceError, match="misses the surface"):
