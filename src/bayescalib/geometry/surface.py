@@ -257,7 +257,7 @@ def colony_surface(
     iterations : int
         Taubin smoothing iterations (0 = none).
     rim_tol : float, optional
-        Largest height of a rim vertex above the floor, mm (default ``1e-6`` times the
+        Largest height of a rim vertex above the floor, mm (default ``2e-6`` times the
         surface's extent).
     name : str
         The source, in error messages.

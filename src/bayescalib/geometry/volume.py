@@ -48,8 +48,11 @@ Steps
    :data:`bayescalib.geometry.surface.TAUBIN_ITERATIONS`), which take out the
    staircase; then the orientation (normals into the fluid).
 
-The accuracy on a half-ellipsoid (tests/test_surface3d.py) is stated there: vertices
-within half a voxel of the true surface, volume and area within a few per cent.
+Accuracy, measured on a half-ellipsoid mask (semi-axes 40 x 15 x 30 voxels,
+tests/test_surface3d.py): vertices within 0.42 voxel of the true surface above the
+lowest layer, 0.72 voxel in it (the foot's chamfer onto the floor); RMS distance 0.15
+voxel (0.24 raw); volume -0.04 % (-0.15 % raw); area +1.0 % (+8.9 % raw, the
+staircase). With anisotropic voxels the bound is half the largest voxel edge.
 """
 
 from __future__ import annotations

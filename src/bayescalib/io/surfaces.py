@@ -126,6 +126,7 @@ def read_surface(
     floor: float | str | None = None,
     component: int | None = None,
     iterations: int = 0,
+    rim_tol: float | None = None,
     domain: Sequence[Sequence[float]] | None = None,
 ) -> tuple[Interface, dict[str, Any]]:
     """A colony's triangulated surface from a file (module docstring).
@@ -144,6 +145,9 @@ def read_surface(
         Which of several separate surfaces to keep (0 = the largest area).
     iterations : int
         Taubin smoothing iterations (0 = none: a file's surface is taken as it is).
+    rim_tol : float, optional
+        Largest height of the rim above the floor, in ``units`` (default ``2e-6`` of the
+        surface's extent); raise it for a file whose base is not exactly planar.
     domain : sequence of 3 (min, max), optional
         Expected bounding box in mm (the unit check of
         :func:`bayescalib.io.observations.validate_domain`).
@@ -218,7 +222,8 @@ def read_surface(
         floor_mm = float(floor) * f
     try:
         surf, info = colony_surface(pts, cells, floor=floor_mm, component=component,
-                                    iterations=iterations, name=where)
+                                    iterations=iterations, name=where,
+                                    rim_tol=None if rim_tol is None else float(rim_tol) * f)
     except SurfaceError as exc:
         raise ObservationError(str(exc)) from None
     validate_domain(surf, domain, where, u)
