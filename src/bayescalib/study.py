@@ -282,6 +282,11 @@ class Study:
             sigma_n2_from_config(cfg["likelihood"])
         except ValueError as exc:
             raise ConfigError(f"{where}: {exc}") from None
+        if obs.get("misregistration") and Study.model_dim(cfg) == 3:
+            raise ConfigError(
+                f"{where}: observations.misregistration is a 2D misplacement (shift_x, "
+                "shift_y, rotation in the x-y plane, scale); the 3D model "
+                "(forward_model.fsi.geometry.dim: 3) has none: leave it out")
         Study._validate_loadings(cfg, where)
         if cfg["forward_model"]["type"] == "fsi":
             from bayescalib.models.units import validate_fsi_units
@@ -450,9 +455,9 @@ class Study:
         cfg["forward_model"]["fsi"]["geometry"]["outline"] = [
             [round(float(x), 9), round(float(y), 9)] for x, y in colony.interface]
         i = colony.info
-        return [f"{key}.scan: the model's biofilm is the colony of '{i['source']}' ({i['colony']}; "
-                f"x = {i['x_range_mm'][0]:.4g} to {i['x_range_mm'][1]:.4g} mm, "
-                f"{i['height_mm']:.4g} mm high, smoothed at {i['smoothing_mm'] * 1e3:.3g} um)"]
+        return [(f"{key}.scan: the model's biofilm is the colony of '{i['source']}' "
+                 f"({i['colony']}; x = {i['x_range_mm'][0]:.4g} to {i['x_range_mm'][1]:.4g} mm, "
+                 f"{i['height_mm']:.4g} mm high, smoothed at {i['smoothing_mm'] * 1e3:.3g} um)")]
 
     @staticmethod
     def _validate_registration(cfg: dict[str, Any], where: str, observed: dict[str, Any]) -> None:
@@ -521,6 +526,44 @@ class Study:
                     f"whose height is {height:.3g} mm: a flow moves it by a fraction of that. "
                     f"It is offset by about ({dx:+.3f}, {dy:+.3f}) mm: check {key}.origin and "
                     f"{key}.units{fix}")
+
+    @staticmethod
+    def model_dim(cfg: Mapping[str, Any]) -> int | None:
+        """The dimension of the model's interface: 2 or 3 for the fsi model
+        (``forward_model.fsi.geometry.dim``); None for a python or command model (known
+        only from a solve)."""
+        fm = cfg["forward_model"]
+        if fm["type"] != "fsi":
+            return None
+        return int(validate(fm.get("fsi") or {}, "fsi")["geometry"]["dim"])
+
+    @staticmethod
+    def _validate_dimension(cfg: dict[str, Any], where: str, observed: dict[str, Any]) -> None:
+        """Every observed interface has the dimension of the model's (a 2D curve for the
+        2D model, a triangulated surface for the 3D one), and all have the same: a
+        mismatch is refused here, before any solve (the discrepancy could not compare
+        them). Synthetic observations are the model's own interfaces: nothing to check."""
+        dim = Study.model_dim(cfg)
+        what = {2: "a 2D curve", 3: "a 3D surface"}
+        first = None
+        for key, iface in observed.items():
+            path = dict(_entry_at(cfg, key))["path"]
+            if dim is not None and iface.dim != dim:
+                hint = ("give the colony's surface (a VTK file of triangles or polygons) "
+                        "for the 3D model, or set forward_model.fsi.geometry.dim: 2"
+                        if dim == 3 else
+                        "give a 2D interface (coordinates, a VTK polyline or an image) for "
+                        "the 2D model, or set forward_model.fsi.geometry.dim: 3")
+                raise ConfigError(
+                    f"{where}: {key} ('{path}') is {what[iface.dim]}, but the model's "
+                    f"interface is {what[dim]} (forward_model.fsi.geometry.dim: {dim}): {hint}")
+            if first is None:
+                first = (key, path, iface.dim)
+            elif iface.dim != first[2]:
+                raise ConfigError(
+                    f"{where}: {key} ('{path}') is {what[iface.dim]}, but {first[0]} "
+                    f"('{first[1]}') is {what[first[2]]}: the observations of one study "
+                    "have one dimension")
 
     @staticmethod
     def _validate_scale(cfg: dict[str, Any], where: str, key: str, iface: Any) -> None:
@@ -614,8 +657,12 @@ class Study:
                 validate_shape(observed[key], str(path))
             except ObservationError as exc:
                 raise ConfigError(f"{where}: {key}: {exc}") from None
-            if "rkhs" in cfg["measures"] and key != "observations.reference":
-                Study._validate_rkhs_cost(cfg, where, key, path, observed[key])
+        Study._validate_dimension(cfg, where, observed)
+        if "rkhs" in cfg["measures"]:
+            for key, iface in observed.items():
+                if key != "observations.reference":
+                    Study._validate_rkhs_cost(cfg, where, key,
+                                              Path(_entry_at(cfg, key)["path"]), iface)
         return observed
 
     @staticmethod
@@ -888,6 +935,13 @@ class Study:
         """Whether every parameter has a ground truth (synthetic data, or files made
         from known values): only then do figures, captions and summary.json show one."""
         return all(p.get("ground_truth") is not None for p in self.config["parameters"])
+
+    @property
+    def interface_dim(self) -> int:
+        """The dimension of the fsi model's interface (``geometry.dim``); 2 for a python
+        or command model (its dimension is known only from a solve; the figures read it
+        from the interfaces themselves)."""
+        return Study.model_dim(self.config) or 2
 
     @property
     def synthetic(self) -> bool:

@@ -15,7 +15,8 @@ def _observe_inputs(wildcards):
     return {"files": files + ([obs["reference"]["path"]] if obs["reference"] else [])}
 
 
-FIELDS = study.config["plots"]["fields"] and study.config["forward_model"]["type"] == "fsi"
+FIELDS = (study.config["plots"]["fields"] and study.config["forward_model"]["type"] == "fsi"
+          and study.interface_dim == 2)  # the field writer and figure are 2D only
 # synthetic data: a forward solve at the ground truth makes them (rule ground_truth,
 # whose fields the fields figure shows); real data have none: the fields figure shows
 # the solve at the posterior mean (rule posterior_mean_solve)

@@ -67,7 +67,7 @@ def _read(path: str, opts: dict, read_interface):
         if not run.ok:
             raise ValueError(f"run record '{path}' is a failed solve ({run.reason}): it has no "
                              "deformed interface to compare")
-        return Interface.polyline(run.interface_current, run.segments, name=Path(path).name)
+        return Interface(run.interface_current, run.segments, name=Path(path).name)
     return read_interface(path, **opts)
 
 

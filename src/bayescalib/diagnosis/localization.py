@@ -194,8 +194,8 @@ def effect_regions(fm: Mapping[str, Any], truth: Mapping[str, float],
           if all(curves[k][s] is not None for s in scored)]
     ys, cols = [], []
     for s in scored:
-        y, o = offsets(gts[s], Interface.polyline(curves[0][s], segments[0]),
-                       [Interface.polyline(curves[k][s], segments[k]) for k, _ in fd])
+        y, o = offsets(gts[s], Interface(curves[0][s], segments[0]),
+                       [Interface(curves[k][s], segments[k]) for k, _ in fd])
         ys.append(y)
         cols.append(o / np.array([h for _, h in fd])[:, None] if fd else o)
     peak = max(float(np.max(np.abs(y))) for y in ys)

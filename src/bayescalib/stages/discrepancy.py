@@ -56,6 +56,12 @@ def discrepancy(run_path: str | Path, obs_path: str | Path, measure_name: str,
         )
     models = model_interfaces(run, len(obs.snapshots))
     for label, snap, model in zip(obs.labels, obs.snapshots, models, strict=True):
+        if model.dim != snap.dim:
+            what = {2: "a 2D curve", 3: "a 3D surface"}
+            raise PipelineError(
+                f"observed interface '{label}' ({obs_path}) is {what[snap.dim]} but the "
+                f"model's ('{run_path}') is {what[model.dim]}: a {model.dim}D model is "
+                f"calibrated on {model.dim}D observations (forward_model.fsi.geometry.dim)")
         _validate_scales(np.asarray(model.points), np.asarray(snap.points), label, obs_path)
     sigma_n2 = _sigma_n2(likelihood)
     options = _measure_options(measure_name, measure, obs)
@@ -114,9 +120,9 @@ def model_interfaces(run, n_snapshots: int) -> list:
     from bayescalib.geometry.interface import Interface
 
     if run.loadings:
-        return [Interface.polyline(ld.current, run.segments, name=f"model {ld.label}")
+        return [Interface(ld.current, run.segments, name=f"model {ld.label}")
                 for ld in run.loadings]
-    return [Interface.polyline(run.interface_current, run.segments, name="model")] * n_snapshots
+    return [Interface(run.interface_current, run.segments, name="model")] * n_snapshots
 
 
 def _sigma_n2(likelihood: Mapping[str, Any]) -> float:

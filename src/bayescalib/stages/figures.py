@@ -224,28 +224,45 @@ def posterior_draws(particles_path: str | Path, parameters: Sequence[Mapping[str
 def interface_figure(obs_path: str | Path, sample_runs: Sequence[str | Path],
                      plots: Mapping[str, Any], stem: str | Path,
                      ground_truth_run: str | Path | None = None) -> list[str]:
-    """Undeformed, observed and posterior-sample interfaces."""
+    """Undeformed, observed and posterior-sample interfaces. 3D surfaces are shown by
+    their section with the plane z = z0 through the middle of the observed colony
+    (:func:`bayescalib.geometry.surface.plane_section`, the B-scan a 2D model sees)."""
+    from bayescalib.geometry.interface import Interface
     from bayescalib.plotting import plot_interfaces
 
     obs = read_stage_file(obs_path, "observation set")
+    first = obs.snapshots[0]
+    z0 = None if first.dim == 2 else float(0.5 * (first.points[:, 2].min()
+                                                 + first.points[:, 2].max()))
+
+    def shown(points: np.ndarray, cells: np.ndarray, name: str) -> np.ndarray:
+        if z0 is None:
+            return np.asarray(points)
+        from bayescalib.geometry.surface import plane_section
+
+        return np.asarray(plane_section(Interface(points, cells, name=name),
+                                        (0.0, 0.0, z0)).points)
+
     samples, ref = [], None
     for rp in sample_runs:
         run = read_stage_file(rp, "run record")
         if run.status == "ok":
-            samples.append(np.asarray(run.interface_current))
-            ref = np.asarray(run.interface_reference) if ref is None else ref
+            samples.append(shown(run.interface_current, run.segments, str(rp)))
+            if ref is None:
+                ref = shown(run.interface_reference, run.segments, str(rp))
     if obs.reference is not None:
-        ref = np.asarray(obs.reference.points)
+        ref = shown(obs.reference.points, obs.reference.cells, "reference")
     if ref is None:
-        ref = np.asarray(obs.snapshots[0].points)
+        ref = shown(first.points, first.cells, obs.labels[0])
     truth = None
     if ground_truth_run is not None:
         gt = read_stage_file(ground_truth_run, "run record")
         if gt.status == "ok":
-            truth = np.asarray(gt.interface_current)
+            truth = shown(gt.interface_current, gt.segments, "ground truth")
     return plot_interfaces(
-        ref, [np.asarray(s.points) for s in obs.snapshots], samples,
-        _paths(stem, plots["formats"]), truth_interface=truth, dpi=plots["dpi"],
+        ref, [shown(s.points, s.cells, lb) for s, lb in zip(obs.snapshots, obs.labels)],
+        samples, _paths(stem, plots["formats"]), truth_interface=truth, dpi=plots["dpi"],
+        title=None if z0 is None else f"section z = {z0:.3g} mm of the 3D interfaces",
     )
 
 

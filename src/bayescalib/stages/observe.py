@@ -52,7 +52,7 @@ def observe(observations: Mapping[str, Any], out_path: str | Path, *,
                 f"the forward solve at the ground truth failed ({run.reason}); synthetic "
                 "observations cannot be made: change the ground truth or the forward model"
             )
-        reference = Interface.polyline(run.interface_reference, run.segments, name="reference")
+        reference = Interface(run.interface_reference, run.segments, name="reference")
         sigma = float(observations["noise_sigma"])
         seed = int(observations["seed"])
         rng = np.random.default_rng(seed)
@@ -71,7 +71,7 @@ def observe(observations: Mapping[str, Any], out_path: str | Path, *,
             curves = [misplace(pts, misreg, centre) for pts in curves]
         snaps = []
         for pts, label in zip(curves, labels):
-            current = Interface.polyline(pts, run.segments, name=f"observed {label}")
+            current = Interface(pts, run.segments, name=f"observed {label}")
             snaps.append(add_noise(current, sigma, rng) if sigma > 0 else current)
         stored = StoredObservations(
             snaps, labels, loads, reference,
