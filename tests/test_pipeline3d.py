@@ -153,3 +153,36 @@ def test_misregistration_is_refused_for_the_3d_model():
     cfg = deep_merge(FSI3D, {"observations": {"misregistration": {"shift_x": 0.01}}})
     with pytest.raises(ConfigError, match="misregistration is a 2D misplacement"):
         Study(cfg)
+
+
+def test_the_diagnosis_is_refused_for_the_3d_model():
+    with pytest.raises(ConfigError, match="diagnose.enabled: .* not available in 3D yet"):
+        Study(deep_merge(FSI3D, {"diagnose": {"enabled": True}}))
+
+
+# extended suite (pytest -m extended, run by .ci/run): the 3D smoke study end to end on
+# the 3D model's very coarse mesh (about 4 minutes on 2 cores)
+@pytest.mark.extended
+def test_the_3d_smoke_study_runs_end_to_end(tmp_path):
+    import json
+
+    from _workflow_helpers import setup_study, smk
+
+    smk(setup_study(tmp_path, FSI3D), timeout=1800)
+    root = tmp_path / "results" / "fsi3d_smoke"
+    s = json.loads((root / "summary.json").read_text())
+    assert s["ground_truth"] == {"E": 400.0, "nu": 0.3}
+    assert 8 <= s["design"]["n_solves"] <= 32 and s["n_failed"] == 0
+    # the figures that make sense in 3D: no fields figure; the interfaces as sections
+    assert "interfaces" in s["figures"] and "fields" not in s["figures"]
+    assert (root / "figures" / "interfaces.png").is_file()
+    assert not (root / "observations" / "ground_truth.vtu").exists()
+    obs = read_observations(root / "observations" / "observations.h5")
+    assert [x.dim for x in obs.snapshots] == [3, 3] and obs.loads == pytest.approx([50.0, 100.0])
+    mean, sd = s["posterior_mean"], s["posterior_sd"]
+    # E is what two flow rates measure: within 3 posterior sd of the truth, and the
+    # posterior narrower than the prior (sd 202 Pa); nu within 3 sd (weakly identified)
+    assert sd["E"] < 150.0
+    if s["converged"]:
+        assert abs(mean["E"] - 400.0) < 3.0 * sd["E"]
+        assert abs(mean["nu"] - 0.3) < 3.0 * sd["nu"]
