@@ -103,6 +103,10 @@ def test_the_3d_interface_is_a_surface_the_rkhs_measure_takes(solved3d):
     a, b, c, p = 0.3, 0.4, 0.3, 1.6075
     half = 2.0 * np.pi * (((a * b) ** p + (a * c) ** p + (b * c) ** p) / 3.0) ** (1.0 / p)
     assert ref.total_measure == pytest.approx(half, rel=0.05)
+    # the vertices lie on that ellipsoid, each semi-axis along its own direction (x: width / 2,
+    # y: height, z: depth / 2; the area above cannot tell a = 0.3 from b = 0.4 apart)
+    q = (((ref.points - centre) / np.array([a, b, c])) ** 2).sum(axis=1)
+    np.testing.assert_allclose(q, 1.0, atol=1e-6)
     assert ref.total_measure < half
     assert rkhs_distance(cur, ref, 0.1) > 0.0
     assert rkhs_distance(ref, ref, 0.1) == pytest.approx(0.0, abs=1e-9)

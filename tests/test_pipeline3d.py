@@ -172,7 +172,7 @@ def test_the_3d_smoke_study_runs_end_to_end(tmp_path):
     root = tmp_path / "results" / "fsi3d_smoke"
     s = json.loads((root / "summary.json").read_text())
     assert s["ground_truth"] == {"E": 400.0, "nu": 0.3}
-    assert 8 <= s["design"]["n_solves"] <= 32 and s["n_failed"] == 0
+    assert 8 <= s["design"]["n_solves"] <= 48 and s["n_failed"] == 0
     # the figures that make sense in 3D: no fields figure; the interfaces as sections
     assert "interfaces" in s["figures"] and "fields" not in s["figures"]
     assert (root / "figures" / "interfaces.png").is_file()

@@ -124,8 +124,9 @@ def build_mesh_3d(geometry: dict[str, Any], mesh_cfg: dict[str, Any]) -> Biofilm
         cutter = colony
     else:
         centre, (a, b, c) = colony_axes(geometry)
-        # radii r1, r2, r3 along the axes' x direction (h = X), y = n x h = Y and n = Z
-        cutter = Ellipsoid(Axes(Pnt(*centre), n=Z, h=X), a, b, c)
+        # netgen's Ellipsoid(axes, r1, r2, r3) puts r1 along n (= Z), r2 along h (= X)
+        # and r3 along n x h (= Y): measured on the meshed surface (test_fsi3d)
+        cutter = Ellipsoid(Axes(Pnt(*centre), n=Z, h=X), c, a, b)
         cutter.faces.name = "interface"
         colony = cutter * box
     colony.faces.Min(Y).name = "biofilm_floor"
