@@ -117,9 +117,24 @@ def test_the_interfaces_figure_shows_mid_plane_sections_of_3d_surfaces(synthetic
     assert Path(paths[0]).stat().st_size > 0
 
 
+def test_bayescalib_distance_compares_a_3d_run_record_with_a_surface_file(tmp_path, capsys):
+    from bayescalib.cli import main
+    from bayescalib.measures import compute
+
+    ref, tri = _dome()
+    obs = Interface.surface(_bent(ref, 0.03), tri)
+    write_interface_vtk(tmp_path / "obs.vtp", obs)
+    _run(tmp_path / "run.h5", 0.02)
+    assert main(["distance", "--sigma-w", "0.1", str(tmp_path / "run.h5"),
+                 str(tmp_path / "obs.vtp")]) == 0
+    want = compute("rkhs", Interface.surface(_bent(ref, 0.02), tri), obs, sigma_w=0.1).D
+    assert float(capsys.readouterr().out) == pytest.approx(want, rel=1e-9)
+
+
 # ------------------------------------------------------------------ the study's checks
-FSI3D = load_yaml(ROOT / "config" / "fsi3d_smoke.yaml")
 DEFAULT = load_yaml(ROOT / "config" / "config.yaml")
+#: the 3D smoke study as the workflow reads it: layered on the default study
+FSI3D = deep_merge(DEFAULT, load_yaml(ROOT / "config" / "fsi3d_smoke.yaml"))
 
 
 def test_the_3d_smoke_study_reads_as_a_3d_study_without_fields():

@@ -8,7 +8,9 @@ log-likelihood is eq:loglik, -n/2 log(2 pi sigma_N^2) - D^2 / (2 sigma_N^2), sum
 the snapshots. A failed solve is a record with no log-likelihood (-inf: left out of the
 training). :func:`model_interfaces` pairs each snapshot with the model's interface (also
 for the diagnosis), and interfaces too far apart in size or position for a misfit are
-refused as a unit slip (:data:`SCALE_FACTOR`).
+refused as a unit slip (:data:`SCALE_FACTOR`). Curves (2D model) and surfaces (3D model,
+the run record's triangles) take the same path; a model and observations of different
+dimensions are refused.
 """
 
 from __future__ import annotations

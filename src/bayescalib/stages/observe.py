@@ -2,7 +2,8 @@
 ``observations.h5``.
 
 Synthetic observations are the interfaces of the forward solve at the ground truth (one
-snapshot per loading of a series), misplaced by ``observations.misregistration`` and
+snapshot per loading of a series; curves of the 2D model, triangulated surfaces of the 3D
+one, each with the run record's cells), misplaced by ``observations.misregistration`` and
 with Gaussian noise of ``observations.noise_sigma`` added, from the one generator of
 ``observations.seed``; observations from files are the interfaces read from the files
 listed (coordinate files, CSV or VTK, or images: masks, and scans segmented here),
