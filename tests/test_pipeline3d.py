@@ -137,7 +137,7 @@ DEFAULT = load_yaml(ROOT / "config" / "config.yaml")
 FSI3D = deep_merge(DEFAULT, load_yaml(ROOT / "config" / "fsi3d_smoke.yaml"))
 
 
-def test_the_3d_smoke_study_reads_as_a_3d_study_without_fields():
+def test_the_3d_smoke_study_reads_as_a_3d_study():
     study = Study(FSI3D)
     assert study.interface_dim == 3 and Study(DEFAULT).interface_dim == 2
 
