@@ -101,6 +101,9 @@ PROBE_SEPARATION = 0.1
 #: particles themselves
 REGION_SHARE = 0.005
 REGION_LEVEL = 0.99
+#: ... times this factor (the region reaches past the particles' edge: a solve in the
+#: posterior's tail is the posterior's slope, not another basin)
+REGION_FACTOR = 3.0
 
 
 def _posterior_region(Up: np.ndarray, W: np.ndarray):
@@ -131,7 +134,7 @@ def _posterior_region(Up: np.ndarray, W: np.ndarray):
     r_max = float(rp[order][min(np.searchsorted(cw, REGION_LEVEL), len(cw) - 1)])
 
     def inside(Q: np.ndarray) -> np.ndarray:
-        return radius(np.atleast_2d(Q)) <= r_max
+        return radius(np.atleast_2d(Q)) <= REGION_FACTOR * r_max
 
     return inside
 
@@ -263,6 +266,9 @@ def audit(X: np.ndarray, L: np.ndarray, particles: np.ndarray, weights: np.ndarr
         A = _design_matrix(V, full)
         coef, *_ = np.linalg.lstsq(A, Lf[idx], rcond=None)
         c, g, H = _unpack(coef, d, full)
+        resid = Lf[idx] - A @ coef
+        spread = float(np.sum((Lf[idx] - Lf[idx].mean()) ** 2))
+        fit_r2 = 1.0 - float(resid @ resid) / spread if spread > 0 else 1.0
         radius = float(max(dist[-1], 1e-6))
         P, lam = _concave(H, radius)
         u_star, L_star = _peak(c, g, P, U[i], radius)
@@ -292,7 +298,7 @@ def audit(X: np.ndarray, L: np.ndarray, particles: np.ndarray, weights: np.ndarr
             "point": X[ok][i].tolist(), "loglik": float(Lf[i]), "peak": x_star.tolist(),
             "peak_loglik": float(L_star), "mass": mass, "log_mass": float(log_m),
             "held": held, "is_held": bool(is_held), "trust_radius": radius,
-            "found_by": found_by,
+            "found_by": found_by, "fit_r2": fit_r2,
         })
 
     # pass 1: the local maxima of all the solves
