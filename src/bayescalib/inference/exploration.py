@@ -39,9 +39,10 @@ A second pass (``found_by`` 2 in the record) looks for basins whose solves all h
 higher neighbour in the mode that was found (the rounds put their solves there, nearer
 to a Sobol point of another basin than that basin's other solves). It takes the solves
 the posterior does not hold: those outside the particles' region (the nearest particles
-that carry 0.5 % of the weight lie farther away than they do for 99 % of the particles'
-own weight: a weighted k-nearest-neighbour density, per mode whatever the number of
-modes) and not explained by a held basin of the first pass (higher than that basin's
+that carry 0.5 % of the weight lie farther away than 3 times the radius they need around
+the particles at the region's 1 % edge: a weighted k-nearest-neighbour density, per mode
+whatever the number of modes; the factor 3 keeps a posterior's tail, such as the arms of
+a curved ridge, in its region) and not explained by a held basin of the first pass (higher than that basin's
 fitted quadratic, with its own curvature, by more than chi2_0.99(d) / 2 nats: the
 held mode's slope is explained, another basin rising above it is not). Among these
 solves alone, a solve at least as high as its ``2 d`` nearest is a basin, fitted
@@ -103,15 +104,16 @@ REGION_SHARE = 0.005
 REGION_LEVEL = 0.99
 #: ... times this factor (the region reaches past the particles' edge: a solve in the
 #: posterior's tail is the posterior's slope, not another basin)
-REGION_FACTOR = 3.0
+REGION_FACTOR = 6.0
 
 
 def _posterior_region(Up: np.ndarray, W: np.ndarray):
+    # returns ratio(Q): u lies in the region where ratio <= 1
     """The posterior's region as a test on points u (box units): u lies in it when the
-    particles nearest to u carry ``REGION_SHARE`` of the weight within a radius no
-    larger than the ``REGION_LEVEL`` quantile (weighted) of the same radius over the
-    particles themselves: the particle density at u is at least that of the 1 % of
-    the posterior where it is thinnest. Per mode, whatever the number of modes (a
+    particles nearest to u carry ``REGION_SHARE`` of the weight within ``REGION_FACTOR``
+    times the ``REGION_LEVEL`` quantile (weighted) of the same radius over the
+    particles themselves: the particle density at u is at least 3^-d that of the 1 %
+    of the posterior where it is thinnest. Per mode, whatever the number of modes (a
     weighted k-nearest-neighbour density, k = N * REGION_SHARE for equal weights)."""
     keep = W > 0
     Up, W = Up[keep], W[keep] / W[keep].sum()
@@ -133,10 +135,12 @@ def _posterior_region(Up: np.ndarray, W: np.ndarray):
     cw = np.cumsum(W[order])
     r_max = float(rp[order][min(np.searchsorted(cw, REGION_LEVEL), len(cw) - 1)])
 
-    def inside(Q: np.ndarray) -> np.ndarray:
-        return radius(np.atleast_2d(Q)) <= REGION_FACTOR * r_max
+    r_max = max(r_max, 1e-12)  # coincident particles
 
-    return inside
+    def ratio(Q: np.ndarray) -> np.ndarray:
+        return radius(np.atleast_2d(Q)) / (REGION_FACTOR * r_max)
+
+    return ratio
 
 
 def _design_matrix(V: np.ndarray, full: bool) -> np.ndarray:
@@ -286,12 +290,21 @@ def audit(X: np.ndarray, L: np.ndarray, particles: np.ndarray, weights: np.ndarr
         is_held = held >= HELD_SHARE * mass
         if found_by == 2 and not is_held:
             # a slope of the posterior's own region: its peak lies in that region
-            is_held = bool(region_u(u_star[None, :])[0])
+            is_held = bool(region_u(u_star[None, :])[0] <= 1.0)
         if is_held:
-            # its model for pass 2: the fit's own curvature, floored (where not
+            # its model for pass 2: a full quadratic where the solves allow (above
+            # d = 3 the basin's own fit is diagonal, and a rotated basin's slope would
+            # not be explained), with the fit's own curvature, floored (where not
             # negative) at the box's width only, not at the trust radius's
-            lam_h, Q_h = np.linalg.eigh(-0.5 * (H + H.T))
-            held_models.append((U[i], c, g, (Q_h * np.maximum(lam_h, 1.0)) @ Q_h.T))
+            cm, gm, Hm = c, g, H
+            n_full = 1 + d + d * (d + 1) // 2 + d
+            if not full and len(Lf) >= n_full:
+                _, idf = tree.query(U[i], k=n_full)
+                Af = _design_matrix(U[idf] - U[i], True)
+                cf, *_ = np.linalg.lstsq(Af, Lf[idf], rcond=None)
+                cm, gm, Hm = _unpack(cf, d, True)
+            lam_h, Q_h = np.linalg.eigh(-0.5 * (Hm + Hm.T))
+            held_models.append((U[i], cm, gm, (Q_h * np.maximum(lam_h, 1.0)) @ Q_h.T))
         else:
             unexplored += mass
         out["basins"].append({
@@ -299,6 +312,7 @@ def audit(X: np.ndarray, L: np.ndarray, particles: np.ndarray, weights: np.ndarr
             "peak_loglik": float(L_star), "mass": mass, "log_mass": float(log_m),
             "held": held, "is_held": bool(is_held), "trust_radius": radius,
             "found_by": found_by, "fit_r2": fit_r2,
+            "region_ratio": float(region_u(U[i][None, :])[0]),
         })
 
     # pass 1: the local maxima of all the solves
@@ -307,8 +321,20 @@ def audit(X: np.ndarray, L: np.ndarray, particles: np.ndarray, weights: np.ndarr
         basin(int(i), idx, dist, 1)
     # pass 2: the local maxima among the solves the posterior does not hold (outside the
     # particles' region and not explained by the quadratic of a held basin)
-    outside = ~region_u(U)
+    region_ratio = region_u(U)
+    outside = region_ratio > 1.0
     tol = 0.5 * level
+    # the posterior's own Gaussian (the particles' mean and covariance) explains too:
+    # L(x) = log Z + log N(x; mean, cov) - log p(x) where the posterior is that Gaussian
+    mu = W @ Up
+    C = (Up - mu).T @ ((Up - mu) * W[:, None]) + 1e-12 * np.eye(d)
+    sign, logdet = np.linalg.slogdet(C)
+    if sign > 0:
+        D = U - mu
+        log_n = -0.5 * np.einsum("ij,jk,ik->i", D, np.linalg.inv(C), D) \
+            - 0.5 * (d * math.log(2 * math.pi) + logdet) - log_box
+        q = float(log_evidence) + log_n - space.logprior(X[ok])
+        outside &= Lf > q + tol
     for u_i, c, g, P in held_models:
         D = U - u_i
         q = c + D @ g - 0.5 * np.einsum("ij,jk,ik->i", D, P, D)
