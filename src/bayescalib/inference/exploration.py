@@ -255,6 +255,7 @@ def audit(X: np.ndarray, L: np.ndarray, particles: np.ndarray, weights: np.ndarr
     full = d <= 3
     n_coef = 1 + d + (d * (d + 1) // 2 if full else d)
     n_fit = n_coef + d
+    n_full = 1 + d + d * (d + 1) // 2 + d  # a full quadratic's fit (the second pass)
     n_nb = 2 * d
     if len(Lf) < max(n_fit, n_nb + 1):
         return out
@@ -273,9 +274,10 @@ def audit(X: np.ndarray, L: np.ndarray, particles: np.ndarray, weights: np.ndarr
     def basin(i: int, idx: np.ndarray, dist: np.ndarray, found_by: int) -> None:
         nonlocal unexplored
         V = U[idx] - U[i]
-        A = _design_matrix(V, full)
+        fit_full = full or found_by == 2
+        A = _design_matrix(V, fit_full)
         coef, *_ = np.linalg.lstsq(A, Lf[idx], rcond=None)
-        c, g, H = _unpack(coef, d, full)
+        c, g, H = _unpack(coef, d, fit_full)
         resid = Lf[idx] - A @ coef
         spread = float(np.sum((Lf[idx] - Lf[idx].mean()) ** 2))
         fit_r2 = 1.0 - float(resid @ resid) / spread if spread > 0 else 1.0
@@ -303,7 +305,6 @@ def audit(X: np.ndarray, L: np.ndarray, particles: np.ndarray, weights: np.ndarr
             # not be explained), with the fit's own curvature, floored (where not
             # negative) at the box's width only, not at the trust radius's
             cm, gm, Hm = c, g, H
-            n_full = 1 + d + d * (d + 1) // 2 + d
             if not full and len(Lf) >= n_full:
                 _, idf = tree.query(U[i], k=n_full)
                 Af = _design_matrix(U[idf] - U[i], True)
@@ -346,12 +347,12 @@ def audit(X: np.ndarray, L: np.ndarray, particles: np.ndarray, weights: np.ndarr
         q = c + D @ g - 0.5 * np.einsum("ij,jk,ik->i", D, P, D)
         outside &= Lf > q + tol
     sub = np.flatnonzero(outside)
-    if len(sub) >= max(n_fit, n_nb + 1):
+    if len(sub) >= max(n_full, n_nb + 1):
         sub_tree = cKDTree(U[sub])
         _, nb2 = sub_tree.query(U[sub], k=n_nb + 1)
         for j, i in enumerate(sub):
             if not local_max[i] and Lf[i] >= Lf[sub[nb2[j, 1:]]].max():
-                dist, idx = sub_tree.query(U[i], k=n_fit)
+                dist, idx = sub_tree.query(U[i], k=n_full)
                 basin(int(i), sub[idx], dist, 2)
     out["n_outside"] = int(outside.sum())
     out["basins"].sort(key=lambda b: -b["peak_loglik"])
