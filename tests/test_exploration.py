@@ -173,8 +173,8 @@ def test_a_basin_whose_solves_all_have_a_higher_neighbour_in_the_found_mode_is_s
     first pass (local maxima of all the solves) finds no basin the posterior does not
     hold; the second pass (local maxima among the solves outside the particles' region
     and explained neither by the held basin's quadratic nor by the posterior's
-    Gaussian) finds it, its peak within 0.1 of the
-    missing mode, and the probe goes there."""
+    Gaussian) finds it, its peak within 0.1 of the missing mode, and the probe goes
+    there."""
     X0 = _design(32, seed=19)
     two = [int(np.argmin(np.linalg.norm(X0 - p, axis=1))) for p in ([-0.21, -0.68],
                                                                     [-0.47, 0.15])]
