@@ -327,7 +327,8 @@ def audit(X: np.ndarray, L: np.ndarray, particles: np.ndarray, weights: np.ndarr
         dist, idx = tree.query(U[i], k=n_fit)
         basin(int(i), idx, dist, 1)
     # pass 2: the local maxima among the solves the posterior does not hold (outside the
-    # particles' region and not explained by the quadratic of a held basin)
+    # particles' region, explained neither by the posterior's Gaussian nor by the
+    # quadratic of a held basin), fitted by full quadratics through such solves only
     region_ratio = region_u(U)
     outside = region_ratio > 1.0
     tol = 0.5 * level
