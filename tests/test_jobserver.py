@@ -279,6 +279,28 @@ def test_resources_mem_mb_limits_the_process_that_works(tmp_path, server, base_s
         assert read_run(tmp_path / f"{label}_roomy.h5").status == "ok", label
 
 
+BLAS = """
+import os
+def threads(params, **kw):
+    raise RuntimeError("BLAS threads " + os.environ.get("OPENBLAS_NUM_THREADS", "unset"))
+"""
+
+
+def test_every_job_has_one_blas_thread_whatever_snakemake_grants(tmp_path, server, base_study,
+                                                                monkeypatch):
+    """Snakemake sets OPENBLAS_NUM_THREADS to a job's threads; a job's BLAS has one thread
+    through the server and in the client's fallback alike (a GP fit with two differs
+    from one with one at 1e-6, and a SLURM run, all fallbacks, then differed from the
+    local run): the model, run in the job's solve process, sees 1 where the client had 4."""
+    study = _model_study(tmp_path, monkeypatch, base_study, BLAS, "blas:threads")
+    for label, sock in (("server", server), ("fresh", None)):
+        proc = _job(sock, tmp_path, "solve", env={"OPENBLAS_NUM_THREADS": "4"},
+                    **_solve_args(study, 0, f"{label}.h5"))
+        assert proc.returncode == 0, proc.stderr  # a failed solve is a record
+        run = read_run(tmp_path / f"{label}.h5")
+        assert run.status == "failed" and "BLAS threads 1" in run.reason, (label, run.reason)
+
+
 def test_a_server_refuses_jobs_once_the_source_changed_and_restarts(tmp_path, base_study):
     """The server fingerprints the package's source when it starts; once a module
     changed (here: its modification time, in a copy of the package), it refuses the

@@ -43,7 +43,7 @@ What a job keeps
 * No server (a cluster executor, a run without ``onstart``, a server that failed to
   start, a server that refused the job): the client runs the same stage in a child of
   its own (``python -m bayescalib.execution.jobserver --run-job``), with the full
-  imports: slower, same result.
+  imports: slower, same result (one BLAS thread there too, :data:`JOB_BLAS_ENV`).
 * Changed code: a server refuses jobs once the package's source differs from what it
   imported (:func:`source_fingerprint`) and restarts (:func:`serve`); the refused job
   runs in its client, from the source on disk.
@@ -103,6 +103,13 @@ from bayescalib._process import die_with_parent
 __all__ = ["JOB_TEMPLATE", "ROUND_STAGES", "STAGES", "export_job_command", "job_command",
            "job_document", "limit_memory", "run_job", "serve", "socket_path",
            "source_fingerprint", "start_server", "stop_server"]
+
+#: every job's BLAS threads, through a server or in its client's fallback: one, whatever
+#: threads Snakemake grants the job (it sets OPENBLAS_NUM_THREADS to them). A job's
+#: threads are processes (a solve batch, a surrogate search's candidates), and a GP fit
+#: with two BLAS threads differs from one with one at 1e-6, which moved an active
+#: design's rounds: the fallback must give what the server gives (test_jobserver.py)
+JOB_BLAS_ENV = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
 
 #: environment variable through which the jobs of a run find its point server
 SOCKET_ENV = "BAYESCALIB_JOBSERVER"
@@ -379,8 +386,7 @@ def start_server(root: str | Path, *, wait_s: float = 20.0) -> str | None:
     log.parent.mkdir(parents=True, exist_ok=True)
     ledger = log.with_name("jobserver_jobs.tsv")
     ledger.write_text("\t".join(LEDGER_COLUMNS) + "\n")
-    env = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1",
-           "MKL_NUM_THREADS": "1"}
+    env = {**os.environ, **JOB_BLAS_ENV}
     log.write_text("")
     procs = {}
     for kind, path in paths.items():
@@ -479,7 +485,7 @@ def _run_child(request: Mapping[str, Any], fds: list[int], close: list[int]) -> 
             os.close(fd)
         os.chdir(request["cwd"])
         os.environ.clear()
-        os.environ.update(request["env"])
+        os.environ.update({**request["env"], **JOB_BLAS_ENV})  # a spawned solve's too
         run_job(request["job"])
         code = 0
     except SystemExit as exc:
@@ -741,6 +747,7 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     if argv == ["--run-job"]:
         die_with_parent(os.getppid())  # the client is killed: so is its job
+        os.environ.update(JOB_BLAS_ENV)  # before NumPy is imported: as in a server's job
         doc = json.loads(sys.stdin.read())
         sys.stdin.close()
         run_job(doc)
