@@ -87,7 +87,7 @@ cost of the second pass's false basins on ``ridge2d`` and ``sloppy4d``: that fil
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from typing import Any
 
 import numpy as np
@@ -113,14 +113,14 @@ REGION_LEVEL = 0.99
 REGION_FACTOR = 6.0
 
 
-def _posterior_region(Up: np.ndarray, W: np.ndarray):
-    # returns ratio(Q): u lies in the region where ratio <= 1
+def _posterior_region(Up: np.ndarray, W: np.ndarray) -> Callable[[np.ndarray], np.ndarray]:
     """The posterior's region as a test on points u (box units): u lies in it when the
     particles nearest to u carry ``REGION_SHARE`` of the weight within ``REGION_FACTOR``
     times the ``REGION_LEVEL`` quantile (weighted) of the same radius over the
     particles themselves: the particle density at u is at least 6^-d that of the 1 %
     of the posterior where it is thinnest. Per mode, whatever the number of modes (a
-    weighted k-nearest-neighbour density, k = N * REGION_SHARE for equal weights)."""
+    weighted k-nearest-neighbour density, k = N * REGION_SHARE for equal weights).
+    Returns ``ratio(Q)`` for points Q (m, d): u lies in the region where it is <= 1."""
     keep = W > 0
     Up, W = Up[keep], W[keep] / W[keep].sum()
     k = int(min(len(W), max(64, math.ceil(4 * REGION_SHARE * len(W)))))
@@ -140,7 +140,6 @@ def _posterior_region(Up: np.ndarray, W: np.ndarray):
     order = np.argsort(rp)
     cw = np.cumsum(W[order])
     r_max = float(rp[order][min(np.searchsorted(cw, REGION_LEVEL), len(cw) - 1)])
-
     r_max = max(r_max, 1e-12)  # coincident particles
 
     def ratio(Q: np.ndarray) -> np.ndarray:
