@@ -39,8 +39,8 @@ from pathlib import Path
 import numpy as np
 from scipy.stats import truncnorm
 
-from bayescalib.inference.rounds import calibrate
 from bayescalib.inference.parameters import ParameterSpace
+from bayescalib.inference.rounds import calibrate
 
 MEAN, SD, CUT = np.array([0.4, -0.3]), np.array([0.3, 0.4]), 0.5
 

@@ -47,7 +47,7 @@ from typing import Any
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-import bench_active as ba  # noqa: E402
+import bench_active as ba
 
 VARIANTS: dict[str, dict[str, Any]] = {
     "audit": {},
@@ -68,7 +68,7 @@ def run(prob: ba.Problem, variant: str, seed: int, budget: int) -> dict[str, Any
                     smc={"n_particles": 4000}, seed=seed)
     wall = time.perf_counter() - t0
     X, w = res.smc.particles, res.smc.weights / res.smc.weights.sum()
-    m, C = ba.weighted_moments(X, w)
+    m, _ = ba.weighted_moments(X, w)
     row: dict[str, Any] = {
         "problem": prob.name, "variant": variant, "seed": seed, "evals": f.n,
         "rounds": len(res.rounds), "converged": res.converged, "wall_s": round(wall, 1),

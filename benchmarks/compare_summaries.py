@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import json
 import sys
+from pathlib import Path
 from typing import Any
 
 IGNORED = ("timings_s", "time_s")
@@ -39,7 +40,7 @@ def differences(a: Any, b: Any, path: str = "") -> list[str]:
 
 
 def main(argv: list[str]) -> int:
-    old, new = (json.loads(open(p).read()) for p in argv[1:3])
+    old, new = (json.loads(Path(p).read_text()) for p in argv[1:3])
     diff = differences(old, new)
     print("\n".join(diff) if diff else "equal (apart from timings)")
     return 1 if diff else 0

@@ -9,8 +9,9 @@ import os
 # points, 12 candidates: 378 s / 56 s against 28 s / 2.2 s at load 12-22;
 # OPENBLAS_NUM_THREADS=2 or 1 python benchmarks/bench_search_threads.py --problems
 # sloppy4d --n 80 --threads 1; docs/surrogate.md, issue 38).
-for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
-    os.environ[_var] = "1"
+from bayescalib.execution.jobserver import JOB_BLAS_ENV  # imports no NumPy
+
+os.environ.update(JOB_BLAS_ENV)
 
 from bayescalib.diagnosis.report import write_diagnosis
 from bayescalib.diagnosis.stage import run_diagnosis

@@ -18,10 +18,10 @@ import pytest
 from bayescalib.config import ConfigError, validate
 from bayescalib.geometry import outline as ol
 from bayescalib.geometry.imaging import pixel_grid, render_mask
+from bayescalib.geometry.interface import Interface
 from bayescalib.geometry.shapes import ellipse_patch, lobed_colony
 from bayescalib.io.colony import read_colony
 from bayescalib.io.observations import ObservationError, write_interface_csv, write_mask_png
-from bayescalib.geometry.interface import Interface
 from bayescalib.study import Study
 
 S = 0.004  # pixel size, mm (4 um, an OCT B-scan's)
@@ -60,7 +60,7 @@ def _read(scan):
     return read_colony(geo["scan"])
 
 
-LOBED = lambda t: 0.28 * (1 + 0.12 * np.cos(3 * t + 0.5))  # noqa: E731
+LOBED = lambda t: 0.28 * (1 + 0.12 * np.cos(3 * t + 0.5))
 
 
 @pytest.mark.parametrize("colony", [

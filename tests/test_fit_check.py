@@ -7,9 +7,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from bayescalib.inference.rounds import calibrate
 from bayescalib.inference.likelihood import FIT_P_VALUE, fit_check
 from bayescalib.inference.parameters import ParameterSpace
+from bayescalib.inference.rounds import calibrate
 
 
 @pytest.mark.parametrize("n", [1, 10, 40])

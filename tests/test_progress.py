@@ -53,8 +53,8 @@ def test_a_round_says_its_solves_of_the_budget_its_decision_and_its_posterior():
                                "are solved next as its check")
     pc = {"round": 3, "n_draws": 16, "n_failed": 0, "confirmed": True}
     done = round_lines(_rec(4, 39, stop=True, converged=True, settled=True, pc=pc), 40, UNITS)
-    assert done == ["round 4: 39 of 40 solves; converged: 16 real solves of its draws "
-                    "confirm round 3's posterior",
+    assert done == [("round 4: 39 of 40 solves; converged: 16 real solves of its draws "
+                    "confirm round 3's posterior"),
                     "  posterior: E = 380 +- 65 Pa, nu = 0.179 +- 0.23",
                     "  final posterior, figures and summary next"]
     spent = round_lines(_rec(5, 40, stop=True, failed=2), 40, UNITS)[0]
@@ -137,8 +137,8 @@ def test_a_long_stage_says_what_runs_at_most_once_a_minute():
 def test_a_fixed_design_says_when_its_solves_are_done():
     con = RunConsole(_plan(active=False, budget=3), clock=_Clock())
     out = con.start()
-    assert out == ["bayescalib smoke: fixed design of 3 solves. Each step's log: "
-                   "results/smoke/logs/"]
+    assert out == [("bayescalib smoke: fixed design of 3 solves. Each step's log: "
+                   "results/smoke/logs/")]
     for k in range(3):
         out += con.job_info(k, "solve", {}, []) + con.job_finished(k)
     assert out[-1].startswith("all 3 solves done [0 s]; surrogate, posterior")
@@ -220,8 +220,8 @@ def test_the_plugin_prints_the_runs_lines_in_place_of_snakemakes_per_step_output
         h.handle(r)
     out = h._inner.stream.getvalue().splitlines()
     assert out == [
-        "bayescalib smoke: active design, at most 40 solves (design.active.max_solves). "
-        "Each step's log: results/smoke/logs/",
+        ("bayescalib smoke: active design, at most 40 solves (design.active.max_solves). "
+        "Each step's log: results/smoke/logs/"),
         "Provided cores: 2",
         "round 0 [0 s]: 8 of 40 solves; the first posterior; 5 more solves next",
         "  posterior: E = 380 +- 65 Pa, nu = 0.179 +- 0.23",

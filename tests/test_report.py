@@ -277,7 +277,7 @@ class DevTools:
         with self.log.open("wb") as log:
             self.proc = subprocess.Popen(
                 [chromium, *args], stdin=subprocess.DEVNULL, stdout=log, stderr=log,
-                close_fds=False, preexec_fn=child_fds)  # noqa: PLW1509 (only dup2 in the child)
+                close_fds=False, preexec_fn=child_fds)
         os.close(to_r)
         os.close(from_w)
         self._buf = b""
@@ -441,9 +441,9 @@ def test_a_report_of_an_unfinished_or_live_study_says_so(tmp_path, base_study):
     assert "its run has not finished (interrupted or failed)" in out
     assert "then make the report: snakemake --report results/analytic/report.html" in out
     live = subprocess.Popen(
-        [sys.executable, "-c", "from bayescalib.study import hold_run_lock; "
+        [sys.executable, "-c", ("from bayescalib.study import hold_run_lock; "
          f"hold_run_lock({str(tmp_path / 'results' / 'analytic')!r}, 'analytic'); "
-         "print('held', flush=True); import time; time.sleep(60)"],
+         "print('held', flush=True); import time; time.sleep(60)")],
         stdout=subprocess.PIPE, text=True)
     try:
         assert live.stdout.readline().strip() == "held"

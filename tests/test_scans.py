@@ -72,7 +72,7 @@ def test_a_raw_scan_is_segmented_to_the_interface_within_a_pixel(tmp_path, bits,
 
 
 def test_an_rgb_scan_uses_its_first_channel_and_a_given_threshold(tmp_path):
-    img, _, origin = _scan(bump())
+    img, _, _ = _scan(bump())
     grey = _to_bits(img, 8)
     rgb = np.stack([grey, np.zeros_like(grey), np.full_like(grey, 255)], axis=-1)
     io.imsave(tmp_path / "rgb.png", rgb, check_contrast=False)
@@ -196,7 +196,7 @@ def test_the_floor_is_found_as_a_bright_band_or_the_bottom_of_the_foreground(tmp
     # the biofilm on the image's bottom edge: nothing to cut
     img3, _, origin3 = _scan(curve)
     io.imsave(tmp_path / "edge.png", _to_bits(img3, 8), check_contrast=False)
-    c3, i3 = read_interface_info(tmp_path / "edge.png", pixel_size=S, origin=origin3,
+    _, i3 = read_interface_info(tmp_path / "edge.png", pixel_size=S, origin=origin3,
                                  floor="auto")
     assert i3["floor"] == {"method": "image bottom", "row": None} and i3["floor_mm"] is None
 

@@ -16,7 +16,6 @@ import numpy as np
 import pytest
 
 from bayescalib.config import load_yaml, merge_layers, validate
-from bayescalib.inference.rounds import calibrate
 from bayescalib.inference.design import sobol_design
 from bayescalib.inference.gp import (
     GPSurrogate,
@@ -26,6 +25,7 @@ from bayescalib.inference.gp import (
     resolve_ard,
 )
 from bayescalib.inference.parameters import ParameterSpace
+from bayescalib.inference.rounds import calibrate
 
 CONFIG = Path(__file__).resolve().parents[1] / "config"
 BOUND = 2.88  # the likelihood's upper bound B (one scalar measurement)

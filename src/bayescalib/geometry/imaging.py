@@ -182,7 +182,7 @@ def image_size(path: str | Path) -> tuple[int, int]:
                     shape = tf.pages[0].shape
                 h, w = (int(v) for v in shape[:2])
                 return w, h
-            except Exception:  # noqa: BLE001
+            except Exception:  # noqa: BLE001, S110 - no readable header: the error below
                 pass
         raise ImageError(f"{p}: cannot read the image header ({type(exc).__name__}: {exc})") from None
 

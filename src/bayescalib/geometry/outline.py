@@ -147,7 +147,7 @@ def resample_curve(points: np.ndarray, spacing: float, *, closed: bool = False) 
     total = float(s[-1])
     if total <= 0:
         raise OutlineError("the curve has zero length")
-    n = max(int(round(total / spacing)), 3 if closed else 1)
+    n = max(round(total / spacing), 3 if closed else 1)
     q = np.linspace(0.0, total, n + 1)
     if closed:
         q = q[:-1]
@@ -290,7 +290,7 @@ def extend_to_floor(interface: np.ndarray, floor: float, *, reach: float) -> np.
             continue
         k = int(np.searchsorted(s, reach)) if end == 0 else \
             int(np.searchsorted(s, s[-1] - reach)) - 1
-        k = min(max(k, 1), p.shape[0] - 2) if end == 0 else min(max(k, 1), p.shape[0] - 2)
+        k = min(max(k, 1), p.shape[0] - 2)
         d = q - p[k]
         if d[1] < -1e-12:  # heading down to the floor: continue along it
             t = (q[1] - floor) / -d[1]

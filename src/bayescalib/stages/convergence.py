@@ -33,8 +33,8 @@ def convergence(training_path: str | Path, surrogate: Mapping[str, Any],
     them); only the training size varies. At the full training set it is the study's
     surrogate. ``surrogate`` in the record: each n's hyperparameters."""
     from bayescalib.inference.convergence import convergence_study
-    from bayescalib.inference.parameters import ParameterSpace
     from bayescalib.inference.gp import fit_from_config
+    from bayescalib.inference.parameters import ParameterSpace
 
     tab = read_stage_file(training_path, "training table")
     tr = tab["is_train"].astype(bool)

@@ -108,7 +108,7 @@ def _json_object(path: Path) -> dict[str, Any]:
     """A JSON stage output: an object (every stage writes one)."""
     value = json.loads(path.read_bytes())
     if not isinstance(value, dict):
-        raise ValueError(f"it holds a JSON {type(value).__name__}, not an object")
+        raise ValueError(f"it holds a JSON {type(value).__name__}, not an object")  # noqa: TRY004 - read_stage_file sets a ValueError aside
     return value
 
 
