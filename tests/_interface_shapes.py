@@ -69,3 +69,12 @@ def square(L: float, n: int, z: float = 0.0) -> Interface:
 def rotation2d(angle: float) -> np.ndarray:
     c, s = math.cos(angle), math.sin(angle)
     return np.array([[c, -s], [s, c]])
+
+
+def dome(R: float, level: int) -> Interface:
+    """The upper half of :func:`icosphere` (y >= 0): an open colony surface whose rim lies
+    on the floor y = 0, outward normals (the form of an observed 3D interface)."""
+    from bayescalib.geometry.surface import colony_surface
+
+    s = icosphere(R, level)
+    return colony_surface(s.points, s.cells, floor=0.0, name="dome")[0]

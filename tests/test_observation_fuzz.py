@@ -14,7 +14,7 @@ import math
 
 import numpy as np
 import pytest
-from _interface_shapes import arc, icosphere
+from _interface_shapes import arc, dome
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -60,7 +60,7 @@ def _valid_files(d):
     c = arc(0.4, 17)
     write_interface_csv(d / "seed.csv", c)
     write_interface_vtk(d / "seed.vtp", c)
-    write_interface_vtk(d / "seed3d.vtp", icosphere(1.0, 1))
+    write_interface_vtk(d / "seed3d.vtp", dome(1.0, 1))
     import vtk
 
     r = vtk.vtkXMLPolyDataReader()

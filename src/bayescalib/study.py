@@ -298,6 +298,11 @@ class Study:
         observed = Study._validate_observation_files(cfg, where)
         Study._validate_measure_points(cfg, where)
         Study._validate_registration(cfg, where, observed)
+        if "rkhs" in cfg["measures"]:  # after the unit check, whose words are the clearer
+            for key, iface in observed.items():
+                if key != "observations.reference":
+                    Study._validate_rkhs_cost(cfg, where, key,
+                                              Path(_entry_at(cfg, key)["path"]), iface)
         Study._validate_diagnose(cfg, where)
         return notes
 
@@ -464,9 +469,11 @@ class Study:
         """Every observed interface lies where the model's undeformed biofilm is, at its
         scale: a flow moves the interface by a fraction of the colony's height and its
         feet barely; a wrong origin or unit moves or scales it as a whole. Refused when
-        the observed x-extent is not within a factor 2 of the model's (units), or when
-        its nodes lie on average more than a quarter of the colony's height from the
-        model's undeformed interface (placement); both before any solve.
+        the observed extent is not within a factor 2 of the model's (units: the x-extent
+        of a curve; a surface's x- and z-extents, each), or when its nodes lie on average
+        more than a quarter of the colony's height from the model's undeformed interface
+        (placement: :func:`bayescalib.geometry.outline.placement`, in 3D
+        :func:`bayescalib.geometry.surface.surface_placement`); both before any solve.
 
         A python or command model's geometry is known only from a solve: its files are
         compared with ``observations.reference`` (units and placement) or, without one,
@@ -474,57 +481,74 @@ class Study:
         that one's size with the likelihood's noise (:meth:`_validate_scale`)."""
         import numpy as np
 
+        from bayescalib.geometry.interface import Interface
         from bayescalib.geometry.outline import placement
+        from bayescalib.geometry.surface import surface_placement
         from bayescalib.io.observations import UNITS, unit_hint
 
-        observed = {k: v for k, v in observed.items() if v.dim == 2}  # 3D: not checked
         if not observed:
             return
+        dim = next(iter(observed.values())).dim  # one dimension (_validate_dimension)
         place = True
         if cfg["forward_model"]["type"] == "fsi":
-            from bayescalib.models.fsi.geometry import reference_interface
+            geometry = validate(cfg["forward_model"]["fsi"], "fsi")["geometry"]
+            if dim == 2:
+                from bayescalib.models.fsi.geometry import reference_interface
 
-            ref = reference_interface(validate(cfg["forward_model"]["fsi"], "fsi")["geometry"])
+                ref = Interface.polyline(reference_interface(geometry), name="reference")
+            else:
+                from bayescalib.models.fsi.geometry3d import reference_surface
+
+                ref = reference_surface(geometry)
             what = "the model's undeformed biofilm"
         else:
             what = "observations.reference" if "observations.reference" in observed \
                 else next(iter(observed))
             Study._validate_scale(cfg, where, what, observed[what])
-            ref = observed[what].points
+            ref = observed[what]
             place = what == "observations.reference"  # snapshots under load move apart
-        height = float(np.ptp(ref[:, 1])) or 1.0
+        height = float(np.ptp(ref.points[:, 1])) or 1.0
+        axes = ((0, "wide"),) if dim == 2 else ((0, "long (x, along the flow)"),
+                                                    (2, "wide (z, across the flow)"))
         for key, iface in observed.items():
             if key == what:  # the reference compared with itself
                 continue
             entry = dict(_entry_at(cfg, key))
             units = entry.get("units") or "mm"
-            ratio = float(np.ptp(iface.points[:, 0])) / (float(np.ptp(ref[:, 0])) or 1.0)
-            if not 0.5 <= ratio <= 2.0:
+            for ax, word in axes:
+                e_obs, e_ref = float(np.ptp(iface.points[:, ax])), float(np.ptp(ref.points[:, ax]))
+                ratio = e_obs / (e_ref or 1.0)
+                if 0.5 <= ratio <= 2.0:
+                    continue
                 u = unit_hint(ratio, units, 0.5, 2.0)
                 raise ConfigError(
                     f"{where}: {key} ('{entry['path']}'): the observed interface is "
-                    f"{ratio:.3g} times as wide as {what} "
-                    f"({np.ptp(iface.points[:, 0]):.4g} mm against {np.ptp(ref[:, 0]):.4g} mm, "
-                    f"read as {units}): check {key}.units"
-                    + (" and pixel_size" if entry.get("pixel_size") is not None else "")
-                    + (f"; the sizes agree if the file is in {u} (units: {u})" if u else ""))
+                    f"{ratio:.3g} times as {word} as {what} "
+                    f"({e_obs:.4g} mm against {e_ref:.4g} mm, read as {units}): check "
+                    f"{key}.units" + (" and pixel_size" if entry.get("pixel_size") is not None
+                                      else "")
+                    + (f"; the sizes agree if the file is in {u} (units: {u})" if u else "")
+                    + ("; or make the model's colony the observed one's size "
+                       "(forward_model.fsi.geometry)" if what.startswith("the model") and not u
+                       else ""))
             if not place:
                 continue
-            p = placement(iface.points, ref)
+            p = placement(iface.points, ref.points) if dim == 2 else surface_placement(iface, ref)
             if p.mean_distance > 0.25 * height:
-                dx, dy = p.offset
+                offset = ", ".join(f"{v:+.3f}" for v in p.offset)
                 fix = ""
-                if entry.get("origin") is not None:
+                origin = entry.get("origin")
+                if origin is not None and len(origin) == len(p.offset):
                     f = UNITS[units]
-                    fix = (f"; with origin [{entry['origin'][0] - dx / f:.6g}, "
-                           f"{entry['origin'][1] - dy / f:.6g}] {units} it would lie in place")
+                    moved = ", ".join(f"{o - v / f:.6g}" for o, v in zip(origin, p.offset))
+                    fix = f"; with origin [{moved}] {units} it would lie in place"
                 elif entry.get("pixel_size") is not None:
                     fix = f"; {key}.origin is not given"
                 raise ConfigError(
                     f"{where}: {key} ('{entry['path']}'): the observed interface lies "
                     f"{p.mean_distance:.3g} mm (mean distance of its nodes) from {what}, "
                     f"whose height is {height:.3g} mm: a flow moves it by a fraction of that. "
-                    f"It is offset by about ({dx:+.3f}, {dy:+.3f}) mm: check {key}.origin and "
+                    f"It is offset by about ({offset}) mm: check {key}.origin and "
                     f"{key}.units{fix}")
 
     @staticmethod
@@ -549,8 +573,9 @@ class Study:
         for key, iface in observed.items():
             path = dict(_entry_at(cfg, key))["path"]
             if dim is not None and iface.dim != dim:
-                hint = ("give the colony's surface (a VTK file of triangles or polygons) "
-                        "for the 3D model, or set forward_model.fsi.geometry.dim: 2"
+                hint = ("give the colony's surface (STL, PLY or VTK polygons) or its OCT "
+                        "volume (a folder of B-scans, .npy, a multi-page TIFF) for the 3D "
+                        "model, or set forward_model.fsi.geometry.dim: 2"
                         if dim == 3 else
                         "give a 2D interface (coordinates, a VTK polyline or an image) for "
                         "the 2D model, or set forward_model.fsi.geometry.dim: 3")
@@ -602,13 +627,14 @@ class Study:
         finds no biofilm, or a missing ``origin`` is a config error, not a failed job.
         Returns the interfaces read, by config key."""
         from bayescalib.io.observations import (
-            CSV_SUFFIXES,
             IMAGE_SUFFIXES,
-            VTK_SUFFIXES,
+            INTERFACE_SUFFIXES,
             ObservationError,
             read_interface,
+            reader_options,
             validate_shape,
         )
+        from bayescalib.io.volumes import is_volume
 
         obs = cfg["observations"]
         if obs["source"] != "files":
@@ -620,14 +646,22 @@ class Study:
                               "interface file (one per loading)")
         if obs.get("reference"):
             entries.append(("observations.reference", obs["reference"]))
-        known = CSV_SUFFIXES | VTK_SUFFIXES | IMAGE_SUFFIXES
         for key, e in entries:
             path = Path(e["path"])
             suffix = path.suffix.lower()
-            if suffix not in known:
+            if suffix not in INTERFACE_SUFFIXES and not path.is_dir():
                 raise ConfigError(f"{where}: {key}.path: '{path}' is not a supported interface "
-                                  f"file (suffixes: {', '.join(sorted(known))})")
-            if suffix in IMAGE_SUFFIXES and e.get("pixel_size") is None:
+                                  f"file (suffixes: {', '.join(sorted(INTERFACE_SUFFIXES))}; "
+                                  "or a folder of B-scans, a volume)")
+            if path.exists() and is_volume(path):
+                Study._validate_volume_entry(where, key, e)
+            elif isinstance(e.get("pixel_size"), list) or len(e.get("origin") or ()) > 2:
+                raise ConfigError(
+                    f"{where}: {key}: '{path}' is not a volume (a folder of B-scans, a .npy "
+                    "array or a multi-page TIFF), so pixel_size is one number and origin "
+                    f"[x, y] (got pixel_size {e.get('pixel_size')!r}, origin "
+                    f"{e.get('origin')!r})")
+            elif suffix in IMAGE_SUFFIXES and e.get("pixel_size") is None:
                 raise ConfigError(f"{where}: {key}.pixel_size is required for the image "
                                   f"'{path}' (the size of one pixel, in {key}.units)")
             if suffix in IMAGE_SUFFIXES and e.get("origin") is None:
@@ -637,33 +671,50 @@ class Study:
                     "[0.0025, 0.0025] mm for an image whose bottom-left corner is at (0, 0) "
                     "with 5 um pixels); there is no default, since (0, 0) puts the image "
                     "half a pixel and its whole offset away from the model")
-            if not path.is_file():
-                raise ConfigError(f"{where}: {key}.path: '{path}' does not exist" + (
-                    "" if not path.exists() else " as a file (it is a folder)")
-                    + (f" (relative paths are read from {Path.cwd()})"
-                       if not path.is_absolute() else ""))
-            try:
-                with path.open("rb") as fh:
-                    fh.read(1)
-            except OSError as exc:
-                raise ConfigError(f"{where}: {key}.path: '{path}' cannot be read "
-                                  f"({exc.strerror or exc})") from None
-            Study._validate_point_count(cfg, where, key, path)
-            opts = {k: e[k] for k in ("units", "pixel_size", "origin", "drop_border", "floor",
-                                      "image", "segmentation")
-                    if e.get(k) is not None}
+            if not path.is_file() and not path.is_dir():
+                raise ConfigError(f"{where}: {key}.path: '{path}' does not exist"
+                                  + (f" (relative paths are read from {Path.cwd()})"
+                                     if not path.is_absolute() else ""))
+            if path.is_file():
+                try:
+                    with path.open("rb") as fh:
+                        fh.read(1)
+                except OSError as exc:
+                    raise ConfigError(f"{where}: {key}.path: '{path}' cannot be read "
+                                      f"({exc.strerror or exc})") from None
+                Study._validate_point_count(cfg, where, key, path)
+            opts = reader_options(e)
             try:
                 observed[key] = read_interface(path, domain=obs.get("domain"), **opts)
                 validate_shape(observed[key], str(path))
             except ObservationError as exc:
                 raise ConfigError(f"{where}: {key}: {exc}") from None
         Study._validate_dimension(cfg, where, observed)
-        if "rkhs" in cfg["measures"]:
-            for key, iface in observed.items():
-                if key != "observations.reference":
-                    Study._validate_rkhs_cost(cfg, where, key,
-                                              Path(_entry_at(cfg, key)["path"]), iface)
         return observed
+
+    @staticmethod
+    def _validate_volume_entry(where: str, key: str, entry: Mapping[str, Any]) -> None:
+        """A volume's entry gives its voxel size as three numbers and its origin as three
+        (no defaults: OCT voxels are rarely cubic, and a missing origin puts the colony
+        off the model), and has no 2D image setting that means nothing for it."""
+        size, origin = entry.get("pixel_size"), entry.get("origin")
+        units = entry.get("units") or "mm"
+        path = entry["path"]
+        if not isinstance(size, list):
+            raise ConfigError(
+                f"{where}: {key}.pixel_size: '{path}' is a volume, whose voxel size is three "
+                f"numbers [dx, dy, dz] in {units} (along the B-scan's columns, its rows and "
+                f"between B-scans), got {size!r}: OCT voxels are rarely cubic, so there is no "
+                "one-number form")
+        if origin is None or len(origin) != 3:
+            raise ConfigError(
+                f"{where}: {key}.origin: '{path}' is a volume, whose origin is [x, y, z] in "
+                f"{units}, the centre of the first B-scan's bottom-left pixel, got {origin!r} "
+                "(there is no default: (0, 0, 0) would put the colony half a voxel and its "
+                "whole offset away from the model)")
+        if entry.get("drop_border") is False:
+            raise ConfigError(f"{where}: {key}.drop_border is a 2D image setting; a volume's "
+                              "colony is cut at its floor: leave it out")
 
     @staticmethod
     def _validate_measure_points(cfg: dict[str, Any], where: str) -> None:
@@ -941,6 +992,30 @@ class Study:
         """Whether every parameter has a ground truth (synthetic data, or files made
         from known values): only then do figures, captions and summary.json show one."""
         return all(p.get("ground_truth") is not None for p in self.config["parameters"])
+
+    @property
+    def observation_paths(self) -> list[str]:
+        """The files the observation set is read from (``observations.files`` and the
+        reference; a folder volume's B-scans, each): a changed one makes a new set."""
+        from bayescalib.io.volumes import volume_files
+
+        obs = self.config["observations"]
+        entries = [*obs["files"], *([obs["reference"]] if obs["reference"] else [])]
+        return [str(f) for e in entries for f in volume_files(e["path"])]
+
+    @property
+    def image_files(self) -> list[str]:
+        """The observation files that are 2D images (a mask or a raw B-scan, one page),
+        whose segmentation the segmentation figure shows; a volume (a multi-page TIFF)
+        is not one."""
+        from bayescalib.io.observations import IMAGE_SUFFIXES
+        from bayescalib.io.volumes import is_volume
+
+        if self.synthetic:
+            return []
+        return [e["path"] for e in self.config["observations"]["files"]
+                if Path(e["path"]).suffix.lower() in IMAGE_SUFFIXES
+                and not is_volume(e["path"])]
 
     @property
     def interface_dim(self) -> int:

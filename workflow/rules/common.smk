@@ -7,12 +7,10 @@
 # ---- Observations
 
 def _observe_inputs(wildcards):
-    obs = study.config["observations"]
     if study.synthetic:
         return {"run": f"{R}/observations/ground_truth_run.h5"}
     # the files themselves: a changed observation file makes a new observation set
-    files = [e["path"] for e in obs["files"]]
-    return {"files": files + ([obs["reference"]["path"]] if obs["reference"] else [])}
+    return {"files": study.observation_paths}
 
 
 FIELDS = (study.config["plots"]["fields"] and study.config["forward_model"]["type"] == "fsi"
@@ -23,11 +21,7 @@ FIELDS = (study.config["plots"]["fields"] and study.config["forward_model"]["typ
 SYNTHETIC = study.synthetic
 
 # the observation files that are images (a mask or a raw scan): the segmentation figure
-IMAGE_FILES = [
-    e["path"] for e in study.config["observations"]["files"]
-    if not study.synthetic
-    and os.path.splitext(e["path"])[1].lower() in (".png", ".tif", ".tiff")
-]
+IMAGE_FILES = study.image_files
 
 
 # ---- Active design: rounds, their records and points

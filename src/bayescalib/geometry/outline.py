@@ -480,14 +480,16 @@ class Placement:
         Mean distance of the observed nodes from the model's undeformed interface, mm.
     extent_ratio : float
         Observed x-extent over the model's (1 when the units agree).
-    offset : (float, float)
+    offset : (float, float) or (float, float, float)
         Estimated misplacement (dx, dy), mm: the mean x-shift of the two feet and
-        the shift of the lowest point.
+        the shift of the lowest point; for a surface (dx, dy, dz): the shift of the
+        footprint's centre and of the lowest point
+        (:func:`bayescalib.geometry.surface.surface_placement`).
     """
 
     mean_distance: float
     extent_ratio: float
-    offset: tuple[float, float]
+    offset: tuple[float, ...]
 
 
 def placement(observed: np.ndarray, reference: np.ndarray) -> Placement:

@@ -50,7 +50,8 @@ from bayescalib.geometry.interface import Interface, InterfaceError
 
 __all__ = ["CLIP_EPS", "TAUBIN_ITERATIONS", "TAUBIN_LAMBDA", "TAUBIN_MU", "UNITS",
            "SurfaceError", "boundary_edges", "colony_surface", "enclosed_volume",
-           "mesh_components", "pick_component", "plane_section", "taubin_smooth", "unit_factor"]
+           "mesh_components", "pick_component", "plane_section", "surface_placement",
+           "taubin_smooth", "unit_factor"]
 
 #: length unit -> factor to mm
 UNITS: dict[str, float] = {"m": 1000.0, "mm": 1.0, "um": 1.0e-3}
@@ -346,6 +347,39 @@ def colony_surface(
             "volume_change": float((abs(v1) - abs(v0)) / abs(v0)) if v0 else 0.0,
             "flipped": bool(flipped)}
     return surf, info
+
+
+def surface_placement(observed: Interface, reference: Interface) -> Any:
+    """Compare an observed colony surface with the model's undeformed one (the 3D
+    :func:`bayescalib.geometry.outline.placement`): under flow the surface moves by a
+    fraction of the colony's height and its rim, attached to the floor, barely moves; a
+    wrong origin or unit moves or scales it as a whole.
+
+    Parameters
+    ----------
+    observed, reference : Interface
+        Surfaces (vertices in mm).
+
+    Returns
+    -------
+    Placement
+        ``mean_distance``: mean distance of the observed vertices from the reference
+        surface (mm); ``extent_ratio``: the footprint's size over the model's, the
+        geometric mean of the x and z extents' ratios; ``offset`` (dx, dy, dz): the shift
+        of the footprint's centre (the middle of the x and z extents) and of the
+        lowest point.
+    """
+    from bayescalib.geometry.outline import Placement
+    from bayescalib.geometry.projection import closest_points
+
+    obs, ref = observed.points, reference.points
+    d, _, _ = closest_points(obs, reference)
+    ratio = [float(np.ptp(obs[:, a])) / (float(np.ptp(ref[:, a])) or 1.0) for a in (0, 2)]
+    mid = [0.5 * (float(obs[:, a].min() + obs[:, a].max()) - float(ref[:, a].min()
+                                                                  + ref[:, a].max())) for a in (0, 2)]
+    dy = float(obs[:, 1].min() - ref[:, 1].min())
+    return Placement(float(np.mean(np.abs(d))), float(np.sqrt(ratio[0] * ratio[1])),
+                     (mid[0], dy, mid[1]))
 
 
 # ------------------------------------------------------------------ plane sections

@@ -239,10 +239,15 @@ def volume_surface(
     touching = [f"{face} ({int(np.count_nonzero(np.take(colony, i, axis=ax)))} voxels)"
                 for face, ax, i in _FACES if np.take(colony, i, axis=ax).any()]
     if touching:
+        share = float(colony[:, n_above - 1, :].mean())  # the layer on the floor
         raise SurfaceError(
             f"{name}: the colony touches the volume's border on the {', '.join(touching)} "
             "face(s): it is cut off by the field of view; a colony must be surrounded by "
-            "fluid on the sides and the top (image a larger region, or crop less)")
+            "fluid on the sides and the top (image a larger region, or crop less)"
+            + (f"; but its lowest layer covers {share:.0%} of the B-scans' area: that is the "
+               f"substrate, below which the floor was put ({method_f}, y = {y_floor:g} mm): "
+               f"give floor, the y of the substrate's top in {units}, or check the origin's "
+               "y" if share >= imaging.FLOOR_FULL_WIDTH else ""))
     # ---- marching cubes on the colony over a substrate slab, padded with background
     # (only the colony's bounding box: the rest of the slab is cut away anyway)
     k0, r0, c0 = (int(np.flatnonzero(colony.any(axis=ax))[0]) for ax in ((1, 2), (0, 2), (0, 1)))

@@ -52,9 +52,12 @@ from bayescalib.geometry.surface import UNITS  # length unit -> factor to mm
 from bayescalib.io._atomic_write import atomic_path
 
 __all__ = [
+    "INTERFACE_SUFFIXES",
     "MAX_OBSERVATION_POINTS",
     "MIN_INTERFACE_POINTS",
+    "SURFACE_SUFFIXES",
     "UNITS",
+    "VOLUME_SUFFIXES",
     "ObservationError",
     "ObservationSet",
     "add_noise",
@@ -62,6 +65,7 @@ __all__ = [
     "read_interface",
     "read_interface_info",
     "read_points",
+    "reader_options",
     "unit_hint",
     "validate_domain",
     "validate_shape",
@@ -74,6 +78,12 @@ __all__ = [
 CSV_SUFFIXES = {".csv"}
 VTK_SUFFIXES = {".vtp", ".vtu", ".vtk"}
 IMAGE_SUFFIXES = {".png", ".tif", ".tiff"}
+#: triangulated surfaces (3D): STL, PLY, and VTK files of polygons
+SURFACE_SUFFIXES = {".stl", ".ply"} | VTK_SUFFIXES
+#: volumes (3D) besides multi-page TIFFs and folders of B-scans: NumPy arrays
+VOLUME_SUFFIXES = {".npy"}
+#: every suffix of an observed interface file (a folder of B-scans is a volume too)
+INTERFACE_SUFFIXES = CSV_SUFFIXES | IMAGE_SUFFIXES | SURFACE_SUFFIXES | VOLUME_SUFFIXES
 
 
 #: most points an observed interface file may hold (CSV rows, VTK points), counted before
@@ -565,6 +575,17 @@ def _read_image(path: Path, pixel_size, origin, drop_border: bool, floor, units:
 
 
 # ---------------------------------------------------------------------------- API
+#: the keys of an ``observations.files`` entry that are :func:`read_interface`'s options
+READER_KEYS = ("units", "pixel_size", "origin", "drop_border", "floor", "image",
+               "segmentation", "component")
+
+
+def reader_options(entry: Mapping[str, Any]) -> dict[str, Any]:
+    """The keyword arguments of :func:`read_interface` for one ``observations.files``
+    entry (or ``observations.reference``): the keys given, none of the unset ones."""
+    return {k: entry[k] for k in READER_KEYS if entry.get(k) is not None}
+
+
 def read_interface(
     path: str | Path,
     *,
@@ -576,19 +597,26 @@ def read_interface(
     image: str = "auto",
     segmentation: Mapping[str, Any] | None = None,
     domain: Sequence[Sequence[float]] | None = None,
+    component: int | None = None,
 ) -> Interface:
-    """Read an interface from CSV, VTK or an image (mask or raw scan), in mm.
+    """Read an interface from CSV, VTK, an image (mask or raw scan), a surface file or a
+    volume, in mm.
 
     Parameters
     ----------
     path : str or Path
-        ``.csv``, ``.vtp``/``.vtu``/``.vtk`` or ``.png``/``.tif``/``.tiff``.
+        2D: ``.csv``, ``.vtp``/``.vtu``/``.vtk`` (lines), ``.png``/``.tif``/``.tiff``
+        (one page). 3D: a surface (``.stl``, ``.ply``, or VTK polygons;
+        :func:`bayescalib.io.surfaces.read_surface`) or a volume (a folder of B-scans,
+        ``.npy``, a multi-page TIFF; :mod:`bayescalib.io.volumes`).
     units : {"mm", "m", "um"}
-        Units of the coordinates in the file (and of ``pixel_size``/``origin``).
-    pixel_size : float, optional
-        Image pixel size (required for images).
-    origin : (float, float), optional
-        Image: position of the centre of the bottom-left pixel (required for images).
+        Units of the coordinates in the file (and of ``pixel_size``/``origin``). A
+        surface file whose header names another unit is refused.
+    pixel_size : float or (float, float, float), optional
+        Image pixel size (required for images); a volume's voxel size (dx, dy, dz).
+    origin : (float, float) or (float, float, float), optional
+        Image: position of the centre of the bottom-left pixel (required for images);
+        a volume's: of the first B-scan's bottom-left pixel, (x, y, z).
     drop_border : bool
         Image: drop the boundary along the image border/floor (see
         :mod:`bayescalib.geometry.imaging`).
@@ -601,6 +629,8 @@ def read_interface(
         Image: segmentation settings of a scan (``smooth``, ``threshold``, ``min_size``).
     domain : sequence of (min, max) per axis in mm, optional
         Expected bounding box; an interface that does not fit raises (unit check).
+    component : int, optional
+        Volume or surface: which colony when there are several (0 = the largest).
 
     Raises
     ------
@@ -609,7 +639,8 @@ def read_interface(
     """
     return read_interface_info(path, units=units, pixel_size=pixel_size, origin=origin,
                                drop_border=drop_border, floor=floor, image=image,
-                               segmentation=segmentation, domain=domain)[0]
+                               segmentation=segmentation, domain=domain,
+                               component=component)[0]
 
 
 def read_interface_info(
@@ -623,6 +654,7 @@ def read_interface_info(
     image: str = "auto",
     segmentation: Mapping[str, Any] | None = None,
     domain: Sequence[Sequence[float]] | None = None,
+    component: int | None = None,
 ) -> tuple[Interface, dict[str, Any]]:
     """:func:`read_interface`, plus what was done to get it.
 
@@ -630,23 +662,44 @@ def read_interface_info(
     -------
     interface : Interface
     info : dict
-        ``{"kind": "csv"}`` or ``{"kind": "vtk"}`` for coordinate files; for images
+        ``{"kind": "csv"}`` or ``{"kind": "vtk"}`` for coordinate files (2D);
+        ``kind`` ``"surface"`` with :func:`bayescalib.io.surfaces.read_surface`'s info
+        for a surface, ``"volume"`` with
+        :func:`bayescalib.io.volumes.read_volume_surface`'s for a volume; for images
         the dict of :func:`bayescalib.geometry.imaging.read_mask` (``kind`` "mask" or
         "scan", threshold, floor found, segmentation uncertainty in pixels) plus
         ``pixel_size_mm``, ``origin_mm``, ``floor_mm`` (the floor cut at, None: none),
         ``floor_source`` ("auto", "given", "none"), ``sigma_mm`` and ``sigma_noise_mm``
         (the segmentation's positional uncertainty of the interface, mm; None for masks).
     """
+    from bayescalib.io.surfaces import read_surface
+    from bayescalib.io.volumes import is_volume, read_volume_surface
+
     p = Path(path)
     where = str(p)
     if not p.exists():
         raise ObservationError(f"{where}: file does not exist")
-    if not p.is_file():
-        raise ObservationError(f"{where}: not a file")
     suffix = p.suffix.lower()
     _unit_factor(units, where)
+    volume = is_volume(p)
+    if not p.is_file() and not volume:
+        raise ObservationError(f"{where}: not a file")
+    surface = suffix in SURFACE_SUFFIXES - VTK_SUFFIXES
+    if suffix in VTK_SUFFIXES:  # VTK: a 2D curve (lines) or a surface (polygons)
+        surface = _read_vtk(p, units, where).dim == 3
+    if component is not None and not (surface or volume):
+        raise ObservationError(f"{where}: component picks a colony of a volume or a surface "
+                               "(3D); a 2D interface has none")
     info: dict[str, Any]
-    if suffix in CSV_SUFFIXES:
+    if volume:
+        iface, info = read_volume_surface(
+            p, units=units, pixel_size=pixel_size, origin=origin, image=image,
+            segmentation=segmentation, floor="auto" if floor is None else floor,
+            component=component)
+    elif surface:
+        iface, sinfo = read_surface(p, units=units, floor=floor, component=component)
+        info = {"kind": "surface", **sinfo}
+    elif suffix in CSV_SUFFIXES:
         iface, info = _read_csv(p, units, where), {"kind": "csv"}
     elif suffix in VTK_SUFFIXES:
         iface, info = _read_vtk(p, units, where), {"kind": "vtk"}
@@ -654,8 +707,9 @@ def read_interface_info(
         iface, info = _read_image(p, pixel_size, origin, drop_border, floor, units, where,
                                   image=image, segmentation=segmentation)
     else:
-        known = sorted(CSV_SUFFIXES | VTK_SUFFIXES | IMAGE_SUFFIXES)
-        raise ObservationError(f"{where}: unknown interface file type {suffix!r}; use one of {', '.join(known)}")
+        known = sorted(INTERFACE_SUFFIXES)
+        raise ObservationError(f"{where}: unknown interface file type {suffix!r}; use one of "
+                               f"{', '.join(known)} (or a folder of B-scans: a volume)")
     validate_domain(iface, domain, where, units)
     return iface, info
 

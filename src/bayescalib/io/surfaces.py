@@ -39,6 +39,7 @@ import numpy as np
 from bayescalib.geometry.interface import Interface
 from bayescalib.geometry.surface import UNITS, SurfaceError, colony_surface
 from bayescalib.io.observations import (
+    SURFACE_SUFFIXES,
     ObservationError,
     _as_polydata,
     _validate_vtk_header,
@@ -46,9 +47,11 @@ from bayescalib.io.observations import (
     validate_domain,
 )
 
-__all__ = ["SURFACE_SUFFIXES", "header_units", "read_surface"]
+__all__ = ["RIM_TOL", "SURFACE_SUFFIXES", "header_units", "read_surface"]
 
-SURFACE_SUFFIXES = {".stl", ".ply", ".vtp", ".vtu", ".vtk"}
+#: a rim vertex this share of the surface's height above the lowest one is still on the
+#: floor (a noisy or segmented rim); higher, the colony is cut off
+RIM_TOL = 0.02
 _UNIT = re.compile(rb"\bunits?\s*[:=]?\s*(mm|um|\xc2\xb5m|m)\b", re.IGNORECASE)
 
 
@@ -146,8 +149,10 @@ def read_surface(
     iterations : int
         Taubin smoothing iterations (0 = none: a file's surface is taken as it is).
     rim_tol : float, optional
-        Largest height of the rim above the floor, in ``units`` (default ``2e-6`` of the
-        surface's extent); raise it for a file whose base is not exactly planar.
+        Largest height of the rim above the floor, in ``units`` (default
+        :data:`RIM_TOL` times the surface's height: a file's rim is where a mesher or a
+        segmentation put it, within its noise of the floor; a colony cut off by the field
+        of view has a rim up to its full height).
     domain : sequence of 3 (min, max), optional
         Expected bounding box in mm (the unit check of
         :func:`bayescalib.io.observations.validate_domain`).
@@ -221,9 +226,9 @@ def read_surface(
     else:
         floor_mm = float(floor) * f
     try:
+        tol = RIM_TOL * float(np.ptp(pts[:, 1])) if rim_tol is None else float(rim_tol) * f
         surf, info = colony_surface(pts, cells, floor=floor_mm, component=component,
-                                    iterations=iterations, name=where,
-                                    rim_tol=None if rim_tol is None else float(rim_tol) * f)
+                                    iterations=iterations, name=where, rim_tol=tol)
     except SurfaceError as exc:
         raise ObservationError(str(exc)) from None
     validate_domain(surf, domain, where, u)

@@ -6,7 +6,8 @@ snapshot per loading of a series; curves of the 2D model, triangulated surfaces 
 one, each with the run record's cells), misplaced by ``observations.misregistration`` and
 with Gaussian noise of ``observations.noise_sigma`` added, from the one generator of
 ``observations.seed``; observations from files are the interfaces read from the files
-listed (coordinate files, CSV or VTK, or images: masks, and scans segmented here),
+listed (coordinate files, CSV or VTK, or images: masks, and scans segmented here; in 3D
+surfaces, STL, PLY or VTK, and OCT volumes segmented here),
 each with its label and load. Every
 discrepancy compares a solve with this one set.
 """
@@ -41,7 +42,12 @@ def observe(observations: Mapping[str, Any], out_path: str | Path, *,
     """
     from bayescalib.geometry.interface import Interface
     from bayescalib.io.observation_store import StoredObservations, write_observations
-    from bayescalib.io.observations import add_noise, read_interface, read_interface_info
+    from bayescalib.io.observations import (
+        add_noise,
+        read_interface,
+        read_interface_info,
+        reader_options,
+    )
 
     source = observations["source"]
     if source == "synthetic":
@@ -86,11 +92,16 @@ def observe(observations: Mapping[str, Any], out_path: str | Path, *,
         domain = observations.get("domain")
         for entry in observations["files"]:
             iface, info = read_interface_info(entry["path"], domain=domain,
-                                              **_reader_options(entry))
+                                              **reader_options(entry))
             snaps.append(iface)
             labels.append(entry.get("label") or Path(entry["path"]).stem)
             loads.append(entry.get("load"))
             segs.append(info if info["kind"] in ("mask", "scan") else None)
+            if info["kind"] == "volume":
+                log.info("%s: volume %s (%s) segmented at %.6g (%s), floor %s at y = %.6g mm, "
+                         "%d colony voxels", entry["path"], "x".join(map(str, info["shape"])),
+                         info["kind"], info["threshold"], info["threshold_method"],
+                         info["floor"]["method"], info["floor"]["y_mm"], info["colony_voxels"])
             if info["kind"] == "scan":
                 log.info("%s: scan segmented at %.6g (%s), floor %s, segmentation "
                          "uncertainty %.3g um", entry["path"], info["threshold"],
@@ -101,7 +112,7 @@ def observe(observations: Mapping[str, Any], out_path: str | Path, *,
         ref = None
         if observations.get("reference"):
             ref_entry = observations["reference"]
-            ref = read_interface(ref_entry["path"], domain=domain, **_reader_options(ref_entry))
+            ref = read_interface(ref_entry["path"], domain=domain, **reader_options(ref_entry))
         stored = StoredObservations(snaps, labels, loads, ref,
                                     {"source": "files", "files": observations["files"]},
                                     segs if any(x is not None for x in segs) else None)
@@ -110,9 +121,3 @@ def observe(observations: Mapping[str, Any], out_path: str | Path, *,
     write_observations(out_path, stored)
     log.info("observation set: %d snapshot(s) -> %s", len(stored.snapshots), out_path)
 
-
-def _reader_options(entry: Mapping[str, Any]) -> dict[str, Any]:
-    """The keyword arguments of :func:`bayescalib.io.observations.read_interface` for one
-    ``observations.files`` entry (the keys given, none of the unset ones)."""
-    keys = ("units", "pixel_size", "origin", "drop_border", "floor", "image", "segmentation")
-    return {k: entry[k] for k in keys if entry.get(k) is not None}

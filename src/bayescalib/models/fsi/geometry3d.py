@@ -41,7 +41,7 @@ import numpy as np
 
 from bayescalib.models.fsi.geometry import BiofilmMesh, _outline_face, generate_mesh
 
-__all__ = ["build_mesh_3d", "colony_axes", "interface_surface"]
+__all__ = ["build_mesh_3d", "colony_axes", "interface_surface", "reference_surface"]
 
 
 def colony_axes(geometry: dict[str, Any]) -> tuple[np.ndarray, np.ndarray]:
@@ -77,6 +77,64 @@ def colony_axes(geometry: dict[str, Any]) -> tuple[np.ndarray, np.ndarray]:
         raise ValueError("geometry: the half-ellipsoid (centre ± width/2, height, "
                          "centre_z ± depth/2) must lie inside the channel")
     return centre, axes
+
+
+def reference_surface(geometry: dict[str, Any], n: int = 24) -> Any:
+    """The colony's undeformed interface without a mesh: the analytic surface,
+    triangulated on an (elevation, azimuth) grid, for the checks of observed surfaces
+    against the model when a study is read (units, placement).
+
+    Parameters
+    ----------
+    geometry : dict
+        Validated ``geometry`` section with ``dim: 3`` (mm).
+    n : int
+        Elevation rings (the azimuth has ``4 n`` points; the ridge ``4 n`` points along
+        its half-ellipse and ``n`` across the width).
+
+    Returns
+    -------
+    Interface
+        Vertices ``(k, 3)`` mm and triangles oriented out of the colony (into the fluid).
+    """
+    from bayescalib.geometry.interface import Interface
+
+    m = 4 * n
+    if geometry["shape"] == "ridge":
+        _, lo, hi, b = _outline_face({**geometry, "shape": "half_ellipse"})
+        a, xc, W = 0.5 * (hi - lo), 0.5 * (hi + lo), float(geometry["channel_width"])
+        t = np.linspace(np.pi, 0.0, m + 1)  # upstream foot to downstream foot
+        z = np.linspace(0.0, W, n + 1)
+        T, Z = np.meshgrid(t, z, indexing="ij")
+        pts = np.column_stack([xc + a * np.cos(T).ravel(), b * np.sin(T).ravel(), Z.ravel()])
+        idx = np.arange(pts.shape[0]).reshape(m + 1, n + 1)
+        q0, q1, q2, q3 = idx[:-1, :-1], idx[1:, :-1], idx[1:, 1:], idx[:-1, 1:]
+        tri = np.vstack([np.column_stack([q0.ravel(), q3.ravel(), q1.ravel()]),
+                         np.column_stack([q1.ravel(), q3.ravel(), q2.ravel()])])
+        mid = pts[tri].mean(axis=1)
+        outward = np.column_stack([(mid[:, 0] - xc) / a ** 2, mid[:, 1] / b ** 2,
+                                   np.zeros(len(tri))])
+    else:
+        centre, (a, b, c) = colony_axes(geometry)
+        el = np.linspace(0.0, 0.5 * np.pi, n + 1)[:-1]  # rings from the rim up; a pole on top
+        az = np.linspace(0.0, 2.0 * np.pi, m, endpoint=False)
+        E, A = np.meshgrid(el, az, indexing="ij")
+        ring = np.column_stack([centre[0] + a * np.cos(E).ravel() * np.cos(A).ravel(),
+                                b * np.sin(E).ravel(),
+                                centre[2] + c * np.cos(E).ravel() * np.sin(A).ravel()])
+        pts = np.vstack([ring, [centre[0], b, centre[2]]])
+        idx = np.arange(n * m).reshape(n, m)
+        nxt = np.roll(idx, -1, axis=1)
+        tri = [np.column_stack([idx[:-1].ravel(), idx[1:].ravel(), nxt[:-1].ravel()]),
+               np.column_stack([nxt[:-1].ravel(), idx[1:].ravel(), nxt[1:].ravel()]),
+               np.column_stack([idx[-1], np.full(m, n * m), nxt[-1]])]
+        tri = np.vstack(tri)
+        outward = (pts[tri].mean(axis=1) - centre) / np.array([a, b, c]) ** 2
+    p = pts[tri]
+    normal = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    flip = np.einsum("ij,ij->i", normal, outward) < 0
+    tri[flip] = tri[flip][:, ::-1]
+    return Interface.surface(pts, tri.astype(np.int64), name="the model's undeformed colony")
 
 
 def build_mesh_3d(geometry: dict[str, Any], mesh_cfg: dict[str, Any]) -> BiofilmMesh:
