@@ -245,8 +245,9 @@ def read_volume_surface(
     surface : Interface
         Vertices ``(n, 3)`` and triangles ``(m, 3)``, mm, normals into the fluid.
     info : dict
-        ``{"kind": "volume"}``, the file's (:func:`read_volume`) and the surface's
-        (:func:`bayescalib.geometry.volume.volume_surface`).
+        ``kind`` ``"volume"``, the file's (:func:`read_volume`) and the surface's
+        (:func:`bayescalib.geometry.volume.volume_surface`), whose ``kind`` (``"mask"``
+        or ``"scan"``) is ``image`` here.
     """
     from bayescalib.geometry.volume import volume_surface
 
@@ -268,4 +269,4 @@ def read_volume_surface(
                                      component=component, name=where)
     except SurfaceError as exc:
         raise ObservationError(str(exc)) from None
-    return surf, {"kind": "volume", **vinfo, **sinfo}
+    return surf, {**vinfo, **sinfo, "image": sinfo["kind"], "kind": "volume"}

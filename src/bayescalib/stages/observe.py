@@ -100,7 +100,7 @@ def observe(observations: Mapping[str, Any], out_path: str | Path, *,
             if info["kind"] == "volume":
                 log.info("%s: volume %s (%s) segmented at %.6g (%s), floor %s at y = %.6g mm, "
                          "%d colony voxels", entry["path"], "x".join(map(str, info["shape"])),
-                         info["kind"], info["threshold"], info["threshold_method"],
+                         info["image"], info["threshold"], info["threshold_method"],
                          info["floor"]["method"], info["floor"]["y_mm"], info["colony_voxels"])
             if info["kind"] == "scan":
                 log.info("%s: scan segmented at %.6g (%s), floor %s, segmentation "

@@ -1,0 +1,248 @@
+"""Observed 3D interfaces from a user's files (issue 40 item 2, in a study): surfaces
+(STL, PLY, VTK polygons) and OCT volumes (a folder of B-scans, a NumPy array, a
+multi-page TIFF) listed in ``observations.files`` are read, oriented and checked when
+the study is read, before any solve: the voxel size and origin a volume needs, its size,
+the units (the colony's extents against the 3D model's) and its placement (its mean
+distance from the model's undeformed colony), each error naming the key and what to
+write instead.
+
+The colony here is the 3D smoke study's half-ellipsoid (semi-axes 0.3 x 0.4 x 0.3 mm,
+centre (1, 0, 0.5) mm), voxelized at 10 um on a 50 um substrate slab."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from bayescalib.config import ConfigError, deep_merge, load_yaml, validate
+from bayescalib.geometry.interface import Interface
+from bayescalib.geometry.surface import enclosed_volume
+from bayescalib.io.observation_store import read_observations
+from bayescalib.io.observations import ObservationError, read_interface, write_interface_vtk
+from bayescalib.io.volumes import MAX_VOLUME_VOXELS, is_volume, read_volume, volume_shape
+from bayescalib.models.fsi.geometry3d import reference_surface
+from bayescalib.stages.observe import observe
+from bayescalib.study import Study
+
+ROOT = Path(__file__).resolve().parents[1]
+FSI3D = deep_merge(load_yaml(ROOT / "config" / "config.yaml"),
+                   load_yaml(ROOT / "config" / "fsi3d_smoke.yaml"))
+GEOMETRY = validate(FSI3D["forward_model"]["fsi"], "fsi")["geometry"]
+VOXEL = 0.01  # mm
+ORIGIN = [0.5, -0.05, 0.1]  # mm: the centre of the first B-scan's bottom-left voxel
+HALF_ELLIPSOID_VOLUME = 2.0 / 3.0 * np.pi * 0.3 * 0.4 * 0.3
+
+
+def _mask() -> np.ndarray:
+    """(nz, ny, nx) = (80, 61, 100): the colony on a 5-layer substrate slab."""
+    xs = ORIGIN[0] + VOXEL * np.arange(100)
+    ys = ORIGIN[1] + VOXEL * np.arange(61)
+    zs = ORIGIN[2] + VOXEL * np.arange(80)
+    Z, Y, X = np.meshgrid(zs, ys[::-1], xs, indexing="ij")  # row 0 at the top
+    inside = ((X - 1.0) / 0.3) ** 2 + (Y / 0.4) ** 2 + ((Z - 0.5) / 0.3) ** 2 <= 1.0
+    return inside | (Y < -0.001)
+
+
+def _scan(mask: np.ndarray) -> np.ndarray:
+    rng = np.random.default_rng(0)
+    return np.clip(mask * 140.0 + 40.0 + rng.normal(0.0, 20.0, mask.shape), 0, 255
+                   ).astype(np.uint8)
+
+
+def _stl(path: Path, surface: Interface, scale: float = 1.0) -> Path:
+    import vtk
+    from vtk.util.numpy_support import numpy_to_vtk, numpy_to_vtkIdTypeArray
+
+    pts = vtk.vtkPoints()
+    pts.SetData(numpy_to_vtk(np.ascontiguousarray(surface.points * scale), deep=True))
+    m = surface.cells.shape[0]
+    cells = vtk.vtkCellArray()
+    cells.SetData(numpy_to_vtkIdTypeArray(np.arange(0, 3 * m + 1, 3, dtype=np.int64), deep=True),
+                  numpy_to_vtkIdTypeArray(np.ascontiguousarray(surface.cells.ravel()), deep=True))
+    poly = vtk.vtkPolyData()
+    poly.SetPoints(pts)
+    poly.SetPolys(cells)
+    w = vtk.vtkSTLWriter()
+    w.SetFileName(str(path))
+    w.SetInputData(poly)
+    w.SetFileTypeToBinary()
+    assert w.Write()
+    return path
+
+
+def _study(*entries):
+    """The 3D smoke study on observation files (one entry per loading: two)."""
+    files = [dict(e, load=load) for e, load in zip(entries, (50.0, 100.0))]
+    return Study(deep_merge(FSI3D, {"observations": {"source": "files", "files": files}}))
+
+
+def _volume(path, **extra):
+    return {"path": str(path), "units": "mm", "pixel_size": [VOXEL] * 3,
+            "origin": list(ORIGIN), "floor": 0.0, **extra}
+
+
+def _volume_ok(surface: Interface, scan: bool) -> None:
+    """A surface from the voxelized half-ellipsoid: in place, the right size, outward.
+
+    Tolerances: marching cubes puts a mask's vertices within half a voxel of the
+    boundary, the foot's chamfer onto the floor within about one (measured 0.89); a
+    scan's Gaussian pre-filter (1.5 voxels) blurs the bright substrate into the colony's
+    foot, which widens it by up to about two voxels there (measured 2.2), while the
+    surface elsewhere stays within a voxel (99 % of the vertices)."""
+    from bayescalib.geometry.projection import closest_points
+
+    vol = enclosed_volume(surface.points, surface.cells, 0.0)
+    assert vol == pytest.approx(HALF_ELLIPSOID_VOLUME, rel=0.03)  # positive: outward
+    d = np.abs(closest_points(surface.points, reference_surface(GEOMETRY, n=48))[0])
+    assert d.mean() < 0.25 * VOXEL
+    assert np.quantile(d, 0.99) < (2.0 if scan else 1.0) * VOXEL
+    assert d.max() < (3.0 if scan else 1.0) * VOXEL
+
+
+# ----------------------------------------------------------------- volumes in a study
+@pytest.fixture(scope="module")
+def volumes(tmp_path_factory):
+    """The same colony as a .npy mask, a multi-page TIFF scan and a folder of PNG
+    B-scans."""
+    import tifffile
+    from skimage import io
+
+    d = tmp_path_factory.mktemp("volumes")
+    mask = _mask()
+    np.save(d / "colony.npy", mask)
+    scan = _scan(mask)
+    tifffile.imwrite(d / "colony.tif", scan)
+    (d / "bscans").mkdir()
+    for k, b in enumerate(scan):
+        io.imsave(d / "bscans" / f"b{k}.png", b, check_contrast=False)
+    return d
+
+
+@pytest.mark.parametrize("name", ["colony.npy", "colony.tif", "bscans"])
+def test_a_volume_in_every_format_is_read_in_place_when_the_study_is_read(volumes, name):
+    path = volumes / name
+    assert is_volume(path) and volume_shape(path) == (80, 61, 100)
+    study = _study(_volume(path), _volume(path))
+    assert study.image_files == []  # a multi-page TIFF is a volume, not a B-scan figure
+    paths = study.observation_paths
+    assert len(paths) == (2 * 80 if name == "bscans" else 2)  # a folder: its B-scans
+    _volume_ok(read_interface(path, **{k: v for k, v in _volume(path).items() if k != "path"}),
+               scan=name != "colony.npy")
+
+
+def test_the_observe_stage_stores_the_volumes_surfaces(volumes, tmp_path):
+    entries = [_volume(volumes / "colony.npy"), _volume(volumes / "bscans")]
+    section = validate({"observations": {"source": "files", "files": entries}},
+                       "measures")["observations"]
+    observe(section, tmp_path / "obs.h5")
+    obs = read_observations(tmp_path / "obs.h5")
+    assert [s.dim for s in obs.snapshots] == [3, 3] and obs.labels == ["colony", "bscans"]
+    for s, scan in zip(obs.snapshots, (False, True)):
+        _volume_ok(s, scan)
+
+
+def test_a_volume_needs_three_voxel_sizes_and_a_3d_origin(volumes):
+    path = volumes / "colony.npy"
+    with pytest.raises(ConfigError, match=r"observations.files\[0\].pixel_size: .* is a volume, "
+                       r"whose voxel size is three numbers \[dx, dy, dz\]"):
+        _study(_volume(path, pixel_size=VOXEL), _volume(path))
+    with pytest.raises(ConfigError, match=r"observations.files\[0\].origin: .* is a volume, "
+                       r"whose origin is \[x, y, z\] in mm.*there is no default"):
+        _study(_volume(path, origin=ORIGIN[:2]), _volume(path))
+    # and a 2D image's settings are refused for a file that is not a volume
+    surf = reference_surface(GEOMETRY)
+    stl = _stl(volumes / "c.stl", surf)
+    with pytest.raises(ConfigError, match=r"is not a volume .* pixel_size is one number"):
+        _study({"path": str(stl), "pixel_size": [VOXEL] * 3}, {"path": str(stl)})
+
+
+def test_a_volume_in_um_read_as_mm_is_refused_naming_the_unit_that_fits(volumes):
+    path = volumes / "colony.npy"
+    um = {"pixel_size": [10.0] * 3, "origin": [1e3 * v for v in ORIGIN], "floor": 0.0}
+    with pytest.raises(ConfigError, match=r"observations.files\[0\] .* \d+ times as long "
+                       r"\(x, along the flow\) .* the sizes agree if the file is in um"):
+        _study(_volume(path, **um), _volume(path, **um))
+    _study(_volume(path, units="um", **um), _volume(path, units="um", **um))  # in um: fine
+
+
+def test_a_misplaced_volume_is_refused_with_the_origin_that_puts_it_in_place(volumes):
+    path = volumes / "colony.npy"
+    wrong = [ORIGIN[0], ORIGIN[1], ORIGIN[2] + 0.25]  # the colony 0.25 mm across the flow
+    with pytest.raises(ConfigError) as err:
+        _study(_volume(path, origin=wrong), _volume(path))
+    msg = str(err.value)
+    assert "observations.files[0]" in msg and "offset by about" in msg
+    fixed = [float(v) for v in re.search(r"with origin \[([^\]]+)\] mm", msg).group(1).split(",")]
+    np.testing.assert_allclose(fixed, ORIGIN, atol=VOXEL)  # within a voxel of the true one
+
+
+def test_a_substrate_read_as_part_of_the_colony_is_named(volumes):
+    with pytest.raises(ConfigError, match=r"touches the volume's border .* its lowest layer "
+                       r"covers 100% of the B-scans' area: that is the substrate"):
+        _study(_volume(volumes / "colony.npy", floor=-0.1), _volume(volumes / "colony.npy"))
+
+
+def test_a_volume_with_two_colonies_lists_them_and_component_picks_one(tmp_path):
+    two = _mask()
+    two[30:40, 40:50, 5:15] = True  # a small second colony upstream
+    np.save(tmp_path / "two.npy", two)
+    entry = _volume(tmp_path / "two.npy")
+    with pytest.raises(ConfigError, match=r"2 separate colonies .* #0: \d+ voxels .* #1: 1000 "
+                       r"voxels .* pick one with component=k"):
+        _study(entry, entry)
+    _study(dict(entry, component=0), dict(entry, component=0))
+
+
+def test_an_oversized_volume_is_refused_from_its_header_before_decoding(tmp_path):
+    p = tmp_path / "big.npy"
+    side = round(MAX_VOLUME_VOXELS ** (1 / 3)) + 10
+    with open(p, "wb") as fh:  # the header only: reading the voxels would fail
+        np.lib.format.write_array_header_1_0(
+            fh, {"descr": "|u1", "fortran_order": False, "shape": (side, side, side)})
+    assert volume_shape(p) == (side, side, side)
+    with pytest.raises(ObservationError, match=r"big.npy: the volume is .* more than the limit "
+                       r"of 100 million: refused before decoding"):
+        read_volume(p)
+
+
+# ----------------------------------------------------------------- surfaces in a study
+def test_an_stl_in_um_with_inward_normals_is_read_in_mm_and_turned_outward(tmp_path):
+    surf = reference_surface(GEOMETRY, n=16)
+    flipped = Interface(surf.points, surf.cells[:, ::-1])
+    stl = _stl(tmp_path / "colony.stl", flipped, scale=1e3)
+    study = _study({"path": str(stl), "units": "um"}, {"path": str(stl), "units": "um"})
+    assert study.observation_paths == [str(stl)] * 2
+    back = read_interface(stl, units="um")
+    assert enclosed_volume(back.points, back.cells, 0.0) == pytest.approx(
+        enclosed_volume(surf.points, surf.cells, 0.0), rel=1e-6)  # outward, in mm
+    with pytest.raises(ConfigError, match=r"1e\+03 times as long .* \(units: um\)"):
+        _study({"path": str(stl)}, {"path": str(stl)})  # the default unit, mm
+
+
+def test_a_vtk_surface_oriented_the_other_way_measures_as_the_right_one(tmp_path):
+    """The RKHS currents are oriented: a file whose triangles turn the other way would be
+    the opposite surface (about 750 times the noise's distance here) if taken as given."""
+    from bayescalib.io.observations import add_noise
+    from bayescalib.measures import rkhs
+
+    surf = reference_surface(GEOMETRY, n=16)
+    noisy = add_noise(surf, 0.001, np.random.default_rng(1))  # the rim is noisy too
+    write_interface_vtk(tmp_path / "a.vtp", noisy)
+    write_interface_vtk(tmp_path / "b.vtp", Interface(noisy.points, noisy.cells[:, ::-1]))
+    a, b = read_interface(tmp_path / "a.vtp"), read_interface(tmp_path / "b.vtp")
+    d_a, d_b = rkhs(surf, a, sigma_w=0.1).D, rkhs(surf, b, sigma_w=0.1).D
+    assert d_b == pytest.approx(d_a, rel=1e-9)
+    assert rkhs(surf, Interface(noisy.points, noisy.cells[:, ::-1]), sigma_w=0.1).D > 100 * d_a
+
+
+def test_a_colony_cut_off_by_the_field_of_view_is_refused(tmp_path):
+    surf = reference_surface(GEOMETRY, n=16)
+    keep = surf.points[surf.cells].mean(axis=1)[:, 0] < 1.15  # the downstream part missing
+    cut = Interface(surf.points, surf.cells[keep])
+    write_interface_vtk(tmp_path / "cut.vtp", cut)
+    with pytest.raises(ConfigError, match=r"observations.files\[0\]: .*rim vertices above the "
+                       r"floor .* cut off"):
+        _study({"path": str(tmp_path / "cut.vtp")}, {"path": str(tmp_path / "cut.vtp")})
