@@ -51,7 +51,8 @@ class StoredObservations:
         Per snapshot, what :func:`bayescalib.io.observations.read_interface_info` said
         about an image (kind mask/scan, threshold, floor, ``sigma_mm``: the
         segmentation's positional uncertainty of the interface in mm, None for
-        masks), or None (coordinate files, synthetic data); None: none at all.
+        masks), a volume or a surface file (kind volume/surface, the floor it was cut
+        at), or None (coordinate files, synthetic data); None: none at all.
     """
 
     snapshots: list[Interface]
@@ -69,6 +70,20 @@ class StoredObservations:
         if self.segmentation is not None and len(self.segmentation) != len(self.snapshots):
             raise ValueError(f"{len(self.segmentation)} segmentation record(s) for "
                              f"{len(self.snapshots)} snapshot(s)")
+
+    def cut_heights(self) -> list[float | None]:
+        """Per snapshot, the height y (mm) of the plane a 3D observed surface was cut at
+        above the flow cell's floor y = 0 (a volume's floor found on top of the bright
+        substrate's halo, or a surface file's given floor), else None: the model's
+        surface is compared above the same plane (:func:`bayescalib.stages.discrepancy.
+        model_interfaces`), since the observation holds nothing of the colony below it."""
+        out: list[float | None] = []
+        for snap, seg in zip(self.snapshots, self.segmentation or [None] * len(self.snapshots)):
+            y = None
+            if snap.dim == 3 and seg:
+                y = seg["floor"]["y_mm"] if seg.get("kind") == "volume" else seg.get("floor_mm")
+            out.append(float(y) if y is not None and float(y) > 0.0 else None)
+        return out
 
     def segmentation_sigma(self) -> float | None:
         """The segmentation's positional uncertainty of the observed interfaces, mm: the

@@ -15,7 +15,7 @@ dimensions are refused.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -56,7 +56,7 @@ def discrepancy(run_path: str | Path, obs_path: str | Path, measure_name: str,
             f"run '{run_path}' has {len(run.loadings)} loadings but the observation set "
             f"'{obs_path}' has {len(obs.snapshots)} snapshots: give one snapshot per loading"
         )
-    models = model_interfaces(run, len(obs.snapshots))
+    models = model_interfaces(run, len(obs.snapshots), obs.cut_heights())
     for label, snap, model in zip(obs.labels, obs.snapshots, models, strict=True):
         if model.dim != snap.dim:
             what = {2: "a 2D curve", 3: "a 3D surface"}
@@ -116,15 +116,33 @@ def _validate_scales(model: np.ndarray, observed: np.ndarray, label: str, obs_pa
             "observations.files[].units (mm, m, um), pixel_size and origin.")
 
 
-def model_interfaces(run, n_snapshots: int) -> list:
+def model_interfaces(run, n_snapshots: int, cuts: Sequence[float | None] | None = None
+                     ) -> list:
     """The predicted interface for each observation snapshot: one per loading of a series,
-    or the single interface repeated (every snapshot compared with the same solve)."""
+    or the single interface repeated (every snapshot compared with the same solve).
+
+    ``cuts`` (per snapshot, :meth:`~bayescalib.io.observation_store.StoredObservations.
+    cut_heights`): a 3D surface is compared above the plane its observed snapshot was cut
+    at (the part of the model's surface above it, triangles crossing it cut along it),
+    since the observation holds nothing below it: an OCT volume's floor lies on top of
+    the bright substrate's halo, one or two voxels above the substrate (measured on the
+    3D example recording: 12 um at 6 um voxels), and the colony's foot below it, absent
+    from the data, would otherwise count as a misfit (there, an RKHS distance of 0.0088
+    against 0.0004 above the cut)."""
     from bayescalib.geometry.interface import Interface
+    from bayescalib.geometry.surface import clip_below
 
     if run.loadings:
-        return [Interface(ld.current, run.segments, name=f"model {ld.label}")
-                for ld in run.loadings]
-    return [Interface(run.interface_current, run.segments, name="model")] * n_snapshots
+        out = [Interface(ld.current, run.segments, name=f"model {ld.label}")
+               for ld in run.loadings]
+    else:
+        out = [Interface(run.interface_current, run.segments, name="model")] * n_snapshots
+    for k, y in enumerate(cuts or ()):
+        if y is not None and out[k].dim == 3:
+            pts, tri = clip_below(out[k].points, out[k].cells, y)
+            if tri.shape[0]:
+                out[k] = Interface.surface(pts, tri, name=f"{out[k].name} above y = {y:g} mm")
+    return out
 
 
 def _sigma_n2(likelihood: Mapping[str, Any]) -> float:

@@ -96,7 +96,7 @@ def observe(observations: Mapping[str, Any], out_path: str | Path, *,
             snaps.append(iface)
             labels.append(entry.get("label") or Path(entry["path"]).stem)
             loads.append(entry.get("load"))
-            segs.append(info if info["kind"] in ("mask", "scan") else None)
+            segs.append(info if info["kind"] in ("mask", "scan", "volume", "surface") else None)
             if info["kind"] == "volume":
                 log.info("%s: volume %s (%s) segmented at %.6g (%s), floor %s at y = %.6g mm, "
                          "%d colony voxels", entry["path"], "x".join(map(str, info["shape"])),
