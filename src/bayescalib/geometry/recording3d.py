@@ -232,7 +232,7 @@ def write_volume_recording(
         img = render_volume(surf, shape=shape, origin=origin, slice_spacing=slice_spacing,
                             settings=settings, rng=rng)
         name = f"volume_{k}.tif"
-        tifffile.imwrite(folder / name, encode_counts(img))
+        tifffile.imwrite(folder / name, encode_counts(img), compression="zlib")
         write_interface_vtk(folder / f"truth_{k}.vtp", surf)
         volumes.append({"file": name, "loading_factor": float(f),
                         "inflow_rate_mm3_per_s": float(f) * float(nominal),
