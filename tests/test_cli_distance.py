@@ -7,7 +7,7 @@ import math
 
 import numpy as np
 import pytest
-from _interface_shapes import circle, icosphere
+from _interface_shapes import circle, dome
 
 from bayescalib.cli import main
 from bayescalib.io.observations import write_interface_csv, write_interface_vtk
@@ -89,6 +89,6 @@ def test_distance_reads_the_run_record_a_solve_writes(tmp_path, capsys):
     got = float(capsys.readouterr().out)
     ref = compute("cpp", Interface.polyline(res.interface_current, res.segments), obs).D
     assert got == pytest.approx(ref, rel=1e-12) and got > 0
-    write_interface_vtk(tmp_path / "surface.vtp", icosphere(0.4, 1))
+    write_interface_vtk(tmp_path / "surface.vtp", dome(0.4, 1))
     assert main(["distance", str(tmp_path / "run.h5"), str(tmp_path / "surface.vtp")]) == 2
     assert "not the field file .vtu" in capsys.readouterr().err

@@ -124,3 +124,32 @@ def test_write_volume_recording_needs_one_surface_per_factor(colony, tmp_path):
     with pytest.raises(ValueError, match="needs a 3D surface"):
         height_field(Interface.polyline(np.array([[0.0, 0.0], [1.0, 1.0], [2.0, 0.0]])),
                      np.zeros(1), np.zeros(1))
+
+
+def test_bayescalib_distance_reads_a_volume_and_compares_above_its_cut(colony, recorded,
+                                                                        tmp_path, capsys):
+    from bayescalib.cli import main
+    from bayescalib.io.observations import write_interface_vtk
+
+    out, rec = recorded
+    write_interface_vtk(tmp_path / "model.vtp", colony)
+    mm = [str(v / 1e3) for v in (*rec["voxel_size"], *rec["origin"])]  # both files in mm
+    assert main(["distance", "--sigma-w", "0.1", "--voxel-size", *mm[:3], "--volume-origin",
+                 *mm[3:], str(tmp_path / "model.vtp"), str(out / "volume_0.tif")]) == 0
+    d = float(capsys.readouterr().out)
+    entry = {"path": str(out / "volume_0.tif"), "units": "um", "pixel_size": rec["voxel_size"],
+             "origin": rec["origin"], "floor": "auto"}
+    section = validate({"observations": {"source": "files", "files": [entry]}},
+                       "measures")["observations"]
+    observe(section, tmp_path / "obs.h5")
+    stored = read_observations(tmp_path / "obs.h5")
+    run = SolveResult(status="ok", reason="", parameters={}, load_fraction=1.0,
+                      newton_iterations=1, load_steps=1, wall_time=0.0,
+                      interface_reference=colony.points, interface_current=colony.points,
+                      segments=colony.cells, max_displacement=0.0, stats={"dim": 3})
+    (model,) = model_interfaces(run, 1, stored.cut_heights())
+    # the same number a study's discrepancy job computes
+    assert d == pytest.approx(rkhs(model, stored.snapshots[0], sigma_w=0.1).D, rel=1e-9)
+    assert main(["distance", "--pixel-size", "0.01", "--origin", "0", "0",
+                 str(tmp_path / "model.vtp"), str(out / "volume_0.tif")]) == 2
+    assert "a volume needs pixel_size [dx, dy, dz]" in capsys.readouterr().err

@@ -6,10 +6,13 @@ Example::
         --pixel-size 0.004 --origin 0 0 --json
 
 MODEL and OBS are interface files in any format :func:`bayescalib.io.observations.read_interface`
-reads (CSV, VTK polyline, mask image), or run records (``.h5``, as written by
-``bayescalib solve`` and the workflow's solves: their deformed interface, in mm).
-``--units``, ``--pixel-size``, ``--origin`` and ``--floor`` apply to both files (they only
-matter for the formats that use them). Interfaces that cannot be flow-cell interfaces in
+reads (CSV, VTK, images; in 3D surfaces and OCT volumes), or run records (``.h5``, as
+written by ``bayescalib solve`` and the workflow's solves: their deformed interface, in
+mm). ``--units``, ``--pixel-size``, ``--origin`` and ``--floor`` apply to both files (they
+only matter for the formats that use them); an OCT volume takes ``--voxel-size`` and
+``--volume-origin`` instead. A 3D model is
+compared above the plane its observed surface was cut at, as in a study
+(:func:`bayescalib.io.observations.cut_height`). Interfaces that cannot be flow-cell interfaces in
 mm after the unit conversion (larger than 100 mm, smaller than 1 um) are refused as a
 unit slip, before any work. Prints D; with
 ``--json`` one JSON object with the measure, D, n (the number of measurements of
@@ -41,6 +44,11 @@ def add_parser(p: argparse.ArgumentParser) -> None:
                    help="pixel size of mask images (in --units)")
     p.add_argument("--origin", type=float, nargs=2, default=None, metavar=("X", "Y"),
                    help="position of the centre of the bottom-left image pixel (in --units)")
+    p.add_argument("--voxel-size", type=float, nargs=3, default=None,
+                   metavar=("DX", "DY", "DZ"), help="OCT volumes: the voxel size (in --units)")
+    p.add_argument("--volume-origin", type=float, nargs=3, default=None,
+                   metavar=("X", "Y", "Z"), help="OCT volumes: the position of the centre of "
+                   "the first B-scan's bottom-left pixel (in --units)")
     p.add_argument("--floor", type=float, default=None, metavar="Y",
                    help="mask images: y of a floor inside the image (in --units); the contour part on it is dropped")
     p.add_argument("--units", choices=["mm", "m", "um"], default="mm",
@@ -52,9 +60,13 @@ def add_parser(p: argparse.ArgumentParser) -> None:
 MIN_EXTENT_MM, MAX_EXTENT_MM = 1.0e-3, 100.0
 
 
-def _read(path: str, opts: dict, read_interface):
-    """An interface file, or the deformed interface of a run record (``.h5``)."""
+def _read(path: str, opts: dict):
+    """An interface file and its reading record
+    (:func:`bayescalib.io.observations.read_interface_info`), or the deformed interface of
+    a run record (``.h5``) and None."""
     from pathlib import Path
+
+    from bayescalib.io.observations import read_interface_info
 
     if Path(path).suffix.lower() in (".h5", ".hdf5"):
         from bayescalib.geometry.interface import Interface
@@ -67,8 +79,8 @@ def _read(path: str, opts: dict, read_interface):
         if not run.ok:
             raise ValueError(f"run record '{path}' is a failed solve ({run.reason}): it has no "
                              "deformed interface to compare")
-        return Interface(run.interface_current, run.segments, name=Path(path).name)
-    return read_interface(path, **opts)
+        return Interface(run.interface_current, run.segments, name=Path(path).name), None
+    return read_interface_info(path, **opts)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -77,12 +89,24 @@ def run(args: argparse.Namespace) -> int:
 
     import numpy as np
 
-    from bayescalib.io.observations import read_interface, read_points
+    from bayescalib.geometry.surface import surface_above
+    from bayescalib.io.observations import cut_height, read_interface, read_points
     from bayescalib.measures import compute
 
-    opts = {"units": args.units, "pixel_size": args.pixel_size, "origin": args.origin, "floor": args.floor}
-    model = _read(args.model, opts, read_interface)
-    obs = _read(args.obs, opts, read_interface)
+    image = {"pixel_size": args.pixel_size, "origin": args.origin}
+    volume = {"pixel_size": args.voxel_size, "origin": args.volume_origin}
+
+    def opts(path: str) -> dict:
+        from bayescalib.io.volumes import is_volume
+
+        return {"units": args.units, "floor": args.floor,
+                **(volume if is_volume(path) else image)}
+
+    model, _ = _read(args.model, opts(args.model))
+    obs, info = _read(args.obs, opts(args.obs))
+    y = cut_height(obs, info)
+    if y is not None and model.dim == 3:  # compared above the observation's cut, as a study
+        model = surface_above(model, y)
     for role, iface, path in (("MODEL", model, args.model), ("OBS", obs, args.obs)):
         ext = float(np.max(np.ptp(np.asarray(iface.points), axis=0)))
         if not MIN_EXTENT_MM <= ext <= MAX_EXTENT_MM:
@@ -104,7 +128,7 @@ def run(args: argparse.Namespace) -> int:
             pts, dirs = read_points(args.points, units=args.units)
             options.update(points=pts, directions=dirs)
         if args.reference:
-            options["reference"] = read_interface(args.reference, **opts)
+            options["reference"] = read_interface(args.reference, **opts(args.reference))
     res = compute(args.measure, model, obs, **options)
     if args.json:
         print(json.dumps({

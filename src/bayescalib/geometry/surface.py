@@ -50,7 +50,8 @@ from bayescalib.geometry.interface import Interface, InterfaceError
 
 __all__ = ["CLIP_EPS", "TAUBIN_ITERATIONS", "TAUBIN_LAMBDA", "TAUBIN_MU", "UNITS",
            "SurfaceError", "boundary_edges", "colony_surface", "enclosed_volume",
-           "mesh_components", "pick_component", "plane_section", "surface_placement",
+           "mesh_components", "pick_component", "plane_section", "surface_above",
+           "surface_placement",
            "taubin_smooth", "unit_factor"]
 
 #: length unit -> factor to mm
@@ -347,6 +348,15 @@ def colony_surface(
             "volume_change": float((abs(v1) - abs(v0)) / abs(v0)) if v0 else 0.0,
             "flipped": bool(flipped)}
     return surf, info
+
+
+def surface_above(surface: Interface, y: float) -> Interface:
+    """The part of a surface above the plane ``y`` (mm), triangles crossing it cut along
+    it (:func:`clip_below`); the surface itself when nothing of it lies above."""
+    pts, tri = clip_below(surface.points, surface.cells, y)
+    if tri.shape[0] == 0:
+        return surface
+    return Interface.surface(pts, tri, name=f"{surface.name} above y = {y:g} mm")
 
 
 def surface_placement(observed: Interface, reference: Interface) -> Any:

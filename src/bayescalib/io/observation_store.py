@@ -72,18 +72,13 @@ class StoredObservations:
                              f"{len(self.snapshots)} snapshot(s)")
 
     def cut_heights(self) -> list[float | None]:
-        """Per snapshot, the height y (mm) of the plane a 3D observed surface was cut at
-        above the flow cell's floor y = 0 (a volume's floor found on top of the bright
-        substrate's halo, or a surface file's given floor), else None: the model's
-        surface is compared above the same plane (:func:`bayescalib.stages.discrepancy.
-        model_interfaces`), since the observation holds nothing of the colony below it."""
-        out: list[float | None] = []
-        for snap, seg in zip(self.snapshots, self.segmentation or [None] * len(self.snapshots)):
-            y = None
-            if snap.dim == 3 and seg:
-                y = seg["floor"]["y_mm"] if seg.get("kind") == "volume" else seg.get("floor_mm")
-            out.append(float(y) if y is not None and float(y) > 0.0 else None)
-        return out
+        """Per snapshot, :func:`bayescalib.io.observations.cut_height`: the plane a 3D
+        observed surface was cut at above the floor, or None; the model's surface is
+        compared above it (:func:`bayescalib.stages.discrepancy.model_interfaces`)."""
+        from bayescalib.io.observations import cut_height
+
+        segs = self.segmentation or [None] * len(self.snapshots)
+        return [cut_height(snap, seg) for snap, seg in zip(self.snapshots, segs)]
 
     def segmentation_sigma(self) -> float | None:
         """The segmentation's positional uncertainty of the observed interfaces, mm: the

@@ -62,6 +62,7 @@ __all__ = [
     "ObservationSet",
     "add_noise",
     "count_points",
+    "cut_height",
     "read_interface",
     "read_interface_info",
     "read_points",
@@ -584,6 +585,19 @@ def reader_options(entry: Mapping[str, Any]) -> dict[str, Any]:
     """The keyword arguments of :func:`read_interface` for one ``observations.files``
     entry (or ``observations.reference``): the keys given, none of the unset ones."""
     return {k: entry[k] for k in READER_KEYS if entry.get(k) is not None}
+
+
+def cut_height(interface: Interface, info: Mapping[str, Any] | None) -> float | None:
+    """The height y (mm) of the plane a 3D observed surface was cut at above the flow
+    cell's floor y = 0, from its reading record (:func:`read_interface_info`): a volume's
+    floor (found on top of the bright substrate's halo, or given), a surface file's
+    given floor; None for a 2D interface, a surface not cut above the floor, or no record
+    (synthetic data). The model is compared above the same plane, since the observation
+    holds nothing of the colony below it."""
+    y = None
+    if interface.dim == 3 and info:
+        y = info["floor"]["y_mm"] if info.get("kind") == "volume" else info.get("floor_mm")
+    return float(y) if y is not None and float(y) > 0.0 else None
 
 
 def read_interface(

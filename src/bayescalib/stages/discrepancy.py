@@ -130,7 +130,7 @@ def model_interfaces(run, n_snapshots: int, cuts: Sequence[float | None] | None 
     from the data, would otherwise count as a misfit (there, an RKHS distance of 0.0088
     against 0.0004 above the cut)."""
     from bayescalib.geometry.interface import Interface
-    from bayescalib.geometry.surface import clip_below
+    from bayescalib.geometry.surface import surface_above
 
     if run.loadings:
         out = [Interface(ld.current, run.segments, name=f"model {ld.label}")
@@ -139,9 +139,7 @@ def model_interfaces(run, n_snapshots: int, cuts: Sequence[float | None] | None 
         out = [Interface(run.interface_current, run.segments, name="model")] * n_snapshots
     for k, y in enumerate(cuts or ()):
         if y is not None and out[k].dim == 3:
-            pts, tri = clip_below(out[k].points, out[k].cells, y)
-            if tri.shape[0]:
-                out[k] = Interface.surface(pts, tri, name=f"{out[k].name} above y = {y:g} mm")
+            out[k] = surface_above(out[k], y)
     return out
 
 
