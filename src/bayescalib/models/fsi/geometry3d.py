@@ -100,8 +100,8 @@ def build_mesh_3d(geometry: dict[str, Any], mesh_cfg: dict[str, Any]) -> Biofilm
     import ngsolve as ng
     from netgen.occ import Axes, Box, Ellipsoid, Glue, OCCGeometry, Pnt, X, Y, Z
 
-    if geometry["shape"] not in ("half_ellipse", "ridge"):
-        raise ValueError(f"geometry.shape: the 3D model has the half_ellipse and ridge "
+    if geometry["shape"] not in ("half_ellipse", "ridge", "scan"):
+        raise ValueError(f"geometry.shape: the 3D model has the half_ellipse, ridge and scan "
                          f"shapes only, not '{geometry['shape']}'")
     L = float(geometry["length"])
     H = float(geometry["channel_height"])
@@ -113,16 +113,31 @@ def build_mesh_3d(geometry: dict[str, Any], mesh_cfg: dict[str, Any]) -> Biofilm
     box.faces.Max(Y).name = "top"
     box.faces.Min(Z).name = "side"
     box.faces.Max(Z).name = "side"
-    if geometry["shape"] == "ridge":
-        patch, lo, hi, b = _outline_face({**geometry, "shape": "half_ellipse"})
-        centre = np.array([float(geometry["centre"]), 0.0, 0.5 * W])
-        a, c = 0.5 * (hi - lo), np.inf
+    if geometry["shape"] == "scan":
+        from bayescalib.models.fsi.scan3d import (
+            HeightField,
+            height_field_cutter,
+            scan_height_field,
+        )
+
+        if geometry.get("height_field"):  # filled when the study was read
+            field = HeightField.from_config(geometry["height_field"])
+        elif geometry.get("scan"):  # a model built on its own: the scan read here
+            field = scan_height_field(geometry, min_gap=2.0 * float(mesh_cfg["h_interface"]))
+        else:
+            raise ValueError("geometry.scan is required for shape: scan (the colony's surface "
+                             "at zero flow)")
+        cutter = height_field_cutter(field, H)
+        colony = cutter * box
+        b = float(field.heights.max())
+    elif geometry["shape"] == "ridge":
+        patch, _, _, b = _outline_face({**geometry, "shape": "half_ellipse"})
         colony = patch.Extrude(W * Z)
         colony.faces.name = "interface"
         colony.faces.Min(Z).name = "side"
         colony.faces.Max(Z).name = "side"
         cutter = colony
-    else:
+    else:  # half_ellipse
         centre, (a, b, c) = colony_axes(geometry)
         # netgen's Ellipsoid(axes, r1, r2, r3) puts r1 along n (= Z), r2 along h (= X)
         # and r3 along n x h (= Y): measured on the meshed surface (test_fsi3d)
@@ -144,13 +159,13 @@ def build_mesh_3d(geometry: dict[str, Any], mesh_cfg: dict[str, Any]) -> Biofilm
     mesh = ng.Mesh(generate_mesh(OCCGeometry(shape), maxh=float(mesh_cfg["h_bulk"]),
                                  grading=float(mesh_cfg["grading"])))
     mesh.Curve(int(mesh_cfg["curve_order"]))
-    verts, coords, tris = interface_surface(mesh, "interface", centre, np.array([a, b, c]))
+    verts, coords, tris = interface_surface(mesh, "interface", "biofilm")
     return BiofilmMesh(mesh, ["biofilm"], verts, coords, tris, b)
 
 
-def interface_surface(mesh: Any, boundary: str, centre: np.ndarray,
-                      semi_axes: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The triangulated interface of a 3D mesh, oriented out of an ellipsoidal solid.
+def interface_surface(mesh: Any, boundary: str,
+                      solid: str = "biofilm") -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The triangulated interface of a 3D mesh, oriented out of the solid region.
 
     Parameters
     ----------
@@ -158,11 +173,10 @@ def interface_surface(mesh: Any, boundary: str, centre: np.ndarray,
         NGSolve 3D mesh.
     boundary
         Boundary name of the surface.
-    centre, semi_axes : ndarray, shape (3,)
-        Centre and semi-axes (mm) of the ellipsoid the surface lies on: a triangle's
-        normal must point along the ellipsoid's outward normal, the gradient of
-        ``sum(((x - centre) / semi_axes)^2)`` at its centroid (an infinite semi-axis:
-        an elliptic cylinder, the ridge).
+    solid
+        Region on one side of the surface: each triangle is oriented so that its
+        normal points away from the fourth vertex of the ``solid`` tetrahedron it
+        bounds (out of the solid, into the fluid), for any shape of the colony.
 
     Returns
     -------
@@ -182,9 +196,20 @@ def interface_surface(mesh: Any, boundary: str, centre: np.ndarray,
     verts, local = np.unique(tri, return_inverse=True)
     local = local.reshape(tri.shape)
     coords = np.array([mesh.vertices[int(v)].point for v in verts], dtype=float)
+    opposite: dict[tuple[int, ...], int] = {}  # a solid tetrahedron's face -> its 4th vertex
+    for el in mesh.Elements(ng.VOL):
+        if el.mat == solid:
+            v = [u.nr for u in el.vertices]
+            for k in range(4):
+                opposite[tuple(sorted(v[:k] + v[k + 1:]))] = v[k]
+    try:
+        inner = np.array([opposite[tuple(sorted(t))] for t in tri.tolist()], dtype=int)
+    except KeyError:
+        raise ValueError(f"mesh: the boundary '{boundary}' does not bound the region "
+                         f"'{solid}'") from None
     p = coords[local]
     normal = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
-    outward = (p.mean(axis=1) - centre) / np.asarray(semi_axes, dtype=float) ** 2
-    flip = np.einsum("ij,ij->i", normal, outward) < 0
+    q = np.array([mesh.vertices[int(v)].point for v in inner], dtype=float)
+    flip = np.einsum("ij,ij->i", normal, p[:, 0] - q) < 0
     local[flip] = local[flip][:, ::-1]
     return verts, coords, local.astype(np.int64)
