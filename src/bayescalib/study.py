@@ -471,7 +471,8 @@ class Study:
     def _resolve_scan_3d(cfg: dict[str, Any], fsi: dict[str, Any], where: str) -> list[str]:
         """``geometry.dim: 3`` with ``shape: scan``: read the colony's surface from
         ``geometry.scan``, take it as a height field, check it fits the channel with a
-        gap of two interface elements (:func:`bayescalib.models.fsi.scan3d.scan_height_field`)
+        gap of one interface element (the 3D presets' are coarse: very_coarse's 0.15 mm
+        is most of the default colony's 0.2 mm gap to the side walls) (:func:`bayescalib.models.fsi.scan3d.scan_height_field`)
         and fill ``geometry.height_field`` with its grid, so every solve depends on the
         heights and none reads the file. Returns a note."""
         from bayescalib.models.fsi.model import MESH_PRESETS_3D
@@ -485,7 +486,7 @@ class Study:
         mesh = {**MESH_PRESETS_3D[fsi["mesh"]["preset"]],
                 **{k: v for k, v in fsi["mesh"].items() if v is not None}}
         try:
-            field = scan_height_field(geo, min_gap=2.0 * float(mesh["h_interface"]), key=key)
+            field = scan_height_field(geo, min_gap=float(mesh["h_interface"]), key=key)
         except ScanError as exc:
             raise ConfigError(str(exc)) from None
         cfg["forward_model"]["fsi"]["geometry"]["height_field"] = field.to_config()

@@ -123,7 +123,7 @@ def build_mesh_3d(geometry: dict[str, Any], mesh_cfg: dict[str, Any]) -> Biofilm
         if geometry.get("height_field"):  # filled when the study was read
             field = HeightField.from_config(geometry["height_field"])
         elif geometry.get("scan"):  # a model built on its own: the scan read here
-            field = scan_height_field(geometry, min_gap=2.0 * float(mesh_cfg["h_interface"]))
+            field = scan_height_field(geometry, min_gap=float(mesh_cfg["h_interface"]))
         else:
             raise ValueError("geometry.scan is required for shape: scan (the colony's surface "
                              "at zero flow)")
