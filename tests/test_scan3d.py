@@ -199,8 +199,8 @@ def _cut(surface, floor):
     ("overhang", r"geometry.scan \('.*'\): the colony overhangs"),
     ("floor_raised", r"geometry.scan \('.*'\): the colony's rim .* lies at y = 0.05"),
     ("floor_key", r"geometry.scan.floor = 0.05: the substrate lies at y = 0.05 mm"),
-    ("units", r"geometry.scan \('.*'\): the colony .* is larger than the channel .*"
-              r"read as mm: check geometry.scan.units"),
+    ("units", (r"geometry.scan \('.*'\): the colony .* is larger than the channel .*"
+               r"read as mm: check geometry.scan.units")),
     ("image", r"geometry.scan.path = '.*png': a 3D model's scan is a triangulated surface"),
 ])
 def test_bad_scans_are_refused_when_the_study_is_read_naming_the_key(tmp_path, case, words):

@@ -1,4 +1,4 @@
-"""3D flow cell: a rectangular channel with a half-ellipsoidal colony on its floor.
+"""3D flow cell: a rectangular channel with a half-ellipsoidal or scanned colony on its floor.
 
 Domain: the box ``[0, L] x [0, H] x [0, W]`` (length ``x``, height ``y``, width ``z``;
 lengths in mm; ``geometry.length``, ``channel_height``, ``channel_width``) with the
@@ -19,6 +19,12 @@ does not depend on z and is the 2D plane-strain solution at the rate ``Q / W`` p
 unit width, which makes it the 3D model's check against the 2D one. Its side faces
 are part of ``side``.
 
+``shape: scan`` is the colony of a recording at zero flow: its triangulated surface
+(``geometry.scan``) taken as a smoothed height field over the floor, continued below
+it, filled into ``geometry.height_field`` when the study is read, and made into a
+B-spline cutter solid (:mod:`bayescalib.models.fsi.scan3d`); ``colony = cutter * box``
+and ``fluid = box - cutter`` as for the ellipsoid.
+
 Boundary names: ``inlet`` (x = 0), ``outlet`` (x = L), ``top`` (y = H), ``floor`` (the
 fluid's part of y = 0), ``side`` (z = 0 and z = W), ``biofilm_floor`` (the clamped
 base of the colony, an ellipse in y = 0) and ``interface`` (fluid–biofilm). Regions:
@@ -28,7 +34,9 @@ interface and the base to ``h_solid`` inside the colony and ``h_bulk`` elsewhere
 The interface output is a triangulated surface: the vertices of the mesh's boundary
 triangles on ``interface`` (the straight-sided triangles through the curved elements'
 vertices), numbered ``0 .. n-1``, and the triangles ``(m, 3)`` into them, oriented by
-the right-hand rule so that the normal points out of the colony into the fluid (the
+the right-hand rule so that the normal points out of the colony into the fluid (away
+from the fourth vertex of the biofilm tetrahedron each triangle bounds, whatever the
+colony's shape) (the
 convention of :class:`bayescalib.geometry.interface.Interface`, which the RKHS
 surface-current measure takes as it is).
 """
@@ -85,8 +93,9 @@ def build_mesh_3d(geometry: dict[str, Any], mesh_cfg: dict[str, Any]) -> Biofilm
     Parameters
     ----------
     geometry : dict
-        Validated ``geometry`` section with ``dim: 3`` and ``shape: half_ellipse`` or
-        ``ridge`` (mm).
+        Validated ``geometry`` section with ``dim: 3`` and ``shape: half_ellipse``,
+        ``ridge`` or ``scan`` (mm; ``scan``: its ``height_field`` filled when the study
+        was read, else the ``scan`` file is read here).
     mesh_cfg : dict
         ``mesh`` section with the preset resolved: ``h_interface``, ``h_solid``,
         ``h_bulk`` (mm), ``grading``, ``curve_order``.
@@ -95,7 +104,8 @@ def build_mesh_3d(geometry: dict[str, Any], mesh_cfg: dict[str, Any]) -> Biofilm
     -------
     BiofilmMesh
         ``interface_reference`` (n, 3) mm, ``segments`` the (m, 3) triangles of the
-        interface (normals into the fluid), ``patch_height`` = ``b``.
+        interface (normals into the fluid), ``patch_height`` = ``b`` (``scan``: the
+        height field's largest height).
     """
     import ngsolve as ng
     from netgen.occ import Axes, Box, Ellipsoid, Glue, OCCGeometry, Pnt, X, Y, Z

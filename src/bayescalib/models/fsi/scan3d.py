@@ -30,7 +30,8 @@ into the solid the mesher cuts out of the channel box, in four steps:
    extends a margin of ``max(4 d, 3 sigma)`` beyond the footprint, where the field is
    below the floor.
 3. *Smoothing.* A Gaussian filter of standard deviation ``sigma``
-   (``geometry.scan.smoothing``; default one grid spacing) removes the voxel or
+   (``geometry.scan.smoothing``; default :data:`SMOOTHING_SPACINGS` = 2 grid spacings,
+   as the 2D scans' two pixel sizes) removes the voxel or
    triangle staircase (and the vertical rim's infinite slope) that would otherwise
    become mesh detail. Step 1-3 run once, when the study is read
    (:meth:`bayescalib.study.Study._resolve_geometry`), and the grid's heights fill
@@ -49,12 +50,6 @@ NGSolve 6.2.2608, the default 2 x 1 x 1 mm channel with the default half-ellipso
 width 0.6, height 0.4, depth 0.6 mm, given as a 40 x 80 triangle "scan" of the
 analytic surface and read from an STL file; medians of 3): see the table at the end
 of this docstring, filled by that benchmark.
-
-References
-----------
-Picioreanu C., Blauert F., Horn H., Wagner M. (2018). Determination of mechanical
-properties of biofilms by modelling the deformation measured using optical coherence
-tomography. Water Research 145, 588-598.
 """
 
 from __future__ import annotations
@@ -66,11 +61,13 @@ import numpy as np
 
 from bayescalib.geometry.interface import Interface
 
-__all__ = ["FLOOR_TOL_MM", "GRID_CELLS", "OVERHANG_SHARE", "HeightField", "ScanError",
-           "height_field", "height_field_cutter", "scan_height_field", "star_surface", "validate_height_field"]
+__all__ = ["FLOOR_TOL_MM", "GRID_CELLS", "OVERHANG_SHARE", "SMOOTHING_SPACINGS", "HeightField",
+           "ScanError", "height_field", "height_field_cutter", "scan_height_field", "star_surface", "validate_height_field"]
 
 #: default grid: this many cells across the footprint's larger extent
 GRID_CELLS = 60
+#: default smoothing: this many grid spacings (as 2D images' two pixel sizes)
+SMOOTHING_SPACINGS = 2.0
 #: down-facing triangles' projected area above this share of the up-facing ones': overhang
 OVERHANG_SHARE = 0.02
 #: the rim farther than this from y = 0 (mm) is a misplaced scan (as in 2D, io.colony)
@@ -169,8 +166,8 @@ def height_field(surface: Interface, *, spacing: float | None = None,
     spacing : float, optional
         Grid spacing, mm (None: the footprint's larger extent / :data:`GRID_CELLS`).
     smoothing : float, optional
-        Standard deviation of the Gaussian smoothing, mm (None: one grid spacing; 0:
-        none).
+        Standard deviation of the Gaussian smoothing, mm (None:
+        :data:`SMOOTHING_SPACINGS` grid spacings; 0: none).
     name : str
         The config key, for messages.
 
@@ -224,7 +221,7 @@ def height_field(surface: Interface, *, spacing: float | None = None,
     if not d > 0 or extent / d > 2000:
         raise ScanError(f"{name}.spacing: {d:g} mm gives more than 2000 grid cells across "
                         f"the colony ({extent:.4g} mm): use a larger spacing")
-    sigma = d if smoothing is None else float(smoothing)
+    sigma = SMOOTHING_SPACINGS * d if smoothing is None else float(smoothing)
     margin = max(4.0 * d, 3.0 * sigma)
     n = np.ceil((hi - lo + 2.0 * margin) / d).astype(int) + 1
     origin = lo - margin - 0.5 * ((n - 1) * d - (hi - lo + 2.0 * margin))  # centred
