@@ -6,14 +6,18 @@ Tolerances, against the analytic half-ellipsoid (``shape: half_ellipse``, the de
 points, written as STL and read back), on the ``very_coarse`` mesh (measured on the
 development machine, ``benchmarks/bench_scan3d.py``):
 
-* colony volume: the scanned one is 1.6 % below the analytic one (the height field's
-  smoothing at one grid spacing rounds the vertical rim of the ellipsoid, which a
-  height field cannot hold); tolerance 3 %.
-* interface area: 0.3 % below; tolerance 2 %.
-* maximum displacement at E = 400 Pa, nu = 0.3, the default inflow: 1.1 % above the
-  analytic model's (a smaller, slightly more rounded colony on a finer mesh at its
-  rim); tolerance 3 %, about the difference between the very_coarse and coarse
-  meshes of the analytic model itself.
+* smoothed at the default two grid spacings (20 um): colony volume 4.4 % and interface
+  area 2.7 % below the analytic ones (smoothing rounds the ellipsoid's vertical rim,
+  which a height field cannot hold), tolerance 6 %; the maximum displacement at
+  E = 400 Pa, nu = 0.3 and the default inflow 7.2 % above the analytic model's on
+  very_coarse (49 interface triangles against 76: this mesh is too coarse for the
+  difference to mean more than the meshes' luck; on coarse it is 5.0 % below, as the
+  smaller colony should be), tolerance 10 %.
+* smoothed at one grid spacing (10 um, enough for this smooth surface, not for a
+  voxel surface): volume 1.6 %, area 0.9 % below, tolerance 3 %; maximum
+  displacement 0.5 % above (coarse: 0.4 % below), tolerance 3 %, about the
+  difference between the very_coarse and coarse meshes of the analytic model itself
+  (1.1 %) plus the mesh's luck.
 """
 
 from __future__ import annotations
@@ -117,11 +121,16 @@ def _colony(model):
             ng.Integrate(1.0, mesh, definedon=mesh.Boundaries("interface")))
 
 
-def test_a_scanned_half_ellipsoid_meshes_and_solves_like_the_analytic_one(tmp_path):
+@pytest.mark.parametrize("smoothing, volume, displacement", [
+    (None, 0.06, 0.10),  # the default, two grid spacings (20 um)
+    (0.01, 0.03, 0.03),  # one grid spacing (10 um): enough for a smooth surface
+])
+def test_a_scanned_half_ellipsoid_meshes_and_solves_like_the_analytic_one(
+        tmp_path, smoothing, volume, displacement):
     from bayescalib.models.fsi.model import FSIModel
 
     path = _write_stl(tmp_path / "colony.stl", star_surface(_half_ellipsoid(), (XC, ZC)))
-    study = _study(tmp_path, {"path": path})
+    study = _study(tmp_path, {"path": path, "smoothing": smoothing})
     geo = study.config["forward_model"]["fsi"]["geometry"]
     assert geo["height_field"]["spacing"] == pytest.approx(0.01)  # 0.6 mm / 60
     assert any("as a height field" in n for n in study.notes)
@@ -133,14 +142,14 @@ def test_a_scanned_half_ellipsoid_meshes_and_solves_like_the_analytic_one(tmp_pa
     assert res.status == "ok" and ref.status == "ok"
     (v, a), (v0, a0) = _colony(scanned), _colony(analytic)
     assert v0 == pytest.approx(2 / 3 * np.pi * A * B * C, rel=2e-3)
-    assert v == pytest.approx(v0, rel=0.03)
-    assert a == pytest.approx(a0, rel=0.02)
-    assert res.max_displacement == pytest.approx(ref.max_displacement, rel=0.03)
+    assert v < v0 and v == pytest.approx(v0, rel=volume)  # smoothing rounds the rim
+    assert a == pytest.approx(a0, rel=volume)
+    assert res.max_displacement == pytest.approx(ref.max_displacement, rel=displacement)
     # the interface points into the fluid: the volume it encloses with the floor is positive
-    for r in (res, ref):
+    for r, vol in ((res, v), (ref, v0)):
         surf = Interface.surface(r.interface_reference, r.segments)
         # (the straight triangles through the curved elements' vertices hold less)
-        assert 0.9 * v0 < enclosed_volume(surf.points, surf.cells, 0.0) < v0
+        assert 0.9 * vol < enclosed_volume(surf.points, surf.cells, 0.0) < vol
         c = surf.centres - [XC, 0.0, ZC]
         assert np.mean(np.einsum("ij,ij->i", surf.normals, c) > 0) > 0.99
 
