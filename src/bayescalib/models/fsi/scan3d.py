@@ -29,17 +29,17 @@ into the solid the mesher cuts out of the channel box, in four steps:
    kink that the mesher would refine. The grid extends a margin of
    ``max(4 d, 3 sigma)`` beyond the footprint, where the field is below the floor.
 3. *Smoothing.* A Gaussian filter of standard deviation ``sigma``
-   (``geometry.scan.smoothing``; default :data:`SMOOTHING_SPACINGS` = 2 grid spacings,
-   as the 2D scans' two pixel sizes) removes the voxel or
-   triangle staircase (and the vertical rim's infinite slope) that would otherwise
-   become mesh detail. Its price: a steep rim is rounded, and the colony loses
-   volume there (the half-ellipsoid: 1.6 % at the default; a colony whose rims are
-   steep over a larger share of its volume loses more, 19 % for the two 0.2-0.3 mm
-   bumps of ``tests/test_scan3d.py`` smoothed at 50 um). Steps 1-3 run once, when the
-   study is read (:meth:`bayescalib.study.Study._resolve_geometry`), and the grid's
-   heights fill ``geometry.height_field`` (rounded to 1e-9 mm), so every solve depends
-   on the geometry's numbers and a changed scan reruns the solves; no solve reads the
-   file.
+   (``geometry.scan.smoothing``; default :data:`SMOOTHING_SPACINGS` = 2 grid
+   spacings, as the 2D scans' two pixel sizes) removes the voxel or triangle
+   staircase (and the vertical rim's infinite slope) that would otherwise become
+   mesh detail. Its price: a steep rim is rounded, and the colony loses volume there
+   (the half-ellipsoid: 4.4 % at the default, 1.6 % at one spacing; a colony whose
+   rims are steep over a larger share of its volume loses more, 19 % for the two
+   0.2-0.3 mm bumps of ``tests/test_scan3d.py`` smoothed at 50 um). Steps 1-3 run
+   once, when the study is read (:meth:`bayescalib.study.Study._resolve_geometry`),
+   and the grid's heights fill ``geometry.height_field`` (rounded to 1e-9 mm), so
+   every solve depends on the geometry's numbers and a changed scan reruns the
+   solves; no solve reads the file.
 4. *Cutter.* ``netgen.occ.SplineSurfaceInterpolation`` puts a bicubic B-spline
    surface through the grid's points ``(x, h, z)``; the face extruded downward below
    the floor is the cutter, and as for the analytic half-ellipsoid
@@ -48,11 +48,37 @@ into the solid the mesher cuts out of the channel box, in four steps:
    the boundary names (``interface``, ``biofilm_floor``, ``floor``, ...) and the
    rest of the solver are unchanged.
 
-Measured (``benchmarks/bench_scan3d.py``; one core of the 2-core development machine,
-NGSolve 6.2.2608, the default 2 x 1 x 1 mm channel with the default half-ellipsoid,
-width 0.6, height 0.4, depth 0.6 mm, given as a 40 x 80 triangle "scan" of the
-analytic surface and read from an STL file; medians of 3): see the table at the end
-of this docstring, filled by that benchmark.
+Measured (``benchmarks/bench_scan3d.py --repeats 3``, 2026-11-27; NGSolve 6.2.2608, one
+thread on the shared 2-core development machine under a load of about 8, so the
+times are noisy to a factor 2: the analytic very_coarse solve took 5.2 s and 11.1 s in
+two runs). The default half-ellipsoid (width 0.6, height 0.4, depth 0.6 mm) in the
+default 2 x 1 x 1 mm channel, E = 400 Pa, nu = 0.3, default inflow, cold solves from
+rest; "scan" is its surface triangulated (24 rings x 96 points), written as STL and
+read back, on the default 10 um grid; "voxels" the marching-cubes surface of a 10 um
+voxel mask of it (:func:`bayescalib.geometry.volume.volume_surface`). Medians of 3;
+differences against the analytic colony on the same preset:
+
+============  =============  =====  ======  =======  ======  ==========  ======
+preset        colony         tets   mesh s  solve s  volume  area        max |d|
+============  =============  =====  ======  =======  ======  ==========  ======
+very_coarse   analytic       662    8.6     11.1     --      --          --
+very_coarse   scan, 20 um    556    11.2    7.5      -4.4 %  -2.7 %      +7.2 %
+very_coarse   scan, 10 um    1148   6.3     11.5     -1.5 %  -0.9 %      -3.0 %
+very_coarse   voxels, 20 um  1020   2.3     7.4      -3.3 %  -2.0 %      -4.8 %
+coarse        analytic       2040   3.9     31.2     --      --          --
+coarse        scan, 20 um    1683   6.8     20.9     -4.2 %  -2.5 %      -5.0 %
+coarse        scan, 10 um    1764   5.5     20.6     -1.6 %  -0.9 %      -3.3 %
+coarse        voxels, 20 um  1884   4.5     17.8     -3.4 %  -2.0 %      -6.8 %
+============  =============  =====  ======  =======  ======  ==========  ======
+
+(20 um: the default smoothing, two grid spacings; 10 um: one.) Making the height field
+takes 0.2-0.7 s. The maximum displacement is the least stable figure: the same scan
+at one spacing of 0.6 mm / 60 (1e-6 mm from the 10 um above) meshed into 1090
+tetrahedra on very_coarse and gave +0.5 % (coarse: -0.4 %), so a few per cent of it is
+the mesh's luck; the rest, a few per cent low, follows the volume the smoothing takes
+off the steep rim. At one grid spacing a voxel surface is not smooth enough: its
+residual staircase made 4300 tetrahedra on very_coarse and a solve that failed after
+5 min, hence the default of two.
 """
 
 from __future__ import annotations
