@@ -471,10 +471,11 @@ class Study:
     def _resolve_scan_3d(cfg: dict[str, Any], fsi: dict[str, Any], where: str) -> list[str]:
         """``geometry.dim: 3`` with ``shape: scan``: read the colony's surface from
         ``geometry.scan``, take it as a height field, check it fits the channel with a
-        gap of one interface element (the 3D presets' are coarse: very_coarse's 0.15 mm
-        is most of the default colony's 0.2 mm gap to the side walls) (:func:`bayescalib.models.fsi.scan3d.scan_height_field`)
-        and fill ``geometry.height_field`` with its grid, so every solve depends on the
-        heights and none reads the file. Returns a note."""
+        gap of one interface element (the 3D presets are coarse: very_coarse's 0.15 mm
+        is most of the default colony's 0.2 mm gap to the side walls;
+        :func:`bayescalib.models.fsi.scan3d.scan_height_field`) and fill
+        ``geometry.height_field`` with its grid, so every solve depends on the heights
+        and none reads the file. Returns a note."""
         from bayescalib.models.fsi.model import MESH_PRESETS_3D
         from bayescalib.models.fsi.scan3d import ScanError, scan_height_field
 
@@ -483,6 +484,10 @@ class Study:
         if geo.get("height_field"):
             raise ConfigError(f"{key}.height_field is filled from geometry.scan with shape: "
                               "scan; leave it out")
+        if fsi["mesh"]["preset"] not in MESH_PRESETS_3D:
+            raise ConfigError(f"{where}: forward_model.fsi.mesh.preset: no 3D preset "
+                              f"'{fsi['mesh']['preset']}' (3D presets: "
+                              f"{', '.join(MESH_PRESETS_3D)})")
         mesh = {**MESH_PRESETS_3D[fsi["mesh"]["preset"]],
                 **{k: v for k, v in fsi["mesh"].items() if v is not None}}
         try:
