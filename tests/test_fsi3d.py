@@ -124,7 +124,7 @@ def test_3d_runs_are_written_and_read_with_triangles(tmp_path, solved3d):
 @pytest.mark.parametrize("override, match", [
     ({"physics": {"growth": {"enabled": True}}}, "no candidate physics in the 3D model"),
     ({"mesh": {"preset": "fine"}}, "no 3D preset 'fine'"),
-    ({"geometry": {"dim": 3, "shape": "polyline"}}, "half_ellipse and ridge shapes only"),
+    ({"geometry": {"dim": 3, "shape": "polyline"}}, "half_ellipse, ridge and scan shapes only"),
     ({"geometry": {"dim": 3, "subdomains": {"enabled": True}}}, "subdomains"),
 ])
 def test_what_the_3d_model_does_not_have_is_a_config_error(override, match):

@@ -444,6 +444,14 @@ class Study:
         if geo.get("outline"):
             raise ConfigError(f"{key}.outline is filled from geometry.scan with shape: scan; "
                               "leave it out")
+        if int(geo["dim"]) == 3:
+            return Study._resolve_scan_3d(cfg, fsi, where)
+        if geo["scan"].get("spacing") is not None:
+            raise ConfigError(f"{key}.scan.spacing applies to a 3D model's scan "
+                              "(geometry.dim: 3); leave it out")
+        if geo.get("height_field"):
+            raise ConfigError(f"{key}.height_field is a 3D model's (geometry.dim: 3); "
+                              "leave it out")
         try:
             colony = read_colony(geo["scan"], where=f"{key}.scan")
         except ObservationError as exc:
@@ -463,6 +471,42 @@ class Study:
         return [(f"{key}.scan: the model's biofilm is the colony of '{i['source']}' "
                  f"({i['colony']}; x = {i['x_range_mm'][0]:.4g} to {i['x_range_mm'][1]:.4g} mm, "
                  f"{i['height_mm']:.4g} mm high, smoothed at {i['smoothing_mm'] * 1e3:.3g} um)")]
+
+    @staticmethod
+    def _resolve_scan_3d(cfg: dict[str, Any], fsi: dict[str, Any], where: str) -> list[str]:
+        """``geometry.dim: 3`` with ``shape: scan``: read the colony's surface from
+        ``geometry.scan``, take it as a height field, check it fits the channel with a
+        gap of one interface element (the 3D presets are coarse: very_coarse's 0.15 mm
+        is most of the default colony's 0.2 mm gap to the side walls;
+        :func:`bayescalib.models.fsi.scan3d.scan_height_field`) and fill
+        ``geometry.height_field`` with its grid, so every solve depends on the heights
+        and none reads the file. Returns a note."""
+        from bayescalib.models.fsi.model import MESH_PRESETS_3D
+        from bayescalib.models.fsi.scan3d import ScanError, scan_height_field
+
+        geo = fsi["geometry"]
+        key = f"{where}: forward_model.fsi.geometry"
+        if geo.get("height_field"):
+            raise ConfigError(f"{key}.height_field is filled from geometry.scan with shape: "
+                              "scan; leave it out")
+        if fsi["mesh"]["preset"] not in MESH_PRESETS_3D:
+            raise ConfigError(f"{where}: forward_model.fsi.mesh.preset: no 3D preset "
+                              f"'{fsi['mesh']['preset']}' (3D presets: "
+                              f"{', '.join(MESH_PRESETS_3D)})")
+        mesh = {**MESH_PRESETS_3D[fsi["mesh"]["preset"]],
+                **{k: v for k, v in fsi["mesh"].items() if v is not None}}
+        try:
+            field = scan_height_field(geo, min_gap=float(mesh["h_interface"]), key=key)
+        except ScanError as exc:
+            raise ConfigError(str(exc)) from None
+        cfg["forward_model"]["fsi"]["geometry"]["height_field"] = field.to_config()
+        i = field.info
+        return [(f"{key}.scan: the model's biofilm is the colony of '{geo['scan']['path']}' as a "
+                 f"height field ({i['grid'][0]} x {i['grid'][1]} nodes at "
+                 f"{i['spacing_mm'] * 1e3:.3g} um, smoothed at {i['smoothing_mm'] * 1e3:.3g} um; "
+                 f"x = {i['x_range_mm'][0]:.4g} to {i['x_range_mm'][1]:.4g} mm, z = "
+                 f"{i['z_range_mm'][0]:.4g} to {i['z_range_mm'][1]:.4g} mm, "
+                 f"{i['height_mm']:.4g} mm high)")]
 
     @staticmethod
     def _validate_registration(cfg: dict[str, Any], where: str, observed: dict[str, Any]) -> None:

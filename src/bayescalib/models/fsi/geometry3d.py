@@ -1,4 +1,4 @@
-"""3D flow cell: a rectangular channel with a half-ellipsoidal colony on its floor.
+"""3D flow cell: a rectangular channel with a half-ellipsoidal or scanned colony on its floor.
 
 Domain: the box ``[0, L] x [0, H] x [0, W]`` (length ``x``, height ``y``, width ``z``;
 lengths in mm; ``geometry.length``, ``channel_height``, ``channel_width``) with the
@@ -19,6 +19,12 @@ does not depend on z and is the 2D plane-strain solution at the rate ``Q / W`` p
 unit width, which makes it the 3D model's check against the 2D one. Its side faces
 are part of ``side``.
 
+``shape: scan`` is the colony of a recording at zero flow: its triangulated surface
+(``geometry.scan``) taken as a smoothed height field over the floor, continued below
+it, filled into ``geometry.height_field`` when the study is read, and made into a
+B-spline cutter solid (:mod:`bayescalib.models.fsi.scan3d`); ``colony = cutter * box``
+and ``fluid = box - cutter`` as for the ellipsoid.
+
 Boundary names: ``inlet`` (x = 0), ``outlet`` (x = L), ``top`` (y = H), ``floor`` (the
 fluid's part of y = 0), ``side`` (z = 0 and z = W), ``biofilm_floor`` (the clamped
 base of the colony, an ellipse in y = 0) and ``interface`` (fluid–biofilm). Regions:
@@ -28,7 +34,9 @@ interface and the base to ``h_solid`` inside the colony and ``h_bulk`` elsewhere
 The interface output is a triangulated surface: the vertices of the mesh's boundary
 triangles on ``interface`` (the straight-sided triangles through the curved elements'
 vertices), numbered ``0 .. n-1``, and the triangles ``(m, 3)`` into them, oriented by
-the right-hand rule so that the normal points out of the colony into the fluid (the
+the right-hand rule so that the normal points out of the colony into the fluid (away
+from the fourth vertex of the biofilm tetrahedron each triangle bounds, whatever the
+colony's shape) (the
 convention of :class:`bayescalib.geometry.interface.Interface`, which the RKHS
 surface-current measure takes as it is).
 """
@@ -143,8 +151,9 @@ def build_mesh_3d(geometry: dict[str, Any], mesh_cfg: dict[str, Any]) -> Biofilm
     Parameters
     ----------
     geometry : dict
-        Validated ``geometry`` section with ``dim: 3`` and ``shape: half_ellipse`` or
-        ``ridge`` (mm).
+        Validated ``geometry`` section with ``dim: 3`` and ``shape: half_ellipse``,
+        ``ridge`` or ``scan`` (mm; ``scan``: its ``height_field`` filled when the study
+        was read, else the ``scan`` file is read here).
     mesh_cfg : dict
         ``mesh`` section with the preset resolved: ``h_interface``, ``h_solid``,
         ``h_bulk`` (mm), ``grading``, ``curve_order``.
@@ -153,13 +162,14 @@ def build_mesh_3d(geometry: dict[str, Any], mesh_cfg: dict[str, Any]) -> Biofilm
     -------
     BiofilmMesh
         ``interface_reference`` (n, 3) mm, ``segments`` the (m, 3) triangles of the
-        interface (normals into the fluid), ``patch_height`` = ``b``.
+        interface (normals into the fluid), ``patch_height`` = ``b`` (``scan``: the
+        height field's largest height).
     """
     import ngsolve as ng
     from netgen.occ import Axes, Box, Ellipsoid, Glue, OCCGeometry, Pnt, X, Y, Z
 
-    if geometry["shape"] not in ("half_ellipse", "ridge"):
-        raise ValueError(f"geometry.shape: the 3D model has the half_ellipse and ridge "
+    if geometry["shape"] not in ("half_ellipse", "ridge", "scan"):
+        raise ValueError(f"geometry.shape: the 3D model has the half_ellipse, ridge and scan "
                          f"shapes only, not '{geometry['shape']}'")
     L = float(geometry["length"])
     H = float(geometry["channel_height"])
@@ -171,16 +181,31 @@ def build_mesh_3d(geometry: dict[str, Any], mesh_cfg: dict[str, Any]) -> Biofilm
     box.faces.Max(Y).name = "top"
     box.faces.Min(Z).name = "side"
     box.faces.Max(Z).name = "side"
-    if geometry["shape"] == "ridge":
-        patch, lo, hi, b = _outline_face({**geometry, "shape": "half_ellipse"})
-        centre = np.array([float(geometry["centre"]), 0.0, 0.5 * W])
-        a, c = 0.5 * (hi - lo), np.inf
+    if geometry["shape"] == "scan":
+        from bayescalib.models.fsi.scan3d import (
+            HeightField,
+            height_field_cutter,
+            scan_height_field,
+        )
+
+        if geometry.get("height_field"):  # filled when the study was read
+            field = HeightField.from_config(geometry["height_field"])
+        elif geometry.get("scan"):  # a model built on its own: the scan read here
+            field = scan_height_field(geometry, min_gap=float(mesh_cfg["h_interface"]))
+        else:
+            raise ValueError("geometry.scan is required for shape: scan (the colony's surface "
+                             "at zero flow)")
+        cutter = height_field_cutter(field, H)
+        colony = cutter * box
+        b = float(field.heights.max())
+    elif geometry["shape"] == "ridge":
+        patch, _, _, b = _outline_face({**geometry, "shape": "half_ellipse"})
         colony = patch.Extrude(W * Z)
         colony.faces.name = "interface"
         colony.faces.Min(Z).name = "side"
         colony.faces.Max(Z).name = "side"
         cutter = colony
-    else:
+    else:  # half_ellipse
         centre, (a, b, c) = colony_axes(geometry)
         # netgen's Ellipsoid(axes, r1, r2, r3) puts r1 along n (= Z), r2 along h (= X)
         # and r3 along n x h (= Y): measured on the meshed surface (test_fsi3d)
@@ -202,13 +227,13 @@ def build_mesh_3d(geometry: dict[str, Any], mesh_cfg: dict[str, Any]) -> Biofilm
     mesh = ng.Mesh(generate_mesh(OCCGeometry(shape), maxh=float(mesh_cfg["h_bulk"]),
                                  grading=float(mesh_cfg["grading"])))
     mesh.Curve(int(mesh_cfg["curve_order"]))
-    verts, coords, tris = interface_surface(mesh, "interface", centre, np.array([a, b, c]))
+    verts, coords, tris = interface_surface(mesh, "interface", "biofilm")
     return BiofilmMesh(mesh, ["biofilm"], verts, coords, tris, b)
 
 
-def interface_surface(mesh: Any, boundary: str, centre: np.ndarray,
-                      semi_axes: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The triangulated interface of a 3D mesh, oriented out of an ellipsoidal solid.
+def interface_surface(mesh: Any, boundary: str,
+                      solid: str = "biofilm") -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The triangulated interface of a 3D mesh, oriented out of the solid region.
 
     Parameters
     ----------
@@ -216,11 +241,10 @@ def interface_surface(mesh: Any, boundary: str, centre: np.ndarray,
         NGSolve 3D mesh.
     boundary
         Boundary name of the surface.
-    centre, semi_axes : ndarray, shape (3,)
-        Centre and semi-axes (mm) of the ellipsoid the surface lies on: a triangle's
-        normal must point along the ellipsoid's outward normal, the gradient of
-        ``sum(((x - centre) / semi_axes)^2)`` at its centroid (an infinite semi-axis:
-        an elliptic cylinder, the ridge).
+    solid
+        Region on one side of the surface: each triangle is oriented so that its
+        normal points away from the fourth vertex of the ``solid`` tetrahedron it
+        bounds (out of the solid, into the fluid), for any shape of the colony.
 
     Returns
     -------
@@ -240,9 +264,20 @@ def interface_surface(mesh: Any, boundary: str, centre: np.ndarray,
     verts, local = np.unique(tri, return_inverse=True)
     local = local.reshape(tri.shape)
     coords = np.array([mesh.vertices[int(v)].point for v in verts], dtype=float)
+    opposite: dict[tuple[int, ...], int] = {}  # a solid tetrahedron's face -> its 4th vertex
+    for el in mesh.Elements(ng.VOL):
+        if el.mat == solid:
+            v = [u.nr for u in el.vertices]
+            for k in range(4):
+                opposite[tuple(sorted(v[:k] + v[k + 1:]))] = v[k]
+    try:
+        inner = np.array([opposite[tuple(sorted(t))] for t in tri.tolist()], dtype=int)
+    except KeyError:
+        raise ValueError(f"mesh: the boundary '{boundary}' does not bound the region "
+                         f"'{solid}'") from None
     p = coords[local]
     normal = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
-    outward = (p.mean(axis=1) - centre) / np.asarray(semi_axes, dtype=float) ** 2
-    flip = np.einsum("ij,ij->i", normal, outward) < 0
+    q = np.array([mesh.vertices[int(v)].point for v in inner], dtype=float)
+    flip = np.einsum("ij,ij->i", normal, p[:, 0] - q) < 0
     local[flip] = local[flip][:, ::-1]
     return verts, coords, local.astype(np.int64)

@@ -121,8 +121,9 @@ def fsi_section(config: Mapping[str, Any]) -> dict[str, Any]:
 def dim3_problem(cfg: Mapping[str, Any]) -> str:
     """What a validated fsi config asks of the 3D model that it does not have, or ``""``.
 
-    The 3D model (``geometry.dim: 3``) is the base model: one half-ellipsoidal colony
-    or a ridge across the width (no polyline or scan shape, no subdomains) and no
+    The 3D model (``geometry.dim: 3``) is the base model: one half-ellipsoidal colony,
+    a scanned one (:mod:`bayescalib.models.fsi.scan3d`) or a ridge across the width (no
+    polyline shape, no subdomains) and no
     candidate physics; its mesh presets are :data:`MESH_PRESETS_3D`. The ridge is a 3D
     shape only.
     """
@@ -130,9 +131,9 @@ def dim3_problem(cfg: Mapping[str, Any]) -> str:
     if int(geo["dim"]) != 3:
         return "geometry.shape: ridge is a 3D shape (geometry.dim: 3)" \
             if geo["shape"] == "ridge" else ""
-    if geo["shape"] not in ("half_ellipse", "ridge"):
-        return (f"geometry.shape: the 3D model has the half_ellipse and ridge shapes only, "
-                f"not '{geo['shape']}'")
+    if geo["shape"] not in ("half_ellipse", "ridge", "scan"):
+        return (f"geometry.shape: the 3D model has the half_ellipse, ridge and scan shapes "
+                f"only, not '{geo['shape']}'")
     if geo["subdomains"]["enabled"]:
         return "geometry.subdomains: not available in the 3D model (geometry.dim: 3)"
     on = [n for n, c in cfg["physics"].items() if c.get("enabled")]
@@ -153,7 +154,7 @@ def _get(cfg: Mapping[str, Any], dotted: str) -> Any:
 
 #: geometry keys only the 3D model reads (``geometry.dim`` 3); a 2D model's state key
 #: leaves them out, so the states saved before they existed stay valid warm starts
-GEOMETRY_3D_KEYS = ("dim", "channel_width", "depth", "centre_z", "side_walls")
+GEOMETRY_3D_KEYS = ("dim", "channel_width", "depth", "centre_z", "side_walls", "height_field")
 
 
 def _space_key(cfg: Mapping[str, Any], *, base: bool = False) -> str:
