@@ -28,8 +28,8 @@ from bayescalib.stages.observe import observe
 from bayescalib.study import Study
 
 ROOT = Path(__file__).resolve().parents[1]
-FSI3D = deep_merge(load_yaml(ROOT / "config" / "config.yaml"),
-                   load_yaml(ROOT / "config" / "fsi3d_smoke.yaml"))
+DEFAULT2D = load_yaml(ROOT / "config" / "config.yaml")
+FSI3D = deep_merge(DEFAULT2D, load_yaml(ROOT / "config" / "fsi3d_smoke.yaml"))
 GEOMETRY = validate(FSI3D["forward_model"]["fsi"], "fsi")["geometry"]
 VOXEL = 0.01  # mm
 ORIGIN = [0.5, -0.05, 0.1]  # mm: the centre of the first B-scan's bottom-left voxel
@@ -246,3 +246,40 @@ def test_a_colony_cut_off_by_the_field_of_view_is_refused(tmp_path):
     with pytest.raises(ConfigError, match=r"observations.files\[0\]: .*rim vertices above the "
                        r"floor .* cut off"):
         _study({"path": str(tmp_path / "cut.vtp")}, {"path": str(tmp_path / "cut.vtp")})
+
+
+def test_a_footprint_moved_sideways_is_refused_though_the_surface_lies_close(volumes):
+    """A shift across the flow of a quarter of the footprint keeps the mean distance of the
+    nodes under a quarter of the height; the base, attached, does not move under flow."""
+    path = volumes / "colony.npy"
+    wrong = [ORIGIN[0], ORIGIN[1], ORIGIN[2] + 0.15]
+    with pytest.raises(ConfigError, match=r"its footprint's centre lies 0.1[45]\d* mm from "
+                       r"the model's undeformed biofilm's"):
+        _study(_volume(path, origin=wrong), _volume(path))
+
+
+def test_the_model_colony_from_a_zero_flow_volume_and_observations_checked_against_it(volumes):
+    """The field's practice in 3D: the unloaded volume is the model's geometry (a height
+    field filled when the study is read), and the observed volumes are checked against
+    that colony."""
+    from bayescalib.models.fsi.scan3d import HeightField
+
+    scan = _volume(volumes / "colony.npy")
+    cfg = deep_merge(FSI3D, {"forward_model": {"fsi": {"geometry": {"shape": "scan",
+                                                                     "scan": scan}}}})
+    files = [dict(_volume(volumes / "colony.npy"), load=load) for load in (50.0, 100.0)]
+    study = Study(deep_merge(cfg, {"observations": {"source": "files", "files": files}}))
+    assert any("as a height field" in n and "colony.npy" in n for n in study.notes)
+    geometry = validate(study.config["forward_model"]["fsi"], "fsi")["geometry"]
+    hf = HeightField.from_config(geometry["height_field"])
+    assert hf.heights.max() == pytest.approx(0.4, abs=2 * VOXEL)
+    ref = reference_surface(geometry)  # the colony the placement check compares with
+    assert enclosed_volume(ref.points, ref.cells, 0.0) == pytest.approx(
+        HALF_ELLIPSOID_VOLUME, rel=0.08)  # the height field's smoothing rounds the rim
+    wrong = [ORIGIN[0] + 0.15, ORIGIN[1], ORIGIN[2]]
+    files[0] = dict(files[0], origin=wrong)
+    with pytest.raises(ConfigError, match=r"observations.files\[0\] .* footprint's centre"):
+        Study(deep_merge(cfg, {"observations": {"source": "files", "files": files}}))
+    with pytest.raises(ConfigError, match=r"geometry.scan: a 2D model's scan is an image"):
+        Study(deep_merge(DEFAULT2D, {"forward_model": {"fsi": {"geometry": {
+            "shape": "scan", "scan": scan}}}}))

@@ -29,6 +29,9 @@ __all__ = ["ConfigError", "Study", "StudyBusyError", "hold_run_lock"]
 #: most measurement points a ``measure.euclidean.points`` file may hold (each is a line
 #: intersected with every solve's interface; the default rule places 10)
 MAX_MEASUREMENT_POINTS = 10_000
+#: an observed 3D colony whose footprint's centre lies farther than this share of the
+#: model's footprint from it is misplaced (its base is attached: the flow barely moves it)
+FOOTPRINT_SHIFT = 0.1
 
 
 def _entry_at(cfg: Mapping[str, Any], key: str) -> Mapping[str, Any]:
@@ -449,6 +452,14 @@ class Study:
         if geo["scan"].get("spacing") is not None:
             raise ConfigError(f"{key}.scan.spacing applies to a 3D model's scan "
                               "(geometry.dim: 3); leave it out")
+        if geo["scan"].get("component") is not None:
+            raise ConfigError(f"{key}.scan.component applies to a 3D model's scan (a volume "
+                              "or a surface); a 2D scan's colony is chosen by scan.colony")
+        if isinstance(geo["scan"].get("pixel_size"), list) or len(geo["scan"].get("origin")
+                                                                  or ()) > 2:
+            raise ConfigError(f"{key}.scan: a 2D model's scan is an image or an outline: "
+                              "pixel_size is one number and origin [x, y] (three of each are "
+                              "an OCT volume's, for geometry.dim: 3)")
         if geo.get("height_field"):
             raise ConfigError(f"{key}.height_field is a 3D model's (geometry.dim: 3); "
                               "leave it out")
@@ -515,8 +526,9 @@ class Study:
         feet barely; a wrong origin or unit moves or scales it as a whole. Refused when
         the observed extent is not within a factor 2 of the model's (units: the x-extent
         of a curve; a surface's x- and z-extents, each), or when its nodes lie on average
-        more than a quarter of the colony's height from the model's undeformed interface
-        (placement: :func:`bayescalib.geometry.outline.placement`, in 3D
+        more than a quarter of the colony's height from the model's undeformed interface,
+        or (3D) its footprint's centre more than :data:`FOOTPRINT_SHIFT` of the footprint
+        from the model's (placement: :func:`bayescalib.geometry.outline.placement`, in 3D
         :func:`bayescalib.geometry.surface.surface_placement`); both before any solve.
 
         A python or command model's geometry is known only from a solve: its files are
@@ -578,7 +590,9 @@ class Study:
             if not place:
                 continue
             p = placement(iface.points, ref.points) if dim == 2 else surface_placement(iface, ref)
-            if p.mean_distance > 0.25 * height:
+            foot = 0.0 if dim == 2 else float(np.hypot(p.offset[0], p.offset[2]))
+            span = float(np.mean(np.ptp(ref.points[:, [0, 2]], axis=0))) if dim == 3 else 1.0
+            if p.mean_distance > 0.25 * height or foot > FOOTPRINT_SHIFT * span:
                 offset = ", ".join(f"{v:+.3f}" for v in p.offset)
                 fix = ""
                 origin = entry.get("origin")
@@ -588,12 +602,15 @@ class Study:
                     fix = f"; with origin [{moved}] {units} it would lie in place"
                 elif entry.get("pixel_size") is not None:
                     fix = f"; {key}.origin is not given"
+                why = (f"its footprint's centre lies {foot:.3g} mm from {what}'s, whose "
+                       f"footprint is {span:.3g} mm across: the base, attached to the floor, "
+                       "does not move under flow" if foot > FOOTPRINT_SHIFT * span else
+                       f"the observed interface lies {p.mean_distance:.3g} mm (mean distance "
+                       f"of its nodes) from {what}, whose height is {height:.3g} mm: a flow "
+                       "moves it by a fraction of that")
                 raise ConfigError(
-                    f"{where}: {key} ('{entry['path']}'): the observed interface lies "
-                    f"{p.mean_distance:.3g} mm (mean distance of its nodes) from {what}, "
-                    f"whose height is {height:.3g} mm: a flow moves it by a fraction of that. "
-                    f"It is offset by about ({offset}) mm: check {key}.origin and "
-                    f"{key}.units{fix}")
+                    f"{where}: {key} ('{entry['path']}'): {why}. It is offset by about "
+                    f"({offset}) mm: check {key}.origin and {key}.units{fix}")
 
     @staticmethod
     def model_dim(cfg: Mapping[str, Any]) -> int | None:

@@ -483,7 +483,7 @@ class Placement:
     offset : (float, float) or (float, float, float)
         Estimated misplacement (dx, dy), mm: the mean x-shift of the two feet and
         the shift of the lowest point; for a surface (dx, dy, dz): the shift of the
-        footprint's centre and of the lowest point
+        footprint's centre and of the top
         (:func:`bayescalib.geometry.surface.surface_placement`).
     """
 

@@ -376,8 +376,8 @@ def surface_placement(observed: Interface, reference: Interface) -> Any:
         ``mean_distance``: mean distance of the observed vertices from the reference
         surface (mm); ``extent_ratio``: the footprint's size over the model's, the
         geometric mean of the x and z extents' ratios; ``offset`` (dx, dy, dz): the shift
-        of the footprint's centre (the middle of the x and z extents) and of the
-        lowest point.
+        of the footprint's centre (the middle of the x and z extents) and of the top (an
+        observed surface may be cut above the floor, a flow lowers the top a little).
     """
     from bayescalib.geometry.outline import Placement
     from bayescalib.geometry.projection import closest_points
@@ -387,7 +387,7 @@ def surface_placement(observed: Interface, reference: Interface) -> Any:
     ratio = [float(np.ptp(obs[:, a])) / (float(np.ptp(ref[:, a])) or 1.0) for a in (0, 2)]
     mid = [0.5 * (float(obs[:, a].min() + obs[:, a].max()) - float(ref[:, a].min()
                                                                   + ref[:, a].max())) for a in (0, 2)]
-    dy = float(obs[:, 1].min() - ref[:, 1].min())
+    dy = float(obs[:, 1].max() - ref[:, 1].max())  # the top: a surface may be cut above the floor
     return Placement(float(np.mean(np.abs(d))), float(np.sqrt(ratio[0] * ratio[1])),
                      (mid[0], dy, mid[1]))
 

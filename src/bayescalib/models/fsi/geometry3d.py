@@ -89,8 +89,9 @@ def colony_axes(geometry: dict[str, Any]) -> tuple[np.ndarray, np.ndarray]:
 
 def reference_surface(geometry: dict[str, Any], n: int = 24) -> Any:
     """The colony's undeformed interface without a mesh: the analytic surface,
-    triangulated on an (elevation, azimuth) grid, for the checks of observed surfaces
-    against the model when a study is read (units, placement).
+    triangulated on an (elevation, azimuth) grid (a scanned colony: its height field's
+    grid above the floor), for the checks of observed surfaces against the model when a
+    study is read (units, placement).
 
     Parameters
     ----------
@@ -108,6 +109,22 @@ def reference_surface(geometry: dict[str, Any], n: int = 24) -> Any:
     from bayescalib.geometry.interface import Interface
 
     m = 4 * n
+    if geometry["shape"] == "scan":  # the height field the study filled from the scan
+        from bayescalib.geometry.surface import surface_above
+        from bayescalib.models.fsi.scan3d import HeightField
+
+        hf = HeightField.from_config(geometry["height_field"])
+        X, Z = np.meshgrid(hf.x, hf.z, indexing="ij")
+        pts = np.column_stack([X.ravel(), np.maximum(hf.heights, 0.0).ravel(), Z.ravel()])
+        idx = np.arange(pts.shape[0]).reshape(hf.heights.shape)
+        q0, q1, q2, q3 = idx[:-1, :-1], idx[1:, :-1], idx[1:, 1:], idx[:-1, 1:]
+        tri = np.vstack([np.column_stack([q0.ravel(), q3.ravel(), q1.ravel()]),
+                         np.column_stack([q1.ravel(), q3.ravel(), q2.ravel()])])
+        p = pts[tri]
+        up = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])[:, 1] > 0
+        tri[~up] = tri[~up][:, ::-1]  # a height field's surface faces up, into the fluid
+        grid = Interface.surface(pts, tri.astype(np.int64), name="the model's undeformed colony")
+        return surface_above(grid, 1e-9)  # the colony, its rim on the floor
     if geometry["shape"] == "ridge":
         _, lo, hi, b = _outline_face({**geometry, "shape": "half_ellipse"})
         a, xc, W = 0.5 * (hi - lo), 0.5 * (hi + lo), float(geometry["channel_width"])

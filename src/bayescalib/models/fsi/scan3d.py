@@ -182,7 +182,8 @@ def _segment_distance(p: np.ndarray, seg: np.ndarray) -> tuple[np.ndarray, np.nd
 
 
 def height_field(surface: Interface, *, spacing: float | None = None,
-                 smoothing: float | None = None, name: str = "geometry.scan") -> HeightField:
+                 smoothing: float | None = None, name: str = "geometry.scan",
+                 floor_tol: float = FLOOR_TOL_MM) -> HeightField:
     """The colony of a triangulated surface as a smoothed height field (module docstring).
 
     Parameters
@@ -199,6 +200,10 @@ def height_field(surface: Interface, *, spacing: float | None = None,
         :data:`SMOOTHING_SPACINGS` grid spacings; 0: none).
     name : str
         The config key, for messages.
+    floor_tol : float
+        Largest distance of the rim from the floor, mm (an OCT volume's surface is cut on
+        top of the bright substrate's blur, a voxel or two above it: its rim may lie that
+        high, and the continuation below the floor carries the foot down to it).
 
     Returns
     -------
@@ -223,12 +228,12 @@ def height_field(surface: Interface, *, spacing: float | None = None,
         raise ScanError(f"{name}: the surface is closed; the colony's surface is open at its "
                         "rim on the floor")
     rim_y = pts[np.unique(rim), 1]
-    if np.abs(rim_y).max() > FLOOR_TOL_MM:
+    if np.abs(rim_y).max() > floor_tol:
         raise ScanError(
             f"{name}: the colony's rim (its base on the substrate) lies at y = "
             f"{rim_y.min():.4g} to {rim_y.max():.4g} mm, but the flow cell's floor is y = 0 "
-            f"(tolerance {FLOOR_TOL_MM:g} mm): shift the surface (or give geometry.scan.floor) "
-            "so that the colony sits on y = 0")
+            f"(tolerance {floor_tol:g} mm): shift the surface (or give geometry.scan.floor; "
+            "a volume: its origin) so that the colony sits on y = 0")
     p = pts[tri]
     nrm = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])  # 2 x area x unit normal
     up = nrm[:, 1] > 0
@@ -388,19 +393,23 @@ def scan_height_field(geometry: dict[str, Any], *, min_gap: float,
     from pathlib import Path
 
     from bayescalib.geometry.surface import UNITS
-    from bayescalib.io.observations import ObservationError
+    from bayescalib.io.observations import ObservationError, cut_height, read_interface_info
     from bayescalib.io.surfaces import SURFACE_SUFFIXES, read_surface
+    from bayescalib.io.volumes import is_volume
 
     scan = geometry["scan"]
     path = Path(scan["path"])
-    if path.suffix.lower() not in SURFACE_SUFFIXES:
+    volume = path.exists() and is_volume(path)
+    if path.suffix.lower() not in SURFACE_SUFFIXES and not volume:
         raise ScanError(
             f"{key}.scan.path = '{path}': a 3D model's scan is a triangulated surface "
-            f"({', '.join(sorted(SURFACE_SUFFIXES))}) of the colony at zero flow")
-    for name in ("pixel_size", "origin", "colony"):
+            f"({', '.join(sorted(SURFACE_SUFFIXES))}) or an OCT volume (a folder of "
+            "B-scans, .npy, a multi-page TIFF) of the colony at zero flow")
+    for name in ("colony",) if volume else ("pixel_size", "origin", "colony"):
         if scan.get(name) is not None:
             raise ScanError(f"{key}.scan.{name} applies to images (2D scans); leave it out "
-                            "for a surface file")
+                            f"for a {'volume' if volume else 'surface file'}"
+                            + (" (component picks a colony)" if name == "colony" else ""))
     f = UNITS[scan["units"]]
     floor = scan["floor"]
     if floor is not None and not isinstance(floor, str) and abs(float(floor) * f) > FLOOR_TOL_MM:
@@ -409,14 +418,23 @@ def scan_height_field(geometry: dict[str, Any], *, min_gap: float,
             "in the file's coordinates, but the flow cell's floor is y = 0: shift the surface "
             "so that the colony sits on y = 0")
     try:
-        surface, info = read_surface(path, units=scan["units"], floor=floor)
+        if volume:
+            surface, info = read_interface_info(
+                path, units=scan["units"], pixel_size=scan.get("pixel_size"),
+                origin=scan.get("origin"), floor=floor, image=scan["image"],
+                segmentation=scan["segmentation"], component=scan.get("component"))
+            info["units"] = scan["units"]
+        else:
+            surface, info = read_surface(path, units=scan["units"], floor=floor,
+                                         component=scan.get("component"))
     except ObservationError as exc:
         raise ScanError(f"{key}.scan: {exc}") from None
     spacing, smoothing = scan.get("spacing"), scan["smoothing"]
     name = f"{key}.scan ('{path}')"
+    cut = cut_height(surface, info) if volume else None
     field_ = height_field(surface, spacing=None if spacing is None else float(spacing) * f,
                           smoothing=None if smoothing is None else float(smoothing) * f,
-                          name=name)
+                          name=name, floor_tol=FLOOR_TOL_MM + (cut or 0.0))
     validate_height_field(field_, length=float(geometry["length"]),
                           channel_height=float(geometry["channel_height"]),
                           channel_width=float(geometry["channel_width"]), min_gap=min_gap,
