@@ -97,11 +97,11 @@ def _closed_ellipsoid(centre, axes, n=32):
     return Interface.surface(pts, np.array(tris))
 
 
-def _study(tmp_path, scan, preset="very_coarse", **geometry):
-    obs = tmp_path / "observed.vtp"  # a loaded colony's surface (the checks read it)
-    if not obs.exists():
-        _write_stl(obs, star_surface(_half_ellipsoid(), (XC, ZC), n_rings=8, n_angles=32),
-                   xml=True)
+def _study(tmp_path, scan, preset="very_coarse", observed=None, **geometry):
+    obs = tmp_path / "observed.vtp"  # a loaded colony's surface (the checks read it: it
+    if not obs.exists():  # must lie where the scanned colony is)
+        _write_stl(obs, observed if observed is not None else
+                   star_surface(_half_ellipsoid(), (XC, ZC), n_rings=8, n_angles=32), xml=True)
     cfg = {
         "study": "scan3d", "results_dir": str(tmp_path / "results"),
         "parameters": [{"name": "E", "unit": "Pa", "target": "material.E",
@@ -167,7 +167,7 @@ def test_an_irregular_colony_of_two_overlapping_bumps_meshes_and_solves(tmp_path
     tolerance 25 %."""
     surf = star_surface(_two_bumps, (1.0, 0.5), n_rings=30, n_angles=120)
     study = _study(tmp_path, {"path": _write_stl(tmp_path / "bumps.stl", surf),
-                              "smoothing": 0.05})
+                              "smoothing": 0.05}, observed=surf)
     model = FSIModel(study.config)
     res = model.solve({"material.E": 400.0, "material.nu": 0.3})
     assert res.status == "ok", res.reason
