@@ -212,3 +212,60 @@ def test_the_noise_floor_is_sigma_squared_per_point_and_what_the_section_sees():
                                    transform=lambda s: midplane_section(s, GEO3)) > 2 * sec
     with pytest.raises(ValueError, match="draws"):
         noise_floor("cpp", surf, sigma, draws=0)
+
+
+def test_file_loads_out_of_the_loadings_order_are_refused(tmp_path):
+    """Snapshots are paired with the loadings by their order: a file whose load is not
+    its loading's value (listed out of order, or in other units) is a config error."""
+    from bayescalib.config import ConfigError
+    from bayescalib.io.observations import write_interface_vtk
+
+    ref, tri = _half_ellipsoid()
+    write_interface_vtk(tmp_path / "s.vtp", Interface(ref, tri))
+
+    def cfg(loads, factors=(0.5, 1.0), nominal=None, calibrated=False):
+        params = [{"name": "E", "unit": "Pa", "target": "material.E",
+                   "prior": {"type": "uniform", "lo": 100.0, "hi": 800.0}}]
+        if calibrated:
+            params.append({"name": "Q", "unit": "mm^3/s", "target": "inflow.rate",
+                           "prior": {"type": "uniform", "lo": 50.0, "hi": 150.0}})
+        return {"study": "t", "forward_model": {
+            "type": "fsi", "loadings": {"parameter": "inflow.rate", "nominal": nominal,
+                                        "factors": list(factors)},
+            "fsi": {"geometry": {"dim": 3}, "mesh": {"preset": "very_coarse"},
+                    "inflow": {"rate": 100.0}}},
+            "parameters": params,
+            "observations": {"source": "files", "files": [
+                {"path": str(tmp_path / "s.vtp"), "load": v} for v in loads]},
+            "measures": ["cpp"]}
+
+    Study(cfg([50.0, 100.0]))
+    Study(cfg([None, 100.0]))
+    Study(cfg([25.0, 50.0], nominal=50.0))
+    with pytest.raises(ConfigError, match=r"files\[0\].load is 100 but its loading is 50 "
+                                          r"\(factor 0.5 x nominal 100 of inflow.rate\)"):
+        Study(cfg([100.0, 50.0]))
+    with pytest.raises(ConfigError, match=r"files\[0\].load is 50 but its loading is 100"):
+        Study(cfg([50.0], factors=(1.0,)))  # one loading: the model's inflow.rate
+    # the loaded parameter calibrated: only the ratios are known
+    Study(cfg([60.0, 120.0], calibrated=True))
+    with pytest.raises(ConfigError, match=r"files\[1\].load is 100 but its loading is 120"):
+        Study(cfg([60.0, 100.0], calibrated=True))
+
+
+def test_the_3d_models_inflow_rate_is_a_volume_rate():
+    """Bug found here: the unit check read every fsi inflow rate in mm^2/s, so a 3D study
+    calibrating its (volume) rate in mm^3/s was refused, and mm^2/s was let through."""
+    from bayescalib.config import ConfigError
+    from bayescalib.models.units import fsi_target_unit, validate_fsi_units
+
+    assert fsi_target_unit("inflow.rate") == "mm^2/s"
+    assert fsi_target_unit("inflow.rate", 3) == "mm^3/s"
+    assert fsi_target_unit("geometry.depth", 3) == "mm" and fsi_target_unit("material.E", 3) == "Pa"
+    q = [{"name": "Q", "unit": "mm^3/s", "target": "inflow.rate",
+          "prior": {"type": "uniform", "lo": 50.0, "hi": 150.0}}]
+    validate_fsi_units(q, dim=3)
+    with pytest.raises(ConfigError, match="reads its target inflow.rate in mm\\^2/s"):
+        validate_fsi_units(q)
+    with pytest.raises(ConfigError, match="reads its target inflow.rate in mm\\^3/s"):
+        validate_fsi_units([{**q[0], "unit": "mm^2/s"}], dim=3)
