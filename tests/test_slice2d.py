@@ -269,3 +269,16 @@ def test_the_3d_models_inflow_rate_is_a_volume_rate():
         validate_fsi_units(q)
     with pytest.raises(ConfigError, match="reads its target inflow.rate in mm\\^3/s"):
         validate_fsi_units([{**q[0], "unit": "mm^2/s"}], dim=3)
+
+
+def test_the_posterior_comparison_figure(tmp_path):
+    from bayescalib.plotting.comparison import plot_posterior_comparison
+
+    rng = np.random.default_rng(0)
+    posts = {f"model {k}": (rng.normal([400.0 + 100 * k, 0.3], [50.0, 0.1], (300, 2)),
+                            np.ones(300)) for k in range(3)}
+    out = plot_posterior_comparison(posts, ["E", "nu"], ["Pa", "-"], [400.0, 0.3],
+                                    tmp_path / "c.png", title="t")
+    assert [p.name for p in out] == ["c.png"] and (tmp_path / "c.png").stat().st_size > 1000
+    with pytest.raises(ValueError, match="two parameters"):
+        plot_posterior_comparison(posts, ["E"], ["Pa"], [400.0], tmp_path / "d.png")

@@ -62,41 +62,48 @@ def plot_posterior_comparison(
         raise ValueError("plot_posterior_comparison: no posterior")
     out = as_paths(paths)
     colours = ["#1b6ca8", "#d1495b", "#edae49", "#00798c", "#66a182", "#8d6a9f"]
+    items = [(label, np.asarray(s, dtype=float), np.asarray(w, dtype=float))
+             for label, (s, w) in posteriors.items()]
+    # one set of bins per parameter, over all the posteriors' particles
+    edges = []
+    for j in range(2):
+        lo = min(float(s[:, j].min()) for _, s, _ in items)
+        hi = max(float(s[:, j].max()) for _, s, _ in items)
+        lo, hi = min(lo, float(truth[j])), max(hi, float(truth[j]))
+        edges.append(np.linspace(lo, hi, 41))
     with paper_style():
-        fig = Figure(figsize=(13.0, 4.2))
+        fig = Figure(figsize=(13.0, 4.9))
         axes = fig.subplots(1, 3)
-        for k, (label, (s, w)) in enumerate(posteriors.items()):
-            s = np.asarray(s, dtype=float)
-            w = np.asarray(w, dtype=float)
+        for k, (label, s, w) in enumerate(items):
             c = colours[k % len(colours)]
+            w = w / w.sum()
             mean, cov = _weighted(s, w)
             for j in range(2):
-                sd = float(np.sqrt(cov[j, j]))
-                lo, hi = mean[j] - 4.5 * sd, mean[j] + 4.5 * sd
-                axes[j].hist(s[:, j], bins=np.linspace(lo, hi, 41), weights=w / w.sum(),
-                             density=True, histtype="stepfilled", alpha=0.35, color=c)
-                axes[j].hist(s[:, j], bins=np.linspace(lo, hi, 41), weights=w / w.sum(),
-                             density=True, histtype="step", color=c, lw=1.4, label=label)
-            rng = np.random.default_rng(0)
-            idx = rng.choice(len(w), size=min(400, len(w)), p=w / w.sum())
-            axes[2].scatter(s[idx, 0], s[idx, 1], s=4, alpha=0.35, color=c)
+                axes[j].hist(s[:, j], bins=edges[j], weights=w, density=True,
+                             histtype="stepfilled", alpha=0.25, color=c)
+                axes[j].hist(s[:, j], bins=edges[j], weights=w, density=True,
+                             histtype="step", color=c, lw=1.5)
+            idx = np.random.default_rng(0).choice(len(w), size=min(400, len(w)), p=w)
+            axes[2].scatter(s[idx, 0], s[idx, 1], s=4, alpha=0.3, color=c)
             vals, vecs = np.linalg.eigh(cov)
             t = np.linspace(0, 2 * np.pi, 200)
             ell = mean[:, None] + 2.0 * vecs @ (np.sqrt(np.maximum(vals, 0))[:, None]
                                                 * np.vstack([np.cos(t), np.sin(t)]))
             axes[2].plot(ell[0], ell[1], color=c, lw=1.6, label=label)
-            axes[2].plot(*mean, "o", color=c, ms=5)
+            axes[2].plot(*mean, "o", color=c, ms=6, mec="k", mew=0.6)
         for j in range(2):
-            axes[j].axvline(truth[j], color="k", ls="--", lw=1.2, label="truth")
+            axes[j].axvline(truth[j], color="k", ls="--", lw=1.2)
             axes[j].set_xlabel(f"{names[j]} ({units[j]})" if units[j] not in ("", "-")
                                else names[j])
             axes[j].set_ylabel("posterior density")
-        axes[2].plot(truth[0], truth[1], "k*", ms=13, label="truth")
+        axes[2].plot(truth[0], truth[1], "k*", ms=14, label="truth")
         axes[2].set_xlabel(f"{names[0]} ({units[0]})" if units[0] not in ("", "-") else names[0])
         axes[2].set_ylabel(f"{names[1]} ({units[1]})" if units[1] not in ("", "-") else names[1])
-        axes[2].set_title("joint: particles, mean, 2-sd ellipse", fontsize=10)
-        axes[0].legend(fontsize=8, loc="best")
+        axes[2].set_title("joint: particles, mean (dot), 2-sd ellipse", fontsize=10)
+        handles, labels = axes[2].get_legend_handles_labels()
+        fig.legend(handles, labels, loc="lower center", ncol=min(len(labels), 3), fontsize=9,
+                   frameon=False)
         if title:
             fig.suptitle(title, fontsize=11)
-        fig.tight_layout()
+        fig.tight_layout(rect=(0, 0.1 + 0.04 * (len(labels) > 3), 1, 1))
         return finish(fig, out, dpi, False)
