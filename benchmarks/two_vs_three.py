@@ -213,7 +213,7 @@ def main(argv: list[str] | None = None) -> int:
              for r in rows}
     plot_posterior_comparison(posts, ["E", "nu"], ["Pa", "-"],
                               [TRUTH["material.E"], TRUTH["material.nu"]], a.figure,
-                              title=f"one 3D recording (3D mesh {a.mesh3d}): the 3D model "
+                              title=f"one 3D recording ({a.measure}, 3D mesh {a.mesh3d}): the 3D model "
                                     "against 2D mid-plane slices")
     print(f"figure: {a.figure}; total {time.time() - t0:.0f} s")
     if a.json:
