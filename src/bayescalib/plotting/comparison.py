@@ -61,7 +61,7 @@ def plot_posterior_comparison(
     if not posteriors:
         raise ValueError("plot_posterior_comparison: no posterior")
     out = as_paths(paths)
-    colours = ["#1b6ca8", "#d1495b", "#edae49", "#00798c", "#66a182", "#8d6a9f"]
+    colours = ["#1b6ca8", "#d1495b", "#edae49", "#8d6a9f", "#66a182", "#00798c"]
     items = [(label, np.asarray(s, dtype=float), np.asarray(w, dtype=float))
              for label, (s, w) in posteriors.items()]
     # one set of bins per parameter, over all the posteriors' particles
