@@ -294,7 +294,8 @@ class Study:
         if cfg["forward_model"]["type"] == "fsi":
             from bayescalib.models.units import validate_fsi_units
 
-            validate_fsi_units(cfg["parameters"], where)  # before the boxes: the unit is the cause
+            # before the boxes: the unit is the cause
+            validate_fsi_units(cfg["parameters"], where, dim=Study.model_dim(cfg) or 2)
             notes += Study._resolve_geometry(cfg, where)
             Study._validate_boxes(cfg, where)
         Study._validate_hidden(cfg, where)
@@ -894,6 +895,8 @@ class Study:
         ld = fm["loadings"]
         factors = ld["factors"]
         if factors == [1.0]:
+            if cfg["observations"]["source"] == "files":
+                Study._validate_file_loads(cfg, where)
             return
         if len(set(factors)) != len(factors):
             raise ConfigError(f"{where}: forward_model.loadings.factors: duplicate factors in {factors}")
@@ -915,6 +918,41 @@ class Study:
                 f"forward_model.loadings.factors has {len(factors)} loadings: give one "
                 "snapshot per loading, in the same order"
             )
+        if obs["source"] == "files":
+            Study._validate_file_loads(cfg, where)
+
+    @staticmethod
+    def _validate_file_loads(cfg: dict[str, Any], where: str) -> None:
+        """The ``load`` of each observation file, where given, must be its loading's value
+        (factor x nominal): snapshots are paired with the loadings by their order, so a
+        file listed out of order, or a load in other units, would be compared with the
+        solve at another load without a word. With the nominal value unknown (the loaded
+        parameter calibrated) the loads must be proportional to the factors."""
+        fm = cfg["forward_model"]
+        ld = fm["loadings"]
+        factors = [float(f) for f in ld["factors"]]
+        loads = [e.get("load") for e in cfg["observations"]["files"]]
+        if len(loads) != len(factors) or all(v is None for v in loads):
+            return
+        nominal = ld["nominal"]
+        targets = [p["target"] for p in cfg["parameters"]]
+        if nominal is None and fm["type"] == "fsi" and ld["parameter"] not in targets:
+            fsi = validate(fm.get("fsi") or {}, "fsi", where=f"{where}: forward_model.fsi")
+            nominal = fsi["inflow"]["rate"]
+        given = [(k, f, float(v)) for k, (f, v) in enumerate(zip(factors, loads, strict=True))
+                 if v is not None]
+        if nominal is None:  # calibrated: only the ratios are known
+            scaled = [v / f for _, f, v in given if f != 0]
+            nominal = scaled[0] if scaled else 0.0
+        for k, f, v in given:
+            want = f * float(nominal)
+            if abs(v - want) > 0.01 * max(abs(want), abs(v)):
+                raise ConfigError(
+                    f"{where}: observations.files[{k}].load is {v:g} but its loading is "
+                    f"{want:g} (factor {f:g} x nominal {float(nominal):g} of "
+                    f"{ld['parameter']}): the files are paired with the loadings in the order "
+                    "listed; list them in the order of forward_model.loadings.factors, or "
+                    "correct the load (it is more than 1 % off)")
 
     @staticmethod
     def _validate_boxes(cfg: dict[str, Any], where: str) -> None:

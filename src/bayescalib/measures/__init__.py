@@ -68,6 +68,7 @@ __all__ = [
     "compute",
     "default_measurement_points",
     "euclidean",
+    "noise_floor",
     "rkhs",
 ]
 
@@ -410,3 +411,55 @@ def compute(name: str, model: Interface, obs: Interface, **options: Any) -> Meas
             f"allowed: {', '.join(sorted(allowed)) or 'none'}"
         )
     return fn(model, obs, **opts)
+
+
+def noise_floor(name: str, interface: Interface, sigma: float, *, draws: int = 16,
+                seed: int = 0, transform: Any = None, **options: Any) -> float:
+    """What coordinate noise alone gives measure ``name``: the mean of ``D^2 / n`` between
+    ``interface`` and copies of it with Gaussian noise of sd ``sigma`` on every point.
+
+    This is the likelihood's ``sigma_N^2`` (eq:loglik) that matches noise of ``sigma``
+    for this measure and this interface: for ``cpp`` and ``euclidean`` about
+    ``sigma^2`` (a distance per point), for ``rkhs`` (``n = 1``) the squared norm of the
+    noise's surface current, which depends on the kernel width, the interface's size and
+    its dimension (a curve's and a surface's differ by orders of magnitude at the same
+    ``sigma``), so two studies of one recording with different measures or dimensions
+    get the same noise only through this number.
+
+    Parameters
+    ----------
+    name : str
+        Measure name.
+    interface : Interface
+        The noiseless interface (e.g. a model's at rest), mm.
+    sigma : float
+        Standard deviation of the coordinate noise, mm.
+    draws : int
+        Noisy copies averaged over.
+    seed : int
+        Seed of the noise.
+    transform : callable, optional
+        Applied to the noiseless and to each noisy interface before the measure, e.g. a
+        plane section (the noise of a B-scan cut from a noisy surface).
+    **options
+        The measure's options (:func:`compute`).
+
+    Returns
+    -------
+    float
+        ``mean(D^2 / n)``, mm^2 (the measure's units squared).
+    """
+    from bayescalib.io.observations import add_noise
+
+    if draws < 1:
+        raise ValueError("noise_floor: draws must be >= 1")
+    rng = np.random.default_rng(seed)
+    clean = interface if transform is None else transform(interface)
+    out = []
+    for _ in range(int(draws)):
+        noisy = add_noise(interface, float(sigma), rng)
+        if transform is not None:
+            noisy = transform(noisy)
+        res = compute(name, clean, noisy, **options)
+        out.append(res.D ** 2 / res.n)
+    return float(np.mean(out))

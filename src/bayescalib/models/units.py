@@ -4,7 +4,8 @@ A parameter's ``unit`` is the unit of every number written for it (prior, bounds
 ground truth) and of every number reported for it. For the fsi model the value is
 set into the model's configuration at the parameter's ``target``, which the model
 reads in one fixed unit (:func:`fsi_target_unit`: Pa for the Young's moduli,
-mm^2/s for the inflow rate, ...). :func:`validate_fsi_units` refuses a parameter whose
+mm^2/s for the inflow rate, mm^3/s in the 3D model, ...). :func:`validate_fsi_units`
+refuses a parameter whose
 unit is another one, so that a prior written in kPa is never read as Pa; where the
 unit converts into the target's, the error gives the parameter's numbers in the
 target's unit, ready to paste. For the python and command models the unit is a
@@ -74,6 +75,13 @@ _FSI_UNITS: dict[str, str] = {
     "geometry.height": "mm",
     "geometry.centre": "mm",
 }
+#: what the 3D model (geometry.dim 3) reads differently, and its own geometry keys
+_FSI_UNITS_3D: dict[str, str] = {
+    "inflow.rate": "mm^3/s",
+    "geometry.channel_width": "mm",
+    "geometry.depth": "mm",
+    "geometry.centre_z": "mm",
+}
 _SUBDOMAIN = re.compile(r"^material\.subdomains\.[A-Za-z_]\w*\.(E|nu)$")
 _PHI = re.compile(r"^physics\.([A-Za-z_]\w*)\.phi$")
 
@@ -141,9 +149,12 @@ def conversion_factor(unit: str, to: str) -> float | None:
     return f_from / f_to
 
 
-def fsi_target_unit(target: str) -> str | None:
+def fsi_target_unit(target: str, dim: int = 2) -> str | None:
     """Unit in which the fsi model reads the value of ``target`` (a dotted key of
-    ``forward_model.fsi``); None for a key outside the table (not checked)."""
+    ``forward_model.fsi``); None for a key outside the table (not checked). ``dim``: the
+    model's ``geometry.dim`` (the 3D model's inflow rate is a volume rate, mm^3/s)."""
+    if dim == 3 and target in _FSI_UNITS_3D:
+        return _FSI_UNITS_3D[target]
     if target in _FSI_UNITS:
         return _FSI_UNITS[target]
     m = _SUBDOMAIN.match(target)
@@ -194,7 +205,8 @@ def _converted(par: Mapping[str, Any], unit: str, c: float) -> str:
     return "{" + ", ".join(parts) + "}"
 
 
-def validate_fsi_units(parameters: Sequence[Mapping[str, Any]], where: str = "config") -> None:
+def validate_fsi_units(parameters: Sequence[Mapping[str, Any]], where: str = "config",
+                       dim: int = 2) -> None:
     """Refuse a parameter whose unit is not the unit the fsi model reads its target in.
 
     Parameters
@@ -203,6 +215,8 @@ def validate_fsi_units(parameters: Sequence[Mapping[str, Any]], where: str = "co
         The study's ``parameters`` section (validated, every ``target`` filled).
     where
         Name of the configuration's source for the message.
+    dim
+        The fsi model's ``geometry.dim`` (2 or 3).
 
     Raises
     ------
@@ -213,7 +227,7 @@ def validate_fsi_units(parameters: Sequence[Mapping[str, Any]], where: str = "co
     """
     for k, par in enumerate(parameters):
         target = par["target"]
-        want = fsi_target_unit(target)
+        want = fsi_target_unit(target, dim)
         unit = str(par["unit"])
         if want is None or _same(unit, want):
             continue

@@ -33,7 +33,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["DUCT_TERMS", "duct_flow_rate", "duct_velocity"]
+__all__ = ["DUCT_TERMS", "duct_flow_rate", "duct_flux_per_width", "duct_velocity"]
 
 #: odd terms n = 1, 3, ..., 2 DUCT_TERMS - 1 of the series
 DUCT_TERMS = 40
@@ -90,3 +90,34 @@ def duct_flow_rate(H: float, W: float, *, terms: int = DUCT_TERMS) -> float:
         total += 8.0 * H**3 / (math.pi**4 * n**4) * (
             W - 2.0 * H / (n * math.pi) * math.tanh(n * math.pi * W / (2.0 * H)))
     return total
+
+
+def duct_flux_per_width(z: Any, H: float, W: float, *, terms: int = DUCT_TERMS) -> Any:
+    """Volume rate per unit width through the line ``z`` of the section, per unit ``G / mu``.
+
+    ``q(z) = int_0^H u(y, z) dy`` of :func:`duct_velocity` (each sine term integrates to
+    ``2 H / (n pi)``): the flux of a 2D channel that sees the duct's velocity profile at
+    ``z``; ``sum(q) dz`` over the width is :func:`duct_flow_rate`.
+
+    Parameters
+    ----------
+    z : float or array
+        Position across the duct, ``0 <= z <= W``, mm.
+    H, W : float
+        Duct height and width, mm.
+    terms : int
+        Odd terms of the series.
+
+    Returns
+    -------
+    float or array
+        ``q mu / G``, mm^3 (``q = duct_flux_per_width * G / mu`` in mm^2/s).
+    """
+    z = np.asarray(z, dtype=float)
+    out = np.zeros_like(z)
+    for j in range(terms):
+        n = 2 * j + 1
+        k = n * math.pi / H
+        ratio = (np.exp(k * (z - W)) + np.exp(-k * z)) / (1.0 + math.exp(-k * W))
+        out = out + 8.0 * H**3 / (math.pi**4 * n**4) * (1.0 - ratio)
+    return float(out) if out.ndim == 0 else out
