@@ -90,7 +90,8 @@ config["front_page"] = front_page(  # the posterior's figure embedded for a repo
     f"{R}/summary.json", embed_figure="--report" in {a.split("=", 1)[0] for a in sys.argv})
 # what the captions may speak of: a ground truth only where every parameter has one,
 # and the fields figure's solve (the ground truth's, or the posterior mean's on real data)
-config["report_flags"] = {"ground_truth": study.has_ground_truth, "synthetic": study.synthetic}
+config["report_flags"] = {"ground_truth": study.has_ground_truth, "synthetic": study.synthetic,
+                          "dim3": study.interface_dim == 3}
 
 
 onstart:

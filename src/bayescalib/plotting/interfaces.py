@@ -93,6 +93,7 @@ def plot_interfaces(
     title: str | None = None,
     dpi: float = 200,
     return_figure: bool = False,
+    surface: tuple[np.ndarray, np.ndarray, np.ndarray, str] | None = None,
 ):
     """Undeformed, observed and sampled interfaces in the flow cell.
 
@@ -128,6 +129,11 @@ def plot_interfaces(
         Raster resolution [dots per inch].
     return_figure : bool
         Also return the Figure.
+    surface : (points, triangles, values, label), optional
+        A 3D surface rendered beside the section (points ``(n, 3)`` mm, x along the
+        flow, y up, z across; triangles ``(m, 3)``), each triangle coloured by the mean
+        of ``values`` ``(n,)`` at its corners (a diverging scale symmetric about 0,
+        labelled ``label``).
 
     Returns
     -------
@@ -220,11 +226,16 @@ def plot_interfaces(
         width = 6.0
         h_main = float(np.clip(width * span[1] / max(span[0], 1e-12), 0.8, 5.0))
         h_prof = 2.2 if do_profile else 0.0
-        fig = Figure(figsize=(width, h_main + h_prof + 1.0), layout="constrained")
+        fig = Figure(figsize=(width + (5.5 if surface is not None else 0.0),
+                              h_main + h_prof + 1.0), layout="constrained")
+        left = fig
+        if surface is not None:
+            left, right = fig.subfigures(1, 2, width_ratios=(width, 5.5))
+            _draw_surface(right, *surface)
         if do_profile:
-            ax, axp = fig.subplots(2, 1, height_ratios=(h_main, h_prof))
+            ax, axp = left.subplots(2, 1, height_ratios=(h_main, h_prof))
         else:
-            ax, axp = fig.add_subplot(), None
+            ax, axp = left.add_subplot(), None
         handles = draw(ax)
         ax.set_xlim(lo[0] - pad, hi[0] + pad)
         ax.set_ylim(lo[1] - pad, hi[1] + pad)
@@ -235,6 +246,34 @@ def plot_interfaces(
         if title:
             fig.suptitle(title)
         return finish(fig, out_paths, dpi, return_figure)
+
+
+def _draw_surface(fig, points: np.ndarray, triangles: np.ndarray, values: np.ndarray,
+                  label: str) -> None:
+    """A 3D surface on its own axes, triangles coloured by ``values`` (symmetric scale)."""
+    from matplotlib import cm, colormaps, colors
+    from mpl_toolkits.mplot3d.art3d import Poly3DCollection
+
+    pts = np.asarray(points, dtype=float)[:, [0, 2, 1]]  # plotted as (x, z, y): y up
+    tri = np.asarray(triangles, dtype=np.int64)
+    face = np.asarray(values, dtype=float)[tri].mean(axis=1)
+    vmax = float(np.nanmax(np.abs(face))) or 1.0
+    norm = colors.Normalize(-vmax, vmax)
+    cmap = colormaps["RdBu_r"]
+    ax = fig.add_subplot(projection="3d")
+    ax.add_collection3d(Poly3DCollection(pts[tri], facecolors=cmap(norm(face)),
+                                         edgecolors="none"))
+    lo, hi = pts.min(axis=0), pts.max(axis=0)
+    ax.set_xlim(lo[0], hi[0])
+    ax.set_ylim(lo[1], hi[1])
+    ax.set_zlim(0.0, hi[2])
+    ax.set_box_aspect(np.maximum(hi - np.array([lo[0], lo[1], 0.0]), 1e-9))
+    ax.view_init(elev=28, azim=-60)
+    ax.set_xlabel("x [mm]")
+    ax.set_ylabel("z [mm]")
+    ax.set_zlabel("y [mm]")
+    sm = cm.ScalarMappable(norm=norm, cmap=cmap)
+    fig.colorbar(sm, ax=ax, shrink=0.6, label=label, location="bottom")
 
 
 def plot_interface_residual(
@@ -278,6 +317,11 @@ def plot_interface_residual(
         Raster resolution [dots per inch].
     return_figure : bool
         Also return the Figure.
+    surface : (points, triangles, values, label), optional
+        A 3D surface rendered beside the section (points ``(n, 3)`` mm, x along the
+        flow, y up, z across; triangles ``(m, 3)``), each triangle coloured by the mean
+        of ``values`` ``(n,)`` at its corners (a diverging scale symmetric about 0,
+        labelled ``label``).
 
     Returns
     -------

@@ -226,7 +226,10 @@ def interface_figure(obs_path: str | Path, sample_runs: Sequence[str | Path],
                      ground_truth_run: str | Path | None = None) -> list[str]:
     """Undeformed, observed and posterior-sample interfaces. 3D surfaces are shown by
     their section with the plane z = z0 through the middle of the observed colony
-    (:func:`bayescalib.geometry.surface.plane_section`, the B-scan a 2D model sees)."""
+    (:func:`bayescalib.geometry.surface.plane_section`, the B-scan a 2D model sees), and
+    the last observed surface rendered beside it, coloured by its signed distance from
+    the first posterior sample's surface at that loading (where the model misses the
+    data: + out of the model's colony), or without samples from the undeformed one."""
     from bayescalib.geometry.interface import Interface
     from bayescalib.plotting import plot_interfaces
 
@@ -243,13 +246,14 @@ def interface_figure(obs_path: str | Path, sample_runs: Sequence[str | Path],
         return np.asarray(plane_section(Interface(points, cells, name=name),
                                         (0.0, 0.0, z0)).points)
 
-    samples, ref = [], None
+    samples, ref, first_run = [], None, None
     for rp in sample_runs:
         run = read_stage_file(rp, "run record")
         if run.status == "ok":
             samples.append(shown(run.interface_current, run.segments, str(rp)))
             if ref is None:
                 ref = shown(run.interface_reference, run.segments, str(rp))
+                first_run = run
     if obs.reference is not None:
         ref = shown(obs.reference.points, obs.reference.cells, "reference")
     if ref is None:
@@ -259,11 +263,27 @@ def interface_figure(obs_path: str | Path, sample_runs: Sequence[str | Path],
         gt = read_stage_file(ground_truth_run, "run record")
         if gt.status == "ok":
             truth = shown(gt.interface_current, gt.segments, "ground truth")
+    surface = None
+    if z0 is not None:
+        from bayescalib.geometry.projection import closest_points
+        from bayescalib.stages.discrepancy import model_interfaces
+
+        last = obs.snapshots[-1]
+        if first_run is not None:
+            against = model_interfaces(first_run, len(obs.snapshots), obs.cut_heights())[-1]
+            what = f"from posterior sample 1 at {obs.labels[-1]}"
+        else:
+            against = Interface(obs.reference.points, obs.reference.cells) \
+                if obs.reference is not None else last
+            what = "from the undeformed surface"
+        d = closest_points(last.points, against)[0]
+        surface = (last.points, last.cells, 1e3 * d,
+                   f"observed surface {obs.labels[-1]}: distance {what} [um]")
     return plot_interfaces(
         ref, [shown(s.points, s.cells, lb) for s, lb in zip(obs.snapshots, obs.labels)],
         samples, _paths(stem, plots["formats"]), truth_interface=truth, dpi=plots["dpi"],
         title=None if z0 is None else f"section z = {z0:.3g} mm of the 3D interfaces",
-    )
+        surface=surface)
 
 
 def segmentation_figure(obs_path: str | Path, observations: Mapping[str, Any],
