@@ -169,6 +169,7 @@ _PRELOAD = ("numpy", "scipy.sparse", "scipy.spatial", "scipy.linalg", "h5py",
             "bayescalib.stages.jobs", "bayescalib.stages.discrepancy", "bayescalib.stages.gather",
             "bayescalib.study", "bayescalib.measures", "bayescalib.measures.currents",
             "bayescalib.geometry.interface", "bayescalib.geometry.projection",
+            "bayescalib.geometry.surface", "bayescalib.io.observations",
             "bayescalib.inference.likelihood", "bayescalib.io.observation_store",
             "bayescalib.io.runrecord", "bayescalib.io.training", "bayescalib.models.fsi.model",
             "bayescalib.models.fsi.solver", "ngsolve", "netgen.occ", "multiprocessing.popen_fork")
