@@ -15,15 +15,11 @@ from bayescalib.config import deep_merge, load_yaml, validate
 from bayescalib.geometry.interface import Interface
 from bayescalib.geometry.projection import closest_points
 from bayescalib.geometry.recording import ScanSettings
-from bayescalib.geometry.recording3d import (
-    height_field,
-    render_volume,
-    volume_grid,
-    write_volume_recording,
-)
+from bayescalib.geometry.recording3d import height_field, render_volume, volume_grid
 from bayescalib.geometry.volume import volume_surface
 from bayescalib.io.observation_store import StoredObservations, read_observations
 from bayescalib.io.runrecord import LoadingResult, SolveResult
+from bayescalib.io.volumes import write_volume_recording
 from bayescalib.measures import rkhs
 from bayescalib.models.fsi.geometry3d import reference_surface
 from bayescalib.stages.discrepancy import model_interfaces

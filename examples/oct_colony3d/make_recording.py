@@ -34,9 +34,9 @@ import numpy as np
 from bayescalib.geometry.interface import Interface
 from bayescalib.geometry.projection import closest_points
 from bayescalib.geometry.recording import ScanSettings
-from bayescalib.geometry.recording3d import write_volume_recording
 from bayescalib.geometry.surface import surface_above
 from bayescalib.io.observations import cut_height, read_interface_info
+from bayescalib.io.volumes import write_volume_recording
 from bayescalib.measures import rkhs
 from bayescalib.models.forward import FSIForward, solve_series
 

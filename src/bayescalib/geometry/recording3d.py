@@ -2,9 +2,9 @@
 
 The 3D analogue of :mod:`bayescalib.geometry.recording`: a stack of B-scans (planes
 ``z = const``, rows from the top) of one colony at a few flow rates, made from the 3D
-model's deformed surfaces so that the truth is known, written as the files an OCT
-system exports (a multi-page 16-bit TIFF per flow rate) with a ``recording.json`` that
-says how to read them.
+model's deformed surfaces so that the truth is known; written as the files an OCT
+system exports (a multi-page 16-bit TIFF per flow rate, with a ``recording.json`` that
+says how to read them) by :func:`bayescalib.io.volumes.write_volume_recording`.
 
 Rendering (:func:`render_volume`)
 ---------------------------------
@@ -33,23 +33,12 @@ caller, used volume after volume in order: the same inputs give the same files.
 
 from __future__ import annotations
 
-import json
-from collections.abc import Mapping, Sequence
-from dataclasses import asdict
-from pathlib import Path
-from typing import Any
-
 import numpy as np
 
 from bayescalib.geometry.interface import Interface
-from bayescalib.geometry.recording import (
-    COUNTS_PER_CONTRAST,
-    INTENSITY_OFFSET,
-    ScanSettings,
-    encode_counts,
-)
+from bayescalib.geometry.recording import ScanSettings
 
-__all__ = ["height_field", "render_volume", "volume_grid", "write_volume_recording"]
+__all__ = ["height_field", "render_volume", "volume_grid"]
 
 
 def height_field(surface: Interface, x: np.ndarray, z: np.ndarray) -> np.ndarray:
@@ -175,91 +164,3 @@ def render_volume(surface: Interface, *, shape: tuple[int, int, int],
     if settings.noise > 0:
         img = img + float(settings.noise) * rng.standard_normal(shape)
     return img
-
-
-def write_volume_recording(
-    out: str | Path,
-    surfaces: Sequence[Interface],
-    factors: Sequence[float],
-    *,
-    nominal: float,
-    settings: ScanSettings,
-    slice_spacing: float,
-    seed: int,
-    metadata: Mapping[str, Any] | None = None,
-) -> dict[str, Any]:
-    """Render and write a 3D recording: ``volume_<k>.tif`` (a multi-page 16-bit TIFF,
-    one page per B-scan), ``truth_<k>.vtp`` (the noiseless surface, mm) and
-    ``recording.json``.
-
-    Parameters
-    ----------
-    out : path
-        Folder (created).
-    surfaces : sequence of Interface
-        The deformed colony surfaces, one per loading, mm.
-    factors : sequence of float
-        Loading factors (``k`` is the position).
-    nominal : float
-        Nominal inflow rate, mm^3/s.
-    settings : ScanSettings
-    slice_spacing : float
-        Distance between B-scans, mm.
-    seed : int
-        Seed of the speckle and noise generator.
-    metadata : mapping, optional
-        Merged into ``recording.json``.
-
-    Returns
-    -------
-    dict
-        The content of ``recording.json``.
-    """
-    import tifffile
-
-    from bayescalib.io.observations import write_interface_vtk
-
-    if len(surfaces) != len(factors):
-        raise ValueError("one surface per loading factor is needed")
-    folder = Path(out)
-    folder.mkdir(parents=True, exist_ok=True)
-    allpts = np.vstack([s.points for s in surfaces])
-    shape, origin = volume_grid(np.array([allpts.min(axis=0), allpts.max(axis=0)]), settings,
-                                slice_spacing)
-    rng = np.random.default_rng(seed)
-    volumes = []
-    for k, (surf, f) in enumerate(zip(surfaces, factors, strict=True)):
-        img = render_volume(surf, shape=shape, origin=origin, slice_spacing=slice_spacing,
-                            settings=settings, rng=rng)
-        name = f"volume_{k}.tif"
-        tifffile.imwrite(folder / name, encode_counts(img), compression="zlib")
-        write_interface_vtk(folder / f"truth_{k}.vtp", surf)
-        volumes.append({"file": name, "loading_factor": float(f),
-                        "inflow_rate_mm3_per_s": float(f) * float(nominal),
-                        "truth_surface": f"truth_{k}.vtp"})
-    um = 1000.0
-    record: dict[str, Any] = {
-        "format": "bayescalib synthetic OCT volume recording 1",
-        "units": "um",
-        "voxel_size": [settings.pixel_size * um, settings.pixel_size * um, slice_spacing * um],
-        "origin": [v * um for v in origin],
-        "origin_is": "centre of voxel [0, ny-1, 0]: the first B-scan's bottom-left pixel; x "
-                     "downstream, y up, z across; each TIFF page is a B-scan, row 0 the top",
-        "volume_shape": [int(v) for v in shape],
-        "floor": {"y": 0.0, "rows_below": settings.rows_below_floor,
-                  "substrate_rows": settings.rows(settings.substrate_thickness)},
-        "intensity": {"counts_per_contrast": COUNTS_PER_CONTRAST, "offset": INTENSITY_OFFSET,
-                      "decode": "I = counts / counts_per_contrast - offset (fluid 0, biofilm 1)",
-                      "substrate": settings.substrate_intensity},
-        "render": {**asdict(settings), "slice_spacing": slice_spacing},
-        "render_units": "pixel_size, slice_spacing, margin, substrate_thickness, "
-                        "below_substrate in mm; psf_sigma in pixels; noise in units of the "
-                        "contrast",
-        "noise_seed": int(seed),
-        "inflow_nominal_mm3_per_s": float(nominal),
-        "volumes": volumes,
-        "truth_surfaces": "truth_<k>.vtp: the noiseless model surface (mm)",
-        **dict(metadata or {}),
-    }
-    (folder / "recording.json").write_text(json.dumps(record, indent=1) + "\n")
-    return record

@@ -37,7 +37,7 @@ from bayescalib.geometry.surface import SurfaceError
 from bayescalib.io.observations import IMAGE_SUFFIXES, VOLUME_SUFFIXES, ObservationError
 
 __all__ = ["MAX_VOLUME_VOXELS", "VOLUME_SUFFIXES", "is_volume", "read_volume",
-           "read_volume_surface", "volume_files", "volume_shape"]
+           "read_volume_surface", "volume_files", "volume_shape", "write_volume_recording"]
 
 #: largest volume decoded, voxels (about 0.8 GB as float64; the segmentation holds a few
 #: such arrays)
@@ -270,3 +270,100 @@ def read_volume_surface(
     except SurfaceError as exc:
         raise ObservationError(str(exc)) from None
     return surf, {**vinfo, **sinfo, "image": sinfo["kind"], "kind": "volume"}
+
+
+def write_volume_recording(
+    out: str | Path,
+    surfaces: Sequence[Interface],
+    factors: Sequence[float],
+    *,
+    nominal: float,
+    settings: Any,
+    slice_spacing: float,
+    seed: int,
+    metadata: Mapping[str, Any] | None = None,
+) -> dict[str, Any]:
+    """Render and write a 3D recording: ``volume_<k>.tif`` (a multi-page 16-bit TIFF,
+    one page per B-scan), ``truth_<k>.vtp`` (the noiseless surface, mm) and
+    ``recording.json``.
+
+    Parameters
+    ----------
+    out : path
+        Folder (created).
+    surfaces : sequence of Interface
+        The deformed colony surfaces, one per loading, mm.
+    factors : sequence of float
+        Loading factors (``k`` is the position).
+    nominal : float
+        Nominal inflow rate, mm^3/s.
+    settings : bayescalib.geometry.recording.ScanSettings
+    slice_spacing : float
+        Distance between B-scans, mm.
+    seed : int
+        Seed of the speckle and noise generator.
+    metadata : mapping, optional
+        Merged into ``recording.json``.
+
+    Returns
+    -------
+    dict
+        The content of ``recording.json``.
+    """
+    import json
+    from dataclasses import asdict
+
+    import tifffile
+
+    from bayescalib.geometry.recording import (
+        COUNTS_PER_CONTRAST,
+        INTENSITY_OFFSET,
+        encode_counts,
+    )
+    from bayescalib.geometry.recording3d import render_volume, volume_grid
+    from bayescalib.io.observations import write_interface_vtk
+
+    if len(surfaces) != len(factors):
+        raise ValueError("one surface per loading factor is needed")
+    folder = Path(out)
+    folder.mkdir(parents=True, exist_ok=True)
+    allpts = np.vstack([s.points for s in surfaces])
+    shape, origin = volume_grid(np.array([allpts.min(axis=0), allpts.max(axis=0)]), settings,
+                                slice_spacing)
+    rng = np.random.default_rng(seed)
+    volumes = []
+    for k, (surf, f) in enumerate(zip(surfaces, factors, strict=True)):
+        img = render_volume(surf, shape=shape, origin=origin, slice_spacing=slice_spacing,
+                            settings=settings, rng=rng)
+        name = f"volume_{k}.tif"
+        tifffile.imwrite(folder / name, encode_counts(img), compression="zlib")
+        write_interface_vtk(folder / f"truth_{k}.vtp", surf)
+        volumes.append({"file": name, "loading_factor": float(f),
+                        "inflow_rate_mm3_per_s": float(f) * float(nominal),
+                        "truth_surface": f"truth_{k}.vtp"})
+    um = 1000.0
+    record: dict[str, Any] = {
+        "format": "bayescalib synthetic OCT volume recording 1",
+        "units": "um",
+        "voxel_size": [settings.pixel_size * um, settings.pixel_size * um, slice_spacing * um],
+        "origin": [v * um for v in origin],
+        "origin_is": "centre of voxel [0, ny-1, 0]: the first B-scan's bottom-left pixel; x "
+                     "downstream, y up, z across; each TIFF page is a B-scan, row 0 the top",
+        "volume_shape": [int(v) for v in shape],
+        "floor": {"y": 0.0, "rows_below": settings.rows_below_floor,
+                  "substrate_rows": settings.rows(settings.substrate_thickness)},
+        "intensity": {"counts_per_contrast": COUNTS_PER_CONTRAST, "offset": INTENSITY_OFFSET,
+                      "decode": "I = counts / counts_per_contrast - offset (fluid 0, biofilm 1)",
+                      "substrate": settings.substrate_intensity},
+        "render": {**asdict(settings), "slice_spacing": slice_spacing},
+        "render_units": "pixel_size, slice_spacing, margin, substrate_thickness, "
+                        "below_substrate in mm; psf_sigma in pixels; noise in units of the "
+                        "contrast",
+        "noise_seed": int(seed),
+        "inflow_nominal_mm3_per_s": float(nominal),
+        "volumes": volumes,
+        "truth_surfaces": "truth_<k>.vtp: the noiseless model surface (mm)",
+        **dict(metadata or {}),
+    }
+    (folder / "recording.json").write_text(json.dumps(record, indent=1) + "\n")
+    return record
