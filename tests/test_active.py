@@ -326,8 +326,9 @@ def test_a_spent_budget_is_reported_as_not_converged():
                                                     "zeta": 0.9})
     assert res.n_evaluations == 14 and not res.converged
     assert res.reason.startswith("NOT converged") and "max_solves = 14" in res.reason
-    # the default 32 draws of the posterior check never fit in the 6 solves after round 0
-    assert "posterior check's 32 draws do not fit" in res.reason, res.reason
+    # the first look (posterior_check.batch 8 draws) of the posterior check never fits
+    # in the 6 solves after round 0
+    assert "posterior check's first 8 draws do not fit" in res.reason, res.reason
     assert res.posterior_check is None
     none = calibrate(_gaussian_misfit([0.63, 0.21], np.diag([0.01, 0.015]) ** 2), space,
                      bound=0.0, active={"n_initial": 8, "batch_size": 4, "max_solves": 8},

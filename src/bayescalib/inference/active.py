@@ -29,14 +29,18 @@ points). Each round r then
 
 Stop rule. Once the posterior has been settled for ``patience`` rounds in a row,
 or when only ``posterior_check.draws`` solves of the budget ``max_solves`` are left
-(the batches are cut to leave them), the next batch is a *check round*: that many
-equally weighted draws of the current posterior (:func:`posterior_draws`), with
-the surrogate's log-likelihood at each recorded. The next round solves them as
-design points and judges them by importance sampling
-(:func:`round_posterior_check`, :func:`bayescalib.inference.importance.importance_check`:
-log-weights L - mu, their spread, ESS, the corrected mean and sd). Confirmed, and
-the posterior refitted with the draws added settled against the checked one:
-**converged**. Not confirmed (or moved): the draws stay in the training set (where
+(the batches are cut to leave them while they fit, else one look's
+``posterior_check.batch``), the next batch is a *check round*: that many equally
+weighted draws of the current posterior (:func:`posterior_draws`, stratified by its
+clusters, :func:`posterior_clusters`), with the surrogate's log-likelihood at each
+recorded. They are solved as design points a look of ``posterior_check.batch`` at a
+time (the first in the next round, the others waiting in the batch's ``check``), and
+after each look the draws solved so far are judged by importance sampling
+(:func:`round_posterior_check`, :func:`bayescalib.inference.importance.sequential_check`:
+log-weights L - mu, their spread, ESS, the corrected mean and sd, and each cluster's
+mass): confirmed, refuted, or undecided, when the next look's draws are solved in the
+next round. Confirmed, and the posterior refitted with the draws added settled against
+the checked one: **converged**. Not confirmed (or moved): the draws stay in the training set (where
 the posterior lives, they are the most useful solves the rounds can get), the
 settled streak starts again, and the rounds go on; when the budget is spent the
 run stops **NOT converged** and says why (the posterior reported is the last
@@ -762,6 +766,10 @@ def _reason(rec: Mapping[str, Any], rule: StopRule, step: Mapping[str, Any],
                 f"solves in the posterior region within {stop_cfg['gp_tol']:g} nats (max "
                 f"error {rec['trust']['max_abs_error']:.3g}); NOT checked with real solves of "
                 f"its draws (posterior_check.draws: 0); " + _explored_words(rec))
+    if step.get("continue_check"):
+        return (f"continue: the posterior check of round {pc['round']} is undecided after "
+                f"{pc['n_draws']} draws ({pc['words']}); the next {n_draws} of its draws are "
+                f"solved next.")
     why_not = _why_not(rec, stop_cfg, posterior_check, budget_left)
     if rec["stop"]:
         return (f"NOT converged: the budget design.active.max_solves = {rule.max_solves} is "
@@ -1220,8 +1228,9 @@ def _why_not(rec: Mapping[str, Any], stop_cfg: Mapping[str, Any],
         parts.append(f"settled and trusted in {rec['settled_streak']} round(s) in a row, "
                      f"{stop_cfg['patience']} needed")
     n_draws = int(posterior_check["draws"])
-    if n_draws > budget_left and (pc is None or not pc["confirmed"]):
-        parts.append(f"the posterior check's {n_draws} draws do not fit in the "
+    first = min(int(posterior_check.get("batch", 0)) or n_draws, n_draws)
+    if first > budget_left and (pc is None or not pc["confirmed"]):
+        parts.append(f"the posterior check's first {first} draws do not fit in the "
                      f"{max(budget_left, 0)} solve(s) left of the budget")
     if not t["passed"]:  # decides only without check rounds (posterior_check.draws 0)
         if t["n_region"] == 0:
