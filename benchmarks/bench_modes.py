@@ -11,7 +11,8 @@ run is scored against the reference:
   exact density; ``mean_err``: max over parameters of |mean - reference| / reference sd;
 * ``false``: the verdict said converged and the run is wrong: a mode missing, or (for
   problems without separated modes) Hellinger above ``--false-hellinger`` (2D) or a mean
-  error above ``--false-mean`` reference sd (higher dimensions).
+  error above ``--false-mean`` reference sd (higher dimensions); ``kl_gauss``: KL(reference ||
+  run) between moment-matched Gaussians.
 
 Variants, side by side in one run on the same seeds:
 
@@ -74,13 +75,14 @@ def run(prob: ba.Problem, variant: str, seed: int, budget: int) -> dict[str, Any
                     smc={"n_particles": 4000}, posterior_check=check, seed=seed)
     wall = time.perf_counter() - t0
     X, w = res.smc.particles, res.smc.weights / res.smc.weights.sum()
-    m, _ = ba.weighted_moments(X, w)
+    m, C = ba.weighted_moments(X, w)
     row: dict[str, Any] = {
         "problem": prob.name, "variant": variant, "seed": seed, "evals": f.n,
         "rounds": len(res.rounds), "converged": res.converged, "wall_s": round(wall, 1),
         "check_draws": sum(k == "posterior_check" for rec in res.rounds
                            for k in (rec.get("next") or {}).get("kind", [])),
         "mean_err": float(np.max(np.abs(m - prob.ref_mean) / prob.ref_sd)),
+        "kl_gauss": ba.kl_gauss(prob.ref_mean, prob.ref_cov, m, C),
         "unexplored_mass": res.rounds[-1]["exploration"]["unexplored_mass"]
         if "exploration" in res.rounds[-1] else None,
     }
