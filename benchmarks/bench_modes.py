@@ -11,7 +11,8 @@ run is scored against the reference:
   exact density; ``mean_err``: max over parameters of |mean - reference| / reference sd;
 * ``false``: the verdict said converged and the run is wrong: a mode missing, or (for
   problems without separated modes) Hellinger above ``--false-hellinger`` (2D) or a mean
-  error above ``--false-mean`` reference sd (higher dimensions).
+  error above ``--false-mean`` reference sd (higher dimensions); ``kl_gauss``: KL(reference ||
+  run) between moment-matched Gaussians.
 
 Variants, side by side in one run on the same seeds:
 
@@ -20,7 +21,9 @@ Variants, side by side in one run on the same seeds:
   posterior does not hold could carry more than ``stop.unexplored_mass``, and probes
   sent there);
 * ``no_audit``: the same with the audit switched off (``stop.unexplored_mass`` 1,
-  ``probes`` 0): the stop rule as it was before it.
+  ``probes`` 0): the stop rule as it was before it;
+* ``one_look``: the schema's stop rule with the posterior check in one look of
+  ``posterior_check.draws`` draws (``posterior_check.batch`` 0), not sequential.
 
 Usage::
 
@@ -52,6 +55,8 @@ import bench_active as ba
 VARIANTS: dict[str, dict[str, Any]] = {
     "audit": {},
     "no_audit": {"probes": 0, "stop": {"unexplored_mass": 1.0}},
+    # the posterior check in one look of posterior_check.draws (with the mass test)
+    "one_look": {"posterior_check": {"batch": 0}},
 }
 
 
@@ -62,17 +67,22 @@ def run(prob: ba.Problem, variant: str, seed: int, budget: int) -> dict[str, Any
     space = ba.make_space(prob)
     f = ba.Counter(prob.loglik)
     t0 = time.perf_counter()
+    v = dict(VARIANTS[variant])
+    check = v.pop("posterior_check", None)
     res = calibrate(f, space, bound=prob.B,
                     active={"n_initial": max(2 * prob.d + 2, budget // 4), "batch_size": 8,
-                            "max_solves": budget, **VARIANTS[variant]},
-                    smc={"n_particles": 4000}, seed=seed)
+                            "max_solves": budget, **v},
+                    smc={"n_particles": 4000}, posterior_check=check, seed=seed)
     wall = time.perf_counter() - t0
     X, w = res.smc.particles, res.smc.weights / res.smc.weights.sum()
-    m, _ = ba.weighted_moments(X, w)
+    m, C = ba.weighted_moments(X, w)
     row: dict[str, Any] = {
         "problem": prob.name, "variant": variant, "seed": seed, "evals": f.n,
         "rounds": len(res.rounds), "converged": res.converged, "wall_s": round(wall, 1),
+        "check_draws": sum(k == "posterior_check" for rec in res.rounds
+                           for k in (rec.get("next") or {}).get("kind", [])),
         "mean_err": float(np.max(np.abs(m - prob.ref_mean) / prob.ref_sd)),
+        "kl_gauss": ba.kl_gauss(prob.ref_mean, prob.ref_cov, m, C),
         "unexplored_mass": res.rounds[-1]["exploration"]["unexplored_mass"]
         if "exploration" in res.rounds[-1] else None,
     }

@@ -228,18 +228,22 @@ def test_active_calibration_converges_to_the_closed_form_posterior():
     assert res.converged, res.reason
     assert res.n_evaluations <= 96
     _assert_closed_form(res, mean, cov)
-    # the stop rule's last test: the round before the last was a check round of 32
-    # draws of its posterior, evaluated as design points, and they confirmed it
-    last, before = res.rounds[-1], res.rounds[-2]
-    assert before["next"]["kind"] == ["posterior_check"] * 32
-    draws = np.asarray(before["next"]["points"])
-    np.testing.assert_array_equal(res.X[-32:], draws)
+    # the stop rule's last test: the rounds before the last were the looks of a
+    # sequential check of the checked round's posterior (posterior_check.batch 8 draws a
+    # look, at most draws 32), evaluated as design points, and they confirmed it
+    last = res.rounds[-1]
     pc = res.posterior_check
-    assert last["posterior_check"] is pc and pc["round"] == before["round"]
-    assert pc["n_draws"] == 32 and pc["confirmed"], pc["words"]
+    assert last["posterior_check"] is pc and pc["decision"] == "confirmed", pc["words"]
+    checked = res.rounds[pc["round"]]
+    looks = res.rounds[pc["round"]:-1]
+    assert all(rec["next"]["kind"] == ["posterior_check"] * 8 for rec in looks)
+    assert len(looks) == pc["look"] and pc["n_draws"] == 8 * pc["look"] <= 32
+    draws = np.concatenate([np.asarray(rec["next"]["points"]) for rec in looks])
+    np.testing.assert_array_equal(res.X[-len(draws):], draws)
+    assert checked["next"]["check"]["round"] == pc["round"]
     assert pc["log_weight_sd"] < 0.5
     assert res.reason.startswith(f"converged after round {last['round']}")
-    assert "confirmed by 32 real solves of its draws" in res.reason, res.reason
+    assert f"confirmed by {pc['n_draws']} real solves of its draws" in res.reason, res.reason
 
 
 def test_without_check_rounds_a_round_counts_only_when_settled_and_trusted():
@@ -322,8 +326,9 @@ def test_a_spent_budget_is_reported_as_not_converged():
                                                     "zeta": 0.9})
     assert res.n_evaluations == 14 and not res.converged
     assert res.reason.startswith("NOT converged") and "max_solves = 14" in res.reason
-    # the default 32 draws of the posterior check never fit in the 6 solves after round 0
-    assert "posterior check's 32 draws do not fit" in res.reason, res.reason
+    # the first look (posterior_check.batch 8 draws) of the posterior check never fits
+    # in the 6 solves after round 0
+    assert "posterior check's first 8 draws do not fit" in res.reason, res.reason
     assert res.posterior_check is None
     none = calibrate(_gaussian_misfit([0.63, 0.21], np.diag([0.01, 0.015]) ** 2), space,
                      bound=0.0, active={"n_initial": 8, "batch_size": 4, "max_solves": 8},
@@ -462,11 +467,13 @@ def test_the_budget_keeps_room_for_the_check_round_and_is_never_exceeded():
     sizes = [rec["n_solves"] for rec in res.rounds]
     assert all(n <= 40 for n in sizes)
     kinds = [rec["next"]["kind"] for rec in res.rounds if "next" in rec]
-    # the check round comes once the budget left is its 16 draws, and it is the last batch
-    assert kinds[-1] == ["posterior_check"] * 16
-    assert res.rounds[-2]["n_solves"] == 40 - 16
+    # the check round comes once the budget left is its 16 draws; its looks (8 draws
+    # each, posterior_check.batch) are the last batches
+    first = next(i for i, k in enumerate(kinds) if "posterior_check" in k)
+    assert res.rounds[first]["n_solves"] == 40 - 16
+    assert all(k == ["posterior_check"] * 8 for k in kinds[first:])
+    assert len(kinds) - first <= 2
     assert res.rounds[-1]["posterior_check"] is not None
-    assert all("posterior_check" not in k for k in kinds[:-1])
 
 
 def test_a_posterior_too_narrow_is_not_confirmed_and_the_rounds_go_on():
@@ -490,7 +497,7 @@ def test_a_posterior_too_narrow_is_not_confirmed_and_the_rounds_go_on():
         {"smc": {"n_particles": 2000, "n_rej": 10, "zeta": 0.95}}, "inference")["smc"])
     active = _active(n_initial=32, batch_size=8, max_solves=1000, seed=0,
                      stop={"patience": 1})
-    check = _check(draws=32)
+    check = _check(draws=32, batch=0)  # one look of 32 draws (the sequential check: below)
     post = (smc.particles, smc.weights, smc.log_evidence, space, active)
     L = wrong(X)
     rec0 = acquire_round(0, X, L, gp, *post, None, check)

@@ -29,14 +29,22 @@ points). Each round r then
 
 Stop rule. Once the posterior has been settled for ``patience`` rounds in a row,
 or when only ``posterior_check.draws`` solves of the budget ``max_solves`` are left
-(the batches are cut to leave them), the next batch is a *check round*: that many
-equally weighted draws of the current posterior (:func:`posterior_draws`), with
-the surrogate's log-likelihood at each recorded. The next round solves them as
-design points and judges them by importance sampling
-(:func:`round_posterior_check`, :func:`bayescalib.inference.importance.importance_check`:
-log-weights L - mu, their spread, ESS, the corrected mean and sd). Confirmed, and
-the posterior refitted with the draws added settled against the checked one:
-**converged**. Not confirmed (or moved): the draws stay in the training set (where
+(the batches are cut to leave them while they fit, else one look's
+``posterior_check.batch``), the next batch is a *check round*: that many equally
+weighted draws of the current posterior (:func:`posterior_draws`, stratified by its
+clusters, :func:`posterior_clusters`), with the surrogate's log-likelihood at each
+recorded. They are solved as design points a look of ``posterior_check.batch`` at a
+time (the first in the next round, the others waiting in the batch's ``check``), and
+after each look the draws solved so far are judged by importance sampling
+(:func:`round_posterior_check`, :func:`bayescalib.inference.importance.sequential_check`:
+log-weights L - mu, their spread, ESS, the corrected mean and sd, and each cluster's
+mass): confirmed, refuted, or undecided, when the next look's draws are solved in the
+next round. Confirmed, and the posterior refitted with the draws added settled against
+the checked one (its moments within the stop rule's tolerances, and, with several
+clusters, their masses, by nearest cluster centre, within ``posterior_check.mass_tol``
+of those confirmed: on bimodal2d seed 3 a refit with the 32 check draws moved 5 % of the
+mass between the modes while its moments moved by less than 0.2 sd, and the run said
+converged at Hellinger 0.16): **converged**. Not confirmed (or moved): the draws stay in the training set (where
 the posterior lives, they are the most useful solves the rounds can get), the
 settled streak starts again, and the rounds go on; when the budget is spent the
 run stops **NOT converged** and says why (the posterior reported is the last
@@ -128,6 +136,7 @@ __all__ = [
     "candidate_pool",
     "check_points",
     "posterior_change",
+    "posterior_clusters",
     "posterior_draws",
     "posterior_moments",
     "round_posterior_check",
@@ -450,6 +459,7 @@ class StopRule:
     n_draws : the size of a check round (0: no check rounds: settled and trusted for
         ``patience`` rounds converges).
     draws_only : every round is a check round (the output emulator's rounds).
+    batch : draws solved per look of the sequential check (0: all ``n_draws`` at once).
     """
 
     shift_tol: float
@@ -460,6 +470,7 @@ class StopRule:
     max_solves: int
     n_draws: int
     draws_only: bool
+    batch: int = 0
 
     @classmethod
     def from_config(cls, active: Mapping[str, Any], posterior_check: Mapping[str, Any],
@@ -472,7 +483,13 @@ class StopRule:
                    or (int(active["batch_size"]) if draws_only else 0))
         return cls(float(s["shift_tol"]), float(s["sd_tol"]), float(s["gp_tol"]),
                    int(s["patience"]), float(s["unexplored_mass"]), int(active["max_solves"]),
-                   n_draws, bool(draws_only))
+                   n_draws, bool(draws_only),
+                   0 if draws_only else int(posterior_check.get("batch", 0)))
+
+    @property
+    def first_look(self) -> int:
+        """Draws solved by a check round's first look."""
+        return min(self.batch, self.n_draws) if self.batch > 0 else self.n_draws
 
     def settled(self, change: Mapping[str, float] | None) -> bool:
         """Did the posterior settle (None: round 0, no change to judge)?"""
@@ -490,6 +507,17 @@ class StopRule:
         ``n_draws`` (its size, cut to the budget when every round is one),
         ``check_round_fits`` (a check round fits in the budget) and ``budget_left``."""
         pc = rec["posterior_check"]
+        budget_left = self.max_solves - int(rec["n_solves"])
+        if pc is not None and pc.get("decision") == "continue":
+            # the sequential check is undecided: its next look's draws are solved next
+            rec["settled_streak"] = 0
+            rec["converged"] = False
+            rec["stop"] = False
+            n_next = min(self.batch, budget_left,
+                         len(rec["check_state"]["pending"]["points"]))
+            return {"check_round_next": True, "continue_check": True, "n_draws": n_next,
+                    "check_round_fits": True, "budget_left": budget_left,
+                    "reserve": n_next, "check_state": rec["check_state"]}
         # without check rounds (draws: 0) the pointwise trust check stands in for the
         # posterior check, as in the stop rule before it: a round counts when settled and
         # trusted (the diagnosis's calibrations, which check their posteriors themselves)
@@ -500,23 +528,32 @@ class StopRule:
         else:  # after a check round the streak starts again (unless it converged)
             streak = 0
         rec["settled_streak"] = streak
-        budget_left = self.max_solves - int(rec["n_solves"])
-        if pc is not None:
-            rec["converged"] = bool(pc["confirmed"] and rec["settled"] and rec["explored"])
+        if pc is not None:  # settled against the posterior the check confirmed
+            since = pc.get("change_since_checked") or rec["change"]
+            rec["converged"] = bool(pc["confirmed"] and self.settled(since)
+                                    and pc.get("mass_settled", True) and rec["explored"])
         else:  # without a posterior check (draws: 0): settled and trusted, patience rounds
             rec["converged"] = self.n_draws == 0 and streak >= self.patience
         n_draws = self.n_draws
+        first = self.first_look
         if self.draws_only:  # every round is a check round; the last one with the solves left
             n_draws = min(n_draws, budget_left)
             check_round_fits = check_round_next = n_draws >= 2
+            reserve = n_draws
         else:
-            check_round_fits = 0 < n_draws <= budget_left
+            # a check round needs room for its first look; the design batches leave room
+            # for a whole check (n_draws) while it fits, else for a first look
+            check_round_fits = 0 < first <= budget_left
+            reserve = n_draws if n_draws <= budget_left else first
             check_round_next = check_round_fits and (streak >= self.patience
-                                                     or budget_left - n_draws < 1)
+                                                     or budget_left - reserve < 1)
+            n_draws = min(n_draws, max(budget_left, 0))
         rec["stop"] = bool(rec["converged"] or budget_left <= 0
                            or (self.draws_only and not check_round_next))
         return {"check_round_next": check_round_next, "n_draws": n_draws,
-                "check_round_fits": check_round_fits, "budget_left": budget_left}
+                "check_round_fits": check_round_fits, "budget_left": budget_left,
+                "reserve": reserve if check_round_fits else 0,
+                "look": n_draws if self.draws_only else first, "max_draws": self.n_draws}
 
 
 def acquire_round(r: int, X: np.ndarray, L: np.ndarray, gp, particles: np.ndarray,
@@ -641,10 +678,11 @@ def round_record(r: int, X: np.ndarray, L: np.ndarray, gp, particles: np.ndarray
             else None)
         drawn = kinds == "posterior_check"
         if drawn.any() and np.all(drawn | (kinds == "probe")):  # a check round (+ probes)
-            draws = {k: np.asarray(nxt[k])[drawn] for k in ("points", "mean", "sd")}
-            rec["posterior_check"] = round_posterior_check(
-                draws, L[n - q_prev:][drawn], posterior_check, space.names, r - 1,
-                posterior=previous["posterior"])
+            rec["posterior_check"], state = _check_look(
+                nxt, drawn, L[n - q_prev:], posterior_check, space.names, r, n, rule,
+                previous, moments, particles, weights)
+            if state is not None:
+                rec["check_state"] = state
         prev_post = {k: np.asarray(v, float) for k, v in previous["posterior"].items()
                      if k in ("mean", "sd", "cov")}
         rec["change"] = posterior_change(prev_post, moments)
@@ -659,6 +697,77 @@ def round_record(r: int, X: np.ndarray, L: np.ndarray, gp, particles: np.ndarray
     rec["settled"] = bool(rule.settled(rec["change"]))
     rec["trusted"] = bool(rec["trust"] is not None and rec["trust"]["passed"])
     return rec, explored
+
+
+def _finite_or_none(a) -> list:
+    return [float(v) if math.isfinite(v) else None for v in np.asarray(a, float).tolist()]
+
+
+def _none_to_nan(a) -> np.ndarray:
+    return np.array([math.nan if v is None else v for v in a], float)
+
+
+def _masses_by_center(particles: np.ndarray, weights: np.ndarray, centers: np.ndarray,
+                      sd: np.ndarray) -> np.ndarray:
+    """The posterior mass nearest to each of ``centers`` (C, d), distances in units of
+    ``sd`` (d,)."""
+    P = np.atleast_2d(np.asarray(particles, float))
+    W = np.asarray(weights, float) / np.sum(weights)
+    scale = np.where(np.asarray(sd, float) > 0, sd, 1.0)
+    d2 = (((P[:, None, :] - centers[None, :, :]) / scale) ** 2).sum(axis=2)
+    return np.bincount(np.argmin(d2, axis=1), weights=W, minlength=len(centers))
+
+
+def _check_look(nxt: Mapping[str, Any], drawn: np.ndarray, L_batch: np.ndarray,
+                posterior_check: Mapping[str, Any], names: Sequence[str], r: int, n: int,
+                rule: StopRule, previous: Mapping[str, Any],
+                moments: Mapping[str, np.ndarray], particles: np.ndarray,
+                weights: np.ndarray) -> tuple[dict[str, Any], dict | None]:
+    """One look of the sequential posterior check in round ``r``: the draws of the
+    check round solved so far (earlier looks' and this batch's) judged by
+    :func:`round_posterior_check`. Returns its record (with ``change_since_checked``: the
+    posterior's change since the checked round) and, when it is undecided, the state the
+    next look continues from (``check_state``: the draws solved so far and those
+    pending)."""
+    pts = np.asarray(nxt["points"], float)[drawn]
+    Lb = np.asarray(L_batch, float)[drawn]
+    check = nxt.get("check")
+    if check is None:  # a record without the sequential state: one look at these draws
+        batch = {"points": pts, "mean": np.asarray(nxt["mean"], float)[drawn]}
+        return round_posterior_check(batch, Lb, posterior_check, names, r - 1,
+                                     posterior=previous["posterior"]), None
+    solved, pending = check["solved"], check["pending"]
+    d = pts.shape[1]
+    P = np.vstack([np.asarray(solved["points"], float).reshape(-1, d), pts])
+    M = np.concatenate([np.asarray(solved["mean"], float), np.asarray(check["batch_mean"], float)])
+    LL = np.concatenate([_none_to_nan(solved["loglik"]), Lb])
+    lab = np.concatenate([np.asarray(solved["cluster"], int),
+                          np.asarray(check["batch_cluster"], int)])
+    final = len(pending["points"]) == 0 or rule.max_solves - n <= 0
+    pc = round_posterior_check({"points": P, "mean": M, "cluster": lab}, LL, posterior_check,
+                               names, int(check["round"]), posterior=check["posterior"],
+                               cluster_mass=check["cluster_mass"], look=int(check["look"]),
+                               n_looks=int(check["n_looks"]), final=final,
+                               max_draws=int(check["max_draws"]))
+    checked = {k: np.asarray(v, float) for k, v in check["posterior"].items()}
+    pc["change_since_checked"] = posterior_change(checked, moments)
+    if "cluster_center" in check and len(check["cluster_mass"]) > 1:
+        # the posterior refitted with the draws must keep the masses the check confirmed:
+        # its particles' mass by nearest cluster centre of the checked posterior (in its sd)
+        now = _masses_by_center(particles, weights, np.asarray(check["cluster_center"], float),
+                                checked["sd"])
+        moved = float(np.max(np.abs(now - np.asarray(check["cluster_mass"], float))))
+        pc["cluster_mass_now"] = now.tolist()
+        pc["mass_change_since_checked"] = moved
+        pc["mass_settled"] = bool(moved <= float(posterior_check["mass_tol"]))
+    if pc["decision"] != "continue":
+        return pc, None
+    state = {k: check[k] for k in ("round", "posterior", "cluster_mass", "cluster_center",
+                                   "n_looks", "max_draws", "look") if k in check}
+    state["solved"] = {"points": P.tolist(), "mean": M.tolist(), "loglik": _finite_or_none(LL),
+                       "cluster": lab.tolist()}
+    state["pending"] = pending
+    return pc, state
 
 
 def _reason(rec: Mapping[str, Any], rule: StopRule, step: Mapping[str, Any],
@@ -682,6 +791,10 @@ def _reason(rec: Mapping[str, Any], rule: StopRule, step: Mapping[str, Any],
                 f"solves in the posterior region within {stop_cfg['gp_tol']:g} nats (max "
                 f"error {rec['trust']['max_abs_error']:.3g}); NOT checked with real solves of "
                 f"its draws (posterior_check.draws: 0); " + _explored_words(rec))
+    if step.get("continue_check"):
+        return (f"continue: the posterior check of round {pc['round']} is undecided after "
+                f"{pc['n_draws']} draws ({pc['words']}); the next {n_draws} of its draws are "
+                f"solved next.")
     why_not = _why_not(rec, stop_cfg, posterior_check, budget_left)
     if rec["stop"]:
         return (f"NOT converged: the budget design.active.max_solves = {rule.max_solves} is "
@@ -703,25 +816,72 @@ def _reason(rec: Mapping[str, Any], rule: StopRule, step: Mapping[str, Any],
 def _posterior_draw_batch(r: int, X: np.ndarray, gp, particles: np.ndarray,
                           weights: np.ndarray, space, explored: Mapping[str, Any],
                           active: Mapping[str, Any], n_draws: int,
-                          n_probes: int) -> dict[str, Any]:
+                          n_probes: int, look: int = 0, max_draws: int | None = None
+                          ) -> dict[str, Any]:
     """The batch of a check round: ``n_draws`` equally weighted draws of the posterior
-    (:func:`posterior_draws`; batch kind ``"posterior_check"``, solved next round for
-    the posterior check) and ``n_probes`` probes of the unheld basins
-    (:func:`~bayescalib.inference.exploration.probe_points`)."""
+    (:func:`posterior_draws`, stratified by its clusters, :func:`posterior_clusters`;
+    batch kind ``"posterior_check"``), of which the first ``look`` (0: all) are solved
+    next round for the first look of the sequential posterior check and the others wait
+    in ``check["pending"]`` for the looks after it, and ``n_probes`` probes of the
+    unheld basins (:func:`~bayescalib.inference.exploration.probe_points`). ``check``
+    carries what the looks need: the checked round and posterior, the clusters' masses,
+    the surrogate's log-likelihood at the draws, the looks' count for the error
+    spending."""
     from bayescalib.inference.exploration import probe_points
 
-    D = posterior_draws(particles, weights, n_draws,
-                        np.random.default_rng([int(active["seed"]), int(r), 0x15C4]), exclude=X)
-    kind = ["posterior_check"] * n_draws
+    look = int(look) if look and int(look) < n_draws else int(n_draws)
+    labels, cluster_mass = posterior_clusters(particles, weights, seed=int(active["seed"]) + r)
+    D, lab = posterior_draws(particles, weights, n_draws,
+                             np.random.default_rng([int(active["seed"]), int(r), 0x15C4]),
+                             exclude=X, labels=labels, batch=look)
+    mean_all, sd_all = _predict_loglik(gp, D)
+    m = posterior_moments(particles, weights)
+    Pn = np.atleast_2d(np.asarray(particles, float))
+    Wn = np.asarray(weights, float) / np.sum(weights)
+    centers = [(Wn[labels == c] @ Pn[labels == c] / Wn[labels == c].sum()).tolist()
+               for c in range(len(cluster_mass))]
+    check = {"round": int(r),
+             "posterior": {k: m[k].tolist() for k in ("mean", "sd", "cov")},
+             "cluster_mass": cluster_mass.tolist(), "cluster_center": centers,
+             "n_looks": math.ceil(n_draws / look), "max_draws": int(max_draws or n_draws),
+             "look": 1, "batch_mean": mean_all[:look].tolist(),
+             "batch_cluster": lab[:look].tolist(),
+             "solved": {"points": [], "mean": [], "loglik": [], "cluster": []},
+             "pending": {"points": D[look:].tolist(), "mean": mean_all[look:].tolist(),
+                         "cluster": lab[look:].tolist()}}
+    D, mean, sd = D[:look], mean_all[:look], sd_all[:look]
+    kind = ["posterior_check"] * look
     if n_probes > 0:
         probes = probe_points(explored, X, space.bounds, n_probes,
                               float(active["stop"]["unexplored_mass"]),
                               np.random.default_rng([int(active["seed"]), int(r), 0xB451]))
-        D = np.vstack([D, probes])
-        kind += ["probe"] * len(probes)
-    mean, sd = _predict_loglik(gp, D)
+        if len(probes):
+            pm, ps = _predict_loglik(gp, probes)
+            D, mean, sd = np.vstack([D, probes]), np.concatenate([mean, pm]), \
+                np.concatenate([sd, ps])
+            kind += ["probe"] * len(probes)
     return {"points": D.tolist(), "mean": mean.tolist(), "sd": sd.tolist(), "score": [],
-            "kind": kind}
+            "kind": kind, "check": check}
+
+
+def _next_look_batch(gp, step: Mapping[str, Any]) -> dict[str, Any]:
+    """The batch of an undecided sequential check's next look: the next ``step
+    ["n_draws"]`` of its pending draws, with the surrogate's log-likelihood at them as
+    the check recorded it (``check["batch_mean"]``) and as this round's surrogate
+    predicts it (``mean``, ``sd``: for the trust check)."""
+    st = step["check_state"]
+    k = int(step["n_draws"])
+    pend = st["pending"]
+    P = np.asarray(pend["points"], float)[:k]
+    mean, sd = _predict_loglik(gp, P)
+    check = {**{key: st[key] for key in ("round", "posterior", "cluster_mass",
+                                         "cluster_center", "n_looks", "max_draws")
+                 if key in st},
+             "look": int(st["look"]) + 1, "batch_mean": pend["mean"][:k],
+             "batch_cluster": pend["cluster"][:k], "solved": st["solved"],
+             "pending": {key: v[k:] for key, v in pend.items()}}
+    return {"points": P.tolist(), "mean": mean.tolist(), "sd": sd.tolist(), "score": [],
+            "kind": ["posterior_check"] * len(P), "check": check}
 
 
 @dataclass(frozen=True)
@@ -759,13 +919,16 @@ class SelectBatch:
         from bayescalib.inference.exploration import probe_points
 
         active = self.active
+        if step.get("continue_check"):
+            return _next_look_batch(gp, step)
         if step["check_round_next"]:
             return _posterior_draw_batch(r, X, gp, particles, weights, space, explored,
-                                         active, int(step["n_draws"]), 0)
+                                         active, int(step["n_draws"]), 0,
+                                         look=int(step["look"]), max_draws=int(step["max_draws"]))
         d = X.shape[1]
         finite = np.isfinite(L)
         best = float(L[finite].max()) if finite.any() else -math.inf
-        reserve = int(step["n_draws"]) if step["check_round_fits"] else 0
+        reserve = int(step["reserve"])
         room = int(step["budget_left"]) - reserve  # >= 1 here
         rng = _round_seed(active["seed"], r)
         probes = probe_points(explored, X, space.bounds, min(int(active["probes"]), room - 1),
@@ -865,7 +1028,8 @@ def boundary_points(gp, particles: np.ndarray, weights: np.ndarray, n: int,
 
 
 def posterior_draws(particles: np.ndarray, weights: np.ndarray, n: int,
-                    rng: np.random.Generator, exclude: np.ndarray | None = None) -> np.ndarray:
+                    rng: np.random.Generator, exclude: np.ndarray | None = None,
+                    labels: np.ndarray | None = None, batch: int = 0):
     """``n`` equally weighted draws of an SMC posterior, (n, d): its particles resampled
     systematically (as :func:`bayescalib.inference.posterior.equal_weight_draws`).
 
@@ -873,40 +1037,130 @@ def posterior_draws(particles: np.ndarray, weights: np.ndarray, n: int,
     draws become design points, which may not repeat: a draw equal to an earlier one or
     to a row of ``exclude`` (the design so far) is replaced by another particle drawn
     with the weights (at most 100 tries; then it is kept, and the pipeline refuses it).
+
+    With ``labels`` (the particles' clusters, :func:`posterior_clusters`) the particles
+    are ordered by cluster before the systematic resampling, so that the draws are
+    stratified by cluster (each cluster gets within one of its share n q_c), each
+    consecutive block of ``batch`` draws (0: all n) being such a resample on its own (the
+    looks of the sequential check); returns the draws and their clusters.
     """
     from bayescalib.inference.resampling import systematic_resample
 
     P = np.atleast_2d(np.asarray(particles, float))
     W = np.asarray(weights, float)
     W = W / W.sum()
+    order = (np.arange(P.shape[0]) if labels is None
+             else np.argsort(np.asarray(labels, int), kind="stable"))
     seen = {tuple(x) for x in (np.empty((0, P.shape[1])) if exclude is None
                                else np.atleast_2d(np.asarray(exclude, float)))}
-    out = []
-    for i in systematic_resample(W, rng, int(n)):
-        x = P[i]
+    step = int(batch) if batch and int(batch) > 0 else max(int(n), 1)
+    picks = []
+    for start in range(0, int(n), step):
+        m = min(step, int(n) - start)
+        picks.extend(order[systematic_resample(W[order], rng, m)].tolist())
+    out, got = [], []
+    for i in picks:
         for _ in range(100):
-            if tuple(x) not in seen:
+            if tuple(P[i]) not in seen:
                 break
-            x = P[rng.choice(P.shape[0], p=W)]
-        seen.add(tuple(x))
-        out.append(x)
-    return np.asarray(out, float).reshape(int(n), P.shape[1])
+            i = int(rng.choice(P.shape[0], p=W))
+        seen.add(tuple(P[i]))
+        out.append(P[i])
+        got.append(i)
+    D = np.asarray(out, float).reshape(int(n), P.shape[1])
+    if labels is None:
+        return D
+    return D, np.asarray(labels, int)[np.asarray(got, int)]
+
+
+#: clusters of the posterior (:func:`posterior_clusters`) lighter than this are merged into
+#: their nearest heavier one: a cluster must get draws at every look of a sequential check
+MIN_CLUSTER_MASS = 0.1
+#: single-linkage cut between clusters, in median nearest-neighbour distances of the
+#: resampled particles (standardized by the posterior sd)
+CLUSTER_GAP = 6.0
+#: resampled particles the clusters are found among
+CLUSTER_POINTS = 1000
+
+
+def posterior_clusters(particles: np.ndarray, weights: np.ndarray,
+                       seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """The separated clusters (modes) of an SMC posterior: (N,) labels of the particles
+    and (C,) the clusters' masses, heaviest first.
+
+    ``CLUSTER_POINTS`` particles resampled with the weights (duplicates dropped), in
+    coordinates standardized by the posterior sd, are cut by single linkage at
+    ``CLUSTER_GAP`` times their median nearest-neighbour distance; every particle takes
+    its nearest resampled point's cluster, and clusters lighter than ``MIN_CLUSTER_MASS``
+    join the heavier cluster nearest to their particles. The sequential check's mass test
+    (:func:`bayescalib.inference.importance.cluster_mass_test`) stratifies by these
+    clusters; any partition fixed before the draws are solved keeps its error rates
+    (post-stratification), so a ridge cut in two or an isolated tail is harmless: it
+    only asks the mass test about the pieces.
+    """
+    from scipy.cluster.hierarchy import fcluster, linkage
+    from scipy.spatial import cKDTree
+
+    from bayescalib.inference.resampling import systematic_resample
+
+    P = np.atleast_2d(np.asarray(particles, float))
+    W = np.asarray(weights, float)
+    W = W / W.sum()
+    N = P.shape[0]
+    single = (np.zeros(N, int), np.ones(1))
+    m = W @ P
+    sd = np.sqrt(np.maximum(W @ (P - m) ** 2, 0.0))
+    U = (P - m) / np.where(sd > 0, sd, 1.0)
+    idx = np.unique(systematic_resample(W, np.random.default_rng([int(seed), 0xC1A5]),
+                                        min(CLUSTER_POINTS, N)))
+    Uu = np.unique(U[idx], axis=0)
+    if Uu.shape[0] < 4:
+        return single
+    nn = cKDTree(Uu).query(Uu, k=2)[0][:, 1]
+    cut = CLUSTER_GAP * float(np.median(nn))
+    if not cut > 0:
+        return single
+    lab_u = fcluster(linkage(Uu, "single"), cut, "distance") - 1
+    lab = lab_u[cKDTree(Uu).query(U, k=1)[1]]
+    mass = np.bincount(lab, weights=W)
+    big = np.flatnonzero(mass >= MIN_CLUSTER_MASS)
+    if big.size <= 1:
+        return single
+    in_big = np.isin(lab, big)
+    if not in_big.all():
+        lab[~in_big] = lab[in_big][cKDTree(U[in_big]).query(U[~in_big], k=1)[1]]
+    mass = np.bincount(lab, weights=W)
+    order = big[np.argsort(-mass[big], kind="stable")]
+    relabel = np.full(lab.max() + 1, -1)
+    relabel[order] = np.arange(order.size)
+    return relabel[lab], mass[order]
 
 
 def round_posterior_check(batch: Mapping[str, Any], L: np.ndarray,
                           posterior_check: Mapping[str, Any],
                           names: Sequence[str], checked_round: int,
-                          posterior: Mapping[str, Any] | None = None) -> dict[str, Any]:
-    """:func:`~bayescalib.inference.importance.importance_check` of a check round: the
-    real log-likelihoods ``L`` (q,) of the draws ``batch["points"]`` against the
-    surrogate's ``batch["mean"]`` recorded when they were drawn; ``posterior`` (the
-    checked round's record, ``mean`` and ``sd``): the draws must represent it. The
-    per-parameter lists are keyed by name; ``round`` is the round whose posterior was
-    checked."""
-    from bayescalib.inference.importance import importance_check
+                          posterior: Mapping[str, Any] | None = None, *,
+                          cluster_mass: Sequence[float] | None = None, look: int = 1,
+                          n_looks: int = 1, final: bool = True,
+                          max_draws: int | None = None) -> dict[str, Any]:
+    """One look of the sequential posterior check
+    (:func:`~bayescalib.inference.importance.sequential_check`) of a check round: the
+    real log-likelihoods ``L`` (q,) of the draws ``batch["points"]`` solved so far
+    against the surrogate's ``batch["mean"]`` recorded when they were drawn, with their
+    clusters ``batch["cluster"]`` (absent: one cluster) of masses ``cluster_mass``;
+    ``posterior`` (the checked round's record, ``mean`` and ``sd``): the draws must
+    represent it. ``look``, ``n_looks``, ``final``, ``max_draws``: as
+    :func:`~bayescalib.inference.importance.sequential_check` (the defaults: one look at
+    every draw). The per-parameter lists are keyed by name; ``round`` is the round whose
+    posterior was checked; ``decision`` is ``confirmed``, ``refuted`` or ``continue``."""
+    from bayescalib.inference.importance import sequential_check
 
-    res = importance_check(np.asarray(batch["points"], float), np.asarray(L, float),
+    res = sequential_check(np.asarray(batch["points"], float), np.asarray(L, float),
                            np.asarray(batch["mean"], float),
+                           labels=batch.get("cluster"), cluster_mass=cluster_mass,
+                           look=look, n_looks=n_looks, final=final, max_draws=max_draws,
+                           mass_tol=posterior_check["mass_tol"],
+                           alpha=posterior_check["alpha"],
                            min_ess_fraction=posterior_check["min_ess_fraction"],
                            shift_tol=posterior_check["shift_tol"],
                            sd_tol=posterior_check["sd_tol"],
@@ -991,8 +1245,11 @@ def _why_not(rec: Mapping[str, Any], stop_cfg: Mapping[str, Any],
             parts.append(f"the posterior of round {pc['round']} was NOT confirmed by real "
                          f"solves of its draws ({pc['words']})")
         else:
+            moved = (f" (its clusters' masses by {pc['mass_change_since_checked']:.3g}, "
+                     f"tolerance posterior_check.mass_tol {posterior_check['mass_tol']:g})"
+                     if not pc.get("mass_settled", True) else "")
             parts.append(f"the posterior of round {pc['round']} was confirmed by real solves "
-                         f"of its draws, but it moved when they were added")
+                         f"of its draws, but it moved when they were added{moved}")
     if not rec["settled"]:
         parts.append(f"the posterior moved by {c['shift_sd']:.3g} sd (tolerance "
                      f"{stop_cfg['shift_tol']:g}) and its sd changed by {c['sd_change']:.3g} "
@@ -1004,8 +1261,9 @@ def _why_not(rec: Mapping[str, Any], stop_cfg: Mapping[str, Any],
         parts.append(f"settled and trusted in {rec['settled_streak']} round(s) in a row, "
                      f"{stop_cfg['patience']} needed")
     n_draws = int(posterior_check["draws"])
-    if n_draws > budget_left and (pc is None or not pc["confirmed"]):
-        parts.append(f"the posterior check's {n_draws} draws do not fit in the "
+    first = min(int(posterior_check.get("batch", 0)) or n_draws, n_draws)
+    if first > budget_left and (pc is None or not pc["confirmed"]):
+        parts.append(f"the posterior check's first {first} draws do not fit in the "
                      f"{max(budget_left, 0)} solve(s) left of the budget")
     if not t["passed"]:  # decides only without check rounds (posterior_check.draws 0)
         if t["n_region"] == 0:
