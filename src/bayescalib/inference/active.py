@@ -484,7 +484,7 @@ class StopRule:
         return cls(float(s["shift_tol"]), float(s["sd_tol"]), float(s["gp_tol"]),
                    int(s["patience"]), float(s["unexplored_mass"]), int(active["max_solves"]),
                    n_draws, bool(draws_only),
-                   0 if draws_only else int(posterior_check.get("batch", 0)))
+                   0 if draws_only else int(posterior_check["batch"]))
 
     @property
     def first_look(self) -> int:
@@ -1261,7 +1261,7 @@ def _why_not(rec: Mapping[str, Any], stop_cfg: Mapping[str, Any],
         parts.append(f"settled and trusted in {rec['settled_streak']} round(s) in a row, "
                      f"{stop_cfg['patience']} needed")
     n_draws = int(posterior_check["draws"])
-    first = min(int(posterior_check.get("batch", 0)) or n_draws, n_draws)
+    first = min(int(posterior_check["batch"]) or n_draws, n_draws)
     if first > budget_left and (pc is None or not pc["confirmed"]):
         parts.append(f"the posterior check's first {first} draws do not fit in the "
                      f"{max(budget_left, 0)} solve(s) left of the budget")
