@@ -283,3 +283,15 @@ def test_the_model_colony_from_a_zero_flow_volume_and_observations_checked_again
     with pytest.raises(ConfigError, match=r"geometry.scan: a 2D model's scan is an image"):
         Study(deep_merge(DEFAULT2D, {"forward_model": {"fsi": {"geometry": {
             "shape": "scan", "scan": scan}}}}))
+
+
+def test_a_volume_with_its_axes_in_another_order_is_refused_naming_the_order(volumes, tmp_path):
+    """A volume stored as en-face slices (ny, nz, nx) instead of B-scans (nz, ny, nx): the
+    colony then reaches the top and sides of the 'volume'; the error says the axis order
+    may be the cause, not only the field of view."""
+    mask = np.load(volumes / "colony.npy")
+    np.save(tmp_path / "en_face.npy", np.ascontiguousarray(mask.transpose(1, 0, 2)))
+    entry = _volume(tmp_path / "en_face.npy")
+    with pytest.raises(ConfigError, match=r"touches the volume's border .* axes are in another "
+                       r"order than \(B-scan = z, row from the top = y, column = x\)"):
+        _study(entry, entry)

@@ -603,6 +603,9 @@ class Study:
                     fix = f"; with origin [{moved}] {units} it would lie in place"
                 elif entry.get("pixel_size") is not None:
                     fix = f"; {key}.origin is not given"
+                if dim == 3 and isinstance(entry.get("pixel_size"), list):
+                    fix += ("; or the volume's axes are in another order than (B-scan = z, "
+                            "row from the top = y, column = x)")
                 why = (f"its footprint's centre lies {foot:.3g} mm from {what}'s, whose "
                        f"footprint is {span:.3g} mm across: the base, attached to the floor, "
                        "does not move under flow" if foot > FOOTPRINT_SHIFT * span else

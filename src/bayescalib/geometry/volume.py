@@ -243,7 +243,9 @@ def volume_surface(
         raise SurfaceError(
             f"{name}: the colony touches the volume's border on the {', '.join(touching)} "
             "face(s): it is cut off by the field of view; a colony must be surrounded by "
-            "fluid on the sides and the top (image a larger region, or crop less)"
+            "fluid on the sides and the top (image a larger region, or crop less; or the "
+            "array's axes are in another order than (B-scan = z, row from the top = y, "
+            "column = x): transpose it)"
             + (f"; but its lowest layer covers {share:.0%} of the B-scans' area: that is the "
                f"substrate, below which the floor was put ({method_f}, y = {y_floor:g} mm): "
                f"give floor, the y of the substrate's top in {units}, or check the origin's "
