@@ -295,3 +295,19 @@ def test_a_volume_with_its_axes_in_another_order_is_refused_naming_the_order(vol
     with pytest.raises(ConfigError, match=r"touches the volume's border .* axes are in another "
                        r"order than \(B-scan = z, row from the top = y, column = x\)"):
         _study(entry, entry)
+
+
+def test_a_missing_volume_is_named_missing_whatever_its_settings(tmp_path):
+    entry = _volume(tmp_path / "nowhere.npy")
+    with pytest.raises(ConfigError, match=r"observations.files\[0\].path: .*nowhere.npy' does "
+                       r"not exist"):
+        _study(entry, entry)
+
+
+def test_the_files_of_a_study_without_component_keep_their_validated_values():
+    """component has no default: an existing study's observations.files entries validate
+    to what they did, so its observe job (params: the observations section) does not
+    rerun."""
+    entry = validate({"observations": {"source": "files", "files": [{"path": "a.csv"}]}},
+                     "measures")["observations"]["files"][0]
+    assert "component" not in entry

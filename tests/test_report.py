@@ -277,7 +277,7 @@ class DevTools:
         with self.log.open("wb") as log:
             self.proc = subprocess.Popen(
                 [chromium, *args], stdin=subprocess.DEVNULL, stdout=log, stderr=log,
-                close_fds=False, preexec_fn=child_fds)
+                close_fds=False, preexec_fn=child_fds)  # noqa: PLW1509 - only dup2 in the child, before exec
         os.close(to_r)
         os.close(from_w)
         self._buf = b""

@@ -720,7 +720,8 @@ class Study:
                                   "or a folder of B-scans, a volume)")
             if path.exists() and is_volume(path):
                 Study._validate_volume_entry(where, key, e)
-            elif isinstance(e.get("pixel_size"), list) or len(e.get("origin") or ()) > 2:
+            elif path.exists() and (isinstance(e.get("pixel_size"), list)
+                                    or len(e.get("origin") or ()) > 2):
                 raise ConfigError(
                     f"{where}: {key}: '{path}' is not a volume (a folder of B-scans, a .npy "
                     "array or a multi-page TIFF), so pixel_size is one number and origin "
