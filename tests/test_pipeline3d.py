@@ -201,3 +201,22 @@ def test_the_3d_smoke_study_runs_end_to_end(tmp_path):
     if s["converged"]:
         assert abs(mean["E"] - 400.0) < 3.0 * sd["E"]
         assert abs(mean["nu"] - 0.3) < 3.0 * sd["nu"]
+
+
+def test_the_3d_interfaces_figure_renders_the_observed_surface_coloured_by_the_misfit(tmp_path):
+    """The rendered panel: a 3D axes beside the section, its colour bar the observed
+    surface's signed distance from the model's surface, in um, symmetric about 0."""
+    from bayescalib.plotting import plot_interfaces
+
+    ref, tri = _dome()
+    obs = _bent(ref, 0.02)
+    d = 1e3 * (obs[:, 0] - ref[:, 0])  # a made-up misfit, um
+    t = np.linspace(np.pi, 0.0, 30)  # the section's curves (the panel beside them)
+    arc = np.column_stack([1.0 + 0.3 * np.cos(t), 0.4 * np.sin(t)])
+    _, fig = plot_interfaces(arc, [arc + [0.01, 0.0]], None, tmp_path / "f.png",
+                             surface=(obs, tri, d, "distance [um]"), return_figure=True)
+    axes = fig.get_axes()
+    three = [ax for ax in axes if ax.name == "3d"]
+    assert len(three) == 1
+    bar = [ax for ax in axes if ax.get_xlabel() == "distance [um]"]
+    assert len(bar) == 1 and bar[0].get_xlim() == pytest.approx((-d.max(), d.max()), rel=0.05)
