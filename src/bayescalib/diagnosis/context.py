@@ -25,7 +25,8 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["IMAGE_NOISE_LAG_PIXELS", "DiagnosisContext", "noise_lag", "resolve_noise_model",
+__all__ = ["IMAGE_NOISE_LAG_PIXELS", "MAX_SURFACE_NODES", "SURFACE_SPACING_SHARE",
+           "DiagnosisContext", "noise_lag", "resolve_noise_model", "surface_nodes",
            "thinned_observations"]
 
 #: lag of the noise estimate for interfaces traced from images, in pixel sizes (see
@@ -34,14 +35,23 @@ IMAGE_NOISE_LAG_PIXELS = 5.0
 
 
 def _image_pixel_sizes(observations: Mapping[str, Any]) -> list[float]:
-    """Pixel sizes (mm) of the image files among the observations (none: not images)."""
-    from bayescalib.io.observations import IMAGE_SUFFIXES, UNITS
+    """Pixel sizes (mm) of the image files among the observations (none: not images);
+    of an OCT volume (``pixel_size: [dx, dy, dz]``, a folder of B-scans or a stack) its
+    largest voxel edge."""
+    from bayescalib.io.observations import IMAGE_SUFFIXES, UNITS, VOLUME_SUFFIXES
 
     if observations.get("source") != "files":
         return []
-    return [float(e["pixel_size"]) * UNITS[e.get("units") or "mm"]
-            for e in observations.get("files") or []
-            if Path(e["path"]).suffix.lower() in IMAGE_SUFFIXES and e.get("pixel_size")]
+    out = []
+    for e in observations.get("files") or []:
+        size, path = e.get("pixel_size"), Path(e["path"])
+        if not size:
+            continue
+        if isinstance(size, list | tuple):  # a volume's voxel
+            out.append(max(float(v) for v in size) * UNITS[e.get("units") or "mm"])
+        elif path.suffix.lower() in IMAGE_SUFFIXES | VOLUME_SUFFIXES or path.is_dir():
+            out.append(float(size) * UNITS[e.get("units") or "mm"])
+    return out
 
 
 def noise_lag(diagnose: Mapping[str, Any], observations: Mapping[str, Any]) -> float:
@@ -68,9 +78,10 @@ def resolve_noise_model(diagnose: Mapping[str, Any], observations: Mapping[str, 
 
 
 def thinned_observations(obs, spacing: float):
-    """The observation set with every snapshot thinned to one node per ``spacing`` mm of
-    arc length (:func:`bayescalib.diagnosis.residuals.thin_nodes`; 0 = unchanged): the
-    nodes the diagnosis uses when the noise is correlated along the interface (images)."""
+    """The observation set with every 2D snapshot thinned to one node per ``spacing`` mm
+    of arc length (:func:`bayescalib.diagnosis.residuals.thin_nodes`; 0 = unchanged): the
+    nodes the diagnosis uses when the noise is correlated along the interface (images).
+    A 3D surface is kept whole (its nodes used: :func:`surface_nodes`)."""
     from bayescalib.diagnosis.residuals import thin_nodes
     from bayescalib.geometry.interface import Interface
 
@@ -78,11 +89,48 @@ def thinned_observations(obs, spacing: float):
         return obs
     snaps = []
     for s in obs.snapshots:
+        if s.dim == 3:
+            snaps.append(s)
+            continue
         pts = np.asarray(s.points)
         idx = thin_nodes(pts, spacing)
         snaps.append(Interface.polyline(pts[idx], closed=s.n_cells == s.n_points and idx.size >= 3,
                                         name=s.name))
     return dataclasses.replace(obs, snapshots=snaps)
+
+
+#: the thinning spacing of a 3D surface's nodes, as a share of the smoothing length
+#: (at least the noise correlation length): ~20 nodes within a kernel width
+SURFACE_SPACING_SHARE = 0.5
+#: most nodes of one surface the predictive check uses (its smoother is n x n): the
+#: spacing grows by a quarter until the thinned nodes are fewer
+MAX_SURFACE_NODES = 3000
+
+
+def surface_nodes(surface, spacing: float) -> tuple[np.ndarray, float]:
+    """The nodes of an observed 3D surface the diagnosis uses: a Poisson-disk subset of
+    its vertices at least ``spacing`` mm apart
+    (:func:`bayescalib.diagnosis.residuals.thin_nodes`), the spacing grown by 25 % steps
+    until at most :data:`MAX_SURFACE_NODES` remain.
+
+    Returns
+    -------
+    nodes : ndarray, shape (n, 3)
+        mm.
+    spacing : float
+        The spacing used, mm.
+    """
+    from bayescalib.diagnosis.residuals import thin_nodes
+
+    pts = np.asarray(surface.points, dtype=float)
+    h = float(spacing)
+    if h <= 0:  # a spacing from the vertices' own density
+        h = float(np.sqrt(surface.total_measure / MAX_SURFACE_NODES))
+    idx = thin_nodes(pts, h)
+    while idx.size > MAX_SURFACE_NODES:
+        h *= 1.25
+        idx = thin_nodes(pts, h)
+    return pts[idx], h
 
 
 @dataclass(frozen=True)
@@ -94,9 +142,13 @@ class DiagnosisContext:
     fm : the validated ``forward_model`` section (``loadings`` included).
     parameters : the study's parameter list (its ``target``s are the points' columns).
     settings : the validated ``diagnose`` section.
-    obs : the observation set as the diagnosis uses it (thinned to one node per
-        ``noise_lag_mm``: :func:`thinned_observations`).
+    obs : the observation set as the diagnosis uses it (2D curves thinned to one node
+        per ``noise_lag_mm``: :func:`thinned_observations`; 3D surfaces whole).
+    nodes : per snapshot, the observed nodes the predictive checks and the attribution
+        use, (n, 2) or (n, 3) mm: the thinned curve's, or a 3D surface's
+        (:func:`surface_nodes`).
     n_observed : the observed nodes per snapshot before thinning.
+    surface_spacing_mm : the thinning spacing of the 3D surfaces' nodes (None in 2D).
     noise_lag_mm : the noise correlation length along the interface (:func:`noise_lag`).
     noise_model : the predictive check's noise model (:func:`resolve_noise_model`).
     segmentation_sigma : the segmentation's positional uncertainty of raw scans, mm (a
@@ -119,7 +171,9 @@ class DiagnosisContext:
     parameters: Sequence[Mapping[str, Any]]
     settings: Mapping[str, Any]
     obs: Any
+    nodes: list[np.ndarray]
     n_observed: list[int]
+    surface_spacing_mm: float | None
     noise_lag_mm: float
     noise_model: str
     segmentation_sigma: float | None
@@ -160,8 +214,18 @@ class DiagnosisContext:
         if sigma is None and observations["source"] == "synthetic" \
                 and float(observations["noise_sigma"]) > 0:
             sigma = float(observations["noise_sigma"])
-        return cls(settings=diagnose, obs=thinned_observations(obs, lag),
-                   n_observed=[len(s.points) for s in obs.snapshots], noise_lag_mm=lag,
+        used = thinned_observations(obs, lag)
+        nodes, spacing = [], None
+        for s in used.snapshots:
+            if s.dim == 3:
+                pts, spacing = surface_nodes(
+                    s, max(lag, SURFACE_SPACING_SHARE * float(diagnose["smoothing"])))
+                nodes.append(pts)
+            else:
+                nodes.append(np.asarray(s.points, dtype=float))
+        return cls(settings=diagnose, obs=used, nodes=nodes,
+                   n_observed=[len(s.points) for s in obs.snapshots],
+                   surface_spacing_mm=spacing, noise_lag_mm=lag,
                    noise_model=resolve_noise_model(diagnose, observations),
                    # raw scans: the segmentation's positional uncertainty bounds the noise
                    # from below
@@ -177,6 +241,11 @@ class DiagnosisContext:
     def names(self) -> list[str]:
         """The parameters' names (the posterior's)."""
         return [p["name"] for p in self.parameters]
+
+    @property
+    def dim(self) -> int:
+        """The observed interfaces' dimension: 2 (curves) or 3 (surfaces)."""
+        return int(self.nodes[0].shape[1])
 
     @property
     def n_snap(self) -> int:

@@ -20,6 +20,13 @@ __all__ = ["write_diagnosis"]
 def _panels(check, located: Sequence[Mapping[str, Any]]) -> list[dict]:
     out = []
     for sn in check.snapshots:
+        if sn.s is None:  # a 3D surface's nodes (plot_surface_residuals)
+            mine = [loc for loc in located if loc["snapshot"] == sn.label]
+            out.append({"points": sn.xy, "z_s": sn.z_s, "c_smooth": check.c_smooth,
+                        "label": sn.label,
+                        "located": [i for loc in mine for i in loc["node_indices"]],
+                        "cores": [i for loc in mine for i in loc["core_node_indices"]]})
+            continue
         out.append({
             "s": sn.s, "r": sn.y - sn.mu, "r_smooth": sn.y_s - sn.mu_s,
             "sd": np.sqrt(sn.v), "sd_smooth": np.sqrt(sn.v_s), "c_pw": check.c_pointwise,
@@ -43,7 +50,11 @@ def write_diagnosis(diagnosis: Mapping[str, Any], checks: Mapping[str, Any], *,
         The written figure paths.
     """
     from bayescalib.plotting import plot_interface_residual
-    from bayescalib.plotting.diagnosis import plot_candidate_ranking, plot_residual_bands
+    from bayescalib.plotting.diagnosis import (
+        plot_candidate_ranking,
+        plot_residual_bands,
+        plot_surface_residuals,
+    )
     from bayescalib.stages.files import write_json
 
     fig = Path(figdir)
@@ -57,13 +68,21 @@ def write_diagnosis(diagnosis: Mapping[str, Any], checks: Mapping[str, Any], *,
         rows.append(f"with {shown}")
         after = next(e for e in diagnosis["extended"] if e["candidate"] == shown)
         panels += _panels(checks[shown], after["check_after"]["located"])
-    written += map(str, plot_residual_bands(panels, [fig / f"residuals.{e}" for e in formats],
-                                            row_titles=rows, dpi=dpi))
     sn = base.snapshots[-1]
-    written += map(str, plot_interface_residual(
-        sn.xy, sn.z_s, [fig / f"interface_residual.{e}" for e in formats],
-        label=f"standardized smoothed residual ({sn.label})", unit="sd",
-        title="where the calibrated model misses the observed interface", dpi=dpi))
+    if sn.s is None:  # 3D: the nodes seen from above, and the last snapshot from the side
+        written += map(str, plot_surface_residuals(
+            panels, [fig / f"residuals.{e}" for e in formats], row_titles=rows, dpi=dpi))
+        written += map(str, plot_surface_residuals(
+            [panels[len(base.snapshots) - 1]],
+            [fig / f"interface_residual.{e}" for e in formats], view="side",
+            row_titles=["where the calibrated model misses the observed surface"], dpi=dpi))
+    else:
+        written += map(str, plot_residual_bands(
+            panels, [fig / f"residuals.{e}" for e in formats], row_titles=rows, dpi=dpi))
+        written += map(str, plot_interface_residual(
+            sn.xy, sn.z_s, [fig / f"interface_residual.{e}" for e in formats],
+            label=f"standardized smoothed residual ({sn.label})", unit="sd",
+            title="where the calibrated model misses the observed interface", dpi=dpi))
     rank = diagnosis["attribution"]["ranking"]
     thr = float(chi2.isf(diagnosis["attribution"]["threshold"], 1))
     written += map(str, plot_candidate_ranking(

@@ -82,6 +82,19 @@ bound)"``, and both values are reported (``sigma_data_mm``, ``sigma_segmentation
 (Second differences
 ``y_(j-1) - 2 y_j + y_(j+1)`` of white noise have variance ``6 sigma^2`` and cancel the
 linear part of a smooth mismatch.)
+
+**On a 3D surface** (the 3D model's interface) the same check, with three changes. The
+observed nodes have no order: the residual's place along the interface is the node
+itself (:func:`node_coordinates`) and the smoother's kernel takes the straight
+distance between nodes (:func:`node_distances`; within 0.2 % of the distance along the
+colony's surface at the default ``ell``). The noise estimate compares each node with
+the mean of its nearest neighbours (:func:`estimate_surface_noise`) instead of second
+differences along a curve. A located mismatch is a connected region of nodes outside
+the band (:func:`surface_regions`) instead of an interval of arc length, reported
+with its extent in x, y and z and its place on the colony in words
+(:func:`colony_place`: near the top, or which flank). The diagnosis thins a surface's
+nodes to a Poisson-disk subset (:func:`thin_nodes`), which also keeps the
+``n x n`` smoother small: a surface segmented from a volume has 10^4 vertices.
 """
 
 from __future__ import annotations
@@ -101,10 +114,14 @@ __all__ = [
     "PredictiveCheck",
     "SnapshotCheck",
     "arc_length",
+    "colony_place",
     "estimate_noise",
+    "estimate_surface_noise",
     "fluid_side_sign",
     "intervals",
     "kernel_bandwidth",
+    "node_coordinates",
+    "node_distances",
     "noise_pool",
     "offsets",
     "predictive_check",
@@ -112,6 +129,7 @@ __all__ = [
     "resample_noise",
     "rms_spread",
     "smoother",
+    "surface_regions",
     "thin_nodes",
 ]
 
@@ -197,12 +215,37 @@ def registration_signatures(observed: np.ndarray, reference: Interface, centre: 
     return np.column_stack([cols[m] for m in modes]) if modes else np.zeros((len(obs), 0))
 
 
-def smoother(s: np.ndarray, ell: float) -> np.ndarray:
-    """Row-normalized Gaussian kernel smoother in arc length, shape (n, n)."""
-    s = np.asarray(s, dtype=float)
+def node_coordinates(points: np.ndarray) -> np.ndarray:
+    """Where the observed nodes lie along the interface, for the smoother and the located
+    regions: the arc length (n,) of a 2D curve's ordered nodes (:func:`arc_length`); on a
+    3D surface the nodes themselves, (n, 3) (:func:`node_distances`)."""
+    pts = np.asarray(points, dtype=float)
+    return arc_length(pts) if pts.shape[1] == 2 else pts
+
+
+def node_distances(coord: np.ndarray) -> np.ndarray:
+    """Distances between the nodes along the interface, shape (n, n), mm.
+
+    ``coord`` from :func:`node_coordinates`: along a curve the difference of arc
+    lengths; across a surface the straight distance between the nodes, which is the
+    distance along the surface to within ``d^3 / (24 R^2)`` for a radius of curvature
+    ``R`` (0.2 % at ``d = ell = 0.05`` mm on a colony of radius 0.3 mm)."""
+    c = np.asarray(coord, dtype=float)
+    if c.ndim == 1:
+        return np.abs(c[:, None] - c[None, :])
+    return np.sqrt(np.maximum(np.sum((c[:, None, :] - c[None, :, :]) ** 2, axis=2), 0.0))
+
+
+def smoother(coord: np.ndarray, ell: float) -> np.ndarray:
+    """Row-normalized Gaussian kernel smoother along the interface, shape (n, n).
+
+    ``coord``: arc length (n,) of a curve's nodes or a surface's nodes (n, 3)
+    (:func:`node_coordinates`); the kernel is ``exp(-d^2 / (2 ell^2))`` of their
+    distances (:func:`node_distances`)."""
+    c = np.asarray(coord, dtype=float)
     if ell <= 0:
-        return np.eye(len(s))
-    K = np.exp(-0.5 * ((s[:, None] - s[None, :]) / ell) ** 2)
+        return np.eye(c.shape[0])
+    K = np.exp(-0.5 * (node_distances(c) / ell) ** 2)
     return K / K.sum(axis=1, keepdims=True)
 
 
@@ -210,7 +253,7 @@ def smoother(s: np.ndarray, ell: float) -> np.ndarray:
 NOISE_MODELS = ("gaussian", "bootstrap")
 
 
-def noise_pool(residuals: Sequence[np.ndarray], arc_lengths: Sequence[np.ndarray],
+def noise_pool(residuals: Sequence[np.ndarray], coordinates: Sequence[np.ndarray],
                ell: float) -> np.ndarray:
     """Rough part of the residuals, pooled over snapshots: the values the ``bootstrap``
     noise model resamples.
@@ -219,8 +262,9 @@ def noise_pool(residuals: Sequence[np.ndarray], arc_lengths: Sequence[np.ndarray
     ----------
     residuals
         Per snapshot, the residual to the predicted interface at its nodes, (n_i,), mm.
-    arc_lengths
-        Per snapshot, the nodes' arc length, (n_i,), mm.
+    coordinates
+        Per snapshot, the nodes' place along the interface (:func:`node_coordinates`):
+        arc length (n_i,) of a curve, the nodes (n_i, 3) of a surface, mm.
     ell
         Width of the Gaussian smoother (:func:`smoother`) whose output is the smooth
         part, mm (> 0).
@@ -236,7 +280,7 @@ def noise_pool(residuals: Sequence[np.ndarray], arc_lengths: Sequence[np.ndarray
     if not ell > 0:
         raise ValueError(f"the noise pool needs a smoothing length ell > 0 mm, got {ell}")
     parts = []
-    for r, s in zip(residuals, arc_lengths, strict=True):
+    for r, s in zip(residuals, coordinates, strict=True):
         r = np.asarray(r, dtype=float)
         S = smoother(s, ell)
         lev = 1.0 - np.diag(S)
@@ -315,9 +359,14 @@ def _lag_nodes(points: np.ndarray, length: float) -> int:
 
 
 def thin_nodes(points: np.ndarray, spacing: float) -> np.ndarray:
-    """Indices of the nodes of an ordered polyline kept when it is thinned to one node
-    per ``spacing`` mm of arc length (the first node, then the first node at or beyond
-    each multiple of ``spacing``, and the last node); ``spacing = 0`` keeps all.
+    """Indices of the observed nodes kept when they are thinned to one per ``spacing``
+    mm (``spacing = 0`` keeps all).
+
+    An ordered 2D polyline keeps the first node, then the first node at or beyond each
+    multiple of ``spacing`` of arc length, and the last node. A 3D surface's nodes
+    (``(n, 3)``, no order) are thinned greedily in index order: a node is kept unless a
+    kept node lies within ``spacing`` (a Poisson-disk subset: kept nodes are at least
+    ``spacing`` apart, and every node lies within ``spacing`` of a kept one).
 
     The predictive check treats the observed nodes' noise as independent: nodes traced
     from an image carry a segmentation error correlated over a few pixels, which the
@@ -329,9 +378,104 @@ def thin_nodes(points: np.ndarray, spacing: float) -> np.ndarray:
         raise ValueError(f"spacing must be >= 0 mm, got {spacing}")
     if spacing == 0 or pts.shape[0] < 3:
         return np.arange(pts.shape[0])
+    if pts.shape[1] == 3:
+        from scipy.spatial import cKDTree
+
+        tree = cKDTree(pts)
+        blocked = np.zeros(pts.shape[0], dtype=bool)
+        keep = []
+        for i in range(pts.shape[0]):
+            if not blocked[i]:
+                keep.append(i)
+                # strictly closer than spacing (a node exactly spacing away stays free)
+                blocked[tree.query_ball_point(pts[i], float(spacing) * (1.0 - 1e-9))] = True
+        return np.asarray(keep, dtype=np.int64)
     s = arc_length(pts)
     idx = np.searchsorted(s, np.arange(0.0, s[-1], float(spacing)))
     return np.unique(np.r_[idx, pts.shape[0] - 1])
+
+
+#: nearest neighbours of a surface node whose mean residual it is compared with
+#: (:func:`estimate_surface_noise`)
+NOISE_NEIGHBOURS = 6
+
+
+def estimate_surface_noise(y: np.ndarray, points: np.ndarray, floor: float = 0.0) -> float:
+    """Robust estimate of the noise in a smooth residual on a surface's nodes, mm.
+
+    The surface analogue of :func:`estimate_noise`: each node's residual minus the mean
+    of its :data:`NOISE_NEIGHBOURS` nearest nodes, ``d_j = y_j - mean_k y_k``, cancels a
+    mismatch that is smooth over the neighbours' distance (a linear one where they
+    surround the node) and has, for white noise, the variance ``sigma^2 (1 + 1/k)``; the
+    MAD of ``d`` scaled to that. Correlated noise is handled by thinning the nodes
+    first (:func:`thin_nodes`: the neighbours are then a correlation length apart).
+
+    Parameters
+    ----------
+    y
+        (n,) residual at the nodes, mm.
+    points
+        (n, 3) the nodes, mm.
+    floor
+        Lower bound of the estimate, mm.
+    """
+    from scipy.spatial import cKDTree
+
+    yy = np.asarray(y, dtype=float)
+    pts = np.asarray(points, dtype=float)
+    k = NOISE_NEIGHBOURS
+    if yy.size < k + 3:
+        return float(floor)
+    _, nb = cKDTree(pts).query(pts, k=k + 1)
+    d = yy - yy[nb[:, 1:]].mean(axis=1)
+    mad = np.median(np.abs(d - np.median(d)))
+    return float(max(1.4826 * mad / np.sqrt(1.0 + 1.0 / k), floor))
+
+
+#: surface nodes closer than this many median nearest-neighbour distances are
+#: neighbours in a located region (:func:`surface_regions`): the thinned nodes' nearest
+#: neighbours lie 1-2 thinning spacings apart, so a region is one piece where its
+#: nodes are
+REGION_LINK = 1.6
+
+
+def surface_regions(mask: np.ndarray, points: np.ndarray) -> list[np.ndarray]:
+    """Connected pieces of the marked nodes of a surface, the surface analogue of
+    :func:`intervals`.
+
+    Two marked nodes are joined when they lie less than :data:`REGION_LINK` median
+    nearest-neighbour distances (over all nodes) apart.
+
+    Parameters
+    ----------
+    mask
+        (n,) bool, the marked nodes.
+    points
+        (n, 3) the nodes, mm.
+
+    Returns
+    -------
+    list of ndarray
+        The node indices of each piece (sorted), largest piece first.
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+    from scipy.spatial import cKDTree
+
+    m = np.asarray(mask, dtype=bool)
+    idx = np.flatnonzero(m)
+    if idx.size == 0:
+        return []
+    pts = np.asarray(points, dtype=float)
+    nn, _ = cKDTree(pts).query(pts, k=2)
+    link = REGION_LINK * float(np.median(nn[:, 1]))
+    pairs = cKDTree(pts[idx]).query_pairs(link, output_type="ndarray")
+    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])) if len(pairs) else
+                       (np.zeros(0), (np.zeros(0, int), np.zeros(0, int))),
+                       shape=(idx.size, idx.size))
+    _, lab = connected_components(graph, directed=False)
+    pieces = [idx[lab == c] for c in np.unique(lab)]
+    return sorted(pieces, key=lambda p: (-p.size, int(p[0])))
 
 
 #: the located *core*: the nodes of the located intervals whose smoothed residual is at
@@ -363,7 +507,8 @@ class SnapshotCheck:
     label
         Snapshot label.
     s, xy
-        Arc length (mm) and coordinates (n, 2) of the observed nodes.
+        Arc length (mm; None on a 3D surface, whose nodes have no order) and
+        coordinates (n, 2) or (n, 3) of the observed nodes.
     y, mu, v
         Observed residual, predictive mean and variance (mm, mm^2).
     y_s, mu_s, v_s
@@ -413,7 +558,9 @@ class PredictiveCheck:
         interval's *core* (``core_nodes``, ``core_arc_length_mm``: the runs of nodes
         whose smoothed residual ``|y_s - mu_s|`` is at least :data:`CORE_SHARE` of its
         largest value over all located nodes of all snapshots; empty where the interval
-        stays below it).
+        stays below it). On a 3D surface, regions instead of intervals: their
+        ``node_indices``, ``x_mm``, ``y_mm``, ``z_mm`` ranges, ``peak_mm`` and ``where``
+        on the colony (:func:`colony_place`), ``core_node_indices`` and ``core_where``.
     rms
         Root mean square of the observed residual ``y - mu`` over all nodes, mm.
     coverage
@@ -544,7 +691,8 @@ def predictive_check(
     Parameters
     ----------
     observed
-        Observed interfaces, one per snapshot (2D polylines, mm).
+        Observed interfaces, one per snapshot (2D polylines or 3D surfaces, mm), or
+        their nodes (arrays (n, 2) in curve order, or (n, 3)).
     draws
         ``draws[k][i]``: predicted interface of posterior draw ``k`` for snapshot ``i``;
         all draws of one snapshot share their nodes (at least 2 draws).
@@ -555,7 +703,8 @@ def predictive_check(
     noise_floor
         Lower bound of the noise (mm), e.g. the mesh error.
     ell
-        Smoothing length in arc length, mm.
+        Smoothing length along the interface (arc length; distance between a
+        surface's nodes), mm.
     alpha
         Level of the bands and of the global test.
     n_noise
@@ -592,15 +741,15 @@ def predictive_check(
     for i in range(n_snap):
         pts = np.stack([np.asarray(d[i].points) for d in draws])
         mean = Interface(pts.mean(axis=0), draws[0][i].cells, name="mean prediction")
-        obs_pts = np.asarray(observed[i].points, dtype=float)
+        obs_pts = np.asarray(getattr(observed[i], "points", observed[i]), dtype=float)
         y, o = offsets(obs_pts, mean, [d[i] for d in draws])
         per.append((obs_pts, y, o))
-    smooth_ops = [smoother(arc_length(obs_pts), ell) for obs_pts, _, _ in per]
+    smooth_ops = [smoother(node_coordinates(obs_pts), ell) for obs_pts, _, _ in per]
     pool = pool_info = None
     data_sigma: float | None = None
     if noise_model == "bootstrap":
         pool = noise_pool([y - o.mean(axis=0) for _, y, o in per],
-                          [arc_length(p) for p, _, _ in per], ell)
+                          [node_coordinates(p) for p, _, _ in per], ell)
         rms = float(np.sqrt(np.mean(pool**2)))
         if sigma is None:
             sig, source = _estimated_sigma(rms, noise_floor, segmentation_sigma)
@@ -613,6 +762,7 @@ def predictive_check(
                      "kurtosis": float(np.mean(pool**4) / np.mean(pool**2) ** 2)}
     elif sigma is None:
         ests = [estimate_noise(y - o.mean(axis=0), lag=_lag_nodes(obs_pts, noise_lag))
+                if obs_pts.shape[1] == 2 else estimate_surface_noise(y - o.mean(axis=0), obs_pts)
                 for obs_pts, y, o in per]
         data_sigma = float(np.median(ests))
         sig, source = _estimated_sigma(data_sigma, noise_floor, segmentation_sigma)
@@ -626,7 +776,7 @@ def predictive_check(
     reps_max_s = np.zeros(K * n_noise)
     obs_chi2 = obs_max = obs_max_s = 0.0
     for i, (obs_pts, y, o) in enumerate(per):
-        s = arc_length(obs_pts)
+        s = arc_length(obs_pts) if obs_pts.shape[1] == 2 else None
         S = smooth_ops[i]
         mu = o.mean(axis=0)
         v = o.var(axis=0, ddof=1) + sig**2
@@ -665,6 +815,9 @@ def predictive_check(
                                 default=0.0)
     for snap, band in zip(snaps, bands, strict=True):
         r_s = np.abs(snap.y_s - snap.mu_s)
+        if snap.s is None:
+            located += _located_on_surface(snap, band, r_s >= core_cut)
+            continue
         for a, b in intervals(band, snap.s):
             seg = slice(a, b + 1)
             k = a + int(np.argmax(np.abs(snap.z_s[seg])))
@@ -699,6 +852,63 @@ def predictive_check(
         sigma_data=data_sigma if segmentation_sigma is not None else None,
         sigma_segmentation=None if segmentation_sigma is None else float(segmentation_sigma),
     )
+
+
+def colony_place(point: np.ndarray, nodes: np.ndarray) -> str:
+    """Where on an observed colony surface a point lies, in words: its height as a
+    share of the colony's (``"near the top"`` above 3/4, else the lower or upper half of
+    the flank) and, on the flank, its side as seen from the footprint's centre
+    (``upstream``: towards -x, against the flow; ``downstream``; the ``side at +z`` or
+    ``-z``, across the channel).
+
+    Parameters
+    ----------
+    point
+        (3,) mm (x along the flow, y up, z across).
+    nodes
+        (n, 3) the observed surface's nodes, mm.
+    """
+    p = np.asarray(point, dtype=float)
+    pts = np.asarray(nodes, dtype=float)
+    lo, hi = pts.min(axis=0), pts.max(axis=0)
+    mid = 0.5 * (lo + hi)
+    f = (p[1] - lo[1]) / ((hi[1] - lo[1]) or 1.0)
+    if f > 0.75:
+        return "near the top"
+    dx = (p[0] - mid[0]) / ((hi[0] - lo[0]) or 1.0)
+    dz = (p[2] - mid[2]) / ((hi[2] - lo[2]) or 1.0)
+    side = (("upstream" if dx < 0 else "downstream") if abs(dx) >= abs(dz) else
+            ("side at +z" if dz > 0 else "side at -z"))
+    return f"on the {side} flank, {'upper' if f > 0.4 else 'lower'} part"
+
+
+def _located_on_surface(snap: SnapshotCheck, band: np.ndarray,
+                        core: np.ndarray) -> list[dict]:
+    """The located regions of one surface snapshot (:func:`surface_regions` of the
+    nodes outside the smoothed residual's simultaneous band), with their cores (the
+    region's nodes in ``core``: at least :data:`CORE_SHARE` of the largest smoothed
+    residual)."""
+    out = []
+    for nodes in surface_regions(band, snap.xy):
+        k = int(nodes[np.argmax(np.abs(snap.z_s[nodes]))])
+        sub = snap.xy[nodes]
+        inner = nodes[core[nodes]]
+        out.append({
+            "snapshot": snap.label, "node_indices": nodes.tolist(), "n_nodes": int(nodes.size),
+            "x_mm": [float(sub[:, 0].min()), float(sub[:, 0].max())],
+            "y_mm": [float(sub[:, 1].min()), float(sub[:, 1].max())],
+            "z_mm": [float(sub[:, 2].min()), float(sub[:, 2].max())],
+            "peak_mm": [float(c) for c in snap.xy[k]],
+            "where": colony_place(snap.xy[k], snap.xy),
+            "peak_z": float(snap.z_s[k]),
+            "peak_residual_mm": float(snap.y_s[k] - snap.mu_s[k]),
+            "direction": "observed outside the prediction (into the fluid)"
+            if snap.z_s[k] > 0 else "observed inside the prediction",
+            "core_node_indices": inner.tolist(),
+            "core_where": colony_place(snap.xy[inner].mean(axis=0), snap.xy)
+            if inner.size else None,
+        })
+    return out
 
 
 def _estimated_sigma(data: float, noise_floor: float,

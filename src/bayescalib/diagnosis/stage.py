@@ -355,7 +355,7 @@ def _predictive_check_at_draws(ctx: DiagnosisContext, model: CheckedModel,
             f"diagnosis ({tag}): only {len(good)} of {len(runs)} posterior draws solved; the "
             "predictive check needs at least 2. Failures: " + "; ".join(reasons[:3]))
     curves = [model_interfaces(r, ctx.n_snap) for r in good]
-    check = ctx.predictive_check(ctx.obs.snapshots, curves, model.sigma, seed)
+    check = ctx.predictive_check(ctx.nodes, curves, model.sigma, seed)
     draws = {"X": X, "ok": np.array([r.ok for r in runs]), "curves": curves}
     return check, len(runs) - len(good), draws
 
@@ -490,7 +490,7 @@ def _linearize(ctx: DiagnosisContext, mean: Mapping[str, float],
     if not runs[0].ok:
         raise ValueError(f"diagnosis: the solve at the posterior mean failed ({runs[0].reason})")
     reference = model_interfaces(runs[0], ctx.n_snap)
-    observed = [np.asarray(s.points, dtype=float) for s in ctx.obs.snapshots]
+    observed = ctx.nodes
     r, _ = _offsets_from(observed, reference, [])
     fd = [i for i in range(len(targets)) if runs[1 + i].ok]
     _, O_fd = _offsets_from(observed, reference,
@@ -889,6 +889,7 @@ def _diagnosis_record(ctx: DiagnosisContext, base: BaseCalibration, check,
     attr, obs = found.result, ctx.obs
     out = {
         "verdict": decision.verdict,
+        "dim": ctx.dim,
         "screening_verdict": decision.screening.verdict,
         "attribution_verdict": attr["verdict"],
         "check": check.to_json(),
@@ -912,8 +913,10 @@ def _diagnosis_record(ctx: DiagnosisContext, base: BaseCalibration, check,
         "hidden_truth": obs.meta.get("hidden") or None,
         "hidden_misregistration": obs.meta.get("misregistration") or None,
         "observed_nodes": {"n_observed": ctx.n_observed,
-                           "n_used": [len(s.points) for s in obs.snapshots],
-                           "spacing_mm": float(ctx.noise_lag_mm)},
+                           "n_used": [len(n) for n in ctx.nodes],
+                           "spacing_mm": float(ctx.noise_lag_mm
+                                               if ctx.surface_spacing_mm is None
+                                               else ctx.surface_spacing_mm)},
         "units": "lengths mm; phi in the candidate's unit; registration shifts mm, "
                  "rotation rad, scale relative",
     }
@@ -975,8 +978,9 @@ def run_diagnosis(
     log.info("predictive check: adequate=%s p=%s", check.adequate, check.p_values)
     # 3: attribute to candidate physics, and test a misregistration (not physics)
     found = _attribute(ctx, base.summary["mean"], check, draws)
+    # (a rigid misregistration is tested in 2D only: its signatures are in-plane moves)
     registration = (_registration(ctx, found.lin, check, draws)
-                    if ctx.settings["registration"] else None)
+                    if ctx.settings["registration"] and ctx.dim == 2 else None)
     # 4-5: extend (when the screening calls for it) and check the extensions with real
     # solves, then decide
     screening = _screen(ctx, check, found, registration)
@@ -1410,6 +1414,18 @@ def _names(names: Sequence[str]) -> str:
     return names[0] if len(names) == 1 else ", ".join(names[:-1]) + " and " + names[-1]
 
 
+def _region_words(loc: Mapping[str, Any]) -> str:
+    """A located region of a 3D surface
+    (:func:`~bayescalib.diagnosis.residuals.predictive_check`), in plain words."""
+    x, y, z = loc["x_mm"], loc["y_mm"], loc["z_mm"]
+    core = loc.get("core_where")
+    return (f"Mismatch on snapshot {loc['snapshot']}: a region of {loc['n_nodes']} observed "
+            f"nodes {loc['where']} of the colony (x {x[0]:.3f}-{x[1]:.3f} mm, y {y[0]:.3f}-"
+            f"{y[1]:.3f} mm, z {z[0]:.3f}-{z[1]:.3f} mm), {loc['direction']}, by up to "
+            f"{1e3 * abs(loc['peak_residual_mm']):.2f} um"
+            + (f"; at least half of the largest mismatch {core}." if core else "."))
+
+
 def _set_aside_words(e: Mapping[str, Any], d: Mapping[str, Any]) -> str:
     """One candidate set aside (:func:`set_aside_candidates`), in plain words: why, its
     estimate, the range or threshold it violates and what the user could do."""
@@ -1490,6 +1506,9 @@ def plain_words(d: Mapping[str, Any]) -> list[str]:
         f"level of {1e3 * chk['sigma_mm']:.2f} um, {chk.get('sigma_source', 'given')}; "
         f"{_noise_words(chk)}).")
     for loc in chk["located"]:
+        if "arc_length_mm" not in loc:  # a region of a 3D surface
+            lines.append(_region_words(loc))
+            continue
         a, b = loc["arc_length_mm"]
         core = ", ".join(f"{c0:.3f}-{c1:.3f} mm" for c0, c1 in loc.get("core_arc_length_mm", []))
         lines.append(

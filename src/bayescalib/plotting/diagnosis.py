@@ -4,7 +4,10 @@
   the pointwise and simultaneous predictive bands, before and (optionally) after
   the model extension;
 * :func:`plot_candidate_ranking` — score statistics of the candidates with the
-  significance threshold and the explained fractions.
+  significance threshold and the explained fractions;
+* :func:`plot_surface_residuals` — the 3D model's analogue of the residual bands: each
+  snapshot's observed nodes seen from above (or from the side), coloured by the
+  standardized smoothed residual, the located regions and their cores marked.
 
 The interface coloured by the standardized residual is
 :func:`bayescalib.plotting.interfaces.plot_interface_residual`.
@@ -15,13 +18,15 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import numpy as np
+from matplotlib.colors import TwoSlopeNorm
 from matplotlib.figure import Figure
+from matplotlib.lines import Line2D
 from matplotlib.patches import Patch
 
 from ._validation import PathsLike, as_paths, finish
-from .style import COLORS, paper_style
+from .style import COLORS, DIVERGING_CMAP, paper_style
 
-__all__ = ["plot_candidate_ranking", "plot_residual_bands"]
+__all__ = ["plot_candidate_ranking", "plot_residual_bands", "plot_surface_residuals"]
 
 
 def plot_residual_bands(
@@ -134,4 +139,74 @@ def plot_candidate_ranking(
         ax.set_xlim(1e-3, max(stat.max(), threshold_statistic) * 8)
         ax.set_xlabel("score statistic S (chi-square, 1 dof, under 'no effect')")
         ax.legend(loc="lower right", fontsize="x-small")
+        return finish(fig, out_paths, dpi, return_figure)
+
+
+def plot_surface_residuals(
+    panels: Sequence[dict],
+    paths: PathsLike,
+    *,
+    row_titles: Sequence[str] = ("calibrated model",),
+    view: str = "top",
+    dpi: float = 200,
+    return_figure: bool = False,
+):
+    """Observed nodes of 3D surfaces coloured by the standardized smoothed residual.
+
+    Parameters
+    ----------
+    panels : sequence of dict
+        One dict per (row, snapshot), row-major; keys ``points`` (n, 3) observed nodes
+        [mm] (x along the flow, y up, z across), ``z_s`` (n,) standardized smoothed
+        residual [sd], ``c_smooth`` the half-width of its simultaneous band [sd],
+        ``label`` (snapshot), and optional ``located`` and ``cores`` (node indices of the
+        located regions and of their cores).
+    row_titles : sequence of str
+        Title of each row (e.g. before / after).
+    view : str
+        ``"top"`` (x against z, seen from above) or ``"side"`` (x against y, seen across
+        the channel; the nodes drawn back to front).
+    """
+    if view not in ("top", "side"):
+        raise ValueError(f"view: 'top' or 'side', got {view!r}")
+    out_paths = as_paths(paths)
+    rows = len(row_titles)
+    if rows < 1 or len(panels) % rows:
+        raise ValueError("panels: the number of panels must be a multiple of the rows")
+    cols = len(panels) // rows
+    lim = max([float(np.max(np.abs(p["z_s"]))) for p in panels] +
+              [float(p["c_smooth"]) for p in panels]) or 1.0
+    norm = TwoSlopeNorm(vcenter=0.0, vmin=-lim, vmax=lim)
+    axis = 2 if view == "top" else 1
+    with paper_style():
+        fig = Figure(figsize=(3.4 * cols + 0.8, 2.9 * rows + 0.8), layout="constrained")
+        axes = np.atleast_2d(fig.subplots(rows, cols, squeeze=False))
+        sc = None
+        for k, pan in enumerate(panels):
+            ax = axes[k // cols, k % cols]
+            p = np.asarray(pan["points"], dtype=float)
+            z = np.asarray(pan["z_s"], dtype=float)
+            order = np.argsort(-p[:, 2]) if view == "side" else np.argsort(p[:, 1])
+            sc = ax.scatter(p[order, 0], p[order, axis], c=z[order], cmap=DIVERGING_CMAP,
+                            norm=norm, s=8, lw=0)
+            loc = np.asarray(pan.get("located", []), dtype=int)
+            core = np.asarray(pan.get("cores", []), dtype=int)
+            if loc.size:
+                ax.scatter(p[loc, 0], p[loc, axis], s=16, facecolors="none",
+                           edgecolors="0.35", lw=0.5)
+            if core.size:
+                ax.scatter(p[core, 0], p[core, axis], s=20, facecolors="none",
+                           edgecolors="k", lw=0.9)
+            ax.set_aspect("equal")
+            ax.set_title(f"{row_titles[k // cols]}: {pan['label']}", fontsize="medium")
+            ax.set_xlabel("x (along the flow) [mm]")
+            ax.set_ylabel("z (across) [mm]" if view == "top" else "y (up) [mm]")
+        handles = [Line2D([], [], ls="", marker="o", mfc="none", mec="0.35", mew=0.5),
+                   Line2D([], [], ls="", marker="o", mfc="none", mec="k", mew=0.9)]
+        axes[0, 0].legend(handles, ["located mismatch", "its core (>= half the largest)"],
+                          loc="best", fontsize="x-small")
+        c_s = float(panels[0]["c_smooth"])
+        cb = fig.colorbar(sc, ax=axes, location="bottom", shrink=0.6, aspect=35)
+        cb.set_label(f"standardized smoothed residual [sd] (simultaneous band ±{c_s:.2f}; "
+                     "+: observed outside the prediction)")
         return finish(fig, out_paths, dpi, return_figure)
