@@ -188,3 +188,22 @@ def test_surface_residual_figure(tmp_path):
     assert side[0].exists()
     with pytest.raises(ValueError, match="view"):
         plot_surface_residuals(panels, tmp_path / "x.png", view="front")
+
+
+def test_a_volume_surface_is_used_one_voxel_above_its_cut():
+    """The diagnosis leaves out the layer of voxels above a volume's cut (the foot the
+    segmentation widens: rim_height); other surfaces are used whole; the thinning grows
+    its spacing until at most MAX_SURFACE_NODES remain."""
+    from bayescalib.diagnosis import context
+
+    surf = dome(n=48)
+    rec = {"kind": "volume", "floor": {"y_mm": 0.012}, "voxel_size_mm": [0.006, 0.006, 0.008]}
+    assert context.rim_height(surf, rec) == pytest.approx(0.018)
+    assert context.rim_height(surf, {"kind": "surface", "floor_mm": 0.012}) is None
+    assert context.rim_height(surf, None) is None
+    nodes, h = context.surface_nodes(surf, 0.02, 0.018)
+    assert nodes[:, 1].min() >= 0.018 and h == 0.02
+    whole, _ = context.surface_nodes(surf, 0.02)
+    assert whole[:, 1].min() == pytest.approx(0.0) and len(whole) > len(nodes)
+    few, h = context.surface_nodes(surf, 0.001)
+    assert len(few) <= context.MAX_SURFACE_NODES < len(surf.points) and h > 0.001

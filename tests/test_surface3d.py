@@ -141,6 +141,11 @@ def test_volume_surface_with_anisotropic_voxels():
     assert info["volume_mm3"] == pytest.approx(2 / 3 * math.pi * A * B * C, rel=0.01)
     lo, hi = surf.bounds
     np.testing.assert_allclose(hi - lo, [2 * A, B, 2 * C], atol=max(vox))
+    # positional uncertainty: the quantisation along the normals lies between the finest
+    # and the coarsest edge over sqrt(12) (a mask: no image noise)
+    q = info["sigma_quantisation_mm"]
+    assert min(vox) / math.sqrt(12) < q < max(vox) / math.sqrt(12)
+    assert info["sigma_noise_mm"] is None and info["sigma_mm"] == q
 
 
 def test_volume_surface_of_a_noisy_scan_over_a_bright_substrate():
@@ -174,6 +179,13 @@ def test_volume_surface_of_a_noisy_scan_over_a_bright_substrate():
     # radius of curvature b^2 / a = 2.8 voxels: ~0.25 voxel over a colony 7.5 voxels high)
     assert info["volume_mm3"] == pytest.approx(v_cut, rel=0.08)
     assert info["volume_mm3"] < v_cut
+    # positional uncertainty of a scan: the image noise over the contour's gradient (the
+    # middle B-scan's 2D estimate: noise 0.1 on a step of 1 blurred over ~1 voxel, about
+    # 0.1-0.3 voxel after the pre-filter) in quadrature with the quantisation (s / sqrt 12)
+    assert info["sigma_quantisation_mm"] == pytest.approx(s / math.sqrt(12), rel=1e-6)
+    assert 0.02 * s < info["sigma_noise_mm"] < 0.5 * s
+    assert info["sigma_mm"] == pytest.approx(math.hypot(info["sigma_noise_mm"],
+                                                        info["sigma_quantisation_mm"]))
 
 
 def test_volume_surface_refuses_what_a_user_gets_wrong():

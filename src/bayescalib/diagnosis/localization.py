@@ -233,7 +233,8 @@ def located_overlap(located: Sequence[Mapping[str, Any]],
     located
         The diagnosis's ``check.located`` entries: ``snapshot`` (label), ``nodes``
         (first and last located node, inclusive) and, where recorded, ``core_nodes``
-        (list of inclusive node ranges).
+        (list of inclusive node ranges); on a 3D surface ``node_indices`` and
+        ``core_node_indices``.
     regions
         One boolean array (n_s,) per snapshot (as ``labels``), e.g.
         :attr:`EffectRegions.raw`; ``None`` for a snapshot left out of the score (its
@@ -253,10 +254,13 @@ def located_overlap(located: Sequence[Mapping[str, Any]],
         return None
     located_nodes = [None if r is None else np.zeros(len(r), dtype=bool) for r in regions]
     for loc in located:
-        if core and "core_nodes" not in loc:
+        if core and "core_nodes" not in loc and "core_node_indices" not in loc:
             return None
         hit = located_nodes[list(labels).index(loc["snapshot"])]
         if hit is None:
+            continue
+        if "node_indices" in loc:  # a region of a 3D surface
+            hit[loc["core_node_indices"] if core else loc["node_indices"]] = True
             continue
         for a, b in loc["core_nodes"] if core else [loc["nodes"]]:
             hit[a:b + 1] = True

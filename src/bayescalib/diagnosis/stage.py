@@ -103,6 +103,7 @@ from bayescalib.stages.files import read_stage_file
 
 __all__ = ["IMAGE_NOISE_LAG_PIXELS", "MIN_IDENTIFIABLE", "choose_extension", "decide_verdict",
            "explains_mismatch", "fits_better", "joint_of_singles", "judge_extensions",
+           "library_gaps",
            "model_extensions", "noise_lag", "plain_words", "reference_noise",
            "resolve_candidates", "resolve_noise_model", "retry_steps", "run_diagnosis",
            "set_aside_candidates", "thinned_observations", "widened_range"]
@@ -165,14 +166,36 @@ def resolve_candidates(fm: Mapping[str, Any], diagnose: Mapping[str, Any]) -> li
     from bayescalib.models.fsi.physics import CANDIDATES
 
     physics = (fm.get("fsi") or {}).get("physics") or {}
+    lacking = library_gaps(fm)
     out = []
     for name, c in CANDIDATES.items():
-        if (physics.get(name) or {}).get("enabled"):
-            continue  # already part of the model being diagnosed
+        if (physics.get(name) or {}).get("enabled") or name in lacking:
+            continue  # already part of the model being diagnosed, or not in it (3D)
         out.append(CandidateSpec(name=name, target=c.key, step=c.typical,
                                  prior=tuple(diagnose["priors"][name]), unit=c.unit,
                                  switches={f"physics.{name}.enabled": True}, summary=c.summary,
                                  continuous=c.continuous))
+    return out
+
+
+def library_gaps(fm: Mapping[str, Any]) -> dict[str, str]:
+    """The built-in candidates the fsi model of ``fm`` cannot switch on, each with the
+    model's reason (:func:`bayescalib.models.fsi.model.dim3_problem`: the 3D model has
+    a subset of the 2D model's candidate physics); empty for the 2D model."""
+    from bayescalib.config import validate
+    from bayescalib.models.fsi.model import dim3_problem
+    from bayescalib.models.fsi.physics import CANDIDATES
+
+    cfg = validate(fm.get("fsi") or {}, "fsi")
+    if int(cfg["geometry"]["dim"]) != 3:
+        return {}
+    out = {}
+    for name in CANDIDATES:
+        trial = {**cfg, "physics": {**cfg["physics"],
+                                    name: {**cfg["physics"][name], "enabled": True}}}
+        why = dim3_problem(trial)
+        if why:
+            out[name] = why
     return out
 
 
@@ -900,6 +923,8 @@ def _diagnosis_record(ctx: DiagnosisContext, base: BaseCalibration, check,
         "registration": registration,
         "zero_load_snapshot": _zero_load_label(ctx.fm, obs.labels),
         "failed_signatures": found.failed,
+        "not_in_model": ({} if ctx.fm.get("type") != "fsi" or ctx.settings.get("candidates")
+                         else library_gaps(ctx.fm)),
         "noise_reference_mm": decision.extensions.noise_reference,
         "signature_attempts": found.attempts,
         "posterior_mean": dict(zip(ctx.names, map(float, found.lin.theta), strict=True)),
@@ -1528,6 +1553,10 @@ def plain_words(d: Mapping[str, Any]) -> list[str]:
             "mechanics cannot cause it. Look at the rest shape (growth, a wrong reference "
             "geometry), the registration of the images or their segmentation.")
     reg = d.get("registration")
+    if d.get("dim") == 3:
+        lines.append("A rigid misplacement of the observed surfaces is not tested in 3D (the "
+                     "registration test is that of 2D curves): the study's checks of the "
+                     "volumes' origin and footprint, when it was read, are the guard.")
     if reg is not None and reg.get("significant"):
         ca = reg.get("check_after")
         refit = ", ".join(f"{k} = {v:.4g}" for k, v in
