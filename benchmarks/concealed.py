@@ -35,7 +35,11 @@ Usage::
 
     python benchmarks/concealed.py [--studies growth,null] [--variants several,one]
         [--observations synthetic,images] [--cores 2] [--out results/concealed]
-        [--only-finished] [--doc docs/diagnosis.md]
+        [--only-finished] [--doc docs/diagnosis.md] [--set concealed3d]
+
+``--set concealed3d`` runs the cases of ``config/concealed3d/`` instead: the 3D model
+(observed surfaces; the diagnosis's nodes a Poisson-disk subset of each surface, the
+localization scored on them), rows stored in ``benchmarks/data/concealed3d_rows.json``.
 
 ``--only-finished`` runs no study: it tabulates the studies (of those asked for) whose
 diagnosis has finished, so the doc can be regenerated from what has been run (the
@@ -54,7 +58,7 @@ config/concealed/<name>.yaml``); finished runs are reused, so the command resume
 Prints the table (Markdown) and writes ``<out>/table.md`` and ``<out>/table.json``.
 
 Rows outlive the runs: every row tabulated is stored, with the commit and date it was
-measured at and its wall time, in ``--rows`` (default ``benchmarks/data/concealed_rows.json``,
+measured at and its wall time, in ``--rows`` (default ``benchmarks/data/<set>_rows.json``,
 kept in git; one row per study, loadings and observation mode, a new measurement
 replacing the old one). The page (``--doc``) shows the stored rows merged with those
 just tabulated, so a page regenerated after some cases were rerun keeps the others'
@@ -79,8 +83,8 @@ REPO = Path(__file__).resolve().parents[1]
 CONCEALED = REPO / "config" / "concealed"
 
 
-def _study_files(names: list[str] | None) -> list[Path]:
-    files = sorted(p for p in CONCEALED.glob("*.yaml") if p.stem != "common")
+def _study_files(names: list[str] | None, folder: Path = CONCEALED) -> list[Path]:
+    files = sorted(p for p in folder.glob("*.yaml") if p.stem != "common")
     if names:
         files = [p for p in files if p.stem in names]
     return files
@@ -89,7 +93,7 @@ def _study_files(names: list[str] | None) -> list[Path]:
 def _variant_config(study_file: Path, variant: str, out: Path) -> tuple[list[Path], str]:
     cfg = yaml.safe_load(study_file.read_text())
     name = cfg["study"]
-    files = [CONCEALED / "common.yaml", study_file]
+    files = [study_file.parent / "common.yaml", study_file]
     if variant == "one":
         name = f"{name}_one_loading"
         extra = out / "configs" / f"{study_file.stem}_one.yaml"
@@ -208,7 +212,7 @@ def _effect_region(root: Path, fm: dict, truth: dict, bounds: dict,
         gts = [misplace(g, misregistration, centre) for g in gts]
     return effect_regions(fm, truth, bounds, gts, root / "diagnosis", fd_step=fd_step,
                           observed=None if observed is None
-                          else [np.asarray(o.points) for o in observed])
+                          else [np.asarray(getattr(o, "points", o)) for o in observed])
 
 
 def _overlap(diag: dict, regions: list[np.ndarray] | None, labels: list[str],
@@ -834,16 +838,24 @@ def main() -> None:
     ap.add_argument("--only-finished", action="store_true",
                     help="run no study; tabulate the studies whose diagnosis has finished")
     ap.add_argument("--doc", default=None, help="write the published page here (Markdown)")
-    ap.add_argument("--rows", default=str(REPO / "benchmarks" / "data" / "concealed_rows.json"),
+    ap.add_argument("--set", default="concealed",
+                    help="the folder of config/ whose cases run: concealed (2D) or concealed3d "
+                         "(the 3D model, observed surfaces)")
+    ap.add_argument("--rows", default=None,
                     help="the stored rows (JSON; read, updated with the rows tabulated, written)")
     ap.add_argument("--figures", default="concealed_two_effects,concealed_misregistration,"
                     "concealed_stiffening_loadings",
                     help="studies whose residual figure the doc shows (comma-separated)")
     args = ap.parse_args()
+    folder = REPO / "config" / args.set
+    if not (folder / "common.yaml").is_file():
+        ap.error(f"--set {args.set}: no config/{args.set}/common.yaml")
+    if args.rows is None:
+        args.rows = str(REPO / "benchmarks" / "data" / f"{args.set}_rows.json")
     out = Path(args.out)
     rows = []
     from bayescalib.config import deep_merge
-    from bayescalib.diagnosis.stage import thinned_observations
+    from bayescalib.diagnosis.context import diagnosis_nodes
     from bayescalib.io.observation_store import read_observations
     from bayescalib.study import Study
 
@@ -871,7 +883,7 @@ def main() -> None:
     modes = [m for m in args.observations.split(",") if m]
     if set(modes) - {"synthetic", "images"}:
         ap.error(f"--observations: unknown mode(s) {sorted(set(modes) - {'synthetic', 'images'})}")
-    for sf in _study_files([s for s in args.studies.split(",") if s] or None):
+    for sf in _study_files([s for s in args.studies.split(",") if s] or None, folder):
         for variant in args.variants.split(","):
             files, name = _variant_config(sf, variant, out)
             syn = merged(files)
@@ -910,15 +922,17 @@ def main() -> None:
                     record_wall(root.name, time.monotonic() - t0)
                     _record_stamp(out, root, t0_wall)
                 obs = read_observations(root / "observations" / "observations.h5")
-                # the nodes the diagnosis used (images: thinned to the noise's correlation length)
+                # the nodes the diagnosis used (images: thinned to the noise's correlation
+                # length; 3D surfaces: a Poisson-disk subset)
                 diag = json.loads((root / "diagnosis" / "diagnosis.json").read_text())
-                spacing = (diag.get("observed_nodes") or {}).get("spacing_mm") or 0.0
-                used = thinned_observations(obs, spacing)
+                used_nodes = diag.get("observed_nodes") or {}
+                lag = used_nodes.get("noise_lag_mm", used_nodes.get("spacing_mm")) or 0.0
+                nodes, _ = diagnosis_nodes(obs, lag, float(cfg["diagnose"]["smoothing"]))
                 bounds = dict(zip(study.targets(), map(tuple, study.space.bounds), strict=True))
                 regions = _effect_region(
                     root, study.forward_section(), study.ground_truth(), bounds,
                     gt_path=gt_path,
-                    observed=used.snapshots if mode == "images" else None,
+                    observed=nodes if mode == "images" or nodes[0].shape[1] == 3 else None,
                     misregistration=misreg or None) if hidden or misreg else None
                 rows.append(_row(sf, variant, root, regions, obs.labels, mode, hidden, misreg,
                                  (cfg["forward_model"].get("loadings") or {}).get("factors")))

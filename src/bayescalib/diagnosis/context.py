@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 
 __all__ = ["IMAGE_NOISE_LAG_PIXELS", "MAX_SURFACE_NODES", "SURFACE_SPACING_SHARE",
-           "DiagnosisContext", "noise_lag", "resolve_noise_model", "rim_height", "surface_nodes",
+           "DiagnosisContext", "diagnosis_nodes", "noise_lag", "resolve_noise_model", "rim_height", "surface_nodes",
            "thinned_observations"]
 
 #: lag of the noise estimate for interfaces traced from images, in pixel sizes (see
@@ -156,6 +156,33 @@ def surface_nodes(surface, spacing: float, above: float | None = None
     return pts[idx], h
 
 
+def diagnosis_nodes(obs, lag: float, smoothing: float
+                    ) -> tuple[list[np.ndarray], float | None]:
+    """The observed nodes the diagnosis uses, per snapshot: a 2D curve's thinned to one
+    per ``lag`` mm of arc length (:func:`thinned_observations`), a 3D surface's thinned
+    to ``max(lag, SURFACE_SPACING_SHARE * smoothing)`` (:func:`surface_nodes`, above
+    :func:`rim_height`).
+
+    Returns
+    -------
+    nodes : list of ndarray
+        (n_i, 2) or (n_i, 3), mm.
+    spacing : float or None
+        The 3D surfaces' thinning spacing, mm (None without a surface).
+    """
+    used = thinned_observations(obs, lag)
+    nodes, spacing = [], None
+    for s, rec in zip(used.snapshots, obs.segmentation or [None] * len(obs.snapshots),
+                      strict=True):
+        if s.dim == 3:
+            pts, spacing = surface_nodes(s, max(lag, SURFACE_SPACING_SHARE * smoothing),
+                                         rim_height(s, rec))
+            nodes.append(pts)
+        else:
+            nodes.append(np.asarray(s.points, dtype=float))
+    return nodes, spacing
+
+
 @dataclass(frozen=True)
 class DiagnosisContext:
     """What every step of the diagnosis needs (the module docstring).
@@ -239,16 +266,7 @@ class DiagnosisContext:
                 and float(observations["noise_sigma"]) > 0:
             sigma = float(observations["noise_sigma"])
         used = thinned_observations(obs, lag)
-        nodes, spacing = [], None
-        for s, rec in zip(used.snapshots, obs.segmentation or [None] * len(obs.snapshots),
-                          strict=True):
-            if s.dim == 3:
-                pts, spacing = surface_nodes(
-                    s, max(lag, SURFACE_SPACING_SHARE * float(diagnose["smoothing"])),
-                    rim_height(s, rec))
-                nodes.append(pts)
-            else:
-                nodes.append(np.asarray(s.points, dtype=float))
+        nodes, spacing = diagnosis_nodes(obs, lag, float(diagnose["smoothing"]))
         return cls(settings=diagnose, obs=used, nodes=nodes,
                    n_observed=[len(s.points) for s in obs.snapshots],
                    surface_spacing_mm=spacing, noise_lag_mm=lag,

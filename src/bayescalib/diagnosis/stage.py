@@ -941,7 +941,8 @@ def _diagnosis_record(ctx: DiagnosisContext, base: BaseCalibration, check,
                            "n_used": [len(n) for n in ctx.nodes],
                            "spacing_mm": float(ctx.noise_lag_mm
                                                if ctx.surface_spacing_mm is None
-                                               else ctx.surface_spacing_mm)},
+                                               else ctx.surface_spacing_mm),
+                           "noise_lag_mm": float(ctx.noise_lag_mm)},
         "units": "lengths mm; phi in the candidate's unit; registration shifts mm, "
                  "rotation rad, scale relative",
     }
