@@ -200,3 +200,33 @@ def test_the_suggested_range_holds_the_estimate_with_room_to_spare():
     assert widened_range((-0.06, 0.06), -0.11) == pytest.approx([-0.2, 0.06])
     assert widened_range((0.0, 80.0), 123.4) == [0.0, 190.0]
     assert widened_range((0.0, 1.0), 0.5) == [0.0, 1.0]
+
+
+def test_a_candidate_implausible_alone_but_selected_beside_another_is_still_named():
+    """Found on config/concealed/attachment_out_of_range.yaml: attachment (hidden at 3.75
+    x its range's end) ranked first alone with an implausible estimate, but beside the
+    layer its estimate fell in range, so the attribution selected layer + attachment and
+    that extension was calibrated, attachment held within its range; it did not solve
+    at its draws, was not chosen, and attachment was never named. Now it is set aside
+    with the extension that held it, in the words and the report."""
+    from bayescalib.diagnosis.stage import _set_aside_words
+
+    rng = np.random.default_rng(8)
+    r = J @ [0.02, -0.01] + 0.2 * SIGS["growth"] + rng.normal(0, 0.01, N)
+    attr = _ranked(r)
+    kw = {"threshold": attr["threshold"], "r2_min": 0.5, "n_extend": None,
+          "user_candidates": False}
+    # growth held in a joint extension that was not chosen: named, with that extension
+    aside = set_aside_candidates(attr["ranking"], CANDS, {}, calibrated={"layer"},
+                                 within={"growth": ["layer + growth"]}, **kw)
+    growth = next(e for e in aside if e["candidate"] == "growth")
+    assert growth["reason"] == "implausible magnitude" and growth["large_share"]
+    assert growth["calibrated_within_range_in"] == ["layer + growth"]
+    words = _set_aside_words(growth, {})
+    assert ("so it was calibrated only beside other candidates, within that range (layer + "
+            "growth; not chosen)") in words
+    d = _diagnosis(attr, aside, "v")
+    d["plain_words"] = plain_words(d)
+    assert "calibrated within its range only in layer + growth (not chosen)" in _html(d)
+    # a plausible member of a calibrated extension is not set aside
+    assert "layer" not in [e["candidate"] for e in aside]

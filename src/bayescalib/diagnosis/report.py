@@ -152,7 +152,9 @@ def _set_aside_row(e: Mapping[str, Any]) -> str:
     p = "" if e.get("p_value") is None else f"{e['p_value']:.2g}"
     share = ("" if e.get("explained_fraction") is None else
              f"{100 * e['explained_fraction']:.0f} %")
-    todo = "; ".join(x for x in (e.get("failure"), e["advice"]) if x)
+    held = e.get("calibrated_within_range_in")
+    held = f"calibrated within its range only in {', '.join(held)} (not chosen)" if held else ""
+    todo = "; ".join(x for x in (e.get("failure"), held, e["advice"]) if x)
     return (f"<tr><td>{html.escape(e['candidate'])}</td><td>{html.escape(e['reason'])}</td>"
             f"<td>{_num(e.get('estimate'), e['unit'])}</td>"
             f"<td>[{e['range'][0]:.3g}, {e['range'][1]:.3g}] {html.escape(_unit(e['unit']))}"

@@ -890,12 +890,21 @@ def _decide(ctx: DiagnosisContext, check, found: Attribution, registration: dict
     (:func:`decide_verdict`)."""
     cfg, attr, extended = ctx.settings, found.result, extensions.extended
     best = choose_extension(extended)
+    # a candidate implausible alone but selected beside another is calibrated within its
+    # range only: unless that extension is chosen, it is named as set aside too
+    plausible = {row["candidate"]: row["phi_hat_plausible"] for row in attr["ranking"]}
+    within: dict[str, list[str]] = {}
+    for e in extended:
+        for m in e["members"]:
+            if not plausible.get(m, True) and (best is None or m not in best["members"]):
+                within.setdefault(m, []).append(e["candidate"])
     # a significant candidate left out by n_extend matters while no extension explains it
     aside = [] if check.adequate else set_aside_candidates(
         attr["ranking"], found.cands, found.failed, threshold=float(attr["threshold"]),
-        r2_min=float(cfg["r2_min"]), calibrated={m for e in extended for m in e["members"]},
+        r2_min=float(cfg["r2_min"]),
+        calibrated={m for e in extended for m in e["members"]} - set(within),
         n_extend=int(cfg["n_extend"]) if screening.extend and best is None else None,
-        user_candidates=bool(cfg["candidates"]))
+        user_candidates=bool(cfg["candidates"]), within=within)
     chosen = best["candidate"] if best is not None else "base"
     verdict = decide_verdict(check.adequate, attr["selected"], screening.refit,
                              float(cfg["alpha"]), chosen=None if best is None else chosen,
@@ -1229,7 +1238,9 @@ def widened_range(prior: Sequence[float], estimate: float) -> list[float]:
 def set_aside_candidates(ranking: Sequence[Mapping[str, Any]], cands: Sequence[CandidateSpec],
                          failed: Mapping[str, str], *, threshold: float, r2_min: float,
                          calibrated: set[str], n_extend: int | None,
-                         user_candidates: bool) -> list[dict[str, Any]]:
+                         user_candidates: bool,
+                         within: Mapping[str, Sequence[str]] | None = None
+                         ) -> list[dict[str, Any]]:
     """Every candidate the diagnosis set aside, each with what the user could do.
 
     A candidate that no extended model contains is set aside, by ``reason``:
@@ -1250,6 +1261,12 @@ def set_aside_candidates(ranking: Sequence[Mapping[str, Any]], cands: Sequence[C
     ``large_share`` marks a significant one that alone explains at least ``r2_min`` of
     the mismatch beyond noise (to first order): the verdict never says that no
     candidate explains the mismatch while one of those is set aside.
+
+    ``within``: candidates implausible alone that the attribution selected beside
+    another (their estimate beside it lies in range), each with the extensions that
+    hold them, none chosen. Calibrated within their prior range only, they are set
+    aside as ``"implausible magnitude"`` too, with those extensions in
+    ``calibrated_within_range_in`` (a truth beyond the range is out of their reach).
 
     Returns
     -------
@@ -1285,6 +1302,8 @@ def set_aside_candidates(ranking: Sequence[Mapping[str, Any]], cands: Sequence[C
                 "observation) could tell it apart from the base parameters")})
         elif significant and not row["phi_hat_plausible"]:
             wide = widened_range(c.prior, est)
+            if within and name in within:
+                entry["calibrated_within_range_in"] = list(within[name])
             out.append({**entry, "reason": "implausible magnitude", "suggested_range": wide,
                         "advice": (
                             f"if a magnitude of {est:.3g}{_unit(c.unit)} is physically "
@@ -1463,10 +1482,14 @@ def _set_aside_words(e: Mapping[str, Any], d: Mapping[str, Any]) -> str:
             f"{100 * float(e['explained_fraction']):.0f} % of the mismatch beyond noise)")
     advice = e["advice"][0].upper() + e["advice"][1:]
     if e["reason"] == "implausible magnitude":
+        held = e.get("calibrated_within_range_in")
+        after = (f"so it was calibrated only beside other candidates, within that range "
+                 f"({', '.join(held)}; not chosen)" if held else
+                 "so no extended model with it was calibrated")
         return (f"Set aside: {what}. {seen}, but its estimated magnitude, phi_{name} = "
                 f"{float(e['estimate']):.3g}{u}, lies outside its plausible range "
-                f"[{lo:.3g}, {hi:.3g}]{u} by more than half the range's width, so no "
-                f"extended model with it was calibrated. {advice}.")
+                f"[{lo:.3g}, {hi:.3g}]{u} by more than half the range's width, {after}. "
+                f"{advice}.")
     if e["reason"] == "not identifiable":
         base = ", ".join(d.get("posterior_mean") or {}) or "E, nu, ..."
         return (f"Set aside: {what}. Only {100 * float(e['identifiable_fraction']):.2g} % "
