@@ -927,7 +927,7 @@ def main() -> None:
                 diag = json.loads((root / "diagnosis" / "diagnosis.json").read_text())
                 used_nodes = diag.get("observed_nodes") or {}
                 lag = used_nodes.get("noise_lag_mm", used_nodes.get("spacing_mm")) or 0.0
-                nodes, _ = diagnosis_nodes(obs, lag, float(cfg["diagnose"]["smoothing"]))
+                nodes, _ = diagnosis_nodes(obs, lag, float(study.config["diagnose"]["smoothing"]))
                 bounds = dict(zip(study.targets(), map(tuple, study.space.bounds), strict=True))
                 regions = _effect_region(
                     root, study.forward_section(), study.ground_truth(), bounds,
