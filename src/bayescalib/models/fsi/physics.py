@@ -308,11 +308,15 @@ class SolidPhysics:
         Validated ``physics`` section of the fsi config.
     patch_height
         Height of the biofilm patch, mm (for a cap layer).
+    dim
+        Space dimension of the problem (2 or 3): the number of components of the
+        body force.
     """
 
-    def __init__(self, physics: Mapping[str, Any], patch_height: float):
+    def __init__(self, physics: Mapping[str, Any], patch_height: float, dim: int = 2):
         import ngsolve as ng
 
+        self.dim = int(dim)
         self.enabled = set(enabled_candidates(physics))
         self.layer_phi = ng.Parameter(0.0)
         self.growth_phi = ng.Parameter(0.0)
@@ -363,7 +367,9 @@ class SolidPhysics:
 
         if "gravity" not in self.enabled:
             return None
-        return ng.CoefficientFunction((0.0, -G_MM_S2 * 1.0e-3 * self.gravity_phi))
+        force = [0.0] * self.dim   # -phi g e_y: y is vertical in 2D and in 3D
+        force[1] = -G_MM_S2 * 1.0e-3 * self.gravity_phi
+        return ng.CoefficientFunction(tuple(force))
 
     # ------------------------------------------------------------------ values
     def set_values(self, physics: Mapping[str, Any], stress_unit: float,

@@ -329,6 +329,24 @@ class MonolithicSolver:
         tmp.Set(profile, ng.BND, definedon=self.mesh.Boundaries(self.problem.inflow))
         return tmp.vec.FV().NumPy()[self._inflow_local].copy()
 
+    def inflow_rate(self, values: np.ndarray | None = None) -> float:
+        """Volume rate through the inflow boundary, ``- int u . n ds`` (2D: per unit
+        depth), of the velocity with ``values`` at the inflow Dirichlet DOFs (the
+        order of :meth:`inflow_values`) and zero elsewhere; ``None``: the current
+        state's velocity."""
+        import ngsolve as ng
+
+        gf = ng.GridFunction(self.Vspace)
+        if values is None:
+            s, e = self._ranges[self.i_u]
+            gf.vec.FV().NumPy()[:] = self._x[s:e]
+        else:
+            gf.vec.FV().NumPy()[self._inflow_local] = values
+        n = ng.specialcf.normal(self.dim)
+        return -float(ng.Integrate(ng.InnerProduct(gf, n), self.mesh, ng.BND,
+                                   definedon=self.mesh.Boundaries(self.problem.inflow),
+                                   order=2 * self.problem.order))
+
     def _build_forms(self):
         """The full nonlinear form and the fluid-momentum-only form used for forces."""
         import ngsolve as ng
