@@ -15,7 +15,9 @@ width z) with a half-ellipsoidal colony on the floor, the full 3D laws of
 floor, top and side walls (or symmetry side walls, ``geometry.side_walls: slip``),
 do-nothing outflow. Its interface is a triangulated surface: ``interface_reference`` and
 ``interface_current`` are (n, 3), ``segments`` holds the (m, 3) triangles (normals into
-the fluid). It is the base model only (:func:`dim3_problem`), with its own mesh presets
+the fluid). It has the candidate physics of :data:`PHYSICS_3D` (all but the
+attachment springs, :func:`dim3_problem`; the same forms as in 2D, gravity with
+three components, the skewed inflow on the duct profile) and its own mesh presets
 (:data:`MESH_PRESETS_3D`). The 3D model is a value of the existing section rather than
 a new model type, so that everything else of the section (fluid, material, inflow,
 solver, the warm starts and series of loadings) and the one solve path
@@ -72,7 +74,8 @@ from bayescalib.models.fsi.physics import (
 from bayescalib.models.fsi.problem import FSIProblem
 from bayescalib.models.fsi.solver import MonolithicSolver, SolverControls
 
-__all__ = ["MESH_PRESETS", "MESH_PRESETS_3D", "PA", "FSIModel", "dim3_problem", "fsi_section"]
+__all__ = ["MESH_PRESETS", "MESH_PRESETS_3D", "PA", "PHYSICS_3D", "FSIModel", "dim3_problem",
+           "fsi_section"]
 
 #: Pa -> solver stress units mg/(mm s^2) (= mPa)
 PA = 1.0e3
@@ -131,11 +134,11 @@ PHYSICS_3D_REFUSED = {
 def dim3_problem(cfg: Mapping[str, Any]) -> str:
     """What a validated fsi config asks of the 3D model that it does not have, or ``""``.
 
-    The 3D model (``geometry.dim: 3``) is the base model: one half-ellipsoidal colony,
-    a scanned one (:mod:`bayescalib.models.fsi.scan3d`) or a ridge across the width (no
-    polyline shape, no subdomains) and no
-    candidate physics; its mesh presets are :data:`MESH_PRESETS_3D`. The ridge is a 3D
-    shape only.
+    The 3D model (``geometry.dim: 3``): one half-ellipsoidal colony, a scanned one
+    (:mod:`bayescalib.models.fsi.scan3d`) or a ridge across the width (no polyline
+    shape, no subdomains), the candidate physics of :data:`PHYSICS_3D` (not the
+    attachment springs: :data:`PHYSICS_3D_REFUSED` says why); its mesh presets are
+    :data:`MESH_PRESETS_3D`. The ridge is a 3D shape only.
     """
     geo = cfg["geometry"]
     if int(geo["dim"]) != 3:

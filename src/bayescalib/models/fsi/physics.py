@@ -10,7 +10,8 @@ the compiled forms; ``phi`` is an NGSolve ``Parameter``, so a new value recompil
 nothing. Units: config in mm, Pa, kg/m^3; the solver works in mm, s, mg (stresses in
 mPa, see :mod:`bayescalib.models.fsi.model`).
 
-Notation: ``F = I + grad d`` (2 x 2, plane strain, ``F_33 = 1``), ``S`` the second
+Notation: ``F = I + grad d`` (2 x 2, plane strain, ``F_33 = 1``; 3 x 3 in the 3D model,
+see "The 3D model" below), ``S`` the second
 Piola–Kirchhoff stress of the law, ``P`` the first, ``W`` the stored energy per unit
 reference volume, ``chi`` an indicator function, ``H`` the channel height.
 
@@ -46,7 +47,13 @@ reference volume, ``chi`` an indicator function, ``H`` the channel height.
    volume rate ``V``: ``u_x(y) = 6 V y (H - y) / H^3 (1 + phi (2 y/H - 1))``; the
    added term is odd about ``y = H/2``, so it integrates to zero, and ``|phi| <= 1``
    keeps the profile non-negative. ``phi > 0`` shifts the flow towards the top,
-   away from the biofilm, and lowers the load on it.
+   away from the biofilm, and lowers the load on it. In 3D the duct profile
+   ``u_x(y, z)`` is multiplied by the same factor (the profile is even about
+   ``y = H/2`` as the parabola is). On the mesh the discrete odd term is made free of
+   volume: the model subtracts from it the multiple of the discrete profile that its
+   discrete volume rate is (an inlet mesh not symmetric in y gives the plain product
+   a rate of 1.3e-3 of the profile's on the 3D ``very_coarse`` mesh, 1e-17 in 2D),
+   so that the skew keeps the volume rate to round-off.
 5. ``stiffening`` — strain stiffening of Fung type. The stored energy
    ``W_f = mu/(2 phi) (exp(2 phi W / mu) - 1)`` tends to ``W`` as ``phi -> 0`` and
    gives ``P_f = exp(2 phi W / mu) P``; ``phi >= 0`` dimensionless (``W/mu`` is a
@@ -149,6 +156,22 @@ reference volume, ``chi`` an indicator function, ``H`` the channel height.
    to 3000 um^2 on the paper mesh). Not combined with
    the attachment springs: ``permeability.phi > 0`` on their sliding base is a failed
    solve (:func:`unsupported_combination`).
+
+The 3D model (``geometry.dim: 3``). The same classes and forms serve it, the dimension
+read from the mesh (:data:`bayescalib.models.fsi.model.PHYSICS_3D`): ``layer`` (the
+indicator on ``y``, vertical in 3D too; ``cap`` is under the top of the colony),
+``growth`` (``F_g = g I_3`` as in plane strain; ``F_e = F / g`` is the whole 3 x 3
+tensor, ``J_e = det F / g^3``, the laws' 3D stresses at ``C_e = C / g^2`` with no
+out-of-plane constants, ``P = g F S_e``), ``stiffening`` (``W`` the 3D energy),
+``gravity`` (``-phi g e_y``, three components), ``inflow_skew`` (above) and
+``permeability`` (the pore pressure P1 on the colony; unchanged forms; measured on
+the 3D ``very_coarse`` mesh: nested to 1e-16 mm, the Darcy through-flow linear in k
+in the drained regime). Not in 3D: ``attachment``. Its springs are one boundary term,
+but the sliding base needs the contact line's tangential velocity DOFs kept free
+(``MonolithicSolver._contact_line_dofs``): in 2D two foot points (vertex DOFs, x);
+in 3D a curve, vertex *and* P2 edge DOFs, x and z, with the ALE mesh sliding on the
+floor in x and z. The 3D model refuses it (:func:`bayescalib.models.fsi.model.dim3_problem`).
+Measured on the 3D ``coarse`` mesh: ``benchmarks/bench_physics3d.py``.
 
 Loads and the continuation. The load factor of the solver's continuation scales the
 inflow; the two candidates that deform the biofilm without any flow, growth (a
