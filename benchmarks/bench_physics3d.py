@@ -34,7 +34,7 @@ import numpy as np
 
 TRUTH = {"material.E": 400.0, "material.nu": 0.3}
 #: one value beyond the typical one per candidate (the typical: CANDIDATES[...].typical)
-LARGER = {"layer": 2.0, "growth": 0.1, "inflow_skew": 0.8, "stiffening": 60.0,
+LARGER = {"layer": 2.0, "growth": 0.1, "attachment": 1.0e-3, "inflow_skew": 0.8, "stiffening": 60.0,
           "gravity": 200.0, "permeability": 1000.0}
 
 
