@@ -223,3 +223,33 @@ def test_a_ridge_on_springs_with_slip_walls_slides_its_feet_as_the_2d_model():
     assert np.all(disp2[feet, 0] > 1e-3)
     np.testing.assert_allclose(mid[feet, 0], disp2[feet, 0], rtol=0.1)
     assert np.linalg.norm(mid[:, :2] - disp2, axis=1).max() < 0.08 * r2.max_displacement
+
+
+@pytest.mark.parametrize("law", ["svk", "neo_hooke"])
+def test_the_3d_growth_stress_is_the_law_at_the_elastic_part(law):
+    """In 3D, energy ``g^3 W(F / g)`` gives ``P = g^2 P_law(F / g)``: the stress at a
+    3 x 3 F with growth equals g^2 times the law's stress at F_e = F / g, and free
+    swelling F = g I is stress-free (the 3D formulas of ``materials.piola1``: F_e is
+    the whole tensor, J_e = det F / g^3, no out-of-plane constants)."""
+    import ngsolve as ng
+    from netgen.occ import Box, OCCGeometry
+
+    from bayescalib.models.fsi.materials import piola1
+
+    mesh = ng.Mesh(OCCGeometry(Box((0, 0, 0), (1, 1, 1))).GenerateMesh(maxh=2.0))
+    point = mesh(0.3, 0.3, 0.3)
+    E, nu, phi = 4.0e5, 0.3, 0.07
+    g = 1.0 + phi
+    rng = np.random.default_rng(0)
+    F = np.eye(3) + 0.1 * rng.standard_normal((3, 3))
+
+    def stress(Fm, growth=None):
+        cf = ng.CoefficientFunction(tuple(Fm.ravel()), dims=(3, 3))
+        out = piola1(law, cf, E, nu, growth=growth)
+        assert tuple(out.dims) == (3, 3)
+        return np.array(out(point)).reshape(3, 3)
+
+    grown = stress(F, ng.Parameter(phi))
+    np.testing.assert_allclose(grown, g * g * stress(F / g), rtol=1e-12, atol=1e-9)
+    assert np.abs(stress(g * np.eye(3), ng.Parameter(phi))).max() < 1e-9 * E
+    assert np.abs(stress(g * np.eye(3))).max() > 1e-2 * E   # without growth: stressed
