@@ -122,7 +122,6 @@ def test_3d_runs_are_written_and_read_with_triangles(tmp_path, solved3d):
 
 
 @pytest.mark.parametrize("override, match", [
-    ({"physics": {"growth": {"enabled": True}}}, "no candidate physics in the 3D model"),
     ({"mesh": {"preset": "fine"}}, "no 3D preset 'fine'"),
     ({"geometry": {"dim": 3, "shape": "polyline"}}, "half_ellipse, ridge and scan shapes only"),
     ({"geometry": {"dim": 3, "subdomains": {"enabled": True}}}, "subdomains"),

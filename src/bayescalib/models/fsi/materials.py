@@ -6,7 +6,12 @@ available, in plane strain for a 2D problem (the 2D deformation gradient with
 ``F_33 = 1``: the out-of-plane entries ``C_33 = 1``, ``E_33 = 0`` enter the traces
 below as constants) and in full 3D for a 3D one (``F`` a 3 x 3 tensor; the same
 formulas with no out-of-plane constants). One implementation serves both: the
-dimension is read from the shape of ``F``.
+dimension is read from the shape of ``F``. So do the candidate physics of the solid
+(:mod:`bayescalib.models.fsi.physics`): the growth ``F_g = g I_3`` is the same in
+both (in plane strain ``F_e,33 = 1/g`` enters as the constant ``C_e,33 = g^-2``; in
+3D ``F_e = F / g`` whole, ``J_e = det F / g^3``), and the energy ``g^3 W(F_e)``
+gives ``P = g F S_e`` in both; the stiffening factor uses the law's ``W`` (the 3D
+energy, or the plane-strain one with its out-of-plane constants).
 
 * ``svk`` — St. Venant–Kirchhoff (the paper's model):
   ``S = lambda tr(E) I + 2 mu E`` with Green–Lagrange strain ``E = (F^T F - I)/2``.

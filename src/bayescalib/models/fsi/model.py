@@ -15,8 +15,10 @@ width z) with a half-ellipsoidal colony on the floor, the full 3D laws of
 floor, top and side walls (or symmetry side walls, ``geometry.side_walls: slip``),
 do-nothing outflow. Its interface is a triangulated surface: ``interface_reference`` and
 ``interface_current`` are (n, 3), ``segments`` holds the (m, 3) triangles (normals into
-the fluid). It is the base model only (:func:`dim3_problem`), with its own mesh presets
-(:data:`MESH_PRESETS_3D`). The 3D model is a value of the existing section rather than
+the fluid). It has all the candidate physics (:data:`PHYSICS_3D`: the same forms as
+in 2D, gravity with three components, the skewed inflow on the duct profile, the
+attachment springs in x and z with the base and the floor's ALE mesh sliding in both,
+:func:`_sliding_base`) and its own mesh presets (:data:`MESH_PRESETS_3D`). The 3D model is a value of the existing section rather than
 a new model type, so that everything else of the section (fluid, material, inflow,
 solver, the warm starts and series of loadings) and the one solve path
 (:func:`bayescalib.models.forward.solve_points`) serve both unchanged.
@@ -63,6 +65,7 @@ from bayescalib.io.runrecord import SolveResult
 from bayescalib.models.fsi.geometry import SOLID_SUBDOMAINS, BiofilmMesh, build_mesh
 from bayescalib.models.fsi.materials import poisson_problem
 from bayescalib.models.fsi.physics import (
+    CANDIDATES,
     SolidPhysics,
     physics_parameters,
     physics_problem,
@@ -72,7 +75,8 @@ from bayescalib.models.fsi.physics import (
 from bayescalib.models.fsi.problem import FSIProblem
 from bayescalib.models.fsi.solver import MonolithicSolver, SolverControls
 
-__all__ = ["MESH_PRESETS", "MESH_PRESETS_3D", "PA", "FSIModel", "dim3_problem", "fsi_section"]
+__all__ = ["MESH_PRESETS", "MESH_PRESETS_3D", "PA", "PHYSICS_3D", "FSIModel", "dim3_problem",
+           "fsi_section"]
 
 #: Pa -> solver stress units mg/(mm s^2) (= mPa)
 PA = 1.0e3
@@ -118,14 +122,18 @@ def fsi_section(config: Mapping[str, Any]) -> dict[str, Any]:
     return dict(config)
 
 
+#: the candidate physics (:mod:`bayescalib.models.fsi.physics`) of the 3D model: all of
+#: them, through the same forms as in 2D
+PHYSICS_3D = tuple(CANDIDATES)
+
+
 def dim3_problem(cfg: Mapping[str, Any]) -> str:
     """What a validated fsi config asks of the 3D model that it does not have, or ``""``.
 
-    The 3D model (``geometry.dim: 3``) is the base model: one half-ellipsoidal colony,
-    a scanned one (:mod:`bayescalib.models.fsi.scan3d`) or a ridge across the width (no
-    polyline shape, no subdomains) and no
-    candidate physics; its mesh presets are :data:`MESH_PRESETS_3D`. The ridge is a 3D
-    shape only.
+    The 3D model (``geometry.dim: 3``): one half-ellipsoidal colony, a scanned one
+    (:mod:`bayescalib.models.fsi.scan3d`) or a ridge across the width (no polyline
+    shape, no subdomains), all the candidate physics (:data:`PHYSICS_3D`); its mesh
+    presets are :data:`MESH_PRESETS_3D`. The ridge is a 3D shape only.
     """
     geo = cfg["geometry"]
     if int(geo["dim"]) != 3:
@@ -136,9 +144,6 @@ def dim3_problem(cfg: Mapping[str, Any]) -> str:
                 f"only, not '{geo['shape']}'")
     if geo["subdomains"]["enabled"]:
         return "geometry.subdomains: not available in the 3D model (geometry.dim: 3)"
-    on = [n for n, c in cfg["physics"].items() if c.get("enabled")]
-    if on:
-        return f"physics: no candidate physics in the 3D model yet (enabled: {', '.join(on)})"
     if cfg["mesh"]["preset"] not in MESH_PRESETS_3D:
         return (f"mesh.preset: no 3D preset '{cfg['mesh']['preset']}' "
                 f"(3D presets: {', '.join(MESH_PRESETS_3D)})")
@@ -257,15 +262,9 @@ class FSIModel:
                 "displacement_dirichlet": "inlet|outlet|floor|top|biofilm_floor",
             }
 
-        physics = SolidPhysics(cfg["physics"], geo.patch_height)
+        physics = SolidPhysics(cfg["physics"], geo.patch_height, dim=dim)
         if physics.springs:
-            # imperfect attachment: the base and the ALE mesh on the floor slide in x
-            clamp.update(
-                velocity_dirichlet_xy=("inlet|floor|top", "inlet|floor|top|biofilm_floor"),
-                displacement_dirichlet_xy=("inlet|outlet|top",
-                                           "inlet|outlet|floor|top|biofilm_floor"),
-                spring_boundary="biofilm_floor",
-            )
+            clamp = _sliding_base(clamp, dim)
         problem = FSIProblem(
             mesh=geo.mesh,
             fluid="fluid",
@@ -284,9 +283,13 @@ class FSIModel:
         self.solver = MonolithicSolver(problem)
         self.physics = physics
         self._unit_inflow = self.solver._inflow_val.copy()
-        # the odd part of the skewed inflow (candidate inflow_skew, 2D), unit volume rate
-        self._unit_skew = None if dim == 3 else self.solver.inflow_values(ng.CoefficientFunction(
-            (6.0 * ng.y * (H - ng.y) / H**3 * (2.0 * ng.y / H - 1.0), 0.0)))
+        # the odd part of the skewed inflow (candidate inflow_skew): the profile times
+        # (2y/H - 1), less the multiple of the profile that its discrete volume rate
+        # is (the inlet mesh is not symmetric in y: 1e-3 of the rate on the 3D
+        # very_coarse mesh, 1e-17 in 2D), so that a skew keeps the rate to round-off
+        skew = self.solver.inflow_values(profile() * (2.0 * ng.y / H - 1.0))
+        self._unit_skew = skew - (self.solver.inflow_rate(skew)
+                                  / self.solver.inflow_rate(self._unit_inflow)) * self._unit_inflow
         self.geometry = geo
         self._key = key
         self._space = _space_key(cfg)
@@ -672,6 +675,29 @@ def _norms(v: np.ndarray) -> np.ndarray:
     if v.shape[1] == 2:
         return np.hypot(v[:, 0], v[:, 1])
     return np.linalg.norm(v, axis=1)
+
+
+def _sliding_base(clamp: Mapping[str, Any], dim: int) -> dict[str, Any]:
+    """The Dirichlet keyword arguments of :class:`FSIProblem` with the base on springs.
+
+    Imperfect attachment (candidate ``attachment``): the base and the ALE mesh on the
+    floor slide tangentially, in x (in 3D x and z): in those components
+    ``biofilm_floor`` leaves the velocity's Dirichlet boundaries (the solid's ``u = 0``
+    rows hold its velocity), ``floor`` and ``biofilm_floor`` the displacement's; the
+    base gets the springs (``spring_boundary``). The normal (y) components keep the
+    clamp's: no lift-off, no penetration.
+    """
+    def without(regex: str, names: tuple[str, ...]) -> str:
+        return "|".join(n for n in regex.split("|") if n not in names)
+
+    u = clamp.get("velocity_dirichlet_xy") or (clamp["velocity_dirichlet"],) * dim
+    d = clamp.get("displacement_dirichlet_xy") or (clamp["displacement_dirichlet"],) * dim
+    return {**clamp,
+            "velocity_dirichlet_xy": tuple(
+                r if c == 1 else without(r, ("biofilm_floor",)) for c, r in enumerate(u)),
+            "displacement_dirichlet_xy": tuple(
+                r if c == 1 else without(r, ("floor", "biofilm_floor")) for c, r in enumerate(d)),
+            "spring_boundary": "biofilm_floor"}
 
 
 def _channel_3d(geometry: Mapping[str, Any]) -> tuple[Any, dict[str, Any]]:

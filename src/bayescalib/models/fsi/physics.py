@@ -10,7 +10,8 @@ the compiled forms; ``phi`` is an NGSolve ``Parameter``, so a new value recompil
 nothing. Units: config in mm, Pa, kg/m^3; the solver works in mm, s, mg (stresses in
 mPa, see :mod:`bayescalib.models.fsi.model`).
 
-Notation: ``F = I + grad d`` (2 x 2, plane strain, ``F_33 = 1``), ``S`` the second
+Notation: ``F = I + grad d`` (2 x 2, plane strain, ``F_33 = 1``; 3 x 3 in the 3D model,
+see "The 3D model" below), ``S`` the second
 Piola–Kirchhoff stress of the law, ``P`` the first, ``W`` the stored energy per unit
 reference volume, ``chi`` an indicator function, ``H`` the channel height.
 
@@ -32,8 +33,8 @@ reference volume, ``chi`` an indicator function, ``H`` the channel height.
    bulges up with no flow at all; the base stays clamped.
 3. ``attachment`` — imperfect attachment. The base ``y = 0`` of the biofilm is not
    clamped but held by distributed tangential springs of compliance ``phi`` (mm/Pa):
-   traction ``t_x = -d_x / phi`` on the base, with ``d_y = 0`` (no lift-off, no
-   penetration). Weak form: ``+ int_base d_x v_x / phi ds``. The ALE mesh may slide
+   traction ``t_x = -d_x / phi`` on the base (in 3D also ``t_z = -d_z / phi``), with
+   ``d_y = 0`` (no lift-off, no penetration). Weak form: ``+ int_base d_x v_x / phi ds``. The ALE mesh may slide
    along the flat fluid floor (``d_y = 0`` there), so the feet can move. ``phi = 0``
    is the clamp of the base model (the springs are switched in for ``phi > 0`` only;
    the change of boundary condition rebuilds the spaces once). Springs let the base
@@ -46,7 +47,13 @@ reference volume, ``chi`` an indicator function, ``H`` the channel height.
    volume rate ``V``: ``u_x(y) = 6 V y (H - y) / H^3 (1 + phi (2 y/H - 1))``; the
    added term is odd about ``y = H/2``, so it integrates to zero, and ``|phi| <= 1``
    keeps the profile non-negative. ``phi > 0`` shifts the flow towards the top,
-   away from the biofilm, and lowers the load on it.
+   away from the biofilm, and lowers the load on it. In 3D the duct profile
+   ``u_x(y, z)`` is multiplied by the same factor (the profile is even about
+   ``y = H/2`` as the parabola is). On the mesh the discrete odd term is made free of
+   volume: the model subtracts from it the multiple of the discrete profile that its
+   discrete volume rate is (an inlet mesh not symmetric in y gives the plain product
+   a rate of 1.3e-3 of the profile's on the 3D ``very_coarse`` mesh, 1e-17 in 2D),
+   so that the skew keeps the volume rate to round-off.
 5. ``stiffening`` — strain stiffening of Fung type. The stored energy
    ``W_f = mu/(2 phi) (exp(2 phi W / mu) - 1)`` tends to ``W`` as ``phi -> 0`` and
    gives ``P_f = exp(2 phi W / mu) P``; ``phi >= 0`` dimensionless (``W/mu`` is a
@@ -149,6 +156,42 @@ reference volume, ``chi`` an indicator function, ``H`` the channel height.
    to 3000 um^2 on the paper mesh). Not combined with
    the attachment springs: ``permeability.phi > 0`` on their sliding base is a failed
    solve (:func:`unsupported_combination`).
+
+The 3D model (``geometry.dim: 3``). The same classes and forms serve it, the dimension
+read from the mesh, and all candidates are there
+(:data:`bayescalib.models.fsi.model.PHYSICS_3D`): ``layer`` (the
+indicator on ``y``, vertical in 3D too; ``cap`` is under the top of the colony),
+``growth`` (``F_g = g I_3`` as in plane strain; ``F_e = F / g`` is the whole 3 x 3
+tensor, ``J_e = det F / g^3``, the laws' 3D stresses at ``C_e = C / g^2`` with no
+out-of-plane constants, ``P = g F S_e``), ``stiffening`` (``W`` the 3D energy),
+``gravity`` (``-phi g e_y``, three components), ``inflow_skew`` (above) and
+``permeability`` (the pore pressure P1 on the colony; unchanged forms; measured on
+the 3D ``very_coarse`` mesh: nested to 1e-16 mm, the Darcy through-flow linear in k
+in the drained regime) and ``attachment``. The springs act on both tangential
+components of the base, ``+ int_base (d_x v_x + d_z v_z) / phi ds``, with ``d_y = 0``;
+the floor's ALE mesh slides in x and z (:func:`bayescalib.models.fsi.model._sliding_base`);
+the contact line is the base's rim, a curve, whose x- and z-velocity vertex and P2
+edge DOFs are kept free (``MonolithicSolver._contact_line_dofs``; in 2D the two foot
+points' x-velocity vertex DOFs). Checked against the 2D model: the ridge across the
+width with slip side walls (the 2D problem extruded) on springs of 2e-4 mm/Pa slides
+its feet by 7.29 and 2.42 um at the mid-plane on the 3D ``very_coarse`` mesh, the 2D
+coarse model's by 7.16 and 2.26 um. As ``phi -> 0+`` the rim's slide falls in
+proportion to ``phi``, but the interface stays 1.2e-5 mm (``very_coarse``; 0.96e-5
+mm ``coarse``) from the clamp's, against 1e-6 mm in 2D. At any ``phi > 0`` the
+discrete problem is another one: the floor's ALE mesh slides (Neumann instead of
+Dirichlet in x and z: another mesh motion for the same continuum problem) and the
+rim's velocity DOFs are free. Holding the floor's mesh, and with it the rim, at
+1e-9 mm/Pa gives back the clamp to 1e-8 mm, so the step comes from these (not
+separated further: a clamped rim with a sliding floor inverts elements). It is 3e-4
+of the displacement, below the mesh error (0.4 um between ``very_coarse`` and
+``coarse``), and a step of the discretization at ``phi -> 0+``: base solves are
+training points of the extended model to that accuracy.
+Measured on the 3D ``coarse`` mesh (``benchmarks/bench_physics3d.py``; E = 400 Pa,
+nu = 0.3, 100 mm^3/s), largest interface displacement: base 34.4 um; at the typical
+phi layer 27.3, growth 41.4, attachment 37.8, inflow_skew 32.0, stiffening 30.5,
+gravity 34.4 (the interface moves by 0.07 um), permeability 36.7; each solve as many
+Newton iterations as the base (8), and as long (12-17 s on one core), but growth at
+0.1 (12 iterations, 28 s).
 
 Loads and the continuation. The load factor of the solver's continuation scales the
 inflow; the two candidates that deform the biofilm without any flow, growth (a
@@ -308,11 +351,15 @@ class SolidPhysics:
         Validated ``physics`` section of the fsi config.
     patch_height
         Height of the biofilm patch, mm (for a cap layer).
+    dim
+        Space dimension of the problem (2 or 3): the number of components of the
+        body force.
     """
 
-    def __init__(self, physics: Mapping[str, Any], patch_height: float):
+    def __init__(self, physics: Mapping[str, Any], patch_height: float, dim: int = 2):
         import ngsolve as ng
 
+        self.dim = int(dim)
         self.enabled = set(enabled_candidates(physics))
         self.layer_phi = ng.Parameter(0.0)
         self.growth_phi = ng.Parameter(0.0)
@@ -363,7 +410,9 @@ class SolidPhysics:
 
         if "gravity" not in self.enabled:
             return None
-        return ng.CoefficientFunction((0.0, -G_MM_S2 * 1.0e-3 * self.gravity_phi))
+        force = [0.0] * self.dim   # -phi g e_y: y is vertical in 2D and in 3D
+        force[1] = -G_MM_S2 * 1.0e-3 * self.gravity_phi
+        return ng.CoefficientFunction(tuple(force))
 
     # ------------------------------------------------------------------ values
     def set_values(self, physics: Mapping[str, Any], stress_unit: float,

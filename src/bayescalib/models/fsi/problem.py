@@ -73,8 +73,9 @@ class FSIProblem:
         ``displacement_dirichlet`` (e.g. a base that may slide tangentially, or the
         symmetry walls ``z = const`` of the 3D channel).
     spring_boundary
-        Boundary with tangential springs of stiffness ``physics.spring_stiffness``
-        (traction ``-k d_x``), or ``None``.
+        Boundary on the floor (normal y) with tangential springs of stiffness
+        ``physics.spring_stiffness`` (traction ``-k d_x``, in 3D also ``-k d_z``), or
+        ``None``.
     compile
         ``"tree"`` (``CoefficientFunction.Compile()``, default), ``"none"``, or ``"real"``
         (compile to C++; needs a compiler, slow first build).

@@ -257,18 +257,25 @@ class MonolithicSolver:
             self._ir_points = mesh.MapToAllElements(ir, ng.VOL)
 
     def _contact_line_dofs(self) -> list[int]:
-        """x-velocity DOFs (of the velocity space) to keep free where the base slides.
+        """Tangential velocity DOFs (of the velocity space) to keep free where the base slides.
 
-        Where the spring boundary (a sliding base) meets a boundary whose x-velocity is
-        Dirichlet (the fluid's no-slip floor), the shared vertex would be Dirichlet in
-        u_x. Its u_x row is the one that carries the solid's x-momentum (the solid's
-        momentum is tested with the velocity test function, so that the fluid's traction
-        and the solid's stress meet in the same rows): a Dirichlet u_x there drops the
-        force balance of the base's end point, and its x-displacement is then set by the
-        ALE extension instead of by the solid and the springs (measured: the foot moved
-        12 um at compliance 1e-4 mm/Pa and inverted the solid's foot element at 1e-5
-        and below). Kept free, u_x there is still 0: the solid's ``u = 0`` rows hold it.
-        Vertex DOFs of H1 are numbered by vertex, component x first.
+        Where the spring boundary (a sliding base on the floor, normal y) meets a
+        boundary whose tangential velocity (x; in 3D x and z) is Dirichlet (the fluid's
+        no-slip floor), the shared nodes would be Dirichlet in that component. Its rows
+        are the ones that carry the solid's tangential momentum (the solid's momentum is
+        tested with the velocity test function, so that the fluid's traction and the
+        solid's stress meet in the same rows): a Dirichlet velocity there drops the
+        force balance of the base's edge, and its tangential displacement is then set
+        by the ALE extension instead of by the solid and the springs (measured in 2D:
+        the foot moved 12 um at compliance 1e-4 mm/Pa and inverted the solid's foot
+        element at 1e-5 and below). Kept free, the velocity there is still 0: the
+        solid's ``u = 0`` rows hold it. In 2D the contact line is the base's two end
+        points (vertex DOFs); in 3D it is the base's rim, a curve: its vertex and edge
+        DOFs (P2), in x and in z. Nodes on a boundary where the same component of the
+        displacement is Dirichlet (a symmetry wall in z that the base of a ridge
+        touches) keep their Dirichlet velocity: the solid's ``u = 0`` row of that
+        component is not there to hold it. A component block of the vector space is
+        numbered as the scalar space of the same order.
         """
         pb = self.problem
         if pb.spring_boundary is None or pb.velocity_dirichlet_xy is None:
@@ -277,16 +284,28 @@ class MonolithicSolver:
 
         import ngsolve as ng
 
-        spring, dirichlet_x = re.compile(pb.spring_boundary), re.compile(pb.velocity_dirichlet_xy[0])
-        on_spring, on_dirichlet = set(), set()
-        for el in self.mesh.Elements(ng.BND):
-            name = el.mat
-            verts = {v.nr for v in el.vertices}
-            if spring.fullmatch(name):
-                on_spring |= verts
-            elif dirichlet_x.fullmatch(name):
-                on_dirichlet |= verts
-        return sorted(on_spring & on_dirichlet)
+        spring = re.compile(pb.spring_boundary)
+        scalar = ng.H1(self.mesh, order=pb.order)
+        nd = self.Vspace.ndof // self.dim
+        d_xy = pb.displacement_dirichlet_xy or (pb.displacement_dirichlet,) * self.dim
+        out: list[int] = []
+        for c in (k for k in range(self.dim) if k != 1):
+            dirichlet_u, dirichlet_d = re.compile(pb.velocity_dirichlet_xy[c]), re.compile(d_xy[c])
+            on_spring, on_dirichlet, held = set(), set(), set()
+            for el in self.mesh.Elements(ng.BND):
+                nodes = {ng.NodeId(ng.VERTEX, v.nr) for v in el.vertices}
+                if self.dim == 3:
+                    nodes |= {ng.NodeId(ng.EDGE, e.nr) for e in el.edges}
+                if spring.fullmatch(el.mat):
+                    on_spring |= nodes
+                else:
+                    if dirichlet_u.fullmatch(el.mat):
+                        on_dirichlet |= nodes
+                    if dirichlet_d.fullmatch(el.mat):
+                        held |= nodes
+            for node in (on_spring & on_dirichlet) - held:
+                out.extend(c * nd + i for i in scalar.GetDofNrs(node))
+        return sorted(out)
 
     def _unseen_pressure_dofs(self) -> list[int]:
         """Pressure DOFs that no free velocity DOF sees (3D only), to be held at zero.
@@ -328,6 +347,24 @@ class MonolithicSolver:
         tmp = ng.GridFunction(self.Vspace)
         tmp.Set(profile, ng.BND, definedon=self.mesh.Boundaries(self.problem.inflow))
         return tmp.vec.FV().NumPy()[self._inflow_local].copy()
+
+    def inflow_rate(self, values: np.ndarray | None = None) -> float:
+        """Volume rate through the inflow boundary, ``- int u . n ds`` (2D: per unit
+        depth), of the velocity with ``values`` at the inflow Dirichlet DOFs (the
+        order of :meth:`inflow_values`) and zero elsewhere; ``None``: the current
+        state's velocity."""
+        import ngsolve as ng
+
+        gf = ng.GridFunction(self.Vspace)
+        if values is None:
+            s, e = self._ranges[self.i_u]
+            gf.vec.FV().NumPy()[:] = self._x[s:e]
+        else:
+            gf.vec.FV().NumPy()[self._inflow_local] = values
+        n = ng.specialcf.normal(self.dim)
+        return -float(ng.Integrate(ng.InnerProduct(gf, n), self.mesh, ng.BND,
+                                   definedon=self.mesh.Boundaries(self.problem.inflow),
+                                   order=2 * self.problem.order))
 
     def _build_forms(self):
         """The full nonlinear form and the fluid-momentum-only form used for forces."""
@@ -392,8 +429,10 @@ class MonolithicSolver:
                 beta = PORE_PENALTY / pb.length_scale
                 a += beta * (pi - p) * r * ng.ds(definedon=mesh.Boundaries(pb.interface))
             if pb.spring_boundary is not None:
+                # tangential springs on a floor (normal y): x, and in 3D z
                 dsb = ng.ds(definedon=mesh.Boundaries(pb.spring_boundary))
-                a += pb.physics.spring_stiffness * d[0] * v[0] * dsb
+                for c in (k for k in range(self.dim) if k != 1):
+                    a += pb.physics.spring_stiffness * d[c] * v[c] * dsb
         return a, fluid_form
 
     def _pore_forms(self, F, v, w, pi, r, dxs):
