@@ -170,9 +170,18 @@ def test_misregistration_is_refused_for_the_3d_model():
         Study(cfg)
 
 
-def test_the_diagnosis_is_refused_for_the_3d_model():
-    with pytest.raises(ConfigError, match="diagnose.enabled: .* not available in 3D yet"):
-        Study(deep_merge(FSI3D, {"diagnose": {"enabled": True}}))
+def test_the_diagnosis_is_accepted_for_the_3d_model_with_its_candidate_library():
+    """The diagnosis reads observed surfaces (residuals on their nodes) and the 3D model
+    has the candidate physics: a 3D study with the diagnosis is read, its library is
+    the 3D model's (nothing refused), and a registration test is not asked of it."""
+    from bayescalib.diagnosis.stage import library_gaps, resolve_candidates
+    from bayescalib.models.fsi.model import PHYSICS_3D
+
+    study = Study(deep_merge(FSI3D, {"diagnose": {"enabled": True}}))
+    fm = study.forward_section()
+    assert library_gaps(fm) == {}
+    names = [c.name for c in resolve_candidates(fm, study.config["diagnose"])]
+    assert names == list(PHYSICS_3D)
 
 
 # extended suite (pytest -m extended, run by .ci/run): the 3D smoke study end to end on
