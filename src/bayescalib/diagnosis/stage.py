@@ -14,7 +14,8 @@ never the rounds' trust or posterior check (docs/glossary.md).
    gives the residual along the observed interface with its predictive bands and the
    global p-values.
 2. *Locate* — the arc-length intervals where the smoothed residual leaves its
-   simultaneous band.
+   simultaneous band (on a 3D surface: connected regions of its nodes, named by their
+   place on the colony).
 3. *Attribute* — solves at the posterior mean, at finite-difference steps of every
    calibrated parameter and at a step of each candidate's ``phi`` give the nuisance
    Jacobian and the candidates' signatures;
@@ -64,7 +65,17 @@ Not every mismatch is physics: a rigid misregistration of the observed interface
 (``diagnose.registration``; :mod:`bayescalib.geometry.registration`) is tested as a
 block of nuisance effects (:func:`~bayescalib.diagnosis.attribution.block_test`) and,
 when significant, re-checked with the observations registered back (the same draws'
-solves). A mismatch located on the zero-load snapshot is reported as not flow-driven.
+solves); in 2D only (its signatures are in-plane moves), and the plain words of a 3D
+diagnosis say it was not tested. A mismatch located on the zero-load snapshot is
+reported as not flow-driven.
+
+The 3D model (observed surfaces) goes through the same steps: the residual lives on a
+Poisson-disk subset of each observed surface's vertices
+(:func:`~bayescalib.diagnosis.context.diagnosis_nodes`; a volume's without the layer of
+voxels above its cut), the candidate library is the 3D model's
+(:func:`library_gaps`: what it cannot switch on is left out and recorded as
+``not_in_model``), and everything downstream of the residual vector (signatures,
+attribution, extended calibrations, verdict) is the same code.
 
 The chosen model (:func:`choose_extension`) is, among the extended models whose real
 forward solves at their posterior draws *explain* the mismatch
