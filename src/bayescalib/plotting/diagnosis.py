@@ -187,15 +187,17 @@ def plot_surface_residuals(
             p = np.asarray(pan["points"], dtype=float)
             z = np.asarray(pan["z_s"], dtype=float)
             order = np.argsort(-p[:, 2]) if view == "side" else np.argsort(p[:, 1])
+            # dots sized to the nodes' number: a very coarse mesh's 45 nodes stay visible
+            dot = float(np.clip(3000.0 / max(len(p), 1), 8.0, 60.0))
             sc = ax.scatter(p[order, 0], p[order, axis], c=z[order], cmap=DIVERGING_CMAP,
-                            norm=norm, s=8, lw=0)
+                            norm=norm, s=dot, lw=0)
             loc = np.asarray(pan.get("located", []), dtype=int)
             core = np.asarray(pan.get("cores", []), dtype=int)
             if loc.size:
-                ax.scatter(p[loc, 0], p[loc, axis], s=16, facecolors="none",
+                ax.scatter(p[loc, 0], p[loc, axis], s=2.2 * dot, facecolors="none",
                            edgecolors="0.35", lw=0.5)
             if core.size:
-                ax.scatter(p[core, 0], p[core, axis], s=20, facecolors="none",
+                ax.scatter(p[core, 0], p[core, axis], s=2.8 * dot, facecolors="none",
                            edgecolors="k", lw=0.9)
             ax.set_aspect("equal")
             ax.set_title(f"{row_titles[k // cols]}: {pan['label']}", fontsize="medium")
