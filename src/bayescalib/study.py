@@ -871,16 +871,6 @@ class Study:
         dg = cfg["diagnose"]
         if not dg["enabled"]:
             return
-        if Study.model_dim(cfg) == 3 and dg["candidates"] is None:
-            from bayescalib.diagnosis.stage import library_gaps
-            from bayescalib.models.fsi.physics import CANDIDATES
-
-            gaps = library_gaps(cfg["forward_model"])
-            if len(gaps) == len(CANDIDATES):
-                raise ConfigError(
-                    f"{where}: diagnose.enabled: the 3D model (forward_model.fsi.geometry.dim: "
-                    f"3) has none of the built-in candidate physics ({next(iter(gaps.values()))}"
-                    "): list your own in diagnose.candidates, or set diagnose.enabled: false")
         if dg["candidates"] is None and cfg["forward_model"]["type"] != "fsi":
             raise ConfigError(
                 f"{where}: diagnose.candidates is required for a {cfg['forward_model']['type']} "
