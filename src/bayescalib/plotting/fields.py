@@ -3,7 +3,9 @@
 
 Three stacked panels: fluid velocity magnitude with streamlines, fluid
 pressure, and solid displacement magnitude; equal aspect, lengths in mm, the
-fluid-biofilm interface drawn on top of every panel.
+fluid-biofilm interface drawn on top of every panel. A 3D model's fields are drawn
+in a plane section (:func:`bayescalib.stages.figures.section_fields`): the same 2D
+arrays, with 3-component velocity and displacement.
 """
 
 from __future__ import annotations
