@@ -313,3 +313,26 @@ def test_a_3d_study_solves_and_draws_its_fields(tmp_path, synthetic):
                      flags=re.MULTILINE), text[-3000:]
     block = re.search(r"^rule fig_fields:\n(?:.+\n)+", text, flags=re.MULTILINE).group(0)
     assert vtu in block
+
+
+def test_the_3d_solve_at_the_posterior_mean_writes_the_fields_its_figure_draws(tmp_path):
+    """Real data: the posterior mean's solve (rule posterior_mean_solve, two loadings
+    as in the 3D smoke study) writes the 3D VTU, and fig_fields draws its section."""
+    import json
+
+    import yaml
+
+    from bayescalib.stages.figures import solve_at_posterior_mean
+    from bayescalib.study import Study
+
+    study = Study(yaml.safe_load(SMOKE3D.read_text()))
+    params = study.config["parameters"]
+    (tmp_path / "posterior.json").write_text(json.dumps({"mean": {"E": 450.0, "nu": 0.25}}))
+    solve_at_posterior_mean(tmp_path / "posterior.json", params, study.forward_section(),
+                            tmp_path / "run.h5", tmp_path / "fields.vtu")
+    f = read_vtu_fields(tmp_path / "fields.vtu")
+    assert f["points"].shape[1] == 3 and f["tetrahedra"].shape[1] == 4
+    (png,) = field_figure(tmp_path / "fields.vtu", tmp_path / "run.h5",
+                          {"formats": ["png"], "dpi": 60}, tmp_path / "fields",
+                          at="posterior_mean", parameters=params, section_z=ZC)
+    assert Path(png).stat().st_size > 10_000

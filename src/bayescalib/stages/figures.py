@@ -540,7 +540,7 @@ def field_figure(vtu_path: str | Path, run_path: str | Path, plots: Mapping[str,
     if "tetrahedra" in f:
         f, interface, z = _section(f, run, section_z)
         where = f"section z = {z:.4g} mm through the colony"
-        title = where[0].upper() + where[1:] if title is None else f"{title} ({where})"
+        title = where[0].upper() + where[1:] if title is None else f"{title}\n{where}"
     return plot_fields(
         f["points"], f["triangles"], f["velocity"], f["pressure"], f["displacement"],
         _paths(stem, plots["formats"]), interface=interface,
