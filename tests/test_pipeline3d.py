@@ -197,10 +197,11 @@ def test_the_3d_smoke_study_runs_end_to_end(tmp_path):
     s = json.loads((root / "summary.json").read_text())
     assert s["ground_truth"] == {"E": 400.0, "nu": 0.3}
     assert 8 <= s["design"]["n_solves"] <= 48 and s["n_failed"] == 0
-    # the figures that make sense in 3D: no fields figure; the interfaces as sections
-    assert "interfaces" in s["figures"] and "fields" not in s["figures"]
+    # the figures in 3D: the interfaces and the fields as mid-plane sections
+    assert "interfaces" in s["figures"] and "fields" in s["figures"]
     assert (root / "figures" / "interfaces.png").is_file()
-    assert not (root / "observations" / "ground_truth.vtu").exists()
+    assert (root / "figures" / "fields.png").is_file()
+    assert (root / "observations" / "ground_truth.vtu").is_file()
     obs = read_observations(root / "observations" / "observations.h5")
     assert [x.dim for x in obs.snapshots] == [3, 3] and obs.loads == pytest.approx([50.0, 100.0])
     mean, sd = s["posterior_mean"], s["posterior_sd"]

@@ -13,8 +13,14 @@ def _observe_inputs(wildcards):
     return {"files": study.observation_paths}
 
 
-FIELDS = (study.config["plots"]["fields"] and study.config["forward_model"]["type"] == "fsi"
-          and study.interface_dim == 2)  # the field writer and figure are 2D only
+FIELDS = study.config["plots"]["fields"] and study.config["forward_model"]["type"] == "fsi"
+# a 3D model's fields figure is their section by the colony's mid-plane z = z_c (the
+# plane of a B-scan); None in 2D
+SECTION_Z = None
+if FIELDS and study.interface_dim == 3:
+    from bayescalib.models.fsi.slice2d import midplane_z
+
+    SECTION_Z = midplane_z(study.config["forward_model"]["fsi"]["geometry"])
 # synthetic data: a forward solve at the ground truth makes them (rule ground_truth,
 # whose fields the fields figure shows); real data have none: the fields figure shows
 # the solve at the posterior mean (rule posterior_mean_solve)

@@ -226,6 +226,7 @@ rule fig_fields:
         plots=study.config["plots"],
         stem=lambda wc, output: os.path.splitext(output[0])[0],
         **({} if SYNTHETIC else {"at": "posterior_mean", "parameters": study.config["parameters"]}),
+        **({} if SECTION_Z is None else {"section_z": SECTION_Z}),
     log:
         f"{R}/logs/fig_fields.log",
         benchmark=f"{R}/benchmarks/figures/fields.tsv",

@@ -3,7 +3,9 @@
 
 Three stacked panels: fluid velocity magnitude with streamlines, fluid
 pressure, and solid displacement magnitude; equal aspect, lengths in mm, the
-fluid-biofilm interface drawn on top of every panel.
+fluid-biofilm interface drawn on top of every panel. A 3D model's fields are drawn
+in a plane section (:func:`bayescalib.stages.figures.section_fields`): the same 2D
+arrays, with 3-component velocity and displacement.
 """
 
 from __future__ import annotations
@@ -35,6 +37,26 @@ def _validate_triangles(triangles, n_points: int) -> np.ndarray:
     return t
 
 
+def _ncomp(a) -> int:
+    """The number of components of a vector field given as (p, 2) or (p, 3) (2 for
+    anything else, so that the shape check says what is expected)."""
+    shape = np.shape(a)
+    return 3 if len(shape) == 2 and shape[1] == 3 else 2
+
+
+def _shape_quality(xy: np.ndarray, tri: np.ndarray) -> np.ndarray:
+    """4 sqrt(3) area / (sum of squared edges): 1 for an equilateral triangle, 0 for a
+    degenerate one."""
+    p = xy[tri]
+    e = p[:, [1, 2, 0]] - p
+    area = 0.5 * np.abs(e[:, 0, 0] * e[:, 1, 1] - e[:, 0, 1] * e[:, 1, 0])
+    return 4.0 * np.sqrt(3.0) * area / np.maximum((e ** 2).sum(axis=(1, 2)), 1e-300)
+
+
+def _magnitude(v: np.ndarray) -> np.ndarray:
+    return np.hypot(v[:, 0], v[:, 1]) if v.shape[1] == 2 else np.linalg.norm(v, axis=1)
+
+
 def plot_fields(
     points: np.ndarray,
     triangles: np.ndarray,
@@ -62,12 +84,17 @@ def plot_fields(
         Mesh vertices (reference or already deformed configuration).
     triangles : array_like of int, shape (t, 3)
         Vertex indices of the triangles.
-    velocity : array_like, shape (p, 2)
-        Fluid velocity at the vertices (values in solid triangles are ignored).
+    velocity : array_like, shape (p, 2) or (p, 3)
+        Fluid velocity at the vertices (values in solid triangles are ignored). Three
+        components: a section of a 3D field (e.g. the mid-plane of a 3D model); the
+        magnitude is the full vector's, the streamlines those of its in-plane part
+        (x, y).
     pressure : array_like, shape (p,)
         Fluid pressure at the vertices.
-    displacement : array_like, shape (p, 2)
-        Displacement at the vertices (same length unit as ``points``).
+    displacement : array_like, shape (p, 2) or (p, 3)
+        Displacement at the vertices (same length unit as ``points``); three
+        components as for ``velocity`` (magnitude of the full vector, ``deform`` by the
+        in-plane part).
     paths : path or sequence of paths
         Output files; format from the suffix.
     interface : array_like, shape (n, 2), optional
@@ -107,9 +134,10 @@ def plot_fields(
     pts = as_points(points, "points", allow_empty=False)
     n = pts.shape[0]
     tri = _validate_triangles(triangles, n)
-    vel = as_array(velocity, "velocity", shape=(n, 2)) * velocity_unit_factor
+    vel = as_array(velocity, "velocity", shape=(n, _ncomp(velocity))) * velocity_unit_factor
     pres = as_array(pressure, "pressure", shape=(n,)) * pressure_unit_factor
-    disp = as_array(displacement, "displacement", shape=(n, 2)) * length_unit_factor
+    disp = as_array(displacement, "displacement",
+                    shape=(n, _ncomp(displacement))) * length_unit_factor
     pts = pts * length_unit_factor
     itf = None if interface is None else as_points(interface, "interface") * length_unit_factor
     if solid_mask_triangles is None:
@@ -123,12 +151,18 @@ def plot_fields(
         solid = solid.astype(bool)
         has_solid = True
     out_paths = as_paths(paths)
-    xy = pts + disp if deform else pts
+    xy = pts + disp[:, :2] if deform else pts
+    # the worst-shaped triangles first: Agg dilates each gouraud triangle by half a
+    # pixel with mitred corners, which stretches a needle's acute corner (and its
+    # colour) far over its neighbours; drawn first, the neighbours paint it over. A
+    # plane section of a tetrahedral mesh (a 3D model's) has such needles
+    order = np.argsort(_shape_quality(xy, tri), kind="stable")
+    tri, solid = tri[order], solid[order]
 
     fluid_tri = Triangulation(xy[:, 0], xy[:, 1], tri, mask=solid if has_solid else None)
     solid_tri = Triangulation(xy[:, 0], xy[:, 1], tri, mask=~solid if has_solid else None)
-    speed = np.hypot(vel[:, 0], vel[:, 1])
-    dmag = np.hypot(disp[:, 0], disp[:, 1])
+    speed = _magnitude(vel)
+    dmag = _magnitude(disp)
     lo, hi = xy.min(axis=0), xy.max(axis=0)
     span = hi - lo
     width = 6.0
@@ -154,7 +188,7 @@ def plot_fields(
             cb = fig.colorbar(pc, ax=ax, pad=0.02, shrink=0.95)
             cb.set_label(clabel, fontsize=7.5)
             if k == 0 and streamlines:
-                _streamlines(ax, fluid_tri, vel, lo, hi)
+                _streamlines(ax, fluid_tri, vel[:, :2], lo, hi)
             if itf is not None and itf.shape[0] >= 2:
                 ax.plot(itf[:, 0], itf[:, 1], color="w", lw=2.2, zorder=4)
                 ax.plot(itf[:, 0], itf[:, 1], color=COLORS["observed"], lw=1.0, zorder=5,

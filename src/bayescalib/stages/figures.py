@@ -324,7 +324,14 @@ def segmentation_figure(obs_path: str | Path, observations: Mapping[str, Any],
 
 
 def read_vtu_fields(path: str | Path) -> dict[str, np.ndarray]:
-    """Points, triangles and point fields of a 2-D VTU written by the FSI model."""
+    """Points, cells and point fields of a VTU written by the FSI model
+    (:func:`bayescalib.models.fsi.vtu.write_fields_vtu`).
+
+    2D (triangles): ``points`` (p, 2), ``triangles`` (t, 3), ``velocity`` and
+    ``displacement`` (p, 2), ``pressure`` (p,), ``region`` (t,). 3D (tetrahedra):
+    ``points`` (p, 3), ``tetrahedra`` (t, 4), ``velocity`` and ``displacement`` (p, 3),
+    ``pressure`` (p,), ``region`` (t,).
+    """
     import vtk
     from vtk.util.numpy_support import vtk_to_numpy
 
@@ -334,19 +341,119 @@ def read_vtu_fields(path: str | Path) -> dict[str, np.ndarray]:
     grid = r.GetOutput()
     if grid is None or grid.GetNumberOfPoints() == 0:
         raise ValueError(f"VTU file '{path}' is empty or unreadable")
-    pts = vtk_to_numpy(grid.GetPoints().GetData())[:, :2]
-    cells = vtk_to_numpy(grid.GetCells().GetConnectivityArray()).reshape(-1, 3)
+    dim = 3 if grid.GetNumberOfCells() and grid.GetCellType(0) == vtk.VTK_TETRA else 2
+    pts = vtk_to_numpy(grid.GetPoints().GetData())[:, :dim]
+    cells = vtk_to_numpy(grid.GetCells().GetConnectivityArray()).reshape(-1, dim + 1)
     pd = grid.GetPointData()
-    out = {"points": pts, "triangles": cells}
+    out = {"points": pts, "triangles" if dim == 2 else "tetrahedra": cells}
     for name in ("velocity", "pressure", "displacement"):
         arr = pd.GetArray(name)
         if arr is None:
             raise ValueError(f"VTU file '{path}' has no point array '{name}'")
         a = vtk_to_numpy(arr)
-        out[name] = a[:, :2] if a.ndim == 2 else a
+        out[name] = a[:, :dim] if a.ndim == 2 else a
     reg = grid.GetCellData().GetArray("region")
     out["region"] = vtk_to_numpy(reg) if reg is not None else np.zeros(len(cells))
     return out
+
+
+#: the six edges of a tetrahedron, in its local nodes
+_TET_EDGES = ((0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3))
+
+
+def section_fields(fields: Mapping[str, np.ndarray], z: float) -> dict[str, np.ndarray]:
+    """The section of 3D fields (:func:`read_vtu_fields` of a tetrahedral VTU) by the
+    plane ``z = z`` (on the points as they are, i.e. the deformed mesh), interpolated
+    linearly on the tetrahedra: what a B-scan at ``z`` sees, as 2D fields.
+
+    Each tetrahedron the plane crosses gives a triangle (one or three of its nodes
+    below the plane) or a quadrilateral cut into two (two below); nodes exactly on the
+    plane count as above it, so a face in the plane is drawn once, and a point is shared
+    by the cut tetrahedra through the edge (or the node) it lies on.
+
+    Returns
+    -------
+    dict
+        ``points`` (p, 2) the in-plane coordinates (x, y); ``triangles`` (t, 3);
+        ``velocity`` and ``displacement`` (p, 3) (all three components); ``pressure``
+        (p,); ``region`` (t,) the region of the tetrahedron each triangle is cut from.
+
+    Raises
+    ------
+    ValueError
+        When the plane misses the mesh.
+    """
+    pts = np.asarray(fields["points"], dtype=float)
+    tets = np.asarray(fields["tetrahedra"], dtype=np.int64)
+    s = pts[:, 2] - float(z)
+    # nodes within a nanometre-scale tolerance of the plane are on it (a mesh symmetric
+    # about the plane has nodes there up to rounding; left apart they give duplicate
+    # points a few ulp apart and slivers)
+    s[np.abs(s) <= 1e-8 * max(float(np.ptp(pts[:, 2])), 1.0)] = 0.0
+    below = s[tets] < 0
+    nb = below.sum(axis=1)
+    cut = (nb > 0) & (nb < 4)
+    if not cut.any():
+        raise ValueError(f"the plane z = {z:g} misses the mesh "
+                         f"(z in [{pts[:, 2].min():g}, {pts[:, 2].max():g}])")
+    tets, below, nb = tets[cut], below[cut], nb[cut]
+    region = np.asarray(fields["region"])[cut]
+    m = len(tets)
+    # the crossing edges: (below node, above node), global; a point on the plane (the
+    # above node with s == 0) is keyed by that node alone, so that all its edges share it
+    lo_list, hi_list, slot_list = [], [], []
+    for e, (i, j) in enumerate(_TET_EDGES):
+        cross = np.flatnonzero(below[:, i] != below[:, j])
+        bi = np.where(below[cross, i], tets[cross, i], tets[cross, j])
+        ai = np.where(below[cross, i], tets[cross, j], tets[cross, i])
+        lo_list.append(bi)
+        hi_list.append(ai)
+        slot_list.append(np.column_stack([cross, np.full(len(cross), e)]))
+    b, a = np.concatenate(lo_list), np.concatenate(hi_list)
+    slot = np.concatenate(slot_list)
+    on_plane = s[a] == 0
+    keys = np.column_stack([np.where(on_plane, -1, b), a])
+    _, first, inv = np.unique(keys, axis=0, return_index=True, return_inverse=True)
+    inv = inv.ravel()
+    t = s[b[first]] / (s[b[first]] - s[a[first]])
+
+    def interp(v):
+        v = np.asarray(v, dtype=float)
+        tt = t if v.ndim == 1 else t[:, None]
+        return v[b[first]] + tt * (v[a[first]] - v[b[first]])
+
+    point_of = np.full((m, 6), -1, dtype=np.int64)  # per tet and local edge
+    point_of[slot[:, 0], slot[:, 1]] = inv
+    edge_no = {pair: e for e, pair in enumerate(_TET_EDGES)}
+
+    # local nodes, the ones below first
+    order = np.argsort(~below, axis=1, kind="stable")
+    tris, reg = [], []
+    for n_below, combos in ((1, [[(0, 1), (0, 2), (0, 3)]]),
+                            (3, [[(0, 3), (1, 3), (2, 3)]]),
+                            (2, [[(0, 2), (0, 3), (1, 3)], [(0, 2), (1, 3), (1, 2)]])):
+        sel = np.flatnonzero(nb == n_below)
+        if not sel.size:
+            continue
+        o = order[sel]
+        for combo in combos:
+            tri = np.empty((sel.size, 3), dtype=np.int64)
+            for c, (p, q) in enumerate(combo):
+                lp, lq = o[:, p], o[:, q]
+                e = np.empty(sel.size, dtype=np.int64)
+                for (i, j), k in edge_no.items():
+                    e[((lp == i) & (lq == j)) | ((lp == j) & (lq == i))] = k
+                tri[:, c] = point_of[sel, e]
+            tris.append(tri)
+            reg.append(region[sel])
+    tri = np.vstack(tris)
+    reg = np.concatenate(reg)
+    # a triangle through a node on the plane may collapse (two corners that node)
+    ok = (tri[:, 0] != tri[:, 1]) & (tri[:, 1] != tri[:, 2]) & (tri[:, 0] != tri[:, 2])
+    xyz = interp(pts)
+    return {"points": xyz[:, :2], "triangles": tri[ok], "region": reg[ok],
+            "velocity": interp(fields["velocity"]), "displacement": interp(fields["displacement"]),
+            "pressure": interp(fields["pressure"])}
 
 
 def posterior_mean_point(posterior_path: str | Path,
@@ -388,7 +495,8 @@ def _at_posterior_mean_title(run, parameters: Sequence[Mapping[str, Any]]) -> st
 
 def field_figure(vtu_path: str | Path, run_path: str | Path, plots: Mapping[str, Any],
                  stem: str | Path, *, at: str | None = None,
-                 parameters: Sequence[Mapping[str, Any]] | None = None) -> list[str]:
+                 parameters: Sequence[Mapping[str, Any]] | None = None,
+                 section_z: float | None = None) -> list[str]:
     """Velocity, pressure and displacement fields of one forward solve.
 
     Parameters
@@ -405,6 +513,13 @@ def field_figure(vtu_path: str | Path, run_path: str | Path, plots: Mapping[str,
         failed the figure says why instead.
     parameters
         The ``parameters`` section (names and units of the title), with ``at``.
+    section_z
+        3D fields: ``z`` of the plane they are shown in (mm; the colony's mid-plane,
+        the plane of a B-scan, :func:`bayescalib.models.fsi.slice2d.midplane_z`). None:
+        the middle of the z range of the colony's surface at rest. The figure is that of
+        a 2D model in the section (:func:`section_fields`), with the interface's section
+        (:func:`bayescalib.geometry.surface.plane_section`), the magnitudes those of the
+        3D vectors and the streamlines those of the in-plane velocity. Ignored in 2D.
     """
     from bayescalib.plotting import plot_fields
     from bayescalib.plotting.fields import plot_failed_solve
@@ -421,11 +536,35 @@ def field_figure(vtu_path: str | Path, run_path: str | Path, plots: Mapping[str,
                                      f"{run.reason or 'no reason recorded'}", dpi=plots["dpi"])
     f = read_stage_file(vtu_path, "VTU field file")
     run = read_stage_file(run_path, "run record")
+    interface = np.asarray(run.interface_current)
+    if "tetrahedra" in f:
+        f, interface, z = _section(f, run, section_z)
+        where = f"section z = {z:.4g} mm through the colony"
+        title = where[0].upper() + where[1:] if title is None else f"{title}\n{where}"
     return plot_fields(
         f["points"], f["triangles"], f["velocity"], f["pressure"], f["displacement"],
-        _paths(stem, plots["formats"]), interface=np.asarray(run.interface_current),
+        _paths(stem, plots["formats"]), interface=interface,
         solid_mask_triangles=f["region"] > 0, title=title, dpi=plots["dpi"],
     )
+
+
+def _section(fields: Mapping[str, np.ndarray], run, z: float | None):
+    """3D fields and interface in the plane ``z`` (:func:`field_figure`): the section's
+    fields, the interface's section (None where the plane misses it) and ``z``."""
+    from bayescalib.geometry.interface import Interface
+    from bayescalib.geometry.surface import SurfaceError, plane_section
+
+    if z is None:
+        ref = np.asarray(run.interface_reference)
+        z = 0.5 * float(ref[:, 2].min() + ref[:, 2].max())
+    z = float(z)
+    sec = section_fields(fields, z)
+    try:
+        surface = Interface(np.asarray(run.interface_current), np.asarray(run.segments))
+        curve = np.asarray(plane_section(surface, (0.0, 0.0, z)).points)
+    except (SurfaceError, ValueError):
+        curve = None
+    return sec, curve, z
 
 
 def _shown_pair(space, posterior_sd: Sequence[float] | None = None) -> list[int]:
