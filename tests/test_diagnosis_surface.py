@@ -29,25 +29,14 @@ CENTRE = np.array([1.0, 0.0, 0.5])
 
 
 def dome(n: int = 24, height: float = B) -> Interface:
-    """The half-ellipsoid's surface, outward triangles; ``n`` elevation rings."""
-    m = 4 * n
-    el = np.linspace(0.0, 0.5 * np.pi, n + 1)[:-1]
-    az = np.linspace(0.0, 2.0 * np.pi, m, endpoint=False)
-    E, Az = np.meshgrid(el, az, indexing="ij")
-    ring = np.column_stack([CENTRE[0] + A * np.cos(E).ravel() * np.cos(Az).ravel(),
-                            height * np.sin(E).ravel(),
-                            CENTRE[2] + C * np.cos(E).ravel() * np.sin(Az).ravel()])
-    pts = np.vstack([ring, [CENTRE[0], height, CENTRE[2]]])
-    idx = np.arange(n * m).reshape(n, m)
-    nxt = np.roll(idx, -1, axis=1)
-    tri = np.vstack([np.column_stack([idx[:-1].ravel(), idx[1:].ravel(), nxt[:-1].ravel()]),
-                     np.column_stack([nxt[:-1].ravel(), idx[1:].ravel(), nxt[1:].ravel()]),
-                     np.column_stack([idx[-1], np.full(m, n * m), nxt[-1]])])
-    out = (pts[tri].mean(axis=1) - CENTRE) / np.array([A, height, C]) ** 2
-    p = pts[tri]
-    flip = np.einsum("ij,ij->i", np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), out) < 0
-    tri[flip] = tri[flip][:, ::-1]
-    return Interface.surface(pts, tri, name="dome")
+    """The half-ellipsoid's surface, outward triangles; ``n`` elevation rings (the 3D
+    model's reference surface of this colony)."""
+    from bayescalib.models.fsi.geometry3d import reference_surface
+
+    geometry = {"shape": "half_ellipse", "length": 2.0, "channel_height": 1.0,
+                "channel_width": 1.0, "centre": CENTRE[0], "centre_z": CENTRE[2],
+                "width": 2 * A, "height": height, "depth": 2 * C}
+    return reference_surface(geometry, n)
 
 
 def normals_at(points: np.ndarray, height: float = B) -> np.ndarray:
