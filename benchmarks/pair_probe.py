@@ -42,7 +42,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-import detection_limits as dl  # noqa: E402
+import detection_limits as dl
 
 
 def main() -> None:
@@ -112,8 +112,10 @@ def main() -> None:
         if sub[0] is None:
             print("  the truth does not solve")
             continue
-        size = lambda c: 1e3 * float(np.sqrt(np.mean(np.concatenate(  # noqa: E731
-            [offsets(c[s].points, sub[1][s], [])[0] for s in range(n_snap)]) ** 2)))
+        def size(c, ref=sub[1]):
+            y = np.concatenate([offsets(c[s].points, ref[s], [])[0] for s in range(n_snap)])
+            return 1e3 * float(np.sqrt(np.mean(y ** 2)))
+
         print("  sizes (RMS um): " + ", ".join(
             f"{n} {size(c):.2f}" if c is not None else f"{n} failed"
             for n, c in zip(pair, sub[2:], strict=True)) + f", both {size(sub[0]):.2f}")
