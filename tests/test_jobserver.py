@@ -607,3 +607,30 @@ def test_a_moved_checkout_reruns_nothing(done_run, tmp_path):
                   env={**os.environ, "PYTHONPATH": _path(tmp)}, timeout=300)
     assert proc.returncode == 0, proc.stderr[-3000:]
     assert "Nothing to be done" in proc.stdout + proc.stderr, (proc.stdout + proc.stderr)[-3000:]
+
+
+def test_an_allocation_refused_under_the_limit_names_mem_mb(monkeypatch, tmp_path):
+    """Found on the 3D example (an RKHS distance of a volume's 22 000-vertex surface):
+    torch's refused allocation under a job's limit read "DefaultCPUAllocator: can't
+    allocate memory". The job now fails with a MemoryError that names the limit and how
+    to raise it; other errors pass unchanged (the limit itself is not applied here)."""
+    from bayescalib.execution import jobserver
+
+    def torch_like(**kw):
+        raise RuntimeError("[enforce fail at alloc_cpu.cpp:127] DefaultCPUAllocator: can't "
+                           "allocate memory: you tried to allocate 8388608 bytes.")
+
+    def other(**kw):
+        raise RuntimeError("a bug")
+
+    monkeypatch.setenv(jobserver.SOCKET_ENV, str(tmp_path / "sock"))
+    monkeypatch.setattr(jobserver, "limit_memory", lambda mem_mb: 1 << 30)
+    doc = {"stage": "discrepancy", "args": {}, "log": None, "mem_mb": 1000, "threads": 1}
+    monkeypatch.setattr(jobserver, "_stage_function", lambda stage: torch_like)
+    with pytest.raises(MemoryError, match=r"job discrepancy: an allocation was refused under "
+                       r"the job's memory limit \(resources.mem_mb = 1000 MB .*"
+                       r"--set-resources <rule>:mem_mb=2000"):
+        jobserver.run_job(doc)
+    monkeypatch.setattr(jobserver, "_stage_function", lambda stage: other)
+    with pytest.raises(RuntimeError, match="^a bug$"):
+        jobserver.run_job(doc)

@@ -309,12 +309,27 @@ def run_job(doc: Mapping[str, Any]) -> None:
 
     fn = _stage_function(str(doc.get("stage")))
     setup_logging(doc.get("log"))
+    limited = None
     if doc.get("mem_mb") and os.environ.get(SOCKET_ENV):
-        limit_memory(doc["mem_mb"])
+        limited = limit_memory(doc["mem_mb"])
     kwargs = dict(doc.get("args") or {})
     if "threads" in inspect.signature(fn).parameters:
         kwargs.setdefault("threads", int(doc.get("threads") or 1))
-    fn(**kwargs)
+    try:
+        fn(**kwargs)
+    except (MemoryError, RuntimeError) as exc:
+        # an allocation refused under the job's limit (NumPy: MemoryError; torch: a
+        # RuntimeError "can't allocate memory"): name the limit and how to raise it
+        if limited is None or not (isinstance(exc, MemoryError)
+                                   or "allocate memory" in str(exc)):
+            raise
+        mem = int(doc["mem_mb"])
+        raise MemoryError(
+            f"job {doc.get('stage')}: an allocation was refused under the job's memory limit "
+            f"(resources.mem_mb = {mem} MB of address space beyond what the job held at its "
+            f"start; {type(exc).__name__}: {str(exc).splitlines()[0]}): rerun with a larger "
+            f"limit for its rule, e.g. snakemake ... --set-resources <rule>:mem_mb={2 * mem} "
+            "(finished jobs are kept)") from exc
 
 
 def source_fingerprint(root: str | Path | None = None) -> str:
