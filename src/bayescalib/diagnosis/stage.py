@@ -1475,8 +1475,9 @@ def _region_words(loc: Mapping[str, Any]) -> str:
     (:func:`~bayescalib.diagnosis.residuals.predictive_check`), in plain words."""
     x, y, z = loc["x_mm"], loc["y_mm"], loc["z_mm"]
     core = loc.get("core_where")
-    return (f"Mismatch on snapshot {loc['snapshot']}: a region of {loc['n_nodes']} observed "
-            f"nodes {loc['where']} of the colony (x {x[0]:.3f}-{x[1]:.3f} mm, y {y[0]:.3f}-"
+    n = int(loc["n_nodes"])
+    return (f"Mismatch on snapshot {loc['snapshot']}: a region of {n} observed "
+            f"node{'s' if n != 1 else ''} {loc['where']} of the colony (x {x[0]:.3f}-{x[1]:.3f} mm, y {y[0]:.3f}-"
             f"{y[1]:.3f} mm, z {z[0]:.3f}-{z[1]:.3f} mm), {loc['direction']}, by up to "
             f"{1e3 * abs(loc['peak_residual_mm']):.2f} um"
             + (f"; at least half of the largest mismatch {core}." if core else "."))
