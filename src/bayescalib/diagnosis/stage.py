@@ -112,7 +112,8 @@ from bayescalib.inference.posterior import equal_weight_draws
 from bayescalib.stages.discrepancy import model_interfaces
 from bayescalib.stages.files import read_stage_file
 
-__all__ = ["IMAGE_NOISE_LAG_PIXELS", "MIN_IDENTIFIABLE", "choose_extension", "decide_verdict",
+__all__ = ["DISCRETIZED", "FINER_PRESET", "IMAGE_NOISE_LAG_PIXELS", "MIN_IDENTIFIABLE",
+           "choose_extension", "decide_verdict",
            "explains_mismatch", "fits_better", "joint_of_singles", "judge_extensions",
            "library_gaps",
            "model_extensions", "noise_lag", "plain_words", "reference_noise",
@@ -134,6 +135,10 @@ MISREGISTERED_OR_PHYSICS = (
     "that moves them nearly as a whole (one snapshot: the data cannot tell them apart)")
 
 LN_BF_MIN = math.log(3.0)
+
+#: the verdict when the discretization check explains the mismatch and no extension does
+DISCRETIZED = ("mismatch within the forward model's discretization error (refine the mesh "
+               "before reading physics into it)")
 
 #: an extension (or a registration) explains the mismatch when its re-check passes or
 #: its residual RMS is within this factor of the noise sd
@@ -729,6 +734,75 @@ def _registration(ctx: DiagnosisContext, lin: Linearization, check,
     return out
 
 
+#: each fsi mesh preset's next finer one, per dimension (by the interface's element size;
+#: the discretization check solves the posterior mean on it): none beyond the finest
+FINER_PRESET = {2: {"very_coarse": "coarse", "coarse": "paper", "paper": "fine"},
+                3: {"very_coarse": "coarse", "coarse": "paper"}}
+
+
+def _discretization_check(ctx: DiagnosisContext, check, draws: Mapping[str, Any],
+                          mean: Mapping[str, float]) -> dict[str, Any] | None:
+    """Is the mismatch the forward model's own discretization error?
+
+    The posterior mean is solved on the study's mesh and on the next finer preset
+    (:data:`FINER_PRESET`); the finer prediction's signed offset ``e_j`` from the
+    study's at the observed nodes (+: outward) is the mesh's error there, to first
+    order. The observed nodes moved back by it (``x_j - e_j n_j``, ``n`` the outward
+    normal of the study's prediction) are checked against the same posterior draws: if
+    that check explains the mismatch (:func:`explains_mismatch`), the model's
+    discretization accounts for it, and physics cannot be read from it on this mesh.
+
+    Returns None where it does not apply (not the fsi model, explicit element sizes,
+    no finer preset) or where a solve failed (the record says which).
+    """
+    from bayescalib.config import validate
+    from bayescalib.diagnosis.residuals import fluid_side_sign
+    from bayescalib.geometry.projection import closest_points
+    from bayescalib.models.forward import solve_points
+
+    fm = ctx.fm
+    if fm.get("type") != "fsi":
+        return None
+    fsi = validate(fm.get("fsi") or {}, "fsi")
+    mesh = fsi["mesh"]
+    finer = FINER_PRESET[int(fsi["geometry"]["dim"])].get(mesh["preset"])
+    if finer is None or any(mesh[k] is not None for k in ("h_interface", "h_solid", "h_bulk")):
+        return None
+    at = {t: float(mean[n]) for t, n in zip(ctx.targets, ctx.names, strict=True)}
+    fine_fm = {**fm, "fsi": {**(fm.get("fsi") or {}),
+                             "mesh": {**((fm.get("fsi") or {}).get("mesh") or {}),
+                                      "preset": finer}}}
+    work = ctx.work / "base" / "discretization"
+    runs = [solve_points(f, [at], [work / f"{name}.h5"], workers=1,
+                         warm_start=ctx.warm_start if name == "study_mesh" else None)[0]
+            for f, name in ((fm, "study_mesh"), (fine_fm, finer))]
+    out: dict[str, Any] = {"preset": mesh["preset"], "finer_preset": finer, "at": at}
+    if not all(r.ok for r in runs):
+        out["failed"] = "; ".join(r.reason for r in runs if not r.ok)
+        return out
+    here, there = (model_interfaces(r, ctx.n_snap) for r in runs)
+    moved, shifts = [], []
+    for s, nodes in enumerate(ctx.nodes):
+        _, O = _offsets_from([nodes], [here[s]], [[there[s]]])
+        e = O[0]
+        _, _, cell = closest_points(nodes, here[s])
+        nrm = fluid_side_sign(here[s]) * here[s].normals[cell]
+        moved.append(nodes - e[:, None] * nrm)
+        shifts.append(e)
+    e_all = np.concatenate(shifts)
+    after = ctx.predictive_check(moved, draws["curves"], _recheck_sigma(ctx, check),
+                                 int(ctx.settings["seed"]))
+    out.update(error_rms_mm=float(np.sqrt(np.mean(e_all ** 2))),
+               error_max_mm=float(np.max(np.abs(e_all))),
+               error_mean_mm=float(np.mean(e_all)), check_after=after.to_json())
+    out["explains"] = bool(explains_mismatch(out["check_after"], check))
+    log.info("discretization check: the %s mesh's prediction differs from the %s mesh's by "
+             "%.3g mm RMS at the observed nodes; corrected for it, the check %s",
+             finer, mesh["preset"], out["error_rms_mm"],
+             "explains the mismatch" if out["explains"] else "does not explain it")
+    return out
+
+
 def _zero_load_label(fm: Mapping[str, Any], labels: Sequence[str]) -> str | None:
     """Label of the snapshot observed at zero load (loading factor 0), if any."""
     from bayescalib.models.forward import loading_factors
@@ -1024,6 +1098,9 @@ def run_diagnosis(
     log.info("predictive check: adequate=%s p=%s", check.adequate, check.p_values)
     # 3: attribute to candidate physics, and test a misregistration (not physics)
     found = _attribute(ctx, base.summary["mean"], check, draws)
+    # is the mismatch the mesh's own error? (the posterior mean on the next finer mesh)
+    discretization = (None if check.adequate or not ctx.settings["discretization_check"]
+                      else _discretization_check(ctx, check, draws, base.summary["mean"]))
     # (a rigid misregistration is tested in 2D only: its signatures are in-plane moves)
     registration = (_registration(ctx, found.lin, check, draws)
                     if ctx.settings["registration"] and ctx.dim == 2 else None)
@@ -1034,6 +1111,13 @@ def run_diagnosis(
     decision = _decide(ctx, check, found, registration, screening, extensions)
     # 6: report
     out = _diagnosis_record(ctx, base, check, n_failed_draws, found, registration, decision)
+    if discretization is not None:
+        out["discretization"] = discretization
+        if discretization.get("explains"):
+            out["verdict"] = (DISCRETIZED if out["chosen_model"] == "base" else
+                              f"{out['verdict']}, or by the forward model's discretization "
+                              "error (refine the mesh to tell them apart)")
+        out["plain_words"] = plain_words(out)
     checks = {"base": check, **{e["candidate"]: e["_check"] for e in extensions.extended
                                 if e["_check"] is not None}}
     return out, checks
@@ -1470,6 +1554,25 @@ def _names(names: Sequence[str]) -> str:
     return names[0] if len(names) == 1 else ", ".join(names[:-1]) + " and " + names[-1]
 
 
+def _discretization_words(disc: Mapping[str, Any], chk: Mapping[str, Any]) -> str:
+    """The discretization check (:func:`_discretization_check`) in plain words."""
+    fine, here = disc["finer_preset"], disc["preset"]
+    if disc.get("failed"):
+        return (f"The posterior mean could not be solved on the {fine} mesh to compare with "
+                f"the {here} mesh ({disc['failed']}): the mesh's own error is not known.")
+    ca = disc["check_after"]
+    said = (f"The forward model's prediction at the posterior mean moves by "
+            f"{1e3 * disc['error_rms_mm']:.2f} um RMS (up to {1e3 * disc['error_max_mm']:.2f} "
+            f"um) from the {here} mesh to the {fine} mesh; with the observations corrected "
+            f"for that difference, the residual RMS is {1e3 * chk['residual_rms_mm']:.2f} -> "
+            f"{1e3 * ca['residual_rms_mm']:.2f} um")
+    if disc["explains"]:
+        return (said + ": the mismatch is within the mesh's discretization error. Refine the "
+                f"mesh (forward_model.fsi.mesh.preset: {fine}) before reading physics into "
+                "it; candidates calibrated on this mesh may only mimic its error.")
+    return said + ": the mesh's discretization error does not account for the mismatch."
+
+
 def _region_words(loc: Mapping[str, Any]) -> str:
     """A located region of a 3D surface
     (:func:`~bayescalib.diagnosis.residuals.predictive_check`), in plain words."""
@@ -1588,6 +1691,9 @@ def plain_words(d: Mapping[str, Any]) -> list[str]:
             f"Part of the mismatch is present at zero load (snapshot {zero}): flow-driven "
             "mechanics cannot cause it. Look at the rest shape (growth, a wrong reference "
             "geometry), the registration of the images or their segmentation.")
+    disc = d.get("discretization")
+    if disc is not None:
+        lines.append(_discretization_words(disc, chk))
     reg = d.get("registration")
     if d.get("dim") == 3:
         lines.append("A rigid misplacement of the observed surfaces is not tested in 3D (the "
