@@ -57,3 +57,36 @@ def test_the_discretization_words_and_verdict_reach_the_plain_words():
     text = " ".join(plain_words(d))
     assert "within the mesh's discretization error" in text
     assert f"Verdict: {DISCRETIZED}." in text
+
+
+def test_the_report_shows_the_observations_corrected_for_the_mesh(tmp_path):
+    """When the mesh's error explains the mismatch (and no candidate does), the residual
+    figure's second row is the check of the corrected observations, not a candidate's."""
+    import numpy as np
+    from test_diagnosis_surface import draws, observed_nodes
+
+    from bayescalib.diagnosis.report import write_diagnosis
+    from bayescalib.diagnosis.residuals import predictive_check
+
+    rng = np.random.default_rng(3)
+    dr = draws(rng)
+    bumped, _ = observed_nodes(rng, 0.003, bump=0.02)
+    clean, _ = observed_nodes(rng, 0.003)
+    from test_diagnosis_set_aside import SIGS, _ranked
+
+    attr = _ranked(0.01 * SIGS["layer"] + np.random.default_rng(5).normal(0, 0.01, len(SIGS["layer"])))
+    base = predictive_check([bumped], dr, sigma=0.003, rng=np.random.default_rng(4))
+    fixed = predictive_check([clean], dr, sigma=0.003, rng=np.random.default_rng(4))
+    d = {"verdict": DISCRETIZED, "check": base.to_json(), "chosen_model": "base",
+         "extended": [], "set_aside": [], "posterior_mean": {"E": 400.0, "nu": 0.3},
+         "attribution": attr, "attribution_verdict": attr["verdict"],
+         "discretization": {**_disc(True, fixed.rms), "check_after": fixed.to_json()}}
+    d["plain_words"] = plain_words(d)
+    paths = write_diagnosis(d, {"base": base, "discretization": fixed},
+                            json_path=tmp_path / "d.json", html_path=tmp_path / "d.html",
+                            figdir=tmp_path, formats=["png"], dpi=60)
+    assert any(p.endswith("residuals.png") for p in paths)
+    import html
+
+    page = html.unescape((tmp_path / "d.html").read_text())
+    assert "within the forward model's discretization error" in page

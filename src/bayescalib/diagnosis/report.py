@@ -64,7 +64,12 @@ def write_diagnosis(diagnosis: Mapping[str, Any], checks: Mapping[str, Any], *,
     chosen = diagnosis["chosen_model"]
     solved = [e["candidate"] for e in diagnosis["extended"] if e["check_after"] is not None]
     shown = chosen if chosen != "base" else (solved[0] if solved else None)
-    if shown is not None:
+    disc = diagnosis.get("discretization") or {}
+    if chosen == "base" and disc.get("explains") and "discretization" in checks:
+        # the mesh explains the mismatch: the observations corrected for it, not a candidate
+        rows.append(f"corrected for the {disc['finer_preset']} mesh")
+        panels += _panels(checks["discretization"], disc["check_after"]["located"])
+    elif shown is not None:
         rows.append(f"with {shown}")
         after = next(e for e in diagnosis["extended"] if e["candidate"] == shown)
         panels += _panels(checks[shown], after["check_after"]["located"])

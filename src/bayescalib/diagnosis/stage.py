@@ -800,7 +800,7 @@ def _discretization_check(ctx: DiagnosisContext, check, draws: Mapping[str, Any]
              "%.3g mm RMS at the observed nodes; corrected for it, the check %s",
              finer, mesh["preset"], out["error_rms_mm"],
              "explains the mismatch" if out["explains"] else "does not explain it")
-    return out
+    return {**out, "_check": after}  # the check itself for the figures, not the record
 
 
 def _zero_load_label(fm: Mapping[str, Any], labels: Sequence[str]) -> str | None:
@@ -1112,7 +1112,7 @@ def run_diagnosis(
     # 6: report
     out = _diagnosis_record(ctx, base, check, n_failed_draws, found, registration, decision)
     if discretization is not None:
-        out["discretization"] = discretization
+        out["discretization"] = {k: v for k, v in discretization.items() if k != "_check"}
         if discretization.get("explains"):
             out["verdict"] = (DISCRETIZED if out["chosen_model"] == "base" else
                               f"{out['verdict']}, or by the forward model's discretization "
@@ -1120,6 +1120,8 @@ def run_diagnosis(
         out["plain_words"] = plain_words(out)
     checks = {"base": check, **{e["candidate"]: e["_check"] for e in extensions.extended
                                 if e["_check"] is not None}}
+    if discretization is not None and discretization.get("_check") is not None:
+        checks["discretization"] = discretization["_check"]
     return out, checks
 
 
