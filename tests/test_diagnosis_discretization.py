@@ -7,19 +7,31 @@ mismatch that no candidate explained; the cause, the mesh, was not named."""
 
 from __future__ import annotations
 
+import itertools
+
 import pytest
 
-from bayescalib.diagnosis.stage import DISCRETIZED, FINER_PRESET, _discretization_words, plain_words
-from bayescalib.models.fsi.model import MESH_PRESETS, MESH_PRESETS_3D
+from bayescalib.diagnosis.stage import (
+    DISCRETIZED,
+    _discretization_words,
+    corrected_for_mesh,
+    plain_words,
+    with_discretization,
+)
+from bayescalib.models.fsi.model import MESH_PRESETS, MESH_PRESETS_3D, finer_preset
 
 
-@pytest.mark.parametrize("dim, presets", [(2, MESH_PRESETS), (3, MESH_PRESETS_3D)])
-def test_the_finer_preset_is_finer_and_every_preset_but_the_finest_has_one(dim, presets):
-    finer = FINER_PRESET[dim]
-    for coarse, fine in finer.items():
+@pytest.mark.parametrize("dim, chain", [(2, ["very_coarse", "coarse", "paper", "fine"]),
+                                        (3, ["very_coarse", "coarse", "paper"])])
+def test_the_finer_preset_is_the_next_finer_and_the_finest_has_none(dim, chain):
+    """By the interface's element size (each next preset's smaller); the check does not
+    apply to the finest."""
+    presets = MESH_PRESETS if dim == 2 else MESH_PRESETS_3D
+    assert sorted(presets) == sorted(chain)
+    for coarse, fine in itertools.pairwise(chain):
+        assert finer_preset(dim, coarse) == fine
         assert presets[fine]["h_interface"] < presets[coarse]["h_interface"]
-    finest = min(presets, key=lambda p: presets[p]["h_interface"])
-    assert set(finer) == set(presets) - {finest}
+    assert finer_preset(dim, chain[-1]) is None
 
 
 CHK = {"adequate": False, "p_values": {"chi2": 0.06, "max_abs": 0.001, "max_abs_smooth": 0.001},
@@ -90,3 +102,34 @@ def test_the_report_shows_the_observations_corrected_for_the_mesh(tmp_path):
 
     page = html.unescape((tmp_path / "d.html").read_text())
     assert "within the forward model's discretization error" in page
+
+
+def test_nodes_on_the_finer_prediction_are_moved_onto_the_coarser_one():
+    """Observed nodes lying on the finer mesh's prediction (a dome 4 um higher) are moved
+    back along the coarser prediction's outward normal by the offset between them, so
+    they lie on the coarser one: the residual that was the mesh's is gone (to 0.3 um, the
+    second-order error of moving along one surface's normal by the other's offset on a
+    dome of radius 0.15-0.3 mm; the raw residual is 4 um at the top)."""
+    import numpy as np
+    from test_diagnosis_surface import B, dome
+
+    from bayescalib.diagnosis.residuals import offsets
+
+    here, there = dome(n=32), dome(n=32, height=B + 0.004)
+    nodes = there.points[there.points[:, 1] > 0.02]
+    before, _ = offsets(nodes, here, [])
+    moved, e = corrected_for_mesh(nodes, here, there)
+    after, _ = offsets(moved, here, [])
+    assert before.max() > 0.0035 and np.all(e > -1e-9)
+    assert np.abs(after).max() < 3e-4
+
+
+def test_the_verdict_names_the_mesh_only_when_its_error_explains_the_mismatch():
+    base = "mismatch located; no candidate explains it"
+    assert with_discretization(base, False, None) == base
+    assert with_discretization(base, False, {"explains": False}) == base
+    assert with_discretization(base, False, {"explains": True}) == DISCRETIZED
+    chosen = "mismatch explained by growth"
+    assert with_discretization(chosen, True, {"explains": True}) == (
+        "mismatch explained by growth, or by the forward model's discretization error "
+        "(refine the mesh to tell them apart)")

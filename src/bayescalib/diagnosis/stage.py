@@ -72,10 +72,10 @@ reported as not flow-driven.
 The 3D model (observed surfaces) goes through the same steps: the residual lives on a
 Poisson-disk subset of each observed surface's vertices
 (:func:`~bayescalib.diagnosis.context.diagnosis_nodes`; a volume's without the layer of
-voxels above its cut), the candidate library is the 3D model's
-(:func:`library_gaps`: what it cannot switch on is left out and recorded as
-``not_in_model``), and everything downstream of the residual vector (signatures,
-attribution, extended calibrations, verdict) is the same code.
+voxels above its cut), the candidate library is the same (the 3D model has every
+candidate: :data:`bayescalib.models.fsi.model.PHYSICS_3D`), and everything downstream of
+the residual vector (signatures, attribution, extended calibrations, verdict) is the same
+code.
 
 The chosen model (:func:`choose_extension`) is, among the extended models whose real
 forward solves at their posterior draws *explain* the mismatch
@@ -112,13 +112,12 @@ from bayescalib.inference.posterior import equal_weight_draws
 from bayescalib.stages.discrepancy import model_interfaces
 from bayescalib.stages.files import read_stage_file
 
-__all__ = ["DISCRETIZED", "FINER_PRESET", "IMAGE_NOISE_LAG_PIXELS", "MIN_IDENTIFIABLE",
-           "choose_extension", "decide_verdict",
+__all__ = ["DISCRETIZED", "IMAGE_NOISE_LAG_PIXELS", "MIN_IDENTIFIABLE",
+           "choose_extension", "corrected_for_mesh", "decide_verdict",
            "explains_mismatch", "fits_better", "joint_of_singles", "judge_extensions",
-           "library_gaps",
            "model_extensions", "noise_lag", "plain_words", "reference_noise",
            "resolve_candidates", "resolve_noise_model", "retry_steps", "run_diagnosis",
-           "set_aside_candidates", "thinned_observations", "widened_range"]
+           "set_aside_candidates", "thinned_observations", "widened_range", "with_discretization"]
 
 log = logging.getLogger(__name__)
 
@@ -182,36 +181,14 @@ def resolve_candidates(fm: Mapping[str, Any], diagnose: Mapping[str, Any]) -> li
     from bayescalib.models.fsi.physics import CANDIDATES
 
     physics = (fm.get("fsi") or {}).get("physics") or {}
-    lacking = library_gaps(fm)
     out = []
     for name, c in CANDIDATES.items():
-        if (physics.get(name) or {}).get("enabled") or name in lacking:
-            continue  # already part of the model being diagnosed, or not in it (3D)
+        if (physics.get(name) or {}).get("enabled"):
+            continue  # already part of the model being diagnosed
         out.append(CandidateSpec(name=name, target=c.key, step=c.typical,
                                  prior=tuple(diagnose["priors"][name]), unit=c.unit,
                                  switches={f"physics.{name}.enabled": True}, summary=c.summary,
                                  continuous=c.continuous))
-    return out
-
-
-def library_gaps(fm: Mapping[str, Any]) -> dict[str, str]:
-    """The built-in candidates the fsi model of ``fm`` cannot switch on, each with the
-    model's reason (:func:`bayescalib.models.fsi.model.dim3_problem`: the 3D model has
-    a subset of the 2D model's candidate physics); empty for the 2D model."""
-    from bayescalib.config import validate
-    from bayescalib.models.fsi.model import dim3_problem
-    from bayescalib.models.fsi.physics import CANDIDATES
-
-    cfg = validate(fm.get("fsi") or {}, "fsi")
-    if int(cfg["geometry"]["dim"]) != 3:
-        return {}
-    out = {}
-    for name in CANDIDATES:
-        trial = {**cfg, "physics": {**cfg["physics"],
-                                    name: {**cfg["physics"][name], "enabled": True}}}
-        why = dim3_problem(trial)
-        if why:
-            out[name] = why
     return out
 
 
@@ -734,19 +711,56 @@ def _registration(ctx: DiagnosisContext, lin: Linearization, check,
     return out
 
 
-#: each fsi mesh preset's next finer one, per dimension (by the interface's element size;
-#: the discretization check solves the posterior mean on it): none beyond the finest
-FINER_PRESET = {2: {"very_coarse": "coarse", "coarse": "paper", "paper": "fine"},
-                3: {"very_coarse": "coarse", "coarse": "paper"}}
+def corrected_for_mesh(nodes: np.ndarray, here: Any, there: Any
+                       ) -> tuple[np.ndarray, np.ndarray]:
+    """Observed nodes corrected for the difference between two meshes' predictions.
+
+    Parameters
+    ----------
+    nodes
+        (n, d) observed nodes, mm.
+    here, there
+        The prediction on the study's mesh and on a finer one (interfaces).
+
+    Returns
+    -------
+    moved : ndarray, shape (n, d)
+        ``x_j - e_j n_j``: each node moved back along the outward normal ``n_j`` of
+        ``here`` (at its closest point) by ``e_j``, mm.
+    e : ndarray, shape (n,)
+        The signed offset of ``there`` from ``here`` at those points (+: outward), mm.
+    """
+    from bayescalib.diagnosis.residuals import fluid_side_sign
+    from bayescalib.geometry.projection import closest_points
+
+    _, O = _offsets_from([nodes], [here], [[there]])
+    e = O[0]
+    _, _, cell = closest_points(nodes, here)
+    nrm = fluid_side_sign(here) * here.normals[cell]
+    return nodes - e[:, None] * nrm, e
+
+
+def with_discretization(verdict: str, extension_chosen: bool,
+                        discretization: Mapping[str, Any] | None) -> str:
+    """The verdict once the discretization check is known (:func:`_discretization_check`):
+    unchanged unless the mesh's error explains the mismatch; then :data:`DISCRETIZED`
+    without a chosen extension, or the extension's verdict with the mesh beside it."""
+    if discretization is None or not discretization.get("explains"):
+        return verdict
+    if not extension_chosen:
+        return DISCRETIZED
+    return (f"{verdict}, or by the forward model's discretization error (refine the mesh to "
+            "tell them apart)")
 
 
 def _discretization_check(ctx: DiagnosisContext, check, draws: Mapping[str, Any],
-                          mean: Mapping[str, float]) -> dict[str, Any] | None:
+                          lin: Linearization) -> dict[str, Any] | None:
     """Is the mismatch the forward model's own discretization error?
 
-    The posterior mean is solved on the study's mesh and on the next finer preset
-    (:data:`FINER_PRESET`); the finer prediction's signed offset ``e_j`` from the
-    study's at the observed nodes (+: outward) is the mesh's error there, to first
+    The posterior mean, solved on the study's mesh by the linearization (``lin``), is
+    solved once more on the next finer preset
+    (:func:`~bayescalib.models.fsi.model.finer_preset`); the finer
+    prediction's signed offset ``e_j`` from the study's at the observed nodes (+: outward) is the mesh's error there, to first
     order. The observed nodes moved back by it (``x_j - e_j n_j``, ``n`` the outward
     normal of the study's prediction) are checked against the same posterior draws: if
     that check explains the mismatch (:func:`explains_mismatch`), the model's
@@ -756,41 +770,32 @@ def _discretization_check(ctx: DiagnosisContext, check, draws: Mapping[str, Any]
     no finer preset) or where a solve failed (the record says which).
     """
     from bayescalib.config import validate
-    from bayescalib.diagnosis.residuals import fluid_side_sign
-    from bayescalib.geometry.projection import closest_points
     from bayescalib.models.forward import solve_points
+    from bayescalib.models.fsi.model import finer_preset
 
     fm = ctx.fm
     if fm.get("type") != "fsi":
         return None
     fsi = validate(fm.get("fsi") or {}, "fsi")
     mesh = fsi["mesh"]
-    finer = FINER_PRESET[int(fsi["geometry"]["dim"])].get(mesh["preset"])
+    finer = finer_preset(int(fsi["geometry"]["dim"]), mesh["preset"])
     if finer is None or any(mesh[k] is not None for k in ("h_interface", "h_solid", "h_bulk")):
         return None
-    at = {t: float(mean[n]) for t, n in zip(ctx.targets, ctx.names, strict=True)}
+    at = lin.base_point
     fine_fm = {**fm, "fsi": {**(fm.get("fsi") or {}),
                              "mesh": {**((fm.get("fsi") or {}).get("mesh") or {}),
                                       "preset": finer}}}
-    work = ctx.work / "base" / "discretization"
-    runs = [solve_points(f, [at], [work / f"{name}.h5"], workers=1,
-                         warm_start=ctx.warm_start if name == "study_mesh" else None)[0]
-            for f, name in ((fm, "study_mesh"), (fine_fm, finer))]
+    # no warm start: the study's state is on another mesh
+    run = solve_points(fine_fm, [at], [ctx.work / "base" / "discretization" / f"{finer}.h5"])[0]
     out: dict[str, Any] = {"preset": mesh["preset"], "finer_preset": finer, "at": at}
-    if not all(r.ok for r in runs):
-        out["failed"] = "; ".join(r.reason for r in runs if not r.ok)
+    if not run.ok:
+        out["failed"] = run.reason
         return out
-    here, there = (model_interfaces(r, ctx.n_snap) for r in runs)
-    moved, shifts = [], []
-    for s, nodes in enumerate(ctx.nodes):
-        _, O = _offsets_from([nodes], [here[s]], [[there[s]]])
-        e = O[0]
-        _, _, cell = closest_points(nodes, here[s])
-        nrm = fluid_side_sign(here[s]) * here[s].normals[cell]
-        moved.append(nodes - e[:, None] * nrm)
-        shifts.append(e)
+    there = model_interfaces(run, ctx.n_snap)
+    moved, shifts = zip(*(corrected_for_mesh(n, h, f) for n, h, f
+                          in zip(ctx.nodes, lin.reference, there, strict=True)), strict=True)
     e_all = np.concatenate(shifts)
-    after = ctx.predictive_check(moved, draws["curves"], _recheck_sigma(ctx, check),
+    after = ctx.predictive_check(list(moved), draws["curves"], _recheck_sigma(ctx, check),
                                  int(ctx.settings["seed"]))
     out.update(error_rms_mm=float(np.sqrt(np.mean(e_all ** 2))),
                error_max_mm=float(np.max(np.abs(e_all))),
@@ -969,10 +974,13 @@ def _extend(ctx: DiagnosisContext, base: BaseCalibration, check, found: Attribut
 
 
 def _decide(ctx: DiagnosisContext, check, found: Attribution, registration: dict | None,
-            screening: Screening, extensions: Extensions) -> Decision:
+            screening: Screening, extensions: Extensions,
+            discretization: Mapping[str, Any] | None = None) -> Decision:
     """Choose a model (:func:`choose_extension`), set aside by name every candidate no
     extension contains (:func:`set_aside_candidates`) and decide the verdict
-    (:func:`decide_verdict`)."""
+    (:func:`decide_verdict`; when the mesh's own error explains the mismatch,
+    :func:`_discretization_check`, the verdict says so: :data:`DISCRETIZED` without a
+    chosen extension, else beside it)."""
     cfg, attr, extended = ctx.settings, found.result, extensions.extended
     best = choose_extension(extended)
     # a candidate implausible alone but selected beside another is calibrated within its
@@ -996,12 +1004,14 @@ def _decide(ctx: DiagnosisContext, check, found: Attribution, registration: dict
                              modelled=bool(extended), registration=registration,
                              untestable=sorted(found.failed),
                              single_snapshot=len(ctx.obs.labels) == 1, set_aside=aside)
+    verdict = with_discretization(verdict, best is not None, discretization)
     return Decision(screening, extensions, aside, chosen, verdict)
 
 
 def _diagnosis_record(ctx: DiagnosisContext, base: BaseCalibration, check,
                       n_failed_draws: int, found: Attribution, registration: dict | None,
-                      decision: Decision) -> dict[str, Any]:
+                      decision: Decision, discretization: Mapping[str, Any] | None = None
+                      ) -> dict[str, Any]:
     """The ``diagnosis.json`` content (plain values), its plain words included."""
     attr, obs = found.result, ctx.obs
     out = {
@@ -1015,10 +1025,10 @@ def _diagnosis_record(ctx: DiagnosisContext, base: BaseCalibration, check,
                                              "steps")},
         "refit": decision.screening.refit,
         "registration": registration,
+        "discretization": (None if discretization is None else
+                           {k: v for k, v in discretization.items() if k != "_check"}),
         "zero_load_snapshot": _zero_load_label(ctx.fm, obs.labels),
         "failed_signatures": found.failed,
-        "not_in_model": ({} if ctx.fm.get("type") != "fsi" or ctx.settings.get("candidates")
-                         else library_gaps(ctx.fm)),
         "noise_reference_mm": decision.extensions.noise_reference,
         "signature_attempts": found.attempts,
         "posterior_mean": dict(zip(ctx.names, map(float, found.lin.theta), strict=True)),
@@ -1100,7 +1110,7 @@ def run_diagnosis(
     found = _attribute(ctx, base.summary["mean"], check, draws)
     # is the mismatch the mesh's own error? (the posterior mean on the next finer mesh)
     discretization = (None if check.adequate or not ctx.settings["discretization_check"]
-                      else _discretization_check(ctx, check, draws, base.summary["mean"]))
+                      else _discretization_check(ctx, check, draws, found.lin))
     # (a rigid misregistration is tested in 2D only: its signatures are in-plane moves)
     registration = (_registration(ctx, found.lin, check, draws)
                     if ctx.settings["registration"] and ctx.dim == 2 else None)
@@ -1108,16 +1118,10 @@ def run_diagnosis(
     # solves, then decide
     screening = _screen(ctx, check, found, registration)
     extensions = _extend(ctx, base, check, found, registration, screening)
-    decision = _decide(ctx, check, found, registration, screening, extensions)
+    decision = _decide(ctx, check, found, registration, screening, extensions, discretization)
     # 6: report
-    out = _diagnosis_record(ctx, base, check, n_failed_draws, found, registration, decision)
-    if discretization is not None:
-        out["discretization"] = {k: v for k, v in discretization.items() if k != "_check"}
-        if discretization.get("explains"):
-            out["verdict"] = (DISCRETIZED if out["chosen_model"] == "base" else
-                              f"{out['verdict']}, or by the forward model's discretization "
-                              "error (refine the mesh to tell them apart)")
-        out["plain_words"] = plain_words(out)
+    out = _diagnosis_record(ctx, base, check, n_failed_draws, found, registration, decision,
+                            discretization)
     checks = {"base": check, **{e["candidate"]: e["_check"] for e in extensions.extended
                                 if e["_check"] is not None}}
     if discretization is not None and discretization.get("_check") is not None:

@@ -75,7 +75,7 @@ from bayescalib.models.fsi.physics import (
 from bayescalib.models.fsi.problem import FSIProblem
 from bayescalib.models.fsi.solver import MonolithicSolver, SolverControls
 
-__all__ = ["MESH_PRESETS", "MESH_PRESETS_3D", "PA", "PHYSICS_3D", "FSIModel", "dim3_problem",
+__all__ = ["MESH_PRESETS", "MESH_PRESETS_3D", "PA", "PHYSICS_3D", "FSIModel", "dim3_problem", "finer_preset",
            "fsi_section"]
 
 #: Pa -> solver stress units mg/(mm s^2) (= mPa)
@@ -125,6 +125,15 @@ def fsi_section(config: Mapping[str, Any]) -> dict[str, Any]:
 #: the candidate physics (:mod:`bayescalib.models.fsi.physics`) of the 3D model: all of
 #: them, through the same forms as in 2D
 PHYSICS_3D = tuple(CANDIDATES)
+
+
+def finer_preset(dim: int, preset: str) -> str | None:
+    """The next finer mesh preset of the ``dim``-dimensional model (the one with the
+    largest interface element size below ``preset``'s), or None for the finest."""
+    presets = MESH_PRESETS if int(dim) == 2 else MESH_PRESETS_3D
+    h = presets[preset]["h_interface"]
+    finer = [p for p in presets if presets[p]["h_interface"] < h]
+    return max(finer, key=lambda p: presets[p]["h_interface"]) if finer else None
 
 
 def dim3_problem(cfg: Mapping[str, Any]) -> str:
