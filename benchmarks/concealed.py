@@ -190,8 +190,9 @@ def _effect_region(root: Path, fm: dict, truth: dict, bounds: dict,
     (:func:`bayescalib.diagnosis.localization.effect_regions`; its run records under
     ``<root>/diagnosis/``).
 
-    ``gt_path``: the ground-truth run (default: the study's own); ``observed``: observed
-    interfaces whose nodes are not the ground truth's (images). ``misregistration``: the
+    ``gt_path``: the ground-truth run (default: the study's own); ``observed``: the
+    observed nodes the diagnosis used, per snapshot, where they are not the ground
+    truth's (images; 3D surfaces' Poisson-disk subsets). ``misregistration``: the
     hidden rigid misplacement of the observations (``observations.misregistration``),
     applied to the ground truth as the observation stage does (about the first
     snapshot's centroid), so that the "effect" of a misregistered study is the
@@ -212,7 +213,7 @@ def _effect_region(root: Path, fm: dict, truth: dict, bounds: dict,
         gts = [misplace(g, misregistration, centre) for g in gts]
     return effect_regions(fm, truth, bounds, gts, root / "diagnosis", fd_step=fd_step,
                           observed=None if observed is None
-                          else [np.asarray(getattr(o, "points", o)) for o in observed])
+                          else [np.asarray(o) for o in observed])
 
 
 def _overlap(diag: dict, regions: list[np.ndarray] | None, labels: list[str],

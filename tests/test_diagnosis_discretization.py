@@ -86,7 +86,8 @@ def test_the_report_shows_the_observations_corrected_for_the_mesh(tmp_path):
     clean, _ = observed_nodes(rng, 0.003)
     from test_diagnosis_set_aside import SIGS, _ranked
 
-    attr = _ranked(0.01 * SIGS["layer"] + np.random.default_rng(5).normal(0, 0.01, len(SIGS["layer"])))
+    layer = SIGS["layer"]
+    attr = _ranked(0.01 * layer + np.random.default_rng(5).normal(0, 0.01, len(layer)))
     base = predictive_check([bumped], dr, sigma=0.003, rng=np.random.default_rng(4))
     fixed = predictive_check([clean], dr, sigma=0.003, rng=np.random.default_rng(4))
     d = {"verdict": DISCRETIZED, "check": base.to_json(), "chosen_model": "base",

@@ -26,8 +26,8 @@ from typing import Any
 import numpy as np
 
 __all__ = ["IMAGE_NOISE_LAG_PIXELS", "MAX_SURFACE_NODES", "SURFACE_SPACING_SHARE",
-           "DiagnosisContext", "diagnosis_nodes", "noise_lag", "resolve_noise_model", "rim_height", "surface_nodes",
-           "thinned_observations"]
+           "DiagnosisContext", "diagnosis_nodes", "noise_lag", "resolve_noise_model",
+           "rim_height", "surface_nodes", "thinned_observations"]
 
 #: lag of the noise estimate for interfaces traced from images, in pixel sizes (see
 #: :func:`bayescalib.diagnosis.residuals.estimate_noise`)

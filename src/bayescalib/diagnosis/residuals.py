@@ -230,10 +230,12 @@ def node_distances(coord: np.ndarray) -> np.ndarray:
     lengths; across a surface the straight distance between the nodes, which is the
     distance along the surface to within ``d^3 / (24 R^2)`` for a radius of curvature
     ``R`` (0.2 % at ``d = ell = 0.05`` mm on a colony of radius 0.3 mm)."""
+    from scipy.spatial.distance import cdist
+
     c = np.asarray(coord, dtype=float)
     if c.ndim == 1:
         return np.abs(c[:, None] - c[None, :])
-    return np.sqrt(np.maximum(np.sum((c[:, None, :] - c[None, :, :]) ** 2, axis=2), 0.0))
+    return cdist(c, c)
 
 
 def smoother(coord: np.ndarray, ell: float) -> np.ndarray:

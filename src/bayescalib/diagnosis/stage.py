@@ -117,7 +117,8 @@ __all__ = ["DISCRETIZED", "IMAGE_NOISE_LAG_PIXELS", "MIN_IDENTIFIABLE",
            "explains_mismatch", "fits_better", "joint_of_singles", "judge_extensions",
            "model_extensions", "noise_lag", "plain_words", "reference_noise",
            "resolve_candidates", "resolve_noise_model", "retry_steps", "run_diagnosis",
-           "set_aside_candidates", "thinned_observations", "widened_range", "with_discretization"]
+           "set_aside_candidates", "thinned_observations", "widened_range",
+           "with_discretization"]
 
 log = logging.getLogger(__name__)
 
@@ -759,15 +760,16 @@ def _discretization_check(ctx: DiagnosisContext, check, draws: Mapping[str, Any]
 
     The posterior mean, solved on the study's mesh by the linearization (``lin``), is
     solved once more on the next finer preset
-    (:func:`~bayescalib.models.fsi.model.finer_preset`); the finer
-    prediction's signed offset ``e_j`` from the study's at the observed nodes (+: outward) is the mesh's error there, to first
-    order. The observed nodes moved back by it (``x_j - e_j n_j``, ``n`` the outward
-    normal of the study's prediction) are checked against the same posterior draws: if
-    that check explains the mismatch (:func:`explains_mismatch`), the model's
-    discretization accounts for it, and physics cannot be read from it on this mesh.
+    (:func:`~bayescalib.models.fsi.model.finer_preset`); the finer prediction's signed
+    offset ``e_j`` from the study's at the observed nodes (+: outward) is the mesh's
+    error there, to first order (:func:`corrected_for_mesh`). The observed nodes moved
+    back by it (``x_j - e_j n_j``, ``n`` the outward normal of the study's prediction)
+    are checked against the same posterior draws: if that check explains the mismatch
+    (:func:`explains_mismatch`), the model's discretization accounts for it, and physics
+    cannot be read from it on this mesh.
 
-    Returns None where it does not apply (not the fsi model, explicit element sizes,
-    no finer preset) or where a solve failed (the record says which).
+    Returns None where it does not apply (not the fsi model, explicit element sizes, no
+    finer preset); a record with ``failed`` (the reason) where the finer solve failed.
     """
     from bayescalib.config import validate
     from bayescalib.models.forward import solve_points
@@ -1586,8 +1588,9 @@ def _region_words(loc: Mapping[str, Any]) -> str:
     core = loc.get("core_where")
     n = int(loc["n_nodes"])
     return (f"Mismatch on snapshot {loc['snapshot']}: a region of {n} observed "
-            f"node{'s' if n != 1 else ''} {loc['where']} of the colony (x {x[0]:.3f}-{x[1]:.3f} mm, y {y[0]:.3f}-"
-            f"{y[1]:.3f} mm, z {z[0]:.3f}-{z[1]:.3f} mm), {loc['direction']}, by up to "
+            f"node{'s' if n != 1 else ''} {loc['where']} of the colony (x {x[0]:.3f}-"
+            f"{x[1]:.3f} mm, y {y[0]:.3f}-{y[1]:.3f} mm, z {z[0]:.3f}-{z[1]:.3f} mm), "
+            f"{loc['direction']}, by up to "
             f"{1e3 * abs(loc['peak_residual_mm']):.2f} um"
             + (f"; at least half of the largest mismatch {core}." if core else "."))
 
