@@ -270,8 +270,15 @@ def make_lobe2d() -> Problem:
         bb = np.log(w2) + _mvn_logpdf(X, m2, S2)
         return np.logaddexp(a, bb) + c
 
+    def component(X):  # which mode a point belongs to: the larger weighted density
+        X = np.atleast_2d(X)
+        return (np.log(w2) + _mvn_logpdf(X, m2, S2) > np.log(w1) + _mvn_logpdf(X, m1, S1)
+                ).astype(int)
+
     prob = Problem("lobe2d", ["x1", "x2"], np.array([[-5.0, 5.0], [-5.0, 5.0]]), loglik, B)
     _grid_reference(prob)
+    prob.ref_info["modes"] = {"weights": [w1, w2], "means": [m1.tolist(), m2.tolist()]}
+    prob.component = component
     return prob
 
 

@@ -160,3 +160,66 @@ def test_a_refit_that_moves_mode_mass_after_the_check_is_not_converged():
                                    "change_since_checked": change, "mass_settled": settled}}
         rule.apply(rec, None)
         assert rec["converged"] is converged
+
+
+def test_an_undecided_check_of_a_posterior_that_moved_is_superseded():
+    """An undecided look whose refitted posterior moved beyond the stop rule's tolerances
+    from the checked one (mean or sd, or the clusters' masses) is superseded: its check
+    stops, its words say why; one that stayed keeps looking; a decided look is left."""
+    from bayescalib.inference.active import StopRule, supersede_if_moved
+
+    rule = StopRule(0.2, 0.2, 1.0, 2, 0.02, 64, 32, False, 8)
+    still = {"shift_sd": 0.05, "sd_change": 0.03}
+    moved = {"shift_sd": 0.3, "sd_change": 0.03}
+    cases = [({"decision": "continue", "change_since_checked": moved}, "superseded"),
+             ({"decision": "continue", "change_since_checked": still}, "continue"),
+             ({"decision": "continue", "change_since_checked": still, "mass_settled": False,
+               "mass_change_since_checked": 0.08}, "superseded"),
+             ({"decision": "refuted", "change_since_checked": moved}, "refuted")]
+    for pc, decision in cases:
+        pc.update(n_draws=8, words="look 1 of at most 4")
+        supersede_if_moved(pc, rule)
+        assert pc["decision"] == decision
+        assert ("superseded after 8 draws" in pc["words"]) is (decision == "superseded")
+    assert "masses by 0.08" in cases[2][0]["words"]
+
+
+def test_a_superseded_check_starts_the_next_settled_streak():
+    """After a superseded check the round counts towards the next streak when it is
+    settled and explored (not converged; a design round next at patience 2 with the budget
+    to spare), and the streak is 0 when it is not."""
+    from bayescalib.inference.active import StopRule
+
+    rule = StopRule(0.2, 0.2, 1.0, 2, 0.02, 128, 32, False, 8)
+    change = {"shift_sd": 0.1, "sd_change": 0.1}
+    for settled, streak in ((True, 1), (False, 0)):
+        rec = {"n_solves": 48, "settled": settled, "explored": True, "trusted": True,
+               "change": change,
+               "posterior_check": {"confirmed": False, "decision": "superseded",
+                                   "change_since_checked": change}}
+        step = rule.apply(rec, None)
+        assert rec["settled_streak"] == streak
+        assert not rec["converged"] and not rec["stop"]
+        assert not step["check_round_next"]
+
+
+def test_the_design_batches_leave_room_for_two_looks_of_the_check():
+    """With 32 check draws in looks of 8 and a budget of 64, the design batches keep 16
+    solves back (not 32) and the check round starts once 16 are left, with all of them;
+    with the whole check in one look (batch 0) they keep its 32."""
+    from bayescalib.inference.active import RESERVE_LOOKS, StopRule
+
+    assert RESERVE_LOOKS == 2
+    rule = StopRule(0.2, 0.2, 1.0, 2, 0.02, 64, 32, False, 8)
+    for n_solves, check_next, n_draws in ((32, False, 32), (40, False, 24), (48, True, 16),
+                                          (52, True, 12)):
+        rec = {"n_solves": n_solves, "settled": False, "explored": True, "trusted": True,
+               "change": {"shift_sd": 1.0, "sd_change": 1.0}, "posterior_check": None}
+        step = rule.apply(rec, None)
+        assert step["check_round_next"] is check_next, n_solves
+        assert step["reserve"] == 16 and step["n_draws"] == n_draws, n_solves
+    one_look = StopRule(0.2, 0.2, 1.0, 2, 0.02, 64, 32, False, 0)
+    rec = {"n_solves": 32, "settled": False, "explored": True, "trusted": True,
+           "change": {"shift_sd": 1.0, "sd_change": 1.0}, "posterior_check": None}
+    step = one_look.apply(rec, None)
+    assert step["check_round_next"] and step["n_draws"] == 32

@@ -153,7 +153,10 @@ def _decision(rec: Mapping[str, Any]) -> str:
     nxt = rec.get("next") or {}
     kinds = list(nxt.get("kind") or [])
     q = len(nxt.get("points") or [])
-    if pc is not None and not pc["confirmed"]:
+    if pc is not None and pc.get("decision") == "superseded":
+        said = (f"the posterior moved away from round {pc['round']}'s while its draws were "
+                f"solved, so that check was stopped")
+    elif pc is not None and not pc["confirmed"]:
         said = f"its draws did not confirm round {pc['round']}'s posterior"
     elif pc is not None:
         said = f"round {pc['round']}'s posterior was confirmed but moved when its draws were added"
@@ -249,9 +252,9 @@ class RunConsole:
             p = _phase(rule)
             if p not in running:
                 running.append(p)
-        return self._said([f"  [{format_duration(self._elapsed())}] running: "
-                           f"{', '.join(running)}; {self.solves} of {self.plan['budget']} "
-                           f"solves done"])
+        return self._said([(f"  [{format_duration(self._elapsed())}] running: "
+                            f"{', '.join(running)}; {self.solves} of {self.plan['budget']} "
+                            f"solves done")])
 
     def job_info(self, jobid: int, rule: str, wildcards: Mapping[str, Any] | None,
                  output: Sequence[str] | None) -> list[str]:
@@ -272,9 +275,9 @@ class RunConsole:
             if not self.plan["active"] and not self._design_done \
                     and self.solves >= self.plan["budget"]:
                 self._design_done = True
-                out += [f"all {self.plan['budget']} solves done "
-                        f"[{format_duration(self._elapsed())}]; surrogate, posterior, "
-                        "figures and summary next"]
+                out += [(f"all {self.plan['budget']} solves done "
+                         f"[{format_duration(self._elapsed())}]; surrogate, posterior, "
+                         "figures and summary next")]
         elif rule == "acquire" and output:
             try:
                 rec = self._read(output[0])

@@ -28,9 +28,9 @@ points). Each round r then
    ones (:func:`check_points`), all run as ordinary parallel solve jobs.
 
 Stop rule. Once the posterior has been settled for ``patience`` rounds in a row,
-or when only ``posterior_check.draws`` solves of the budget ``max_solves`` are left
-(the batches are cut to leave them while they fit, else one look's
-``posterior_check.batch``), the next batch is a *check round*: that many equally
+or when only :data:`RESERVE_LOOKS` looks of the check (``posterior_check.batch``
+solves each, at most ``posterior_check.draws``) of the budget ``max_solves`` are left
+(the batches are cut to leave them), the next batch is a *check round*: that many equally
 weighted draws of the current posterior (:func:`posterior_draws`, stratified by its
 clusters, :func:`posterior_clusters`), with the surrogate's log-likelihood at each
 recorded. They are solved as design points a look of ``posterior_check.batch`` at a
@@ -44,7 +44,11 @@ the checked one (its moments within the stop rule's tolerances, and, with severa
 clusters, their masses, by nearest cluster centre, within ``posterior_check.mass_tol``
 of those confirmed: on bimodal2d seed 3 a refit with the 32 check draws moved 5 % of the
 mass between the modes while its moments moved by less than 0.2 sd, and the run said
-converged at Hellinger 0.16): **converged**. Not confirmed (or moved): the draws stay in the training set (where
+converged at Hellinger 0.16): **converged**. A check whose looks are undecided while the
+posterior refitted with its draws has already moved away from the checked one (beyond
+those tolerances) is *superseded*: confirming it could no longer make the run converge,
+so its remaining draws are not solved, and the round counts towards the next settled
+streak. Not confirmed (or moved): the draws stay in the training set (where
 the posterior lives, they are the most useful solves the rounds can get), the
 settled streak starts again, and the rounds go on; when the budget is spent the
 run stops **NOT converged** and says why (the posterior reported is the last
@@ -444,6 +448,15 @@ def _round_seed(seed: int, r: int) -> np.random.Generator:
     return np.random.default_rng([int(seed), int(r), 0x5EED])
 
 
+#: the design batches leave room for this many looks of the sequential posterior check
+#: (``posterior_check.batch`` draws each, at most ``posterior_check.draws``); the check
+#: round starts once no more than that is left. Two: one look confirms only a posterior
+#: whose draws represent it (8 draws of a curved ridge often do not), and a whole check
+#: (32 draws) held back from a budget of 64 left half of it to check the posterior of
+#: round 2 (``benchmarks/bench_modes.py``, ``docs/bench_modes.md``)
+RESERVE_LOOKS = 2
+
+
 @dataclass(frozen=True)
 class StopRule:
     """The stop rule of the module docstring, over the round records.
@@ -525,6 +538,8 @@ class StopRule:
         if pc is None:
             streak = (int(previous.get("settled_streak", 0)) if previous else 0) + 1 \
                 if counts else 0
+        elif pc.get("decision") == "superseded":  # the streak starts with this round
+            streak = int(counts)
         else:  # after a check round the streak starts again (unless it converged)
             streak = 0
         rec["settled_streak"] = streak
@@ -542,9 +557,10 @@ class StopRule:
             reserve = n_draws
         else:
             # a check round needs room for its first look; the design batches leave room
-            # for a whole check (n_draws) while it fits, else for a first look
+            # for RESERVE_LOOKS looks (at most n_draws), and the check starts once no more
+            # than that is left
             check_round_fits = 0 < first <= budget_left
-            reserve = n_draws if n_draws <= budget_left else first
+            reserve = min(n_draws, RESERVE_LOOKS * first)
             check_round_next = check_round_fits and (streak >= self.patience
                                                      or budget_left - reserve < 1)
             n_draws = min(n_draws, max(budget_left, 0))
@@ -760,6 +776,7 @@ def _check_look(nxt: Mapping[str, Any], drawn: np.ndarray, L_batch: np.ndarray,
         pc["cluster_mass_now"] = now.tolist()
         pc["mass_change_since_checked"] = moved
         pc["mass_settled"] = bool(moved <= float(posterior_check["mass_tol"]))
+    supersede_if_moved(pc, rule)
     if pc["decision"] != "continue":
         return pc, None
     state = {k: check[k] for k in ("round", "posterior", "cluster_mass", "cluster_center",
@@ -768,6 +785,31 @@ def _check_look(nxt: Mapping[str, Any], drawn: np.ndarray, L_batch: np.ndarray,
                        "cluster": lab.tolist()}
     state["pending"] = pending
     return pc, state
+
+
+def supersede_if_moved(pc: dict[str, Any], rule: StopRule) -> None:
+    """Mark an undecided look ``pc`` of the sequential check *superseded* when the
+    posterior refitted with its draws has moved away from the one the check tests (its
+    ``change_since_checked`` not settled by ``rule``, or ``mass_settled`` False).
+
+    Confirming the checked posterior could then no longer make the run converge (the
+    stop rule wants the confirmed posterior settled against the checked one), so the
+    check's remaining draws are not solved; the draws solved stay design points. On
+    ridge2d with a budget of 64 the check of round 2's posterior, 0.3 sd from where the
+    rounds settled, took every solve left in undecided looks
+    (``docs/bench_modes.md``)."""
+    if pc["decision"] != "continue" or (rule.settled(pc["change_since_checked"])
+                                        and pc.get("mass_settled", True)):
+        return
+    pc["decision"] = "superseded"
+    ch = pc["change_since_checked"]
+    moved = (f"its mean by {ch['shift_sd']:.2g} sd, its sd by {ch['sd_change']:.2g}"
+             + (f", its clusters' masses by {pc['mass_change_since_checked']:.2g}"
+                if not pc.get("mass_settled", True) else ""))
+    pc["words"] = (f"superseded after {pc['n_draws']} draws: the posterior refitted with "
+                   f"them moved away from the one checked ({moved}), so its check was "
+                   f"stopped and the draws kept as design points; undecided until then ("
+                   + pc["words"] + ")")
 
 
 def _reason(rec: Mapping[str, Any], rule: StopRule, step: Mapping[str, Any],
@@ -1241,7 +1283,9 @@ def _why_not(rec: Mapping[str, Any], stop_cfg: Mapping[str, Any],
     if not rec.get("explored", True):
         parts.append(_unexplored_words(rec))
     if pc is not None:
-        if not pc["confirmed"]:
+        if pc.get("decision") == "superseded":
+            parts.append(f"the posterior check of round {pc['round']} was {pc['words']}")
+        elif not pc["confirmed"]:
             parts.append(f"the posterior of round {pc['round']} was NOT confirmed by real "
                          f"solves of its draws ({pc['words']})")
         else:
