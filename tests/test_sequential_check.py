@@ -223,3 +223,29 @@ def test_the_design_batches_leave_room_for_two_looks_of_the_check():
            "change": {"shift_sd": 1.0, "sd_change": 1.0}, "posterior_check": None}
     step = one_look.apply(rec, None)
     assert step["check_round_next"] and step["n_draws"] == 32
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_the_fixed_design_check_tests_the_modes_masses(seed):
+    """The fixed design's final check (one look at all its draws) has the mass test: a
+    two-mode posterior whose masses are 10 % off is not confirmed, the right one is, and
+    on a Gaussian (one cluster) it says what the importance check says."""
+    from bayescalib.inference.active import final_posterior_check
+
+    section = {"mass_tol": 0.05, "alpha": 0.05, "min_ess_fraction": 0.5, "shift_tol": 0.2,
+               "sd_tol": 0.2, "max_log_weight_sd": 1.0, "max_failed_fraction": 0.1}
+    for case, confirmed in (("bimodal_right", True), ("bimodal_shift10", False),
+                            ("gauss_right", True)):
+        (log_pi, _), (log_q, _), _ = bsc.CASES[case]
+        P, _, masses = _particles(case)
+        rng = np.random.default_rng([seed, 0xF1])
+        D = P[rng.choice(len(P), 32, replace=False)]
+        L, mu = log_pi(D), log_q(D) + 0.02 * rng.standard_normal(32)
+        res = final_posterior_check(D, L, mu, P, np.ones(len(P)), section)
+        assert res["confirmed"] is confirmed, (case, res["words"])
+        assert len(res["mass"]["q"]) == len(masses)
+        assert "look" not in res["words"].split(":")[0]
+        if len(masses) == 1:
+            plain = importance_check(D, L, mu, posterior_mean=P.mean(axis=0),
+                                     posterior_sd=P.std(axis=0))
+            assert plain["confirmed"] is res["confirmed"]

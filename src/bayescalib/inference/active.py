@@ -1217,6 +1217,40 @@ def round_posterior_check(batch: Mapping[str, Any], L: np.ndarray,
     return {"round": int(checked_round), **res}
 
 
+def final_posterior_check(X: np.ndarray, L: np.ndarray, surrogate_mean: np.ndarray,
+                          particles: np.ndarray, weights: np.ndarray,
+                          posterior_check: Mapping[str, Any]) -> dict[str, Any]:
+    """The posterior check of a fixed design: the draws ``X`` (S, d) of the final
+    posterior (equally weighted resamples of its ``particles``, (N, d), ``weights``)
+    with their real log-likelihoods ``L`` (S,) and the surrogate's ``surrogate_mean``
+    (S,), judged in one look by the tests of the active rounds' check
+    (:func:`~bayescalib.inference.importance.sequential_check` with every draw solved):
+    the importance check and the mass test of the posterior's clusters
+    (:func:`posterior_clusters`; each draw in its particle's cluster), so that a
+    posterior whose separated modes carry masses off by more than
+    ``posterior_check.mass_tol`` is not confirmed here either. One cluster: the
+    importance check's verdict. ``posterior_check``: the validated section."""
+    from scipy.spatial import cKDTree
+
+    from bayescalib.inference.importance import sequential_check
+
+    P = np.atleast_2d(np.asarray(particles, float))
+    X = np.atleast_2d(np.asarray(X, float))
+    labels, masses = posterior_clusters(P, weights)
+    lab = labels[cKDTree(P).query(X, k=1)[1]]
+    m = posterior_moments(P, np.asarray(weights, float))
+    return sequential_check(X, np.asarray(L, float), np.asarray(surrogate_mean, float),
+                            labels=lab, cluster_mass=masses, look=1, n_looks=1, final=True,
+                            mass_tol=posterior_check["mass_tol"],
+                            alpha=posterior_check["alpha"],
+                            min_ess_fraction=posterior_check["min_ess_fraction"],
+                            shift_tol=posterior_check["shift_tol"],
+                            sd_tol=posterior_check["sd_tol"],
+                            max_log_weight_sd=posterior_check["max_log_weight_sd"],
+                            max_failed_fraction=posterior_check["max_failed_fraction"],
+                            posterior_mean=m["mean"], posterior_sd=m["sd"])
+
+
 def check_points(particles: np.ndarray, weights: np.ndarray, bounds: np.ndarray, n: int,
                  rng: np.random.Generator) -> np.ndarray:
     """Points of the trust check that the surrogate does not choose, (n, d) in user units.

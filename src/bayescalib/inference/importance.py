@@ -545,7 +545,8 @@ def sequential_check(X: np.ndarray, loglik: np.ndarray, surrogate_mean: np.ndarr
         mass_words = f"{C} clusters of the posterior, a cluster without solved draws"
     else:
         mass_words = "one cluster"
-    look_words = f"look {look} of at most {n_looks}, {S_all} draws; {mass_words}"
+    look_words = (f"look {look} of at most {n_looks}, {S_all} draws; {mass_words}"
+                  if n_looks > 1 else f"{S_all} draws; {mass_words}")
     if decision == "confirmed" and not (final and complete):
         res["words"] = (f"{look_words}: confirmed early (log-weight sd below {sd_up:.2g} nats "
                         f"with confidence, under {clear:.2g}). " + head)

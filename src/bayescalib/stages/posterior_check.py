@@ -5,7 +5,8 @@ The forward solves of equally weighted draws of the posterior (rule
 ``predictive_solve``) each get their discrepancy and real log-likelihood
 (:func:`bayescalib.stages.discrepancy.discrepancy`); weighing them against the
 surrogate's log-likelihood the SMC sampled tells whether the surrogate's posterior holds
-(:func:`bayescalib.inference.importance.importance_check`).
+(:func:`bayescalib.inference.active.final_posterior_check`: the importance check and
+the mass test of the posterior's separated modes).
 """
 
 from __future__ import annotations
@@ -37,14 +38,14 @@ def posterior_check(sample_runs: Sequence[str | Path], obs_path: str | Path, mea
     posterior (the ``predictive_solve`` jobs, resampled from ``particles_path``); each
     gets its discrepancy and real log-likelihood (records under ``<out>.draws/``), the
     surrogate's log-likelihood at the same parameters is the one the SMC sampled, and
-    :func:`bayescalib.inference.importance.importance_check` compares the two
-    posteriors, and asks whether the draws represent the weighted particles' mean and sd
-    (a tail the draws missed is not checked by them). Writes ``out_path`` (JSON: the
+    :func:`bayescalib.inference.active.final_posterior_check` compares the two
+    posteriors (and the masses of their separated modes), and asks whether the draws
+    represent the weighted particles' mean and sd (a tail the draws missed is not
+    checked by them). Writes ``out_path`` (JSON: the
     check's numbers keyed by parameter name, in the user's units) and returns it.
     ``check`` is the ``posterior_check`` section (the rule's param keeps its name).
     """
-    from bayescalib.inference.active import posterior_moments
-    from bayescalib.inference.importance import importance_check
+    from bayescalib.inference.active import final_posterior_check
 
     names = [p["name"] for p in parameters]
     targets = [p["target"] for p in parameters]
@@ -59,12 +60,7 @@ def posterior_check(sample_runs: Sequence[str | Path], obs_path: str | Path, mea
     gp = read_stage_file(surrogate_path, "surrogate")
     mu = gp.predict(X_arr)
     smc = read_stage_file(particles_path, "SMC particle file")
-    moments = posterior_moments(smc.particles, smc.weights)
-    res = importance_check(X_arr, L_arr, mu, min_ess_fraction=check["min_ess_fraction"],
-                           shift_tol=check["shift_tol"], sd_tol=check["sd_tol"],
-                           max_log_weight_sd=check["max_log_weight_sd"],
-                           max_failed_fraction=check["max_failed_fraction"],
-                           posterior_mean=moments["mean"], posterior_sd=moments["sd"])
+    res = final_posterior_check(X_arr, L_arr, mu, smc.particles, smc.weights, check)
     out = {"measure": measure_name, "names": names, **res,
            "draws": [{"parameters": dict(zip(names, x, strict=True)),
                       "loglik": None if not math.isfinite(ll) else ll,
