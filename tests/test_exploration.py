@@ -236,3 +236,35 @@ def test_a_posterior_with_one_mode_leaves_no_basin_unheld(case):
         assert res["unexplored_mass"] < 0.02, unheld
     else:  # the first pass's own false basins on the ridge's arms (the module docstring)
         assert all(b[0] == 1 for b in unheld)
+
+
+def test_a_solve_below_the_basins_quadratic_inside_its_ellipsoid_refutes_it():
+    """A basin's quadratic L* - q/2 (q = (u - u*)'P(u - u*)) is refuted by a solve inside
+    its chi2_0.99 ellipsoid that lies more than chi2_0.99 / 2 nats below it, not by one on
+    it or a little below it, nor by a low solve outside the ellipsoid."""
+    from scipy.stats import chi2
+
+    from bayescalib.inference.exploration import contradicted
+
+    level = float(chi2.ppf(0.99, 2))
+    P = np.diag([400.0, 100.0])  # sd 0.05 and 0.1 box units
+    u_star, L_star = np.array([0.5, 0.5]), -1.0
+    on = np.array([[0.55, 0.5], [0.5, 0.6], [0.5, 0.5]])
+    L_on = L_star - 0.5 * np.einsum("ij,jk,ik->i", on - u_star, P, on - u_star)
+    assert not contradicted(on, L_on, u_star, L_star, P, level)
+    assert not contradicted(on, L_on - 0.4 * level, u_star, L_star, P, level)
+    assert contradicted(on[:1], L_on[:1] - 0.6 * level, u_star, L_star, P, level)
+    far = np.array([[0.9, 0.9]])  # q = 80 > level: outside the basin
+    assert not contradicted(far, np.array([-1e3]), u_star, L_star, P, level)
+
+
+def test_the_missing_modes_basin_is_not_refuted_by_its_own_slopes():
+    """Seed 4's missing mode (above): its basin's quadratic, fitted through solves on its
+    own slopes, is not refuted by them, so it keeps the run from converging."""
+    X = np.vstack([_design(32), _draws(M2, S2, 16, 1)])
+    L = _two_modes(X)
+    res = audit(X, L, _draws(M2, S2, 4000), np.ones(4000), math.log(0.27) - math.log(100.0),
+                _space())
+    missing = [b for b in res["basins"] if not b["is_held"]]
+    assert missing and not missing[0]["refuted"]
+    assert np.linalg.norm(np.asarray(missing[0]["peak"]) - M1) < 0.5

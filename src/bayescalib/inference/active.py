@@ -438,9 +438,9 @@ MAX_BASINS_RECORDED = 5
 
 def unheld_basins(explored: Mapping[str, Any]) -> list[dict[str, Any]]:
     """The basins of :func:`~bayescalib.inference.exploration.audit` that the posterior
-    does not hold, largest estimated mass first (the first is the one the reason names),
+    does not hold and the solves do not refute, largest estimated mass first (the first is the one the reason names),
     at most ``MAX_BASINS_RECORDED``."""
-    return sorted((b for b in explored["basins"] if not b["is_held"]),
+    return sorted((b for b in explored["basins"] if not b["is_held"] and not b.get("refuted")),
                   key=lambda b: -b["mass"])[:MAX_BASINS_RECORDED]
 
 

@@ -56,6 +56,16 @@ fitted through its nearest solves of the same set by steps 1-4; a basin of this 
 whose estimated peak lies in the particles' region counts as held (a slope of the
 posterior's own mode).
 
+A basin not held is *refuted* when a solve inside its ellipsoid (v - v*)'P(v - v*) <=
+chi2_0.99(d) lies below the quadratic's value there, L* - 1/2 (v - v*)'P(v - v*), by more
+than chi2_0.99(d) / 2 nats: the data contradict the peak the quadratic claims (a curved
+ridge's arm, whose local quadratic rises towards the bound off the ridge; the probe sent
+to that peak finds it low, and the quadratic refitted through the probe claims a peak a
+little farther on). A refuted basin is not counted and not probed. A real mode's basin
+is not refuted by solves on its own slopes (they follow its quadratic) but can be by a
+solve that its estimated ellipsoid, too wide or misplaced, takes in; measured on
+``bimodal2d`` (``docs/bench_modes.md``).
+
 The unexplored mass is the sum of m over the basins not held (each capped at 1: a
 quadratic can overshoot, and the audit says so: "up to"). The stop rule does not say
 converged while it exceeds ``design.active.stop.unexplored_mass``; each batch then
@@ -94,7 +104,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 from scipy.stats import chi2
 
-__all__ = ["audit", "fill_distance", "probe_points"]
+__all__ = ["audit", "contradicted", "fill_distance", "probe_points"]
 
 #: a basin is held when the posterior's particles carry this share of its estimated mass
 HELD_SHARE = 0.25
@@ -210,6 +220,17 @@ def _peak(c: float, g: np.ndarray, P: np.ndarray, u0: np.ndarray,
     return u, float(c + g @ vv - 0.5 * vv @ P @ vv)
 
 
+def contradicted(U: np.ndarray, L: np.ndarray, u_star: np.ndarray, L_star: float,
+                 P: np.ndarray, level: float) -> bool:
+    """Does a solve refute a basin's quadratic? True when a solve u_j (rows of ``U``,
+    box units; log-likelihoods ``L``) inside the basin's ellipsoid q_j = (u_j - u*)'P
+    (u_j - u*) <= ``level`` lies below the quadratic's value there, L* - q_j / 2, by more
+    than ``level`` / 2 nats (``level``: chi2_0.99(d); the module docstring)."""
+    D = np.atleast_2d(U) - u_star
+    q = np.einsum("ij,jk,ik->i", D, P, D)
+    return bool(np.any((q <= level) & (np.asarray(L) < L_star - 0.5 * q - 0.5 * level)))
+
+
 def audit(X: np.ndarray, L: np.ndarray, particles: np.ndarray, weights: np.ndarray,
           log_evidence: float, space, bound: float | None = None) -> dict[str, Any]:
     """The basins of the solved log-likelihoods and the posterior mass the posterior
@@ -237,9 +258,10 @@ def audit(X: np.ndarray, L: np.ndarray, particles: np.ndarray, weights: np.ndarr
         ``basins``: one dict per local maximum of the data, highest first: ``point``
         (the solve, user units), ``loglik``, ``peak`` (estimated, user units),
         ``peak_loglik``, ``mass`` (estimated posterior mass, capped at 1), ``held``
-        (mass of the particles in the basin), ``is_held``, ``found_by`` (1: a local
+        (mass of the particles in the basin), ``is_held``, ``refuted`` (a solve inside
+        the basin contradicts its quadratic), ``found_by`` (1: a local
         maximum of all the solves; 2: of the solves the posterior does not hold);
-        ``unexplored_mass`` (sum of ``mass`` over the basins not held);
+        ``unexplored_mass`` (sum of ``mass`` over the basins neither held nor refuted);
         ``fill_distance`` (box units); ``n_outside`` (the solves of the second pass).
     """
     X = np.atleast_2d(np.asarray(X, float))
@@ -295,6 +317,7 @@ def audit(X: np.ndarray, L: np.ndarray, particles: np.ndarray, weights: np.ndarr
         inside = np.einsum("ij,jk,ik->i", D, P, D) <= level
         held = float(W[inside].sum())
         is_held = held >= HELD_SHARE * mass
+        refuted = contradicted(U, Lf, u_star, L_star, P, level)
         if found_by == 2 and not is_held:
             # a slope of the posterior's own region: its peak lies in that region
             is_held = bool(region_u(u_star[None, :])[0] <= 1.0)
@@ -311,12 +334,13 @@ def audit(X: np.ndarray, L: np.ndarray, particles: np.ndarray, weights: np.ndarr
                 cm, gm, Hm = _unpack(cf, d, True)
             lam_h, Q_h = np.linalg.eigh(-0.5 * (Hm + Hm.T))
             held_models.append((U[i], cm, gm, (Q_h * np.maximum(lam_h, 1.0)) @ Q_h.T))
-        else:
+        elif not refuted:
             unexplored += mass
         out["basins"].append({
             "point": X[ok][i].tolist(), "loglik": float(Lf[i]), "peak": x_star.tolist(),
             "peak_loglik": float(L_star), "mass": mass, "log_mass": float(log_m),
-            "held": held, "is_held": bool(is_held), "trust_radius": radius,
+            "held": held, "is_held": bool(is_held), "refuted": refuted and not is_held,
+            "trust_radius": radius,
             "found_by": found_by, "fit_r2": fit_r2,
             "region_ratio": float(region_u(U[i][None, :])[0]),
         })
@@ -369,7 +393,8 @@ def probe_points(result: Mapping[str, Any], X: np.ndarray, bounds: np.ndarray, n
     bounds = np.asarray(bounds, float)
     lo, width = bounds[:, 0], bounds[:, 1] - bounds[:, 0]
     U = (np.atleast_2d(np.asarray(X, float)) - lo) / width
-    todo = sorted((b for b in result["basins"] if not b["is_held"] and b["mass"] > tol),
+    todo = sorted((b for b in result["basins"]
+                   if not b["is_held"] and not b.get("refuted") and b["mass"] > tol),
                   key=lambda b: -b["mass"])
     picks: list[np.ndarray] = []
     for b in todo[:max(int(n), 0)]:
