@@ -438,9 +438,10 @@ MAX_BASINS_RECORDED = 5
 
 def unheld_basins(explored: Mapping[str, Any]) -> list[dict[str, Any]]:
     """The basins of :func:`~bayescalib.inference.exploration.audit` that the posterior
-    does not hold and the solves do not refute, largest estimated mass first (the first is the one the reason names),
-    at most ``MAX_BASINS_RECORDED``."""
-    return sorted((b for b in explored["basins"] if not b["is_held"] and not b.get("refuted")),
+    does not hold and the solves do not refute, largest estimated mass first (the first
+    is the one the reason names), at most ``MAX_BASINS_RECORDED``."""
+    return sorted((b for b in explored["basins"]
+                   if not b["is_held"] and not b.get("refuted")),  # older records lack it
                   key=lambda b: -b["mass"])[:MAX_BASINS_RECORDED]
 
 
@@ -1195,21 +1196,11 @@ def round_posterior_check(batch: Mapping[str, Any], L: np.ndarray,
     :func:`~bayescalib.inference.importance.sequential_check` (the defaults: one look at
     every draw). The per-parameter lists are keyed by name; ``round`` is the round whose
     posterior was checked; ``decision`` is ``confirmed``, ``refuted`` or ``continue``."""
-    from bayescalib.inference.importance import sequential_check
-
-    res = sequential_check(np.asarray(batch["points"], float), np.asarray(L, float),
-                           np.asarray(batch["mean"], float),
-                           labels=batch.get("cluster"), cluster_mass=cluster_mass,
-                           look=look, n_looks=n_looks, final=final, max_draws=max_draws,
-                           mass_tol=posterior_check["mass_tol"],
-                           alpha=posterior_check["alpha"],
-                           min_ess_fraction=posterior_check["min_ess_fraction"],
-                           shift_tol=posterior_check["shift_tol"],
-                           sd_tol=posterior_check["sd_tol"],
-                           max_log_weight_sd=posterior_check["max_log_weight_sd"],
-                           max_failed_fraction=posterior_check["max_failed_fraction"],
-                           posterior_mean=None if posterior is None else posterior["mean"],
-                           posterior_sd=None if posterior is None else posterior["sd"])
+    res = _sequential_check(batch["points"], L, batch["mean"], posterior_check,
+                            labels=batch.get("cluster"), cluster_mass=cluster_mass,
+                            look=look, n_looks=n_looks, final=final, max_draws=max_draws,
+                            posterior_mean=None if posterior is None else posterior["mean"],
+                            posterior_sd=None if posterior is None else posterior["sd"])
     for key in ("mean_q", "sd_q", "mean_is", "sd_is", "shift_sd", "shift_se", "sd_ratio",
                 "draws_shift_sd", "draws_sd_ratio"):
         if key in res:
@@ -1232,23 +1223,31 @@ def final_posterior_check(X: np.ndarray, L: np.ndarray, surrogate_mean: np.ndarr
     importance check's verdict. ``posterior_check``: the validated section."""
     from scipy.spatial import cKDTree
 
-    from bayescalib.inference.importance import sequential_check
-
     P = np.atleast_2d(np.asarray(particles, float))
     X = np.atleast_2d(np.asarray(X, float))
     labels, masses = posterior_clusters(P, weights)
     lab = labels[cKDTree(P).query(X, k=1)[1]]
     m = posterior_moments(P, np.asarray(weights, float))
-    return sequential_check(X, np.asarray(L, float), np.asarray(surrogate_mean, float),
-                            labels=lab, cluster_mass=masses, look=1, n_looks=1, final=True,
+    return _sequential_check(X, L, surrogate_mean, posterior_check, labels=lab,
+                             cluster_mass=masses, posterior_mean=m["mean"],
+                             posterior_sd=m["sd"])
+
+
+def _sequential_check(X, L, surrogate_mean, posterior_check: Mapping[str, Any],
+                      **kw: Any) -> dict[str, Any]:
+    """:func:`~bayescalib.inference.importance.sequential_check` with the thresholds of
+    the validated ``posterior_check`` section (``kw``: the look and the clusters)."""
+    from bayescalib.inference.importance import sequential_check
+
+    return sequential_check(np.asarray(X, float), np.asarray(L, float),
+                            np.asarray(surrogate_mean, float),
                             mass_tol=posterior_check["mass_tol"],
                             alpha=posterior_check["alpha"],
                             min_ess_fraction=posterior_check["min_ess_fraction"],
                             shift_tol=posterior_check["shift_tol"],
                             sd_tol=posterior_check["sd_tol"],
                             max_log_weight_sd=posterior_check["max_log_weight_sd"],
-                            max_failed_fraction=posterior_check["max_failed_fraction"],
-                            posterior_mean=m["mean"], posterior_sd=m["sd"])
+                            max_failed_fraction=posterior_check["max_failed_fraction"], **kw)
 
 
 def check_points(particles: np.ndarray, weights: np.ndarray, bounds: np.ndarray, n: int,
