@@ -249,3 +249,24 @@ def test_the_fixed_design_check_tests_the_modes_masses(seed):
             plain = importance_check(D, L, mu, posterior_mean=P.mean(axis=0),
                                      posterior_sd=P.std(axis=0))
             assert plain["confirmed"] is res["confirmed"]
+
+
+def test_the_reason_names_a_superseded_check_and_why():
+    """The round's words say that round 2's check was stopped, after how many draws and
+    how far the posterior moved; the console's line says it in a few words."""
+    from bayescalib.execution.progress import _decision
+    from bayescalib.inference.active import StopRule, _why_not, supersede_if_moved
+
+    rule = StopRule(0.2, 0.2, 1.0, 2, 0.02, 64, 32, False, 8)
+    pc = {"round": 2, "decision": "continue", "confirmed": False, "n_draws": 8,
+          "change_since_checked": {"shift_sd": 0.27, "sd_change": 0.16},
+          "words": "look 1 of at most 4, 8 draws; one cluster: undecided"}
+    supersede_if_moved(pc, rule)
+    rec = {"round": 3, "trust": {"n_batch": 8, "n_batch_failed": 0, "passed": True},
+           "change": {"shift_sd": 0.27, "sd_change": 0.16}, "posterior_check": pc,
+           "explored": True, "settled": False, "settled_streak": 0}
+    words = _why_not(rec, {"shift_tol": 0.2, "sd_tol": 0.2, "gp_tol": 1.0, "patience": 2},
+                     {"draws": 32, "batch": 8}, 24)
+    assert "posterior check of round 2 was superseded after 8 draws" in words
+    assert "its mean by 0.27 sd" in words
+    assert "moved away from round 2's" in _decision({**rec, "next": {"kind": ["acquired"]}})
