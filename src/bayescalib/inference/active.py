@@ -870,8 +870,6 @@ def _posterior_draw_batch(r: int, X: np.ndarray, gp, particles: np.ndarray,
     carries what the looks need: the checked round and posterior, the clusters' masses,
     the surrogate's log-likelihood at the draws, the looks' count for the error
     spending."""
-    from bayescalib.inference.exploration import probe_points
-
     look = int(look) if look and int(look) < n_draws else int(n_draws)
     labels, cluster_mass = posterior_clusters(particles, weights, seed=int(active["seed"]) + r)
     D, lab = posterior_draws(particles, weights, n_draws,
@@ -892,19 +890,31 @@ def _posterior_draw_batch(r: int, X: np.ndarray, gp, particles: np.ndarray,
              "solved": {"points": [], "mean": [], "loglik": [], "cluster": []},
              "pending": {"points": D[look:].tolist(), "mean": mean_all[look:].tolist(),
                          "cluster": lab[look:].tolist()}}
-    D, mean, sd = D[:look], mean_all[:look], sd_all[:look]
-    kind = ["posterior_check"] * look
-    if n_probes > 0:
-        probes = probe_points(explored, X, space.bounds, n_probes,
-                              float(active["stop"]["unexplored_mass"]),
-                              np.random.default_rng([int(active["seed"]), int(r), 0xB451]))
-        if len(probes):
-            pm, ps = _predict_loglik(gp, probes)
-            D, mean, sd = np.vstack([D, probes]), np.concatenate([mean, pm]), \
-                np.concatenate([sd, ps])
-            kind += ["probe"] * len(probes)
-    return {"points": D.tolist(), "mean": mean.tolist(), "sd": sd.tolist(), "score": [],
-            "kind": kind, "check": check}
+    batch = {"points": D[:look].tolist(), "mean": mean_all[:look].tolist(),
+             "sd": sd_all[:look].tolist(), "score": [], "kind": ["posterior_check"] * look,
+             "check": check}
+    return _with_probes(batch, r, X, gp, space, explored, active, n_probes)
+
+
+def _with_probes(batch: dict[str, Any], r: int, X: np.ndarray, gp, space,
+                 explored: Mapping[str, Any], active: Mapping[str, Any],
+                 n_probes: int) -> dict[str, Any]:
+    """``batch`` with up to ``n_probes`` probes of the unheld basins added (batch kind
+    ``"probe"``; :func:`~bayescalib.inference.exploration.probe_points`; none where every
+    basin is held or refuted)."""
+    from bayescalib.inference.exploration import probe_points
+
+    if n_probes <= 0:
+        return batch
+    probes = probe_points(explored, X, space.bounds, n_probes,
+                          float(active["stop"]["unexplored_mass"]),
+                          np.random.default_rng([int(active["seed"]), int(r), 0xB451]))
+    if not len(probes):
+        return batch
+    pm, ps = _predict_loglik(gp, probes)
+    return {**batch, "points": batch["points"] + probes.tolist(),
+            "mean": list(batch["mean"]) + pm.tolist(), "sd": list(batch["sd"]) + ps.tolist(),
+            "kind": list(batch["kind"]) + ["probe"] * len(probes)}
 
 
 def _next_look_batch(gp, step: Mapping[str, Any]) -> dict[str, Any]:
@@ -962,11 +972,18 @@ class SelectBatch:
         from bayescalib.inference.exploration import probe_points
 
         active = self.active
+        # a check round carries the probes of the basins still open in the solves the
+        # budget leaves beside its look (the run cannot converge while they are open)
+        n_probes = int(active["probes"])
         if step.get("continue_check"):
-            return _next_look_batch(gp, step)
+            batch = _next_look_batch(gp, step)
+            return _with_probes(batch, r, X, gp, space, explored, active,
+                                min(n_probes, int(step["budget_left"]) - len(batch["points"])))
         if step["check_round_next"]:
+            first = min(int(step["look"]), int(step["n_draws"]))
             return _posterior_draw_batch(r, X, gp, particles, weights, space, explored,
-                                         active, int(step["n_draws"]), 0,
+                                         active, int(step["n_draws"]),
+                                         min(n_probes, int(step["budget_left"]) - first),
                                          look=int(step["look"]), max_draws=int(step["max_draws"]))
         d = X.shape[1]
         finite = np.isfinite(L)
