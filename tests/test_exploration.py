@@ -268,3 +268,29 @@ def test_the_missing_modes_basin_is_not_refuted_by_its_own_slopes():
     missing = [b for b in res["basins"] if not b["is_held"]]
     assert missing and not missing[0]["refuted"]
     assert np.linalg.norm(np.asarray(missing[0]["peak"]) - M1) < 0.5
+
+
+def test_a_check_round_forced_by_the_budget_carries_the_probes_of_an_open_basin():
+    """Seed 4's situation (the 73 % mode missing, its basin open) when only two looks of
+    the check are left: the check round's batch is its first look of 8 draws plus the
+    probes (2) at the open basin's peak, within the budget; the run could not converge
+    while the basin is open, and before, such a check left it unprobed to the end."""
+    from bayescalib.config import validate
+    from bayescalib.inference.active import acquire_round
+    from bayescalib.inference.gp import fit_gp
+
+    X = np.vstack([_design(32), _draws(M2, S2, 16, 1)])
+    L = _two_modes(X)
+    space = _space()
+    gp = fit_gp(X, L, bounds=space.bounds, restarts=1, kernel="matern52", nugget="fixed",
+                mean="constant", ard=False)
+    cfg = validate({"design": {"strategy": "active", "active": {
+        "n_initial": 32, "batch_size": 8, "max_solves": len(X) + 16}}}, "inference")
+    P = _draws(M2, S2, 4000)
+    rec = acquire_round(0, X, L, gp, P, np.ones(4000), math.log(0.27) - math.log(100.0),
+                        space, cfg["design"]["active"], None, cfg["posterior_check"])
+    kinds = rec["next"]["kind"]
+    assert not rec["explored"] and not rec["stop"]
+    assert kinds.count("posterior_check") == 8 and kinds.count("probe") == 2, kinds
+    probes = np.asarray(rec["next"]["points"])[np.asarray(kinds) == "probe"]
+    assert np.min(np.linalg.norm(probes - M1, axis=1)) < 0.5
