@@ -63,10 +63,9 @@ def test_a_full_disk_inside_the_writer_leaves_nothing(particles, monkeypatch):
 
 
 def test_ctrl_c_inside_the_writer_leaves_nothing(particles):
-    with pytest.raises(KeyboardInterrupt):
-        with atomic_path(particles, suffix=".h5") as tmp:
-            tmp.write_bytes(b"half a file")
-            raise KeyboardInterrupt
+    with pytest.raises(KeyboardInterrupt), atomic_path(particles, suffix=".h5") as tmp:
+        tmp.write_bytes(b"half a file")
+        raise KeyboardInterrupt
     _only_the_target(particles)
 
 
@@ -113,6 +112,7 @@ def _killed_writer(target: Path) -> Path:
 def test_the_next_write_removes_the_temp_file_of_a_killed_writer(particles):
     stale = _killed_writer(particles)
     write_particles_h5(particles, _particles(0.75), _space())
+    assert not stale.exists()
     assert sorted(os.listdir(particles.parent)) == ["particles.h5"]
     assert read_particles_h5(particles).particles[0, 0] == 0.75
 

@@ -294,3 +294,34 @@ def test_a_check_round_forced_by_the_budget_carries_the_probes_of_an_open_basin(
     assert kinds.count("posterior_check") == 8 and kinds.count("probe") == 2, kinds
     probes = np.asarray(rec["next"]["points"])[np.asarray(kinds) == "probe"]
     assert np.min(np.linalg.norm(probes - M1, axis=1)) < 0.5
+
+
+def test_a_basin_refuted_by_a_solve_inside_it_is_neither_counted_nor_probed():
+    """A quadratic basin (peak -1 at (0.7, 0.7), sd 0.1) seen through a tight cluster of
+    solves at (0.6, 0.6) that the posterior (a mode at (0.2, 0.2)) does not hold: open,
+    5 % of the mass, probed. A solve inside its estimated ellipsoid (outside the fit's
+    neighbours) 28 nats below its quadratic refutes it: nothing unexplored, no probe. The
+    same solve at the quadratic's own value leaves it open."""
+    space = _space(np.array([[0.0, 1.0], [0.0, 1.0]]))
+    c, a = np.array([0.7, 0.7]), np.array([0.2, 0.2])
+
+    def bump(X):
+        return -1.0 - 0.5 * np.sum((np.atleast_2d(X) - c) ** 2, 1) / 0.1 ** 2
+
+    ang = np.linspace(0, 2 * np.pi, 8, endpoint=False)
+    circle = np.c_[np.cos(ang), np.sin(ang)]
+    XB = np.vstack([[0.6, 0.6], [0.6, 0.6] + 0.015 * circle])
+    XA = np.vstack([a, a + 0.03 * circle])
+    X = np.vstack([XA, XB])
+    L = np.concatenate([-0.5 * np.sum((XA - a) ** 2, 1) / 0.05 ** 2, bump(XB)])
+    P = a + 0.05 * np.random.default_rng(0).standard_normal((4000, 2))
+    log_z = math.log(2 * math.pi * 0.05 ** 2)
+    u = np.array([[0.582, 0.652]])
+    for extra, refuted in ((None, False), (-30.0, True), (float(bump(u)[0]), False)):
+        Xe, Le = (X, L) if extra is None else (np.vstack([X, u]), np.append(L, extra))
+        res = audit(Xe, Le, P, np.ones(4000), log_z, space)
+        b = [b for b in res["basins"] if np.linalg.norm(np.asarray(b["point"]) - c) < 0.2]
+        assert len(b) == 1 and not b[0]["is_held"] and b[0]["refuted"] is refuted
+        assert (res["unexplored_mass"] > 0.02) is not refuted
+        probes = probe_points(res, Xe, space.bounds, 2, 0.02, np.random.default_rng(0))
+        assert len(probes) == (0 if refuted else 1)

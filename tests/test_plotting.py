@@ -614,6 +614,31 @@ def test_the_rounds_figure_shows_the_posterior_check_and_one_legend_for_all_pane
     assert any("the posterior check decides" in label for label in lines)
 
 
+def test_the_checks_panel_tells_undecided_and_superseded_looks_from_refuted_ones(tmp_path):
+    """A sequential check's looks in the stop-rule panel: an undecided look (its next look
+    follows) and a superseded one (stopped, the posterior moved) are not drawn as NOT
+    confirmed; a refuted one is."""
+    from bayescalib.plotting.rounds import plot_rounds
+
+    rng = np.random.default_rng(2)
+    draws = [rng.normal(size=(50, 2)) for _ in range(4)]
+    design = rng.uniform(-3, 3, size=(16, 2))
+    batch = rng.uniform(-3, 3, size=(4, 2))
+    looks = [None, {"log_weight_sd": 0.3, "confirmed": False, "decision": "continue"},
+             {"log_weight_sd": 0.25, "confirmed": False, "decision": "superseded"},
+             {"log_weight_sd": 1.5, "confirmed": False, "decision": "refuted"}]
+    _, fig = plot_rounds(
+        draws, design, [8, 12, 16, 20], [batch, batch, batch, None], [None, 0.3, 0.3, 0.1],
+        [None, 2.0, 0.4, 0.3], NAMES, UNITS, [tmp_path / "rounds.png"],
+        bounds=[[-3, 3], [-3, 3]], shift_tol=0.2, gp_tol=1.0, converged=False,
+        batch_kinds=[["posterior_check"] * 4] * 3 + [None], posterior_check=looks,
+        return_figure=True)
+    lines = {ln.get_label(): ln for ln in fig.axes[-1].get_lines()}
+    head = "posterior check of the round before: log-weight sd [nats], "
+    for verdict, r in (("undecided", 1), ("superseded", 2), ("NOT confirmed", 3)):
+        np.testing.assert_array_equal(lines[head + verdict].get_xdata(), [r])
+
+
 def test_residual_bands_name_the_located_mismatch_and_its_core(tmp_path):
     from bayescalib.plotting.diagnosis import plot_residual_bands
 

@@ -19,6 +19,7 @@ import pytest
 
 from bayescalib.geometry.imaging import mask_contour, segment_scan
 from bayescalib.geometry.interface import Interface
+from bayescalib.geometry.outline import curve_length, signed_area
 from bayescalib.geometry.recording import (
     ScanSettings,
     decode_counts,
@@ -28,7 +29,6 @@ from bayescalib.geometry.recording import (
     scan_grid,
     write_recording,
 )
-from bayescalib.geometry.outline import curve_length, signed_area
 from bayescalib.geometry.shapes import lobed_colony
 
 EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "oct_colony"

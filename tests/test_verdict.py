@@ -100,8 +100,8 @@ def _short(s):
 
 def test_converged_and_the_fit_within_the_noise_is_one_sentence():
     sents = _short(CONVERGED)
-    assert sents == ["Converged after 39 of 40 solves: 16 real solves of the posterior's "
-                     "draws confirm it."]
+    assert sents == [("Converged after 39 of 40 solves: 16 real solves of the posterior's "
+                      "draws confirm it.")]
 
 
 def test_a_misfit_1000_times_the_noise_leads_before_converged():

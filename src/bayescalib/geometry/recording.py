@@ -108,7 +108,7 @@ class ScanSettings:
         k = length / self.pixel_size
         if abs(k - round(k)) > 1e-9:
             raise ValueError(f"{length} mm is not a whole number of {self.pixel_size} mm pixels")
-        return int(round(k))
+        return round(k)
 
     @property
     def rows_below_floor(self) -> int:
@@ -176,12 +176,13 @@ def render_recording_scan(
     if pts[0, 0] >= pts[-1, 0]:
         raise ValueError("interface must run from the upstream (left) foot to the downstream foot")
     s = settings.pixel_size
-    h, w = shape
+    _, w = shape
     x_lo, x_hi = origin[0] - 2 * s, origin[0] + (w + 1) * s
     t = settings.substrate_thickness
     band = np.array([[x_lo, -t], [x_lo, 0.0], [x_hi, 0.0], [x_hi, -t]])  # clockwise
-    clean = dict(pixel_size=s, origin=origin, shape=shape, psf_sigma=settings.psf_sigma,
-                 looks=None, noise=0.0, supersample=settings.supersample, rng=rng)
+    clean = {"pixel_size": s, "origin": origin, "shape": shape,
+             "psf_sigma": settings.psf_sigma, "looks": None, "noise": 0.0,
+             "supersample": settings.supersample, "rng": rng}
     img = render_scan(pts, **clean) + settings.substrate_intensity * render_scan(band, **clean)
     if settings.looks is not None:
         img = img * rng.gamma(float(settings.looks), 1.0 / float(settings.looks), size=img.shape)

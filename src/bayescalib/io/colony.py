@@ -171,7 +171,7 @@ def _colony_from_image(path: Path, scan: Mapping[str, Any], f: float, units: str
                                       segmentation=scan["segmentation"])
     except (ValueError, OSError) as exc:
         raise _fail(where, f"'{path}': {exc}") from None
-    h, w = mask.shape
+    h = mask.shape[0]
     floor = scan["floor"]
     y_cut = None  # where the trace is cut, when above the substrate's surface y_f
     if floor == "auto":

@@ -23,6 +23,18 @@ def _shown_rounds(n: int, k: int) -> list[int]:
     return sorted({round(v) for v in np.linspace(0, n - 1, k)})
 
 
+def _check_verdict(pc: Mapping[str, Any]) -> str:
+    """A look of the posterior check in the stop-rule panel's words: confirmed, NOT
+    confirmed (refuted), undecided (its next look follows) or superseded (stopped: the
+    posterior moved away from the checked one)."""
+    decision = pc.get("decision")  # absent in records from before the sequential check
+    if decision == "continue":
+        return "undecided"
+    if decision == "superseded":
+        return "superseded"
+    return "confirmed" if pc["confirmed"] else "NOT confirmed"
+
+
 def plot_rounds(
     draws: Sequence[np.ndarray],
     design: np.ndarray,
@@ -78,7 +90,8 @@ def plot_rounds(
         (a check round's posterior draw); absent = all acquired.
     posterior_check : sequence of dict or None, optional
         Per round, the posterior check of the previous round's posterior judged there
-        (``log_weight_sd`` in nats, ``confirmed``), None where there was none. Drawn in
+        (``log_weight_sd`` in nats, ``confirmed``, ``decision``), None where there was
+        none. Drawn in
         the stop-rule panel (filled: confirmed); with check rounds the trust check's
         tolerance is drawn as reported, not deciding.
     max_panels : most rounds drawn as panels (first and last always).
@@ -168,14 +181,16 @@ def plot_rounds(
         ax.axhline(gp_tol, color=COLORS["hist"], ls=":", lw=0.8,
                    label=(f"tolerance {gp_tol:g} nats (reported; the posterior check decides)"
                           if judged else f"tolerance {gp_tol:g} nats"))
-        for ok in (True, False):
-            rr_ok = [r for r in judged if bool(pcs[r]["confirmed"]) is ok]
-            if rr_ok:
-                ax.semilogy(rr_ok, [max(pcs[r]["log_weight_sd"], 1e-3) for r in rr_ok],
-                            ls="none", marker="P", ms=8, color=COLORS["map"],
-                            mfc=COLORS["map"] if ok else "none",
+        for verdict, marker, filled in (("confirmed", "P", True), ("NOT confirmed", "P", False),
+                                        ("undecided", "x", False),
+                                        ("superseded", "D", False)):
+            rr_v = [r for r in judged if _check_verdict(pcs[r]) == verdict]
+            if rr_v:
+                ax.semilogy(rr_v, [max(pcs[r]["log_weight_sd"], 1e-3) for r in rr_v],
+                            ls="none", marker=marker, ms=8, color=COLORS["map"],
+                            mfc=COLORS["map"] if filled else "none",
                             label="posterior check of the round before: log-weight sd "
-                                  f"[nats], {'confirmed' if ok else 'NOT confirmed'}")
+                                  f"[nats], {verdict}")
         ax.set_xlabel("round")
         ax.set_xticks(rr)
         ax.set_ylabel("stop-rule checks")
