@@ -19,6 +19,15 @@ What it measures (one row per device and case; ``--cases``, default all):
   Monte Carlo error. A CPU run longer than ``--cpu-budget`` seconds is stopped after
   the step that passes it and its wall extrapolated (time per step x the steps of a
   complete run; marked ``~``): the 7D run takes minutes on a CPU.
+* ``round7d``, ``round7d_outputs``: the heterogeneous study's round
+  (``config/heterogeneous.yaml``): SMC with its rounds' settings (``design.active.smc``:
+  N = 2000, n_rej = 10, zeta = 0.99, :data:`ROUND_SMC`) on a 7-D surrogate of its largest
+  design (512 solves): ``round7d`` the GP of the log-likelihood (the ``smc7d`` problem),
+  ``round7d_outputs`` the output emulator (``surrogate.target: outputs``) of
+  ``bench_active.py``'s ``hetero7d`` model, 11 coordinate GPs; on a torch device it runs
+  twice, the coordinate GPs batched in one pass (the library's way,
+  :class:`~bayescalib.inference.gp.predictor.StackedGPs`) and one after the other
+  (``<device> (per GP)``). Issue 38's aim: under 15 s a round on the GPU.
 * ``rkhs3d``: :func:`rkhs_squared` of two concentric triangulated spheres of 20480
   triangles each (icosphere level 5, sigma_W = 0.05 on the unit sphere, default
   truncation, float64); ``cpu`` is the NumPy backend, ``torch:cpu`` and ``cuda`` the
@@ -40,11 +49,12 @@ Devices (``--devices``, default ``cpu,cuda``): ``cpu`` is the NumPy path
 GPU (skipped, with a line saying so, where torch sees none), ``torch:cpu`` the torch path
 on the CPU (``torch.set_num_threads(--threads)``), to exercise it without a GPU.
 
-Run (on a lent GPU machine, from the repository root; about 4-6 minutes)::
+Run (on a lent GPU machine, from the repository root; about 6-8 minutes: each CPU SMC
+row stops after ``--cpu-budget`` seconds)::
 
-    PYTHONPATH=src python3 benchmarks/bench_gpu.py --out bench_gpu.json
+    PYTHONPATH=src python3 benchmarks/bench_gpu.py --threads 16 --cpu-budget 40 --out bench_gpu.json
 
-and ``--threads 16`` for the CPU rows on all cores; ``--quick`` is a seconds-long run
+(``--threads 16`` for the CPU rows on all cores); ``--quick`` is a seconds-long run
 at small sizes (N 500, 200 training points, 1280 triangles) for tests.
 
 Reading the table: one markdown table per case; ``wall s`` the median wall time
@@ -96,17 +106,23 @@ from bayescalib.inference.gp.predictor import GPSurrogate
 from bayescalib.inference.smc import run_smc
 from bayescalib.measures.currents import rkhs_squared
 
-CASES = ("predict2d", "predict7d", "smc2d", "smc7d", "rkhs3d")
+CASES = ("predict2d", "predict7d", "smc2d", "smc7d", "round7d", "round7d_outputs", "rkhs3d")
+#: the heterogeneous study's rounds (config/heterogeneous.yaml, design.active.smc:
+#: N, n_rej, zeta; a test holds them equal) and its largest design (max_solves)
+ROUND_SMC = (2000, 10, 0.99)
+ROUND_N_TRAIN = 512
 
 #: per problem: box, analytic log-likelihood factory, training points, SMC settings
 #: (N, n_rej, zeta), prediction points; ``quick`` the sizes of ``--quick``
 PROBLEMS = {
     "2d": {"n_train": 1000, "smc": (5000, 20, 0.995), "n_predict": 1_000_000},
     "7d": {"n_train": 2000, "smc": (10000, 30, 0.998), "n_predict": 200_000},
+    "round": {"n_train": ROUND_N_TRAIN, "smc": ROUND_SMC},
 }
 QUICK = {
     "2d": {"n_train": 200, "smc": (500, 20, 0.995), "n_predict": 20_000},
     "7d": {"n_train": 300, "smc": (500, 10, 0.99), "n_predict": 5_000},
+    "round": {"n_train": 64, "smc": (300, 3, 0.9)},
 }
 #: icosphere refinement level of the RKHS case (20 * 4**level triangles)
 RKHS_LEVEL, RKHS_LEVEL_QUICK = 5, 3
@@ -183,7 +199,7 @@ def resolve_devices(spec: str, info: dict) -> list[str]:
 
 
 def _sync(device: str) -> None:
-    if device.startswith("cuda"):
+    if device.startswith("cuda"):  # also "cuda (per GP)"
         _torch_or_none().cuda.synchronize()
 
 
@@ -200,12 +216,12 @@ def problem(name: str):
 
 
 def _loo_rmse(U: np.ndarray, r: np.ndarray, variance: float, ell: float,
-              nugget: float) -> float:
+              nugget: float, kernel: str = "matern32") -> float:
     """Closed-form leave-one-out RMSE of a GP with zero mean on residuals r (eq. 5.12 of
     Rasmussen & Williams 2006); inf where the Cholesky factorization fails."""
     from scipy.linalg import cho_factor, cho_solve
 
-    K = kernel_matrix(U, U, variance, np.array([ell]), "matern32")
+    K = kernel_matrix(U, U, variance, np.array([ell]), kernel)
     K[np.diag_indices_from(K)] += nugget
     try:
         cf = cho_factor(K, lower=True, check_finite=False)
@@ -213,6 +229,24 @@ def _loo_rmse(U: np.ndarray, r: np.ndarray, variance: float, ell: float,
         return math.inf
     Kinv = cho_solve(cf, np.eye(len(r)), check_finite=False)
     return float(np.sqrt(np.mean((Kinv @ r / np.diag(Kinv)) ** 2)))
+
+
+def fixed_gp(X: np.ndarray, y: np.ndarray, bounds: np.ndarray, *, kernel: str,
+             mean: float, nugget: float) -> tuple[GPSurrogate, float, float]:
+    """A GP of y at X with fixed hyperparameters: box-scaled inputs, constant mean
+    ``mean``, kernel variance the mean square of y - mean, the given nugget, and one length
+    scale (on every input) from :data:`LENGTHSCALE_GRID` by the closed-form leave-one-out
+    error. Returns the GP (NumPy device), the length scale and its LOO RMSE."""
+    shift, scale = bounds[:, 0].copy(), bounds[:, 1] - bounds[:, 0]
+    U = (X - shift) / scale
+    variance = float(np.mean((y - mean) ** 2))
+    loo = {ell: _loo_rmse(U, y - mean, variance, ell, nugget, kernel)
+           for ell in LENGTHSCALE_GRID}
+    ell = min(loo, key=loo.get)
+    gp = GPSurrogate(X_train=X, y_train=y, shift=shift, scale=scale, mean_const=mean,
+                     nugget=nugget, variance=variance, lengthscale=np.full(X.shape[1], ell),
+                     ard=True, kernel=kernel, device="cpu")
+    return gp, ell, loo[ell]
 
 
 def build_surrogate(space, loglik, n_train: int, rng: np.random.Generator) -> GPSurrogate:
@@ -238,31 +272,132 @@ def build_surrogate(space, loglik, n_train: int, rng: np.random.Generator) -> GP
     bounds = np.asarray(space.bounds, float)
     X = sobol_design(bounds, n_train, 0)
     y = loglik(X)
-    shift, scale = bounds[:, 0].copy(), bounds[:, 1] - bounds[:, 0]
-    U = (X - shift) / scale
     y_range = float(y.max() - y.min())
-    m = float(y.min() - y_range)
-    variance = float(np.mean((y - m) ** 2))
-    nugget = 1e-5 * y_range
     t0 = time.perf_counter()
-    loo = {ell: _loo_rmse(U, y - m, variance, ell, nugget) for ell in LENGTHSCALE_GRID}
-    ell = min(loo, key=loo.get)
-    gp = GPSurrogate(X_train=X, y_train=y, shift=shift, scale=scale, mean_const=m,
-                     nugget=nugget, variance=variance, lengthscale=np.full(space.dim, ell),
-                     ard=True, kernel="matern32", device="cpu")
+    gp, ell, loo = fixed_gp(X, y, bounds, kernel="matern32", mean=float(y.min() - y_range),
+                            nugget=1e-5 * y_range)
+    print(f"surrogate: d = {space.dim}, n_train = {n_train}, Matérn 3/2, length scale {ell} "
+          f"(LOO RMSE {loo:.3g} nats; grid {list(LENGTHSCALE_GRID)}), range of L "
+          f"{y_range:.4g} nats, built in {time.perf_counter() - t0:.2f} s")
+    _print_errors(gp.predict, loglik, space, rng)
+    return gp
+
+
+def _print_errors(predict, loglik, space, rng: np.random.Generator) -> None:
+    """The surrogate's error against the analytic log-likelihood on held-out prior draws
+    and in the posterior region (L > max L - 10)."""
     Xh = space.sample_prior(4000, rng)
     yh = loglik(Xh)
-    err = gp.predict(Xh) - yh
+    err = predict(Xh) - yh
     post = yh > yh.max() - 10.0
-    print(f"surrogate: d = {space.dim}, n_train = {n_train}, Matérn 3/2, length scale {ell} "
-          f"(LOO RMSE {loo[ell]:.3g} nats; grid {list(LENGTHSCALE_GRID)}), range of L "
-          f"{y_range:.4g} nats, built in {time.perf_counter() - t0:.2f} s")
     post_txt = (f"{np.sqrt(np.mean(err[post] ** 2)):.3g} nats RMSE on the {int(post.sum())} "
                 f"with L > max L - 10" if post.any() else "no draw with L > max L - 10")
     print(f"surrogate vs analytic L on 4000 held-out prior draws: RMSE "
           f"{np.sqrt(np.mean(err ** 2)):.3g} nats, max |error| {np.max(np.abs(err)):.3g} nats; "
           f"{post_txt}")
-    return gp
+
+
+#: hyperparameters of the output emulator of ``round7d_outputs`` at full size, as the
+#: library fits them (``--fit-emulator``, which needs GPy, writes the file)
+EMULATOR_FIT = _HERE / "data" / "round7d_emulator.json"
+
+
+def _h7_design(n_train: int):
+    """(bounds, design X, outputs U in noise units, data y in noise units) of ``hetero7d``."""
+    import bench_active as ba
+
+    bounds = ba.H7_BOUNDS
+    X = sobol_design(bounds, n_train, 0)
+    noise = np.random.default_rng(ba.H7_NOISE_SEED).standard_normal(ba.H7_K)
+    y = (ba.h7_model(ba.H7_TRUTH)[0] + ba.H7_SIGMA * noise) / ba.H7_SIGMA
+    return bounds, X, ba.h7_model(X) / ba.H7_SIGMA, y
+
+
+def fit_emulator(n_train: int, path: Path) -> None:
+    """Fit the output emulator of ``round7d_outputs`` with the library
+    (:func:`~bayescalib.inference.emulator.fit_output_emulator`: ARD Matérn 5/2, log
+    inputs by evidence, fitted nuggets; GPy) and write each coordinate GP's
+    hyperparameters to ``path`` for machines without GPy."""
+    from bayescalib.inference.emulator import fit_output_emulator
+
+    bounds, X, U, _ = _h7_design(n_train)
+    t0 = time.perf_counter()
+    em = fit_output_emulator(X, U, bounds)
+    coords = [{"variance": float(g.variance), "lengthscale": g.lengthscale.tolist(),
+               "nugget": float(g.nugget), "shift": g.shift.tolist(),
+               "scale": g.scale.tolist(),
+               "log_offset": None if g.log_offset is None else
+               [None if not math.isfinite(v) else float(v) for v in g.log_offset]}
+              for g in em.components]
+    path.write_text(json.dumps({"n_train": n_train, "components": len(coords),
+                                "coordinates": coords}, indent=1) + "\n")
+    print(f"emulator fitted with the library in {time.perf_counter() - t0:.1f} s "
+          f"({len(coords)} coordinates), hyperparameters written to {path}")
+
+
+def build_emulator(n_train: int, rng: np.random.Generator):
+    """The output emulator of ``bench_active.py``'s ``hetero7d`` model (40 interface
+    displacements of a 7-parameter model, the heterogeneous study's shape), as
+    ``surrogate.target: outputs`` fits it (:mod:`bayescalib.inference.emulator`:
+    principal outputs in noise units, one Matérn 5/2 GP per coordinate). The coordinate
+    GPs take the library's fitted hyperparameters from :data:`EMULATOR_FIT` when it
+    holds this ``n_train``; otherwise (``--quick``) one length scale each by
+    :func:`fixed_gp` (zero mean, nugget 1e-6 noise units squared). Returns (space,
+    emulated likelihood)."""
+    from bayescalib.inference.emulator import (
+        EmulatedLikelihood,
+        OutputEmulator,
+        principal_outputs,
+    )
+
+    bounds, X, U, y = _h7_design(n_train)
+    t0 = time.perf_counter()
+    mean, basis, coords, discarded = principal_outputs(U)
+    fit = json.loads(EMULATOR_FIT.read_text()) if EMULATOR_FIT.exists() else None
+    if fit is not None and fit["n_train"] == n_train and fit["components"] == len(coords.T):
+        # zero prior mean: the coordinates are centred (their sign, which an SVD leaves
+        # free, does not matter then)
+        comps = [GPSurrogate(X_train=X, y_train=coords[:, j], shift=np.array(h["shift"]),
+                             scale=np.array(h["scale"]), mean_const=0.0, nugget=h["nugget"],
+                             variance=h["variance"], lengthscale=np.array(h["lengthscale"]),
+                             ard=True, kernel="matern52", device="cpu",
+                             log_offset=None if h["log_offset"] is None else np.array(
+                                 [np.nan if v is None else v for v in h["log_offset"]]))
+                 for j, h in enumerate(fit["coordinates"])]
+        how = f"the library's fit ({EMULATOR_FIT.name})"
+    else:
+        comps = [fixed_gp(X, coords[:, j], bounds, kernel="matern52", mean=0.0,
+                          nugget=1e-6)[0] for j in range(basis.shape[0])]
+        how = f"one length scale each by LOO ({[float(g.lengthscale[0]) for g in comps]})"
+    lik = EmulatedLikelihood(OutputEmulator(mean=mean, basis=basis, components=comps,
+                                            discarded=discarded, n_train=n_train), y)
+    print(f"emulator: hetero7d, n_train = {n_train}, {len(comps)} coordinate GPs "
+          f"(Matérn 5/2; hyperparameters: {how}), discarded {discarded:.3g}, built in "
+          f"{time.perf_counter() - t0:.2f} s")
+
+    def loglik(Z):
+        r = _h7_outputs(Z) - y
+        return -0.5 * np.sum(r * r, axis=1)
+
+    space = _space(bounds, True)  # q, the inflow, is the uncertain condition
+    _print_errors(lik.predict, loglik, space, rng)
+    return space, lik
+
+
+def _h7_outputs(Z: np.ndarray) -> np.ndarray:
+    import bench_active as ba
+
+    return ba.h7_model(Z) / ba.H7_SIGMA
+
+
+def emulator_on_device(lik, device: str, threads: int, stack: bool = True):
+    """The same emulated likelihood with its coordinate GPs on another device; ``stack``
+    False evaluates them one after the other on a torch device (for comparison)."""
+    from bayescalib.inference.emulator import EmulatedLikelihood
+
+    em = dataclasses.replace(lik.emulator, components=[
+        on_device(g, device, threads) for g in lik.emulator.components], stack=stack)
+    return EmulatedLikelihood(em, lik.y, offset=lik.offset)
 
 
 def on_device(gp: GPSurrogate, device: str, threads: int) -> GPSurrogate:
@@ -335,13 +470,17 @@ def case_predict(case, gp, space, n_points, devices, repeats, var_points, thread
     return rows
 
 
-def case_smc(case, gp, space, smc_settings, devices, seed, cpu_budget, threads):
+def case_smc(case, make, space, smc_settings, devices, seed, cpu_budget):
     """``run_smc`` on the surrogate per device, one seed for all.
 
     Parameters
     ----------
-    case, gp, space
-        Case name, the NumPy surrogate, its parameter space (prior).
+    case, space
+        Case name, the parameter space (prior).
+    make
+        device -> the surrogate on that device (``loglik``, ``predict``); a device
+        ``"<dev> (per GP)"`` is ``<dev>`` with an emulator's coordinate GPs one after the
+        other.
     smc_settings
         (N, n_rej, zeta).
     devices, seed
@@ -349,8 +488,6 @@ def case_smc(case, gp, space, smc_settings, devices, seed, cpu_budget, threads):
     cpu_budget
         A run on a CPU device (``cpu``, ``torch:cpu``) stops after the step that passes
         this many seconds (0: no limit); :func:`smc_agreement` extrapolates its wall.
-    threads
-        NumPy predictor threads.
 
     Returns
     -------
@@ -362,7 +499,7 @@ def case_smc(case, gp, space, smc_settings, devices, seed, cpu_budget, threads):
     print(f"  SMC: N = {N}, n_rej = {n_rej}, zeta = {zeta}, seed {seed}")
     rows = []
     for dev in devices:
-        g = on_device(gp, dev, threads)
+        g = make(dev)
         g.predict(space.sample_prior(100, np.random.default_rng(1)))  # warm-up
         _sync(dev)
         steps: list[float] = []
@@ -429,6 +566,38 @@ def smc_agreement(rows: list[dict]) -> list[dict]:
                               f"{r['dlog_evidence']:+.4f}; steps {r['steps']} vs {ref['steps']} "
                               "(equal in distribution; bitwise only by chance)")
     return rows
+
+
+def case_round(case, sizes, devices, seed, cpu_budget, threads):
+    """The heterogeneous study's round: SMC with its rounds' settings
+    (:data:`ROUND_SMC`) on the 7-D surrogate of the last round (``n_train`` solves).
+
+    ``round7d``: the GP of the log-likelihood (``surrogate.target: loglik``, the
+    ``smc7d`` problem); ``round7d_outputs``: the output emulator of ``hetero7d``
+    (``surrogate.target: outputs``, :func:`build_emulator`), on torch devices also with its
+    coordinate GPs one after the other (rows ``<device> (per GP)``) beside the batched pass.
+
+    Returns
+    -------
+    list of dict
+        :func:`case_smc`'s rows.
+    """
+    rng = np.random.default_rng(seed + 7)
+    if case == "round7d":
+        space, loglik = problem("7d")
+        gp = build_surrogate(space, loglik, sizes["n_train"], rng)
+        return case_smc(case, lambda dev: on_device(gp, dev, threads), space, sizes["smc"],
+                        devices, seed, cpu_budget)
+    space, lik = build_emulator(sizes["n_train"], rng)
+    devs = []
+    for d in devices:
+        devs += [d] if d == "cpu" else [d, f"{d} (per GP)"]
+
+    def make(dev):
+        base = dev.removesuffix(" (per GP)")
+        return emulator_on_device(lik, base, threads, stack=base == dev)
+
+    return case_smc(case, make, space, sizes["smc"], devs, seed, cpu_budget)
 
 
 def case_rkhs(level, devices, repeats, threads):
@@ -548,7 +717,13 @@ def main(argv: list[str] | None = None) -> list[dict]:
     ap.add_argument("--seed", type=int, default=0, help="seed of the SMC and prior draws")
     ap.add_argument("--quick", action="store_true", help="small sizes, a few seconds")
     ap.add_argument("--out", default=None, help="write the rows (and the host) as JSON")
+    ap.add_argument("--fit-emulator", action="store_true",
+                    help=f"fit round7d_outputs' emulator with the library (GPy) and write "
+                         f"{EMULATOR_FIT.relative_to(_HERE.parent)}, then exit")
     a = ap.parse_args(argv)
+    if a.fit_emulator:
+        fit_emulator(ROUND_N_TRAIN, EMULATOR_FIT)
+        return []
     cases = [c.strip() for c in a.cases.split(",") if c.strip()]
     unknown = set(cases) - set(CASES)
     if unknown:
@@ -571,6 +746,9 @@ def main(argv: list[str] | None = None) -> list[dict]:
             rows += case_rkhs(RKHS_LEVEL_QUICK if a.quick else RKHS_LEVEL, devices, repeats,
                               a.threads)
             continue
+        if case.startswith("round"):
+            rows += case_round(case, sizes["round"], devices, a.seed, a.cpu_budget, a.threads)
+            continue
         dim = case[-2:]
         space, loglik = problem(dim)
         if dim not in gps:
@@ -581,8 +759,8 @@ def main(argv: list[str] | None = None) -> list[dict]:
                                  repeats, min(a.var_points, sizes[dim]["n_predict"]),
                                  a.threads, a.seed)
         else:
-            rows += case_smc(case, gps[dim], space, sizes[dim]["smc"], devices, a.seed,
-                             a.cpu_budget, a.threads)
+            rows += case_smc(case, lambda dev, g=gps[dim]: on_device(g, dev, a.threads), space,
+                             sizes[dim]["smc"], devices, a.seed, a.cpu_budget)
     print(f"\ntotal {time.perf_counter() - t_all:.1f} s")
     print(table(rows))
     if a.out:

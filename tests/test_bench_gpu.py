@@ -56,3 +56,29 @@ def test_stopped_smc_rows_are_extrapolated_from_a_complete_run():
     assert cpu["extrapolated"] and math.isclose(cpu["wall_s"], 30.0)
     assert gpu["agreement"] == "reference"
     assert "| cuda | 2.000 | ~15.00 |" in bench_gpu.table(rows)
+
+
+def test_round_cases_run_the_heterogeneous_rounds_sampler_on_both_surrogates():
+    """round7d (GP of L) and round7d_outputs (the output emulator; on a torch device both
+    batched and one coordinate GP after the other) at quick sizes: the same posterior on
+    every device to a fraction of a posterior sd."""
+    rows = bench_gpu.main(["--quick", "--devices", "cpu,torch:cpu",
+                           "--cases", "round7d,round7d_outputs"])
+    by = {(r["case"], r["device"]): r for r in rows}
+    assert set(by) == {("round7d", "cpu"), ("round7d", "torch:cpu"),
+                       ("round7d_outputs", "cpu"), ("round7d_outputs", "torch:cpu"),
+                       ("round7d_outputs", "torch:cpu (per GP)")}
+    for key, r in by.items():
+        assert r["complete"], key
+        if r["agreement"] != "reference":
+            assert r["max_dmean_sd"] < 0.5 and abs(r["dlog_evidence"]) < 0.5, key
+
+
+def test_the_round_cases_use_the_heterogeneous_studys_round_settings():
+    import yaml
+
+    root = Path(__file__).resolve().parents[1]
+    cfg = yaml.safe_load((root / "config" / "heterogeneous.yaml").read_text())
+    rs = cfg["design"]["active"]["smc"]
+    assert bench_gpu.ROUND_SMC == (rs["n_particles"], rs["n_rej"], rs["zeta"])
+    assert bench_gpu.ROUND_N_TRAIN == cfg["design"]["active"]["max_solves"]

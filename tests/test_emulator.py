@@ -135,6 +135,70 @@ def test_failed_evaluations_are_left_out_of_the_emulator():
         EmulatedLikelihood(em, np.zeros(3))
 
 
+def _coordinate_gps(X, Y, bounds, log_offset=None, device="cpu"):
+    """Coordinate GPs with fixed, different ARD hyperparameters on the same inputs."""
+    from bayescalib.inference.gp import GPSurrogate
+
+    box = bounds.copy()
+    if log_offset is not None:  # the log inputs' box in their own units
+        logs = np.isfinite(log_offset)
+        box[logs] = np.log(bounds[logs] + log_offset[logs, None])
+    shift, scale = box[:, 0], box[:, 1] - box[:, 0]
+    return [GPSurrogate(X_train=X, y_train=Y[:, j], shift=shift, scale=scale,
+                        mean_const=0.1 * j, nugget=1e-6, variance=1.0 + j,
+                        lengthscale=np.array([0.3 + 0.1 * j, 0.8 - 0.1 * j, 0.5]), ard=True,
+                        kernel="matern52", log_offset=log_offset, device=device)
+            for j in range(Y.shape[1])]
+
+
+@pytest.mark.parametrize("log_inputs", [False, True])
+def test_coordinate_gps_on_a_torch_device_are_evaluated_stacked_with_the_numpy_values(
+        log_inputs):
+    """On a torch device the coordinate GPs (same design points, their own
+    hyperparameters) are evaluated in one batched pass; means and variances equal the
+    NumPy path's to round-off (1e-10 of their size: float64 sums in another order)."""
+    pytest.importorskip("torch")
+    from bayescalib.inference.gp.predictor import StackedGPs
+
+    rng = np.random.default_rng(11)
+    bounds = np.array([[1.0, 5.0], [0.0, 2.0], [-1.0, 1.0]])
+    X = rng.uniform(bounds[:, 0], bounds[:, 1], (40, 3))
+    Y = np.column_stack([np.sin(X @ rng.standard_normal(3)) for _ in range(4)])
+    offset = np.array([0.0, np.nan, np.nan]) if log_inputs else None
+    cpu = OutputEmulator(mean=np.zeros(5), basis=np.eye(4, 5),
+                         components=_coordinate_gps(X, Y, bounds, offset), discarded=0.0,
+                         n_train=40)
+    gpu = OutputEmulator(mean=np.zeros(5), basis=np.eye(4, 5),
+                         components=_coordinate_gps(X, Y, bounds, offset, "torch:cpu"),
+                         discarded=0.0, n_train=40)
+    gpu.components[0].chunk_entries = 4 * 40 * 7  # several chunks of 7 points
+    P = rng.uniform(bounds[:, 0], bounds[:, 1], (50, 3))
+    a0, v0 = cpu.predict(P)
+    a1, v1 = gpu.predict(P)
+    assert cpu._stacked() is None and isinstance(gpu._stacked(), StackedGPs)
+    np.testing.assert_allclose(a1, a0, rtol=0, atol=1e-10 * np.max(np.abs(a0)))
+    np.testing.assert_allclose(v1, v0, rtol=0, atol=1e-10 * np.max(v0))
+    assert np.ptp(np.median(v0, 0)) > 0.1 * np.median(v0)  # the GPs' own variances differ
+
+
+def test_gps_that_differ_in_their_design_points_are_not_stacked():
+    pytest.importorskip("torch")
+    from bayescalib.inference.gp.predictor import StackedGPs
+
+    rng = np.random.default_rng(12)
+    bounds = np.array([[0.0, 1.0]] * 3)
+    X = rng.random((20, 3))
+    Y = rng.standard_normal((20, 2))
+    gps = _coordinate_gps(X, Y, bounds, device="torch:cpu")
+    assert StackedGPs.compatible(gps)
+    other = _coordinate_gps(X + 1e-3, Y, bounds, device="torch:cpu")
+    assert not StackedGPs.compatible([gps[0], other[1]])
+    assert not StackedGPs.compatible(_coordinate_gps(X, Y, bounds))  # the NumPy device
+    assert not StackedGPs.compatible(gps[:1])
+    with pytest.raises(ValueError, match="cannot be stacked"):
+        StackedGPs([gps[0], other[1]])
+
+
 def test_an_emulator_file_reproduces_its_likelihood_and_is_told_from_a_gp_file(tmp_path):
     """The file a train_surrogate job writes (kind 'emulator') reads back to the same
     predictions, bit for bit, and :func:`load_surrogate` tells it from a GP file; the

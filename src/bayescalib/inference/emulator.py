@@ -119,6 +119,9 @@ class OutputEmulator:
     discarded : discarded energy per training point (noise units squared).
     n_train : number of training points.
     log_inputs : whether the inputs that qualify entered as logs.
+    stack : on a torch device, evaluate the coordinate GPs in one batched pass
+        (:meth:`predict`); False: one after the other (a comparison of the two,
+        ``benchmarks/bench_gpu.py``).
     """
 
     mean: np.ndarray
@@ -128,19 +131,43 @@ class OutputEmulator:
     n_train: int
     log_inputs: bool = False
     info: dict[str, Any] = field(default_factory=dict)
+    stack: bool = True
+    _stack: Any = field(default=None, init=False, repr=False, compare=False)
+    _stack_key: tuple = field(default=(), init=False, repr=False, compare=False)
 
     @property
     def n_components(self) -> int:
         return int(self.basis.shape[0])
 
     def predict(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Coordinates' posterior means and variances at X (M, d): two (M, k) arrays."""
+        """Coordinates' posterior means and variances at X (M, d): two (M, k) arrays.
+
+        On a torch device (a GPU) the coordinate GPs, which share their design points,
+        are evaluated in one batched pass
+        (:class:`~bayescalib.inference.gp.predictor.StackedGPs`); on the NumPy device one
+        after the other."""
         X = np.atleast_2d(np.asarray(X, float))
+        stack = self._stacked()
+        if stack is not None:
+            a, v = stack.predict(X)
+            return a, np.maximum(v, 0.0)
         a = np.empty((X.shape[0], self.n_components))
         v = np.empty_like(a)
         for j, gp in enumerate(self.components):
             a[:, j], v[:, j] = gp.predict(X, return_var=True)
         return a, np.maximum(v, 0.0)
+
+    def _stacked(self) -> Any:
+        """The coordinate GPs stacked for one batched torch pass, or None (NumPy device,
+        or GPs that cannot be stacked); built once per set of components."""
+        from bayescalib.inference.gp.predictor import StackedGPs
+
+        key = tuple((id(g), getattr(g, "device", None)) for g in self.components)
+        if self._stack_key != key:
+            self._stack_key = key
+            self._stack = (StackedGPs(self.components)
+                           if self.stack and StackedGPs.compatible(self.components) else None)
+        return self._stack
 
     def predict_outputs(self, X: np.ndarray) -> np.ndarray:
         """Emulated outputs ubar + a Phi at X: (M, m), noise units."""

@@ -30,6 +30,11 @@ frame (:mod:`bayescalib.inference.gp.inputs`) first.
   testing): the same algebra in torch, in chunks of at most
   ``chunk_entries`` kernel entries. Where no GPU can exist, ``"auto"`` decides for
   NumPy without importing torch (:func:`gpu_possible`).
+* Several GPs on the same training inputs (the output emulator's coordinates,
+  :mod:`bayescalib.inference.emulator`) on a torch device: :class:`StackedGPs`
+  evaluates them in one batched pass, (k, chunk, n) kernel blocks and one batched
+  triangular solve, instead of k passes of their own (on a GPU each pass is a string
+  of small kernel launches and a synchronizing copy back to the host).
 
 The surrogate file (:meth:`GPSurrogate.save` / :meth:`GPSurrogate.load`) is written and
 read by :mod:`bayescalib.inference.gp.store`.
@@ -62,7 +67,7 @@ from bayescalib.inference.gp.warping import (
     loglik_from_log_misfit,
 )
 
-__all__ = ["GPSurrogate", "gpu_possible"]
+__all__ = ["GPSurrogate", "StackedGPs", "gpu_possible"]
 
 _GEMM_SINGLE_THREAD_MNK = 2**18
 
@@ -664,3 +669,107 @@ class GPSurrogate:
 
         Kinv = cho_solve((self.chol, True), np.eye(self.n_train))
         return self.alpha / np.diag(Kinv)
+
+
+class StackedGPs:
+    """Several GPs with the same training inputs, evaluated in one batched torch pass.
+
+    The emulator's coordinate GPs (:mod:`bayescalib.inference.emulator`) share their
+    design points but not their hyperparameters. On a torch device each
+    :meth:`GPSurrogate.predict_latent` is a string of small kernel launches and a copy
+    back to the host; stacked, the k GPs' kernel blocks (k, c, n), their means and the
+    variances' triangular solves are batched, so a call costs about one GP's launches.
+    The algebra is :meth:`GPSurrogate._predict_torch`'s, GP by GP (equal to round-off).
+
+    Parameters
+    ----------
+    gps
+        The GPs; :meth:`compatible` must hold.
+    """
+
+    def __init__(self, gps: list[GPSurrogate]) -> None:
+        if not self.compatible(gps):
+            raise ValueError("the GPs cannot be stacked (StackedGPs.compatible)")
+        self.gps = list(gps)
+        self._t: dict[str, Any] | None = None
+
+    @staticmethod
+    def compatible(gps: list[GPSurrogate]) -> bool:
+        """True when the GPs can be evaluated as one: at least two, all on the same torch
+        device (not the NumPy ``"cpu"``), with the same training inputs, kernel and input
+        warp, a constant prior mean and latent outputs (no bound, no warping)."""
+        if len(gps) < 2 or not all(isinstance(g, GPSurrogate) for g in gps):
+            return False
+        g0 = gps[0]
+        if g0.device == "cpu":
+            return False
+        lo0 = g0.log_offset
+        for g in gps:
+            if (g.device != g0.device or g.kernel != g0.kernel or g.dim != g0.dim
+                    or g.mean_function != "constant" or g.bound is not None or g.warped
+                    or g.n_train != g0.n_train):
+                return False
+            lo = g.log_offset
+            if (lo is None) != (lo0 is None) or (
+                    lo is not None and not np.array_equal(lo, lo0, equal_nan=True)):
+                return False
+            if g is not g0 and not np.array_equal(g.X_train, g0.X_train):
+                return False
+        return True
+
+    def _tensors(self) -> dict[str, Any]:
+        if self._t is None:
+            torch = _torch()
+            dev = self.gps[0]._torch_device
+
+            def t(a):
+                return torch.as_tensor(np.asarray(a, float), dtype=torch.float64, device=dev)
+
+            self._t = {
+                "shift": t(np.stack([g.shift for g in self.gps])[:, None, :]),
+                "map": t(np.stack([g._input_map() for g in self.gps])),
+                "B": t(np.stack([g.scale_inputs(g.X_train) / g.lengthscale
+                                 for g in self.gps])),
+                "alpha": t(np.stack([g.alpha for g in self.gps])[:, :, None]),
+                "L": t(np.stack([g.chol for g in self.gps])),
+                "s2": t(np.array([g.variance for g in self.gps])),
+                "mean": t(np.array([g.mean_const for g in self.gps])),
+            }
+            self._t["Bsq"] = (self._t["B"] ** 2).sum(2)
+        return self._t
+
+    def predict(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Latent means and variances of every GP at X (M, d) in user units: two
+        (M, k) arrays (column j: GP j's :meth:`GPSurrogate.predict_latent`)."""
+        torch = _torch()
+        g0 = self.gps[0]
+        X = np.atleast_2d(np.asarray(X, float))
+        if X.ndim != 2 or X.shape[1] != g0.dim:
+            raise ValueError(f"expected inputs of shape (M, {g0.dim}), got {X.shape}")
+        c = self._tensors()
+        k, M, n = len(self.gps), X.shape[0], max(g0.n_train, 1)
+        mean = np.empty((M, k))
+        var = np.empty((M, k))
+        ck2 = KERNELS[g0.kernel][0] ** 2
+        chunk = max(1, g0.chunk_entries // (k * n))
+        with torch.no_grad():
+            Xt = torch.as_tensor(g0.warp_inputs(X), dtype=torch.float64,
+                                 device=g0._torch_device)
+            for s in range(0, M, chunk):
+                A = torch.matmul(Xt[None, s : s + chunk] - c["shift"], c["map"])  # (k, c, d)
+                r2 = ((A * A).sum(2)[:, :, None] + c["Bsq"][:, None, :]
+                      - 2.0 * torch.matmul(A, c["B"].transpose(1, 2)))
+                t2 = torch.clamp_min_(r2, 0.0).mul_(ck2)
+                if g0.kernel == "rbf":
+                    K = torch.exp(t2.neg_())
+                else:
+                    t = torch.sqrt(t2)
+                    poly = 1.0 + t + (t2 / 3.0 if g0.kernel == "matern52" else 0.0)
+                    K = poly.mul_(torch.exp(t.neg()))
+                K.mul_(c["s2"][:, None, None])  # (k, c, n)
+                m = torch.matmul(K, c["alpha"])[:, :, 0] + c["mean"][:, None]
+                V = torch.linalg.solve_triangular(c["L"], K.transpose(1, 2), upper=False)
+                v = torch.clamp_min(c["s2"][:, None] - (V * V).sum(1), 0.0)
+                mean[s : s + chunk] = m.T.cpu().numpy()
+                var[s : s + chunk] = v.T.cpu().numpy()
+        return mean, var
