@@ -285,6 +285,11 @@ class Study:
             sigma_n2_from_config(cfg["likelihood"])
         except ValueError as exc:
             raise ConfigError(f"{where}: {exc}") from None
+        except OverflowError:  # sigma_n ** 2 beyond a float (e.g. 1e300)
+            raise ConfigError(
+                f"{where}: likelihood.sigma_n = {cfg['likelihood'].get('sigma_n')!r}: its "
+                "square, the noise variance sigma_n2 (mm^2), overflows a float; sigma_n is "
+                "the noise sd in mm") from None
         if obs.get("misregistration") and Study.model_dim(cfg) == 3:
             raise ConfigError(
                 f"{where}: observations.misregistration is a 2D misplacement (shift_x, "
