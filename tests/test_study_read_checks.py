@@ -433,3 +433,17 @@ def test_an_observation_scans_origin_in_um_under_units_mm_names_the_origin():
     msg = _refused(_oct_study(f0={"units": "mm", "pixel_size": 0.004}))
     assert "observations.files[0]" in msg and "its size fits the domain" in msg, msg
     assert "origin" in msg and "unit mismatch" not in msg, msg
+
+
+def test_a_closed_observed_outline_is_refused_for_the_2d_model(tmp_path):
+    """An observed interface written as the colony's closed outline (the first point
+    repeated last) was accepted: its base along the floor is no part of the model's
+    interface, and the RKHS distance counts it (0.14 -> 0.17 on the example's data)."""
+    rows = (OCT / "truth_1.csv").read_text().strip().splitlines()
+    (tmp_path / "open_1.csv").write_text("\n".join(rows) + "\n")
+    (tmp_path / "closed_1.csv").write_text("\n".join(rows + [rows[1]]) + "\n")
+    entry = {"units": "um", "pixel_size": None, "origin": None, "floor": None}
+    Study(_oct_study(f0={**entry, "path": str(tmp_path / "open_1.csv")}))
+    msg = _refused(_oct_study(f0={**entry, "path": str(tmp_path / "closed_1.csv")}))
+    assert "observations.files[0]" in msg and "closed_1.csv" in msg, msg
+    assert "closed outline" in msg and "leave out the base" in msg, msg

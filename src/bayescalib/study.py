@@ -726,6 +726,7 @@ class Study:
         Returns the interfaces read, by config key."""
         from bayescalib.geometry.imaging import inverted
         from bayescalib.io.observations import (
+            CSV_SUFFIXES,
             IMAGE_SUFFIXES,
             INTERFACE_SUFFIXES,
             ObservationError,
@@ -797,6 +798,18 @@ class Study:
                 validate_shape(observed[key], str(path))
             except ObservationError as exc:
                 raise ConfigError(f"{where}: {key}: {exc}") from None
+            iface = observed[key]
+            if Study.model_dim(cfg) == 2 and iface.n_cells == iface.n_points:
+                # the model's interface runs from foot to foot: a closed outline adds its
+                # base along the floor, which the RKHS measure counts as a misfit
+                raise ConfigError(
+                    f"{where}: {key} ('{path}'): the observed interface is a closed outline "
+                    + ("(its first point repeated last)" if suffix in CSV_SUFFIXES else
+                       "(drop_border: false traces along the image's border)"
+                       if suffix in IMAGE_SUFFIXES else "(a closed polyline)")
+                    + ", but the model's interface is open, from the upstream foot to the "
+                    "downstream one on the floor: leave out the base along the floor"
+                    + (" (and the repeated point)" if suffix in CSV_SUFFIXES else ""))
             why = inverted(info) if suffix in IMAGE_SUFFIXES else None
             if why and Study.model_dim(cfg) == 2:  # the colony stands on the floor
                 raise ConfigError(f"{where}: {key}: {why}")
