@@ -847,7 +847,7 @@ class Study:
             return []
         scan = (fm["fsi"].get("geometry") or {}).get("scan") or {}
         size = scan.get("pixel_size")
-        if (Path(str(scan.get("path", ""))).suffix.lower() not in IMAGE_SUFFIXES
+        if (Path(str(scan.get("path") or "")).suffix.lower() not in IMAGE_SUFFIXES
                 or not isinstance(size, (int, float))):
             return []
         s0 = float(size) * UNITS[scan.get("units") or "mm"]
