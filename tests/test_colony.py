@@ -274,3 +274,83 @@ def test_a_typed_outline_solves_in_either_orientation():
         assert result.status == "ok", result.reason
         refs.append(result.interface_current)
     assert refs[0].shape == refs[1].shape and np.allclose(refs[0], refs[1], atol=1e-9)
+
+
+# ------------------------------------------------- a user's own recording (new-user probe)
+OCT = Path(__file__).resolve().parents[1] / "examples" / "oct_colony"
+
+
+def _oct_entry(path, **change):
+    """The OCT example's zero-flow scan entry (um, 4 um pixels), for another file."""
+    return {"path": str(path), "units": "um", "pixel_size": 4.0, "origin": [522.0, -30.0],
+            "floor": "auto", **change}
+
+
+def _oct_pixels(i=0):
+    from PIL import Image
+
+    return np.array(Image.open(OCT / f"scan_{i}.png"))
+
+
+def test_a_jpeg_scan_is_refused_as_an_unsupported_file_not_for_its_floor(tmp_path):
+    """A .jpg zero-flow scan with floor: auto was refused with "floor: 'auto' applies to
+    images", though it is an image: the file type is what is wrong."""
+    from PIL import Image
+
+    path = tmp_path / "scan_0.jpg"
+    Image.fromarray((_oct_pixels() >> 8).astype(np.uint8)).save(path)
+    with pytest.raises(ObservationError, match="not a supported file") as exc:
+        _read(_oct_entry(path))
+    assert "applies to images" not in str(exc.value) and ".png" in str(exc.value)
+
+
+def test_a_multi_page_tiff_is_refused_as_a_2d_models_scan(tmp_path):
+    """A 3-page TIFF (an OCT volume) given to the 2D model was read as an RGB image (its
+    pages taken for colour channels) and its first page modelled, silently."""
+    import tifffile
+
+    img = _oct_pixels()
+    tifffile.imwrite(tmp_path / "one.tif", img)
+    tifffile.imwrite(tmp_path / "stack.tif", np.stack([img] * 3), photometric="minisblack")
+    assert _read(_oct_entry(tmp_path / "one.tif")).info["n_colonies"] == 1  # one page: fine
+    with pytest.raises(ObservationError, match="multi-page TIFF") as exc:
+        _read(_oct_entry(tmp_path / "stack.tif"))
+    assert "geometry.dim: 3" in str(exc.value)
+
+
+def test_an_inverted_scan_is_refused_as_inverted_not_as_misplaced(tmp_path):
+    """The example's zero-flow scan with its grey values inverted (fluid bright) was
+    refused with an origin "that would put the substrate at y = 0": the wrong fix."""
+    from PIL import Image
+
+    path = tmp_path / "inv.png"
+    Image.fromarray((65535 - _oct_pixels().astype(np.int64)).astype(np.uint16)).save(path)
+    with pytest.raises(ObservationError, match="inverted image") as exc:
+        _read(_oct_entry(path))
+    assert "origin" not in str(exc.value)
+    assert str(exc.value).count(str(path)) == 1  # the path said once
+
+
+@pytest.mark.parametrize("change, hint", [
+    ({"units": "mm", "pixel_size": 0.004}, "origin is in um, not mm: origin [0.522, -0.03] mm"),
+    ({"pixel_size": 0.004}, "pixel_size is in mm, not um: pixel_size 4 um"),
+])
+def test_a_floor_off_by_a_unit_slip_names_the_unit(change, hint):
+    """An origin copied in um under units: mm (or a pixel size in mm under um) puts the
+    substrate far from y = 0; the message gave an origin fixing only y, in a sentence
+    that ended "it would be"."""
+    with pytest.raises(ObservationError) as exc:
+        _read(_oct_entry(OCT / "scan_0.png", **change))
+    msg = str(exc.value)
+    assert "it would lie there" in msg and hint in msg, msg
+
+
+def test_a_scan_without_floor_auto_is_told_of_floor_auto():
+    """floor left out (null: the image's bottom edge) on a scan whose substrate band lies
+    8 rows above it: the origin offered moves the band into the colony; floor: auto is
+    named as the other fix."""
+    entry = _oct_entry(OCT / "scan_0.png")
+    entry.pop("floor")
+    with pytest.raises(ObservationError, match="give floor: auto") as exc:
+        _read(entry)
+    assert "pixel_size is in" not in str(exc.value)  # no spurious unit hint

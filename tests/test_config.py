@@ -8,6 +8,7 @@ from bayescalib.config import (
     deep_merge,
     load_yaml,
     parse_override,
+    validate,
 )
 
 
@@ -104,3 +105,16 @@ def test_the_configuration_reference_is_in_sync_with_the_schemas():
 
     missing = [k for k in keys(cfg) if f"`{k}`" not in text]
     assert not missing, missing
+
+
+def test_a_value_that_fits_none_of_a_keys_forms_says_why_and_what_the_key_is():
+    """pixel_size: [4.0, 4.0] in a 2D study (one number for an image, three for a
+    volume) was refused as "[4.0, 4.0] is not valid under any of the given schemas"."""
+    with pytest.raises(ConfigError) as exc:
+        validate({"geometry": {"shape": "scan", "scan": {"path": "a.png",
+                                                         "pixel_size": [4.0, 4.0]}}},
+                 "fsi", where="mine.yaml")
+    msg = str(exc.value)
+    assert "key 'geometry.scan.pixel_size'" in msg and "is too short" in msg, msg
+    assert "the size of one pixel" in msg and "[dx, dy, dz]" in msg, msg
+    assert "not valid under any of the given schemas" not in msg, msg

@@ -277,3 +277,18 @@ def test_random_csv_either_reads_or_raises_clearly(tmp_path_factory, pts):
     if c.n_cells == c.n_points:  # closed: last row repeated the first
         arr = arr[:-1]
     np.testing.assert_array_equal(c.points, arr)
+
+
+@pytest.mark.parametrize("text, name", [
+    ("x;y\n0,6;0,0\n0,8;0,3\n1,0;0,0\n", "semicolons"),  # a spreadsheet's decimal commas
+    ("x;y\n0.6;0.0\n0.8;0.3\n1.0;0.0\n", "semicolons"),
+    ("x\ty\n0.6\t0.0\n0.8\t0.3\n1.0\t0.0\n", "tabs"),
+])
+def test_a_csv_with_other_separators_is_refused_naming_them(tmp_path, text, name):
+    """A CSV saved with ';' (and decimal commas) or tabs was refused as "row 2 has 3
+    columns, header has 1" or "a non-numeric value": the separator is what is wrong."""
+    path = tmp_path / "scan.csv"
+    path.write_text(text)
+    with pytest.raises(ObservationError, match=f"separated by {name}") as exc:
+        read_interface(path)
+    assert "comma-separated" in str(exc.value) and "scan.csv" in str(exc.value)

@@ -53,6 +53,8 @@ def test_forward_section_keeps_only_the_chosen_model():
                                                           "command": ["x"]}}},
          "/nonexistent.j2' does not exist"),
         ({"likelihood": {"sigma_n2": -1.0}}, "likelihood.sigma_n2"),
+        # its square overflows (a traceback, found by tests/test_config_fuzz.py)
+        ({"likelihood": {"sigma_n2": None, "sigma_n": 1e300}}, "likelihood.sigma_n = 1e+300"),
         # a name that is a path: results/.. is the checkout itself
         ({"study": ".."}, "study"),
         ({"study": ".hidden"}, "study"),

@@ -324,3 +324,126 @@ def test_the_euclidean_measures_points_file_is_read_when_the_study_is_read(tmp_p
         msg = _refused(deep_merge(ANALYTIC, {**euclid, "measure": {"euclidean": {
             "points": str(path)}}}))
         assert "measure.euclidean.points" in msg and path.name in msg and problem in msg, msg
+
+
+# ------------------------------------------- a user's own OCT recording (new-user probe)
+OCT = ROOT / "examples" / "oct_colony"
+
+
+def _oct_study(**files) -> dict:
+    """The OCT example's study (examples/oct_colony/study.yaml) with absolute paths; the
+    keyword ``files`` replaces observation entries by index, e.g. ``f0={...}``."""
+    import copy
+
+    study = copy.deepcopy(load_yaml(OCT / "study.yaml"))
+    scan = study["forward_model"]["fsi"]["geometry"]["scan"]
+    scan["path"] = str(ROOT / scan["path"])
+    for e in study["observations"]["files"]:
+        e["path"] = str(ROOT / e["path"])
+    for k, change in files.items():
+        study["observations"]["files"][int(k[1:])].update(change)
+    return merge_layers([DEFAULT, study])
+
+
+def _oct_pixels(i: int) -> np.ndarray:
+    from PIL import Image
+
+    return np.array(Image.open(OCT / f"scan_{i}.png"))
+
+
+def _png16(path: Path, img: np.ndarray) -> str:
+    from PIL import Image
+
+    Image.fromarray(np.clip(img, 0, 65535).astype(np.uint16)).save(path)
+    return str(path)
+
+
+@pytest.mark.parametrize("likelihood, given, fix", [
+    ({"sigma_n": 2.0}, "likelihood.sigma_n = 2 mm", "sigma_n: 0.002"),
+    ({"sigma_n2": 4.0}, "likelihood.sigma_n2 = 4 mm^2", "sigma_n2: 4e-06"),
+])
+def test_a_noise_sd_given_in_um_is_refused_against_the_colonys_height(likelihood, given, fix):
+    """sigma_N = 2 um written as sigma_n: 2.0 (mm) is five times the colony's height: the
+    data could tell nothing, and the study was accepted (a flat posterior after all the
+    solves)."""
+    study = _oct_study()
+    study["likelihood"] = {"sigma_n2": None, "sigma_n": None, **likelihood}
+    msg = _refused(study)
+    assert given in msg and fix in msg and "0.38 mm" in msg, msg
+
+
+def test_an_inverted_observation_scan_is_refused(tmp_path):
+    """An observed B-scan with the contrast inverted (fluid bright) was accepted: the
+    trace of the bright fluid's edge ran along the floor to both image sides, and those
+    floor nodes were taken for the colony's interface."""
+    inv = _png16(tmp_path / "inv_1.png", 65535 - _oct_pixels(1).astype(np.int64))
+    msg = _refused(_oct_study(f0={"path": inv}))
+    assert "observations.files[0]" in msg and "inv_1.png" in msg and "inverted" in msg, msg
+
+
+def test_an_observation_scan_cut_by_the_image_border_is_refused(tmp_path):
+    """An observed B-scan cropped through the colony's upstream flank was accepted (the
+    zero-flow scan so cropped is refused): the model's interface beyond the cut would
+    be compared with the trace's cut end."""
+    crop = _png16(tmp_path / "crop_1.png", _oct_pixels(1)[:, 40:])
+    Study(_oct_study(f0={"path": _png16(tmp_path / "whole_1.png", _oct_pixels(1))}))
+    msg = _refused(_oct_study(f0={"path": crop, "origin": [682.0, -30.0]}))
+    assert "observations.files[0]" in msg and "crop_1.png" in msg, msg
+    assert "left border" in msg and "cut by the field of view" in msg, msg
+
+
+def test_an_oct_volume_observed_for_the_2d_model_is_refused_as_a_volume(tmp_path):
+    """A multi-page TIFF in a 2D study was refused asking for a voxel size of three
+    numbers (a volume's), which would lead to a 3D surface for a 2D model."""
+    import tifffile
+
+    stack = tmp_path / "stack_1.tif"
+    tifffile.imwrite(stack, np.stack([_oct_pixels(1)] * 3), photometric="minisblack")
+    msg = _refused(_oct_study(f0={"path": str(stack)}))
+    assert "observations.files[0]" in msg and "is an OCT volume" in msg, msg
+    assert "geometry.dim: 2" in msg and "voxel size" not in msg, msg
+
+
+def test_observation_pixels_other_than_the_zero_flow_scans_are_noted():
+    """A pixel size of the observed scans other than the zero-flow scan's (4.4 um against
+    4 um: the colony 10 % larger) passes the placement check; it is noted."""
+    assert not any("pixel_size:" in n for n in Study(_oct_study()).notes)
+    notes = Study(_oct_study(f0={"pixel_size": 4.4}, f2={"pixel_size": 4.4})).notes
+    note = [n for n in notes if "pixel_size:" in n]
+    assert len(note) == 1, notes
+    assert "observations.files[0] 4.4 um, observations.files[2] 4.4 um" in note[0], note
+    assert "has 4 um pixels" in note[0], note
+
+
+def test_an_observation_scan_without_its_floor_is_refused_naming_floor():
+    """Without floor: auto the example's bright substrate band is segmented with the
+    colony and its top traced from one image side to the other; the trace is refused
+    naming the key that cuts it, not as a colony cut by the field of view."""
+    study = _oct_study()
+    study["observations"]["files"][1].pop("floor")
+    msg = _refused(study)
+    assert "observations.files[1].floor: auto" in msg and "bright band" in msg, msg
+    assert "field of view" not in msg, msg
+
+
+def test_an_observation_scans_origin_in_um_under_units_mm_names_the_origin():
+    """The observed scans' origin copied in um under units: mm (pixel size converted):
+    their size fits the domain, their place not, and the message said "unit
+    mismatch?" with no hint; it names the origin now."""
+    msg = _refused(_oct_study(f0={"units": "mm", "pixel_size": 0.004}))
+    assert "observations.files[0]" in msg and "its size fits the domain" in msg, msg
+    assert "origin" in msg and "unit mismatch" not in msg, msg
+
+
+def test_a_closed_observed_outline_is_refused_for_the_2d_model(tmp_path):
+    """An observed interface written as the colony's closed outline (the first point
+    repeated last) was accepted: its base along the floor is no part of the model's
+    interface, and the RKHS distance counts it (0.14 -> 0.17 on the example's data)."""
+    rows = (OCT / "truth_1.csv").read_text().strip().splitlines()
+    (tmp_path / "open_1.csv").write_text("\n".join(rows) + "\n")
+    (tmp_path / "closed_1.csv").write_text("\n".join(rows + [rows[1]]) + "\n")
+    entry = {"units": "um", "pixel_size": None, "origin": None, "floor": None}
+    Study(_oct_study(f0={**entry, "path": str(tmp_path / "open_1.csv")}))
+    msg = _refused(_oct_study(f0={**entry, "path": str(tmp_path / "closed_1.csv")}))
+    assert "observations.files[0]" in msg and "closed_1.csv" in msg, msg
+    assert "closed outline" in msg and "leave out the base" in msg, msg

@@ -208,6 +208,14 @@ def _format_error(err, where: str) -> str:
             + f"key '{key}': value {err.instance!r} has the wrong type (expected "
             f"{err.validator_value}){hint}"
         )
+    if err.validator in {"oneOf", "anyOf"} and err.context:
+        # "is not valid under any of the given schemas" says nothing of the forms: each
+        # form's objection, and the key's description (e.g. pixel_size: one number for an
+        # image, three for a volume)
+        forms = "; ".join(dict.fromkeys(e.message for e in err.context))
+        desc = str(err.schema.get("description") or "").strip()
+        return (prefix + f"key '{key}': value {err.instance!r} fits none of its allowed "
+                f"forms ({forms})" + (f"; {key}: {desc}" if desc else ""))
     return prefix + f"key '{key}': {err.message}"
 
 

@@ -285,6 +285,11 @@ class Study:
             sigma_n2_from_config(cfg["likelihood"])
         except ValueError as exc:
             raise ConfigError(f"{where}: {exc}") from None
+        except OverflowError:  # sigma_n ** 2 beyond a float (e.g. 1e300)
+            raise ConfigError(
+                f"{where}: likelihood.sigma_n = {cfg['likelihood'].get('sigma_n')!r}: its "
+                "square, the noise variance sigma_n2 (mm^2), overflows a float; sigma_n is "
+                "the noise sd in mm") from None
         if obs.get("misregistration") and Study.model_dim(cfg) == 3:
             raise ConfigError(
                 f"{where}: observations.misregistration is a 2D misplacement (shift_x, "
@@ -300,6 +305,7 @@ class Study:
             Study._validate_boxes(cfg, where)
         Study._validate_hidden(cfg, where)
         observed = Study._validate_observation_files(cfg, where)
+        notes += Study._pixel_size_notes(cfg, where)
         Study._validate_measure_points(cfg, where)
         Study._validate_registration(cfg, where, observed)
         if "rkhs" in cfg["measures"]:  # after the unit check, whose words are the clearer
@@ -565,6 +571,8 @@ class Study:
             ref = observed[what]
             place = what == "observations.reference"  # snapshots under load move apart
         height = float(np.ptp(ref.points[:, 1])) or 1.0
+        if what.startswith("the model"):
+            Study._validate_noise_scale(cfg, where, height)
         axes = ((0, "wide"),) if dim == 2 else ((0, "long (x, along the flow)"),
                                                     (2, "wide (z, across the flow)"))
         for key, iface in observed.items():
@@ -615,6 +623,31 @@ class Study:
                 raise ConfigError(
                     f"{where}: {key} ('{entry['path']}'): {why}. It is offset by about "
                     f"({offset}) mm: check {key}.origin and {key}.units{fix}")
+
+    @staticmethod
+    def _validate_noise_scale(cfg: dict[str, Any], where: str, height: float) -> None:
+        """A likelihood noise sd sigma_N at least the height of the model's undeformed
+        colony (mm) is refused: no observed shape could inform the parameters through
+        it, and it is the sign of a unit slip (``sigma_n: 2.0`` meant as 2 um; sigma_N is
+        in mm). Used for observation files with the fsi model, whose colony is known
+        before any solve."""
+        from bayescalib.inference.likelihood import sigma_n2_from_config
+
+        lk = cfg["likelihood"]
+        sigma_n = math.sqrt(sigma_n2_from_config(lk))
+        if sigma_n < height:
+            return
+        key = "sigma_n" if lk.get("sigma_n") is not None else "sigma_n2"
+        given = f"likelihood.{key} = {lk[key]:g}" + (
+            f" mm^2 (sigma_N = {sigma_n:.3g} mm)" if key == "sigma_n2" else " mm")
+        um = (f"; if it was meant in um, write likelihood.sigma_n: {sigma_n * 1e-3:g} "
+              f"(or sigma_n2: {sigma_n2_from_config(lk) * 1e-6:.3g})"
+              if sigma_n * 1e-3 < height else "")
+        raise ConfigError(
+            f"{where}: {given}: the likelihood's noise sd is at least the height of the "
+            f"model's undeformed biofilm ({height:.3g} mm), so the observed shapes could "
+            "tell nothing about the parameters: sigma_N is in mm (the segmentation error "
+            f"plus the model error, typically a few um){um}")
 
     @staticmethod
     def model_dim(cfg: Mapping[str, Any]) -> int | None:
@@ -691,11 +724,13 @@ class Study:
         unreadable, oversized, all-black or all-white image, a scan whose segmentation
         finds no biofilm, or a missing ``origin`` is a config error, not a failed job.
         Returns the interfaces read, by config key."""
+        from bayescalib.geometry.imaging import inverted
         from bayescalib.io.observations import (
+            CSV_SUFFIXES,
             IMAGE_SUFFIXES,
             INTERFACE_SUFFIXES,
             ObservationError,
-            read_interface,
+            read_interface_info,
             reader_options,
             validate_shape,
         )
@@ -718,6 +753,13 @@ class Study:
                 raise ConfigError(f"{where}: {key}.path: '{path}' is not a supported interface "
                                   f"file (suffixes: {', '.join(sorted(INTERFACE_SUFFIXES))}; "
                                   "or a folder of B-scans, a volume)")
+            if path.exists() and is_volume(path) and Study.model_dim(cfg) == 2:
+                raise ConfigError(
+                    f"{where}: {key} ('{path}') is an OCT volume (a folder of B-scans, a .npy "
+                    "array or a multi-page TIFF), but the model's interface is a 2D curve "
+                    "(forward_model.fsi.geometry.dim: 2): give one B-scan image (one page) of "
+                    "the colony's section for the 2D model, or set "
+                    "forward_model.fsi.geometry.dim: 3")
             if path.exists() and is_volume(path):
                 Study._validate_volume_entry(where, key, e)
             elif path.exists() and (isinstance(e.get("pixel_size"), list)
@@ -751,12 +793,79 @@ class Study:
                 Study._validate_point_count(cfg, where, key, path)
             opts = reader_options(e)
             try:
-                observed[key] = read_interface(path, domain=obs.get("domain"), **opts)
+                observed[key], info = read_interface_info(path, domain=obs.get("domain"),
+                                                          **opts)
                 validate_shape(observed[key], str(path))
             except ObservationError as exc:
                 raise ConfigError(f"{where}: {key}: {exc}") from None
+            iface = observed[key]
+            if Study.model_dim(cfg) == 2 and iface.n_cells == iface.n_points:
+                # the model's interface runs from foot to foot: a closed outline adds its
+                # base along the floor, which the RKHS measure counts as a misfit
+                raise ConfigError(
+                    f"{where}: {key} ('{path}'): the observed interface is a closed outline "
+                    + ("(its first point repeated last)" if suffix in CSV_SUFFIXES else
+                       "(drop_border: false traces along the image's border)"
+                       if suffix in IMAGE_SUFFIXES else "(a closed polyline)")
+                    + ", but the model's interface is open, from the upstream foot to the "
+                    "downstream one on the floor: leave out the base along the floor"
+                    + (" (and the repeated point)" if suffix in CSV_SUFFIXES else ""))
+            why = inverted(info) if suffix in IMAGE_SUFFIXES else None
+            if why and Study.model_dim(cfg) == 2:  # the colony stands on the floor
+                raise ConfigError(f"{where}: {key}: {why}")
+            if info.get("border") and Study.model_dim(cfg) == 2:
+                # the fsi model's colony stands on the floor with fluid on both sides and
+                # above: an observed one that runs into the image's side is cut off there
+                # (a python or command model may observe a film across the width)
+                band = (info.get("floor") or {}).get("method")
+                if info.get("floor_source") == "none" and band in ("bright band",
+                                                                    "full-width band"):
+                    raise ConfigError(
+                        f"{where}: {key} ('{path}'): the traced interface runs along a "
+                        f"{band} across the image (the substrate, segmented with the "
+                        f"biofilm) into its {' and '.join(info['border'])} border: give "
+                        f"{key}.floor: auto (or the substrate's y) to cut the trace there")
+                raise ConfigError(
+                    f"{where}: {key} ('{path}'): the traced interface runs into the image's "
+                    f"{' and '.join(info['border'])} border: the colony is cut by the field "
+                    "of view, and the model's interface beyond it would be compared with "
+                    "the cut end. Use a scan that shows the whole colony with fluid around it")
         Study._validate_dimension(cfg, where, observed)
         return observed
+
+    @staticmethod
+    def _pixel_size_notes(cfg: dict[str, Any], where: str) -> list[str]:
+        """A note for each observation image whose pixel size (in mm) differs by more
+        than 1 % from that of the 2D model's zero-flow scan (``geometry.scan``): the
+        scans of one recording share their pixel size, and a wrong one scales the model's
+        colony or an observed interface by as much, which the placement check (a quarter
+        of the colony's height) lets through up to tens of percent."""
+        from bayescalib.io.observations import IMAGE_SUFFIXES, UNITS
+
+        fm = cfg["forward_model"]
+        if fm["type"] != "fsi" or cfg["observations"]["source"] != "files":
+            return []
+        scan = (fm["fsi"].get("geometry") or {}).get("scan") or {}
+        size = scan.get("pixel_size")
+        if (Path(str(scan.get("path") or "")).suffix.lower() not in IMAGE_SUFFIXES
+                or not isinstance(size, (int, float))):
+            return []
+        s0 = float(size) * UNITS[scan.get("units") or "mm"]
+        odd = []
+        for k, e in enumerate(cfg["observations"]["files"] or []):
+            s = e.get("pixel_size")
+            if (Path(e["path"]).suffix.lower() not in IMAGE_SUFFIXES
+                    or not isinstance(s, (int, float))):
+                continue
+            s = float(s) * UNITS[e.get("units") or "mm"]
+            if abs(s / s0 - 1.0) > 0.01:
+                odd.append(f"observations.files[{k}] {s * 1e3:.4g} um")
+        if not odd:
+            return []
+        return [(f"{where}: pixel_size: {', '.join(odd)}, but the model's zero-flow scan "
+                 f"(forward_model.fsi.geometry.scan) has {s0 * 1e3:.4g} um pixels: scans of "
+                 "one recording share their pixel size, and a wrong one scales the colony by "
+                 "as much (check both)")]
 
     @staticmethod
     def _validate_volume_entry(where: str, key: str, entry: Mapping[str, Any]) -> None:

@@ -123,7 +123,7 @@ import numpy as np
 from bayescalib.geometry.interface import Interface
 
 __all__ = ["FLOOR_BRIGHT", "FLOOR_FULL_WIDTH", "FLOOR_MAX_BAND", "MAX_IMAGE_PIXELS",
-           "ImageError", "find_floor", "image_size", "load_mask", "mask_contour", "pixel_grid", "read_image", "read_mask",
+           "ImageError", "find_floor", "image_size", "inverted", "load_mask", "mask_contour", "pixel_grid", "read_image", "read_mask",
            "render_mask", "render_scan", "segment_scan", "segmentation_options"]
 
 #: largest image (pixels, width x height) that is decoded: 50 megapixels, ~100 times an
@@ -301,7 +301,8 @@ def read_mask(
         ``path``, ``kind`` (``"mask"``/``"scan"``), ``shape`` [H, W], ``bit_depth``,
         ``dtype``, ``channels``, ``threshold`` (image intensity), ``threshold_method``
         (``"otsu"``, ``"given"``, ``"midpoint"`` for masks), ``smooth_px``,
-        ``min_size_px``, ``foreground_fraction``, ``floor`` (``method``, ``row``: the
+        ``min_size_px``, ``foreground_fraction``, ``top_foreground`` (the share of the
+        top row that is foreground: see :func:`inverted`), ``floor`` (``method``, ``row``: the
         edge position in rows, None for ``"image bottom"``), and for scans the
         segmentation uncertainty: ``sigma_px`` (total), ``sigma_noise_px``,
         ``sigma_quantisation_px``, ``noise_sd`` (pixel noise at the threshold, image
@@ -355,8 +356,40 @@ def read_mask(
                              f"(fluid) {where}")
         sigma = _positional_sigma(img, smoothed, mask, float(opts["smooth"]))
     info.update(kind=kind, **seg, foreground_fraction=float(mask.mean()),
+                top_foreground=float(mask[0].mean()),
                 floor=find_floor(mask, smoothed, float(seg["smooth_px"] or 0.0), t), **sigma)
     return mask, info
+
+
+def inverted(info: Mapping[str, Any]) -> str | None:
+    """Why a mask read by :func:`read_mask` looks inverted, or None.
+
+    A colony on the floor of a flow cell has fluid above it: an image whose foreground
+    (the brighter value of a mask, the bright part of a scan) fills the top row across
+    the width (at least :data:`FLOOR_FULL_WIDTH` of it) has the fluid bright and the
+    biofilm dark, or a threshold below the fluid's level. The callers that model such
+    a colony (the fsi model's scan and its 2D observations) refuse it; a generic edge
+    or a film on a channel's ceiling is no error of :func:`read_mask` itself.
+
+    Parameters
+    ----------
+    info : mapping
+        The info dict of :func:`read_mask`.
+
+    Returns
+    -------
+    str or None
+        The reason, in words, starting with the file's path.
+    """
+    top = info.get("top_foreground")
+    if top is None or top < FLOOR_FULL_WIDTH:
+        return None
+    scan = info.get("kind") == "scan"
+    return (f"{info['path']}: the foreground (the {'bright part' if scan else 'brighter value'}"
+            f", taken for biofilm) fills {100 * top:.0f} % of the image's top row: the fluid "
+            "above the colony must be the dark part and the biofilm the bright one. This "
+            "looks like an inverted image (fluid bright, biofilm dark): invert its grey "
+            "values" + (" (or check segmentation.threshold)" if scan else ""))
 
 
 def find_floor(mask: np.ndarray, smoothed: np.ndarray | None = None,

@@ -107,14 +107,14 @@ def read_colony(scan: Mapping[str, Any], *, where: str = "geometry.scan") -> Col
     if not path.is_file():
         raise _fail(where, f"'{path}' does not exist" + (
             f" (relative paths are read from {Path.cwd()})" if not path.is_absolute() else ""))
+    if suffix not in CSV_SUFFIXES | VTK_SUFFIXES | IMAGE_SUFFIXES:
+        known = sorted(CSV_SUFFIXES | VTK_SUFFIXES | IMAGE_SUFFIXES)
+        raise _fail(where, f"'{path}' is not a supported file (suffixes: {', '.join(known)})")
     floor = scan["floor"]
     if isinstance(floor, str) and suffix not in IMAGE_SUFFIXES:
         raise _fail(where, f"floor: {floor!r} applies to images; give the substrate's y")
     if suffix in IMAGE_SUFFIXES:
         return _colony_from_image(path, scan, f, units, where)
-    if suffix not in CSV_SUFFIXES | VTK_SUFFIXES:
-        known = sorted(CSV_SUFFIXES | VTK_SUFFIXES | IMAGE_SUFFIXES)
-        raise _fail(where, f"'{path}' is not a supported file (suffixes: {', '.join(known)})")
     if scan["colony"] is not None:
         raise _fail(where, "colony (an x-range choosing one of several colonies) applies to "
                     "images; an outline file holds one colony")
@@ -164,13 +164,24 @@ def _colony_from_image(path: Path, scan: Mapping[str, Any], f: float, units: str
             f"origin is required for the image '{path}': the position (x, y) of the centre of "
             f"its bottom-left pixel in the flow cell, in {units}, so that the substrate lies "
             "at y = 0 and the colony where it is in the channel"))
+    from bayescalib.io.volumes import is_volume
+
+    if is_volume(path):  # the image reader would take its pages for colour channels
+        raise _fail(where, (
+            f"'{path}' is a multi-page TIFF (an OCT volume), but a 2D model's scan is one "
+            "image: give the B-scan of the colony's section (a one-page TIFF or a PNG), or "
+            "set forward_model.fsi.geometry.dim: 3 to model the colony in 3D"))
     s = float(scan["pixel_size"]) * f
     x0, y0 = (float(v) * f for v in scan["origin"])
     try:
         mask, seg = imaging.read_mask(path, image=scan["image"],
                                       segmentation=scan["segmentation"])
     except (ValueError, OSError) as exc:
-        raise _fail(where, f"'{path}': {exc}") from None
+        msg = str(exc)  # the image reader's messages start with the path
+        raise _fail(where, msg if msg.startswith(str(path)) else f"'{path}': {msg}") from None
+    why = imaging.inverted(seg)
+    if why:
+        raise _fail(where, why)
     h = mask.shape[0]
     floor = scan["floor"]
     y_cut = None  # where the trace is cut, when above the substrate's surface y_f
@@ -190,7 +201,10 @@ def _colony_from_image(path: Path, scan: Mapping[str, Any], f: float, units: str
         raise _fail(where, (
             f"'{path}': the substrate lies at y = {y_f:.4g} mm in the scan's coordinates "
             f"(origin {list(scan['origin'])} {units}), but the flow cell's floor is y = 0: "
-            f"with origin [{x0 / f:.6g}, {(y0 - y_f) / f:.6g}] {units} it would be"))
+            f"with origin [{x0 / f:.6g}, {(y0 - y_f) / f:.6g}] {units} it would lie there"
+            + _unit_slip(scan, units, y0, y_f, s)
+            + ("; or, if the substrate is not the image's bottom edge (floor: null), give "
+               "floor: auto to find it in the scan" if floor is None else "")))
     rows_y = y0 + (h - 1 - np.arange(h)) * s
     work = mask.copy()
     work[rows_y <= y_cut, :] = False
@@ -211,6 +225,27 @@ def _colony_from_image(path: Path, scan: Mapping[str, Any], f: float, units: str
             "colony_columns": list(choice.x_ranges[choice.index])}
     return _finish(pts, y_f, 2.0 * s if smoothing is None else float(smoothing) * f, s,
                    info, where)
+
+
+def _unit_slip(scan: Mapping[str, Any], units: str, y0: float, y_f: float, s: float) -> str:
+    """A hint when ``origin`` or ``pixel_size`` alone, read in another unit, puts the
+    substrate found at ``y_f`` (mm, with origin y ``y0`` and pixel ``s``, mm) on y = 0:
+    the usual cause of a floor far from it (e.g. an origin in um under ``units: mm``)."""
+    f = UNITS[units]
+    tol = FLOOR_TOL_MM
+    others = [(u, g) for u, g in UNITS.items() if u != units]
+    for u, g in others:  # the origin first: its numbers are copied from another tool
+        if abs(y_f - y0 + y0 * g / f) <= max(tol, 2.0 * s):
+            origin = ", ".join(f"{v * g / f:.6g}" for v in scan["origin"])
+            return (f"; or the origin is in {u}, not {units}: origin [{origin}] {units} "
+                    "puts the substrate on y = 0")
+    for u, g in others:
+        s_u = s * g / f
+        if abs(y0 + (y_f - y0) * g / f) <= max(tol, 2.0 * min(s, s_u)):
+            return (f"; or pixel_size is in {u}, not {units}: pixel_size "
+                    f"{float(scan['pixel_size']) * g / f:.6g} {units} puts the substrate on "
+                    "y = 0")
+    return ""
 
 
 def _finish(pts: np.ndarray, y_f: float, smoothing: float | None, pixel: float | None,

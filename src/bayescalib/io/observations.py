@@ -240,6 +240,12 @@ def validate_domain(interface: Interface, domain: Sequence[Sequence[float]] | No
         ratio = size / float(np.max(ext))
         u = unit_hint(ratio, units, 0.05, 20.0)
         hint = f"; the numbers fit if the file is in {u} (units={u!r})" if u else ""
+        if not u and np.all(hi - lo <= 1.5 * ext):  # the size fits, the place does not
+            raise ObservationError(
+                f"{where}: the interface (box {lo.round(6).tolist()} to "
+                f"{hi.round(6).tolist()} mm, read as {units}) lies outside the expected "
+                f"domain {dom.tolist()} mm; its size fits the domain but its position does "
+                "not: check the file's offset (for an image, its origin, in its units)")
         raise ObservationError(
             f"{where}: interface extent {(hi - lo).round(6).tolist()} mm (box {lo.round(6).tolist()} "
             f"to {hi.round(6).tolist()}) does not fit the expected domain {dom.tolist()} mm; "
@@ -259,6 +265,13 @@ def _read_csv_table(path: Path, where: str) -> tuple[list[str], np.ndarray, np.n
     if not lines:
         raise ObservationError(f"{where}: the file is empty")
     header = [c.strip().lower() for c in lines[0][1]]
+    for sep, name in ((";", "semicolons"), ("\t", "tabs")):
+        if len(header) == 1 and sep in header[0]:  # a spreadsheet's export in a locale
+            raise ObservationError(
+                f"{where}: the columns are separated by {name} (header {lines[0][1][0]!r}): "
+                "a CSV file here is comma-separated, with '.' as the decimal point "
+                "(header x,y); save it as such (any decimal commas replaced by points, then "
+                "the separators by commas)")
     values = []
     rownum = []
     for i, r in lines[1:]:
@@ -566,7 +579,15 @@ def _read_image(path: Path, pixel_size, origin, drop_border: bool, floor, units:
         raise ObservationError(msg if msg.startswith(where) else f"{where}: {msg}") from None
     except OSError as exc:
         raise ObservationError(f"{where}: cannot read the image ({exc})") from None
-    mm = {"pixel_size_mm": s, "origin_mm": list(org),
+    # the image borders the traced interface runs into (with drop_border, the border's
+    # part is not traced: a colony cut there is only a part of it)
+    cols = (curve.points[:, 0] - org[0]) / s
+    rows = h - 1 - (curve.points[:, 1] - org[1]) / s
+    eps = 1e-6
+    border = [side for side, hit in (("left", cols.min() <= eps),
+                                     ("right", cols.max() >= mask.shape[1] - 1 - eps),
+                                     ("top", rows.min() <= eps)) if hit and drop_border]
+    mm = {"pixel_size_mm": s, "origin_mm": list(org), "border": border,
           "floor_mm": floor_mm, "floor_source": "auto" if floor == "auto" else
           ("given" if floor is not None else "none"),
           "sigma_mm": None if info["sigma_px"] is None else float(info["sigma_px"]) * s,
@@ -683,7 +704,9 @@ def read_interface_info(
         the dict of :func:`bayescalib.geometry.imaging.read_mask` (``kind`` "mask" or
         "scan", threshold, floor found, segmentation uncertainty in pixels) plus
         ``pixel_size_mm``, ``origin_mm``, ``floor_mm`` (the floor cut at, None: none),
-        ``floor_source`` ("auto", "given", "none"), ``sigma_mm`` and ``sigma_noise_mm``
+        ``floor_source`` ("auto", "given", "none"), ``border`` (the image sides, of
+        "left", "right", "top", that the traced interface runs into), ``sigma_mm`` and
+        ``sigma_noise_mm``
         (the segmentation's positional uncertainty of the interface, mm; None for masks).
     """
     from bayescalib.io.surfaces import read_surface
