@@ -447,3 +447,56 @@ def test_a_closed_observed_outline_is_refused_for_the_2d_model(tmp_path):
     msg = _refused(_oct_study(f0={**entry, "path": str(tmp_path / "closed_1.csv")}))
     assert "observations.files[0]" in msg and "closed_1.csv" in msg, msg
     assert "closed outline" in msg and "leave out the base" in msg, msg
+
+
+def _two_colonies(path: Path) -> dict:
+    """A mask (10 um pixels, the floor at the image bottom) with the default model's
+    colony (half-ellipse 0.6 x 0.4 mm at x = 1 mm) and a larger one at x = 2 mm."""
+    from skimage import io
+
+    x = -0.195 + 0.01 * np.arange(330)  # pixel centres, mm
+    y = 0.005 + 0.01 * np.arange(60)[::-1]  # row 0 at the top
+    X, Y = np.meshgrid(x, y)
+    mask = ((X - 1.0) / 0.3) ** 2 + (Y / 0.4) ** 2 <= 1.0
+    mask |= ((X - 2.0) / 0.45) ** 2 + (Y / 0.42) ** 2 <= 1.0
+    io.imsave(path, (255 * mask).astype(np.uint8), check_contrast=False)
+    return {"path": str(path), "pixel_size": 10.0, "units": "um", "origin": [-195.0, 5.0]}
+
+
+def test_the_colony_traced_in_an_observation_image_is_the_one_the_model_meshes(tmp_path):
+    """An image with two colonies is traced along the largest; when that is not the
+    model's colony the study is refused naming the colonies and the ``colony`` x-range
+    that traces the model's (before the extent check, which took it for a unit slip);
+    with that range the study is read, and a note says which colony was traced."""
+    entry = _two_colonies(tmp_path / "two.png")
+    msg = _refused(_files(DEFAULT, entry))
+    assert "observations.files[0] ('" in msg and "holds 2 colonies" in msg, msg
+    assert "is not the colony the model meshes" in msg, msg
+    assert "give observations.files[0].colony: [" in msg, msg
+    given = msg.split("give observations.files[0].colony: [")[1].split("]")[0]
+    lo, hi = (float(v) for v in given.split(","))
+    assert 690 <= lo <= 710 and 1290 <= hi <= 1310, given  # um: the model's colony
+    study = Study(_files(DEFAULT, {**entry, "colony": [lo, hi]}), where="mine.yaml")
+    note = next(n for n in study.notes if "2 colonies in the image" in n)
+    assert "observations.files[0]" in note and f"traced: x {lo:.6g}" in note, note
+
+
+def test_an_observation_images_colony_range_picks_the_colony_to_trace(tmp_path):
+    """The reader traces the colony with the most pixels in ``colony`` (the file's
+    units), the largest without it; the record lists the colonies, largest first."""
+    from bayescalib.io.observations import ObservationError, read_interface_info
+
+    entry = _two_colonies(tmp_path / "two.png")
+    opts = {"pixel_size": 10.0, "units": "um", "origin": [-195.0, 5.0]}
+    big, info = read_interface_info(entry["path"], **opts)
+    small, info_s = read_interface_info(entry["path"], colony=[800.0, 1200.0], **opts)
+    assert np.ptp(big.points[:, 0]) == pytest.approx(0.9, abs=0.02)
+    assert big.points[:, 0].min() > 1.5
+    assert np.ptp(small.points[:, 0]) == pytest.approx(0.6, abs=0.02)
+    assert small.points[:, 0].max() < 1.4
+    assert info["colony_index"] == 0 and info_s["colony_index"] == 1
+    assert [round(v, 2) for v in info["colonies_mm"][1]] == pytest.approx([0.7, 1.3], abs=0.02)
+    with pytest.raises(ObservationError, match="no colony lies in the given x-range"):
+        read_interface_info(entry["path"], colony=[-150.0, -100.0], **opts)
+    with pytest.raises(ObservationError, match="applies to 2D images"):
+        read_interface_info(_csv(tmp_path / "c.csv", COLONY_MM), colony=[0.0, 1.0])

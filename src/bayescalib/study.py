@@ -304,9 +304,10 @@ class Study:
             notes += Study._resolve_geometry(cfg, where)
             Study._validate_boxes(cfg, where)
         Study._validate_hidden(cfg, where)
-        observed = Study._validate_observation_files(cfg, where)
+        observed, read = Study._validate_observation_files(cfg, where)
         notes += Study._pixel_size_notes(cfg, where)
         Study._validate_measure_points(cfg, where)
+        notes += Study._validate_colony_choice(cfg, where, observed, read)
         Study._validate_registration(cfg, where, observed)
         if "rkhs" in cfg["measures"]:  # after the unit check, whose words are the clearer
             for key, iface in observed.items():
@@ -527,6 +528,56 @@ class Study:
                  f"{i['height_mm']:.4g} mm high)")]
 
     @staticmethod
+    def _validate_colony_choice(cfg: dict[str, Any], where: str, observed: dict[str, Any],
+                                read: dict[str, Any]) -> list[str]:
+        """An observation image with several colonies is traced along the largest, or the
+        one in its ``colony`` x-range (:func:`~bayescalib.io.observations.read_interface`);
+        for the 2D fsi model that must be the colony the model meshes (its undeformed
+        biofilm, from ``geometry.scan`` or the default shape). Refused, naming the
+        colonies and the ``colony`` x-range to give, when the traced colony overlaps less
+        than half of the model's x-extent while another overlaps more (before the extent
+        and placement checks, whose words would point at units or the origin); a note
+        says which was traced otherwise."""
+        if cfg["forward_model"]["type"] != "fsi" or Study.model_dim(cfg) != 2:
+            return []
+        from bayescalib.io.observations import UNITS
+
+        several = {k: i for k, i in read.items() if len(i.get("colonies_mm") or []) > 1}
+        if not several:
+            return []
+        from bayescalib.models.fsi.geometry import reference_interface
+
+        geometry = validate(cfg["forward_model"]["fsi"], "fsi")["geometry"]
+        ref = reference_interface(geometry)
+        a, b = float(ref[:, 0].min()), float(ref[:, 0].max())
+
+        def overlap(r: list[float]) -> float:
+            return max(0.0, min(r[1], b) - max(r[0], a)) / max(b - a, 1e-12)
+
+        notes = []
+        for key, info in several.items():
+            entry = dict(_entry_at(cfg, key))
+            units = entry.get("units") or "mm"
+            f = UNITS[units]
+            ranges, k = info["colonies_mm"], info["colony_index"]
+            listed = "; ".join(f"x {r[0] / f:.6g} to {r[1] / f:.6g} {units}" for r in ranges)
+            best = max(range(len(ranges)), key=lambda j: overlap(ranges[j]))
+            if k != best and overlap(ranges[k]) < 0.5 and overlap(ranges[best]) >= 0.5:
+                r = ranges[best]
+                traced = ("in the given x-range" if entry.get("colony") is not None
+                          else "the largest")
+                raise ConfigError(
+                    f"{where}: {key} ('{entry['path']}') holds {len(ranges)} colonies "
+                    f"({listed}); the one traced ({traced}, x {ranges[k][0] / f:.6g} to "
+                    f"{ranges[k][1] / f:.6g} {units}) is not the colony the model meshes "
+                    f"(its undeformed biofilm spans x {a / f:.6g} to {b / f:.6g} {units}): "
+                    f"give {key}.colony: [{r[0] / f:.6g}, {r[1] / f:.6g}] to trace that one")
+            notes.append(f"{where}: {key}: {len(ranges)} colonies in the image ({listed}); "
+                         f"traced: x {ranges[k][0] / f:.6g} to {ranges[k][1] / f:.6g} {units}"
+                         + (" (the largest)" if entry.get("colony") is None else ""))
+        return notes
+
+    @staticmethod
     def _validate_registration(cfg: dict[str, Any], where: str, observed: dict[str, Any]) -> None:
         """Every observed interface lies where the model's undeformed biofilm is, at its
         scale: a flow moves the interface by a fraction of the colony's height and its
@@ -717,13 +768,15 @@ class Study:
                if u else ""))
 
     @staticmethod
-    def _validate_observation_files(cfg: dict[str, Any], where: str) -> dict[str, Any]:
+    def _validate_observation_files(cfg: dict[str, Any],
+                                    where: str) -> tuple[dict[str, Any], dict[str, Any]]:
         """Observation files exist, can be read and hold an interface that fits the
         domain: known before any job. Images are read and segmented here too (the
         observe job does it again; about 10 ms for a 600 x 300 scan), so that an
         unreadable, oversized, all-black or all-white image, a scan whose segmentation
         finds no biofilm, or a missing ``origin`` is a config error, not a failed job.
-        Returns the interfaces read, by config key."""
+        Returns the interfaces read and their reading records
+        (:func:`~bayescalib.io.observations.read_interface_info`), by config key."""
         from bayescalib.geometry.imaging import inverted
         from bayescalib.io.observations import (
             CSV_SUFFIXES,
@@ -738,8 +791,9 @@ class Study:
 
         obs = cfg["observations"]
         if obs["source"] != "files":
-            return {}
+            return {}, {}
         observed: dict[str, Any] = {}
+        read: dict[str, Any] = {}
         entries = [(f"observations.files[{k}]", e) for k, e in enumerate(obs.get("files") or [])]
         if not entries:
             raise ConfigError(f"{where}: observations.files is empty: list at least one "
@@ -795,6 +849,7 @@ class Study:
             try:
                 observed[key], info = read_interface_info(path, domain=obs.get("domain"),
                                                           **opts)
+                read[key] = info
                 validate_shape(observed[key], str(path))
             except ObservationError as exc:
                 raise ConfigError(f"{where}: {key}: {exc}") from None
@@ -831,7 +886,7 @@ class Study:
                     "of view, and the model's interface beyond it would be compared with "
                     "the cut end. Use a scan that shows the whole colony with fluid around it")
         Study._validate_dimension(cfg, where, observed)
-        return observed
+        return observed, read
 
     @staticmethod
     def _pixel_size_notes(cfg: dict[str, Any], where: str) -> list[str]:

@@ -332,7 +332,8 @@ class ColonyChoice:
 
 
 def select_colony(mask: np.ndarray, *, columns: tuple[float, float] | None = None,
-                  min_pixels: int = 16, name: str = "scan") -> tuple[np.ndarray, ColonyChoice]:
+                  min_pixels: int = 16, name: str = "scan",
+                  refuse_cut: bool = True) -> tuple[np.ndarray, ColonyChoice]:
     """The colony to model among the mask's connected components.
 
     Parameters
@@ -347,6 +348,9 @@ def select_colony(mask: np.ndarray, *, columns: tuple[float, float] | None = Non
         Components smaller than this are specks, not colonies.
     name : str
         Used in messages.
+    refuse_cut : bool
+        Refuse a chosen colony that touches the left, right or top image border (the
+        model's colony); False for an observed one (whose reader says where it is cut).
 
     Returns
     -------
@@ -356,8 +360,8 @@ def select_colony(mask: np.ndarray, *, columns: tuple[float, float] | None = Non
     Raises
     ------
     OutlineError
-        No colony, none in the range, or the chosen one touches the left, right or
-        top image border (cut by the field of view).
+        No colony, none in the range, or (``refuse_cut``) the chosen one touches the
+        left, right or top image border (cut by the field of view).
     """
     from scipy.ndimage import label
 
@@ -387,7 +391,7 @@ def select_colony(mask: np.ndarray, *, columns: tuple[float, float] | None = Non
     rows, cols = np.flatnonzero(comp.any(axis=1)), np.flatnonzero(comp.any(axis=0))
     cut = [side for side, hit in (("left", cols[0] == 0), ("right", cols[-1] == m.shape[1] - 1),
                                   ("top", rows[0] == 0)) if hit]
-    if cut:
+    if cut and refuse_cut:
         raise OutlineError(
             f"{name}: the colony touches the image's {' and '.join(cut)} border: it is cut by "
             "the field of view, and the model would mesh a shape that is not the biofilm's. "

@@ -291,6 +291,18 @@ def audit(X: np.ndarray, L: np.ndarray, particles: np.ndarray, weights: np.ndarr
     unexplored = 0.0
     region_u = _posterior_region(Up, W)
     held_models: list[tuple[np.ndarray, float, np.ndarray, np.ndarray]] = []
+    tol = 0.5 * level
+    # the posterior's own Gaussian (the particles' mean and covariance) at the solves:
+    # L(x) = log Z + log N(x; mean, cov) - log p(x) where the posterior is that Gaussian
+    mu = W @ Up
+    C = (Up - mu).T @ ((Up - mu) * W[:, None]) + 1e-12 * np.eye(d)
+    sign, logdet = np.linalg.slogdet(C)
+    gauss = None
+    if sign > 0:
+        D = U - mu
+        log_n = -0.5 * np.einsum("ij,jk,ik->i", D, np.linalg.inv(C), D) \
+            - 0.5 * (d * math.log(2 * math.pi) + logdet) - log_box
+        gauss = float(log_evidence) + log_n - space.logprior(X[ok])
 
     def basin(i: int, idx: np.ndarray, dist: np.ndarray, found_by: int) -> None:
         nonlocal unexplored
@@ -321,6 +333,12 @@ def audit(X: np.ndarray, L: np.ndarray, particles: np.ndarray, weights: np.ndarr
         if found_by == 2 and not is_held:
             # a slope of the posterior's own region: its peak lies in that region
             is_held = bool(region_u(u_star[None, :])[0] <= 1.0)
+        elif not is_held and gauss is not None and Lf[i] <= gauss[i] + tol \
+                and region_u(U[i][None, :])[0] <= 1.0:
+            # the posterior's own top: the local maximum of the data lies in the
+            # posterior's region, as high as its Gaussian says (a diagonal quadratic
+            # through it, in 5 or more dimensions, overshoots along a tilted ridge)
+            is_held = True
         if is_held:
             # its model for pass 2: a full quadratic where the solves allow (above
             # d = 3 the basin's own fit is diagonal, and a rotated basin's slope would
@@ -354,18 +372,8 @@ def audit(X: np.ndarray, L: np.ndarray, particles: np.ndarray, weights: np.ndarr
     # quadratic of a held basin), fitted by full quadratics through such solves only
     region_ratio = region_u(U)
     outside = region_ratio > 1.0
-    tol = 0.5 * level
-    # the posterior's own Gaussian (the particles' mean and covariance) explains too:
-    # L(x) = log Z + log N(x; mean, cov) - log p(x) where the posterior is that Gaussian
-    mu = W @ Up
-    C = (Up - mu).T @ ((Up - mu) * W[:, None]) + 1e-12 * np.eye(d)
-    sign, logdet = np.linalg.slogdet(C)
-    if sign > 0:
-        D = U - mu
-        log_n = -0.5 * np.einsum("ij,jk,ik->i", D, np.linalg.inv(C), D) \
-            - 0.5 * (d * math.log(2 * math.pi) + logdet) - log_box
-        q = float(log_evidence) + log_n - space.logprior(X[ok])
-        outside &= Lf > q + tol
+    if gauss is not None:  # the posterior's own Gaussian explains too
+        outside &= Lf > gauss + tol
     for u_i, c, g, P in held_models:
         D = U - u_i
         q = c + D @ g - 0.5 * np.einsum("ij,jk,ik->i", D, P, D)

@@ -534,9 +534,44 @@ def _read_vtk(path: Path, units: str, where: str) -> Interface:
 
 
 # ---------------------------------------------------------------------------- image
+def _one_colony(mask: np.ndarray, s: float, org: Sequence[float], floor_mm: float | None,
+                colony: Sequence[float] | None, f: float,
+                where: str) -> tuple[np.ndarray, dict[str, Any]]:
+    """The mask with the colonies other than the one to trace removed, and the record.
+
+    The colonies are the mask's connected components above the floor (the substrate
+    joins them below it) of at least 16 pixels, chosen as for the model's zero-flow scan
+    (:func:`bayescalib.geometry.outline.select_colony`): the one with the most pixels in
+    the x-range ``colony`` (in the file's units, ``f`` mm per unit), else the largest.
+    Specks below 16 pixels are left to the segmentation. Returns the mask and
+    ``{"colonies_mm": [[x0, x1], ...] (largest first), "colony_index": k}``."""
+    from bayescalib.geometry import outline as ol
+
+    h = mask.shape[0]
+    work = mask.copy()
+    if floor_mm is not None:
+        rows_y = org[1] + (h - 1 - np.arange(h)) * s
+        work[rows_y <= floor_mm, :] = False
+    cols = None
+    if colony is not None:
+        lo, hi = (float(v) * f for v in colony)
+        cols = ((lo - org[0]) / s, (hi - org[0]) / s)
+    try:
+        comp, choice = ol.select_colony(work, columns=cols, name=where, refuse_cut=False)
+    except ol.OutlineError as exc:
+        if colony is not None:
+            raise ObservationError(str(exc)) from None
+        return mask, {"colonies_mm": [], "colony_index": None}
+    ranges = [[org[0] + a * s, org[0] + b * s] for a, b in choice.x_ranges]
+    if choice.n_colonies > 1:
+        mask = mask & ~(work & ~comp)
+    return mask, {"colonies_mm": ranges, "colony_index": int(choice.index)}
+
+
 def _read_image(path: Path, pixel_size, origin, drop_border: bool, floor, units: str,
                 where: str, image: str = "auto",
-                segmentation: Mapping[str, Any] | None = None) -> tuple[Interface, dict[str, Any]]:
+                segmentation: Mapping[str, Any] | None = None,
+                colony: Sequence[float] | None = None) -> tuple[Interface, dict[str, Any]]:
     from bayescalib.geometry import imaging
 
     if pixel_size is None:
@@ -569,6 +604,7 @@ def _read_image(path: Path, pixel_size, origin, drop_border: bool, floor, units:
         floor_mm = None if row is None else org[1] + (h - 1 - float(row)) * s
     elif floor is not None:
         floor_mm = float(floor) * f
+    mask, colonies = _one_colony(mask, s, org, floor_mm, colony, f, where)
     try:
         curve = imaging.mask_contour(mask, s, org, drop_border=drop_border, floor=floor_mm,
                                      name=where)
@@ -587,7 +623,7 @@ def _read_image(path: Path, pixel_size, origin, drop_border: bool, floor, units:
     border = [side for side, hit in (("left", cols.min() <= eps),
                                      ("right", cols.max() >= mask.shape[1] - 1 - eps),
                                      ("top", rows.min() <= eps)) if hit and drop_border]
-    mm = {"pixel_size_mm": s, "origin_mm": list(org), "border": border,
+    mm = {"pixel_size_mm": s, "origin_mm": list(org), "border": border, **colonies,
           "floor_mm": floor_mm, "floor_source": "auto" if floor == "auto" else
           ("given" if floor is not None else "none"),
           "sigma_mm": None if info["sigma_px"] is None else float(info["sigma_px"]) * s,
@@ -599,7 +635,7 @@ def _read_image(path: Path, pixel_size, origin, drop_border: bool, floor, units:
 # ---------------------------------------------------------------------------- API
 #: the keys of an ``observations.files`` entry that are :func:`read_interface`'s options
 READER_KEYS = ("units", "pixel_size", "origin", "drop_border", "floor", "image",
-               "segmentation", "component")
+               "segmentation", "component", "colony")
 
 
 def reader_options(entry: Mapping[str, Any]) -> dict[str, Any]:
@@ -633,6 +669,7 @@ def read_interface(
     segmentation: Mapping[str, Any] | None = None,
     domain: Sequence[Sequence[float]] | None = None,
     component: int | None = None,
+    colony: Sequence[float] | None = None,
 ) -> Interface:
     """Read an interface from CSV, VTK, an image (mask or raw scan), a surface file or a
     volume, in mm.
@@ -666,6 +703,9 @@ def read_interface(
         Expected bounding box; an interface that does not fit raises (unit check).
     component : int, optional
         Volume or surface: which colony when there are several (0 = the largest).
+    colony : (float, float), optional
+        2D image: an x-range in ``units`` choosing the colony to trace when the image
+        holds several (the one with the most pixels in it); None: the largest.
 
     Raises
     ------
@@ -675,7 +715,7 @@ def read_interface(
     return read_interface_info(path, units=units, pixel_size=pixel_size, origin=origin,
                                drop_border=drop_border, floor=floor, image=image,
                                segmentation=segmentation, domain=domain,
-                               component=component)[0]
+                               component=component, colony=colony)[0]
 
 
 def read_interface_info(
@@ -690,6 +730,7 @@ def read_interface_info(
     segmentation: Mapping[str, Any] | None = None,
     domain: Sequence[Sequence[float]] | None = None,
     component: int | None = None,
+    colony: Sequence[float] | None = None,
 ) -> tuple[Interface, dict[str, Any]]:
     """:func:`read_interface`, plus what was done to get it.
 
@@ -705,7 +746,9 @@ def read_interface_info(
         "scan", threshold, floor found, segmentation uncertainty in pixels) plus
         ``pixel_size_mm``, ``origin_mm``, ``floor_mm`` (the floor cut at, None: none),
         ``floor_source`` ("auto", "given", "none"), ``border`` (the image sides, of
-        "left", "right", "top", that the traced interface runs into), ``sigma_mm`` and
+        "left", "right", "top", that the traced interface runs into), ``colonies_mm``
+        (the x-ranges [x0, x1] of the image's colonies, mm, largest first),
+        ``colony_index`` (the traced one's rank in that list), ``sigma_mm`` and
         ``sigma_noise_mm``
         (the segmentation's positional uncertainty of the interface, mm; None for masks).
     """
@@ -727,6 +770,9 @@ def read_interface_info(
     if component is not None and not (surface or volume):
         raise ObservationError(f"{where}: component picks a colony of a volume or a surface "
                                "(3D); a 2D interface has none")
+    if colony is not None and suffix not in IMAGE_SUFFIXES:
+        raise ObservationError(f"{where}: colony (an x-range choosing one of several colonies) "
+                               "applies to 2D images; use component for a volume or a surface")
     info: dict[str, Any]
     if volume:
         iface, info = read_volume_surface(
@@ -742,7 +788,7 @@ def read_interface_info(
         iface, info = _read_vtk(p, units, where), {"kind": "vtk"}
     elif suffix in IMAGE_SUFFIXES:
         iface, info = _read_image(p, pixel_size, origin, drop_border, floor, units, where,
-                                  image=image, segmentation=segmentation)
+                                  image=image, segmentation=segmentation, colony=colony)
     else:
         known = sorted(INTERFACE_SUFFIXES)
         raise ObservationError(f"{where}: unknown interface file type {suffix!r}; use one of "
