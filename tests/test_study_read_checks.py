@@ -500,3 +500,20 @@ def test_an_observation_images_colony_range_picks_the_colony_to_trace(tmp_path):
         read_interface_info(entry["path"], colony=[-150.0, -100.0], **opts)
     with pytest.raises(ObservationError, match="applies to 2D images"):
         read_interface_info(_csv(tmp_path / "c.csv", COLONY_MM), colony=[0.0, 1.0])
+
+
+def test_snapshots_listed_in_the_reverse_order_of_the_loadings_are_refused():
+    """The OCT example's scans lie 2.5, 5.9 and 11.2 um from the zero-flow colony at 50,
+    100 and 150 mm^2/s: listed in the reverse order without their loads they would be
+    compared with the solves at the wrong flows; refused, naming the distances. In order,
+    or reversed with each file's load stating its flow (the loads are then checked
+    against the loadings), they are read."""
+    cfg = _oct_study()
+    files = cfg["observations"]["files"]
+    bare = [{k: v for k, v in e.items() if k != "load"} for e in files]
+    Study(deep_merge(cfg, {"observations": {"files": bare}}), where="mine.yaml")
+    msg = _refused(deep_merge(cfg, {"observations": {"files": bare[::-1]}}))
+    assert "reverse order of forward_model.loadings.factors" in msg, msg
+    assert "observations.files[2] 2.4" in msg and "at factor 0.5" in msg, msg
+    msg = _refused(deep_merge(cfg, {"observations": {"files": files[::-1]}}))
+    assert "load" in msg and "reverse order" not in msg, msg  # the loads' own check

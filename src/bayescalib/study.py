@@ -626,6 +626,7 @@ class Study:
             Study._validate_noise_scale(cfg, where, height)
         axes = ((0, "wide"),) if dim == 2 else ((0, "long (x, along the flow)"),
                                                     (2, "wide (z, across the flow)"))
+        moved: dict[str, float] = {}  # each snapshot's mean distance from the model's colony
         for key, iface in observed.items():
             if key == what:  # the reference compared with itself
                 continue
@@ -650,6 +651,7 @@ class Study:
             if not place:
                 continue
             p = placement(iface.points, ref.points) if dim == 2 else surface_placement(iface, ref)
+            moved[key] = float(p.mean_distance)
             foot = 0.0 if dim == 2 else float(np.hypot(p.offset[0], p.offset[2]))
             span = float(np.mean(np.ptp(ref.points[:, [0, 2]], axis=0))) if dim == 3 else 1.0
             if p.mean_distance > 0.25 * height or foot > FOOTPRINT_SHIFT * span:
@@ -674,6 +676,42 @@ class Study:
                 raise ConfigError(
                     f"{where}: {key} ('{entry['path']}'): {why}. It is offset by about "
                     f"({offset}) mm: check {key}.origin and {key}.units{fix}")
+        if what.startswith("the model"):
+            Study._validate_snapshot_order(cfg, where, moved)
+
+    @staticmethod
+    def _validate_snapshot_order(cfg: dict[str, Any], where: str,
+                                 moved: Mapping[str, float]) -> None:
+        """Snapshots are paired with the loadings by their order. A larger flow moves the
+        interface farther from the undeformed colony, so files whose mean distance from
+        the model's undeformed biofilm falls as the loading rises, each step by more than
+        half the likelihood's noise sd sigma_N and in all by more than 2 sigma_N, are
+        refused as listed in the reverse order (a file's ``load`` states the order, and
+        the check is skipped then: the loads are checked against the loadings). On the
+        OCT example the distances are 2.5, 5.9 and 11.2 um at 50, 100 and 150 mm^2/s
+        (sigma_N 2 um)."""
+        from bayescalib.inference.likelihood import sigma_n2_from_config
+
+        files = cfg["observations"]["files"] or []
+        factors = [float(v) for v in cfg["forward_model"]["loadings"]["factors"]]
+        keys = [f"observations.files[{k}]" for k in range(len(files))]
+        if (len(factors) < 2 or len(factors) != len(files) or any(k not in moved for k in keys)
+                or any(e.get("load") is not None for e in files)):
+            return
+        by_load = sorted(range(len(factors)), key=lambda k: factors[k])
+        dist = [moved[keys[k]] for k in by_load]
+        sigma = math.sqrt(sigma_n2_from_config(cfg["likelihood"]))
+        if all(a - b > 0.5 * sigma for a, b in zip(dist, dist[1:])) \
+                and dist[0] - dist[-1] > 2.0 * sigma:
+            listed = ", ".join(f"{keys[k]} {1e3 * moved[keys[k]]:.3g} um at factor "
+                               f"{factors[k]:g}" for k in by_load)
+            raise ConfigError(
+                f"{where}: the observed interfaces lie the farther from the model's undeformed "
+                f"biofilm the smaller their loading ({listed}; mean distance of their "
+                f"nodes; the likelihood's sigma_N is {1e3 * sigma:.3g} um), while a "
+                "larger flow moves the interface farther: are observations.files listed in "
+                "the reverse order of forward_model.loadings.factors? List them in that "
+                "order, or give each file its load to state which loading it is")
 
     @staticmethod
     def _validate_noise_scale(cfg: dict[str, Any], where: str, height: float) -> None:
