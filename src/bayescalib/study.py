@@ -16,6 +16,7 @@ DAG first asks for a point.
 from __future__ import annotations
 
 import copy
+import itertools
 import math
 from collections.abc import Mapping, Sequence
 from functools import cached_property
@@ -701,7 +702,7 @@ class Study:
         by_load = sorted(range(len(factors)), key=lambda k: factors[k])
         dist = [moved[keys[k]] for k in by_load]
         sigma = math.sqrt(sigma_n2_from_config(cfg["likelihood"]))
-        if all(a - b > 0.5 * sigma for a, b in zip(dist, dist[1:])) \
+        if all(a - b > 0.5 * sigma for a, b in itertools.pairwise(dist)) \
                 and dist[0] - dist[-1] > 2.0 * sigma:
             listed = ", ".join(f"{keys[k]} {1e3 * moved[keys[k]]:.3g} um at factor "
                                f"{factors[k]:g}" for k in by_load)
