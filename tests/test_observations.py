@@ -292,3 +292,23 @@ def test_a_csv_with_other_separators_is_refused_naming_them(tmp_path, text, name
     with pytest.raises(ObservationError, match=f"separated by {name}") as exc:
         read_interface(path)
     assert "comma-separated" in str(exc.value) and "scan.csv" in str(exc.value)
+
+
+def test_a_csv_whose_points_are_shuffled_is_refused_saying_they_are_not_in_order(tmp_path):
+    """Points not in order along the interface (a spreadsheet sorted by another column)
+    make a curve that crosses itself; the message says why: consecutive points lie far
+    apart compared with nearest neighbours. An ordered curve that crosses itself (a bow)
+    gets no such words."""
+    t = np.linspace(0.0, np.pi, 80)
+    pts = np.column_stack([1.0 - 0.3 * np.cos(t), 0.4 * np.sin(t)])
+    shuffled = pts[np.random.default_rng(0).permutation(len(pts))]
+    path = tmp_path / "shuffled.csv"
+    path.write_text("x,y\n" + "".join(f"{x:.9f},{y:.9f}\n" for x, y in shuffled))
+    with pytest.raises(ObservationError, match="intersects itself.*not in order along the "
+                                               "interface"):
+        read_interface(path)
+    bow = tmp_path / "bow.csv"
+    bow.write_text("x,y\n0,0\n1,1\n1,0\n0,1\n")
+    with pytest.raises(ObservationError, match="intersects itself") as exc:
+        read_interface(bow)
+    assert "not in order" not in str(exc.value)

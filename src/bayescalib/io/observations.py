@@ -213,8 +213,24 @@ def _validate_simple(curve: Interface, where: str) -> None:
         i, j = hits[0]
         raise ObservationError(
             f"{where}: the curve intersects itself (segments {i} and {j}, near "
-            f"{curve.centres[i].round(6).tolist()})"
-        )
+            f"{curve.centres[i].round(6).tolist()})" + _order_hint(curve.points))
+
+
+def _order_hint(pts: np.ndarray) -> str:
+    """Words for a curve whose points are not in order along it (a file sorted by another
+    column, or unsorted): its consecutive points lie much farther apart (median) than
+    each point from its nearest neighbour. Empty otherwise."""
+    from scipy.spatial import cKDTree
+
+    if pts.shape[0] < 4:
+        return ""
+    step = float(np.median(np.linalg.norm(np.diff(pts, axis=0), axis=1)))
+    near = float(np.median(cKDTree(pts).query(pts, k=2)[0][:, 1]))
+    if near <= 0 or step < 5.0 * near:
+        return ""
+    return (f"; its points are not in order along the interface (consecutive points lie "
+            f"{step / near:.0f} times farther apart than nearest neighbours, median): a "
+            "file's points must follow the interface from one foot to the other")
 
 
 def validate_domain(interface: Interface, domain: Sequence[Sequence[float]] | None, where: str, units: str = "mm") -> None:
