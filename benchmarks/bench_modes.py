@@ -91,7 +91,8 @@ def run(prob: ba.Problem, variant: str, seed: int, budget: int) -> dict[str, Any
         Q = ba._normalize_log(res.surrogate.loglik(G) + space.logprior(G))
         row["hellinger"] = ba.hellinger(prob.ref_grid, Q.reshape(ba.GRID_N, ba.GRID_N))
     if prob.component is not None:
-        ref = np.bincount(prob.component(G), weights=prob.ref_grid.ravel(), minlength=2)
+        ref = (np.bincount(prob.component(G), weights=prob.ref_grid.ravel(), minlength=2)
+               if prob.d == 2 else np.asarray(prob.ref_info["modes"]["weights"], float))
         got = np.bincount(prob.component(X), weights=w, minlength=len(ref))
         row["mode_mass"] = got.tolist()
         row["ref_mode_mass"] = ref.tolist()
