@@ -309,10 +309,11 @@ def audit(X: np.ndarray, L: np.ndarray, particles: np.ndarray, weights: np.ndarr
             - 0.5 * (d * math.log(2 * math.pi) + logdet) - log_box
         gauss = float(log_evidence) + log_n - space.logprior(X[ok])
 
-    def basin(i: int, idx: np.ndarray, dist: np.ndarray, found_by: int) -> None:
+    def basin(i: int, idx: np.ndarray, dist: np.ndarray, found_by: int,
+              fit_full: bool | None = None) -> None:
         nonlocal unexplored
         V = U[idx] - U[i]
-        fit_full = full or found_by == 2
+        fit_full = (full or found_by == 2) if fit_full is None else fit_full
         A = _design_matrix(V, fit_full)
         coef, *_ = np.linalg.lstsq(A, Lf[idx], rcond=None)
         c, g, H = _unpack(coef, d, fit_full)
@@ -387,13 +388,19 @@ def audit(X: np.ndarray, L: np.ndarray, particles: np.ndarray, weights: np.ndarr
         q = c + D @ g - 0.5 * np.einsum("ij,jk,ik->i", D, P, D)
         outside &= Lf > q + tol
     sub = np.flatnonzero(outside)
-    if len(sub) >= max(n_full, n_nb + 1):
+    # a full quadratic where the solves allow (with d spare solves; or at least one
+    # spare), else (above 3 dimensions) a diagonal one: a missing mode's region may hold
+    # fewer solves than n_full (bimodal4d: 16 against 19, and the mode was missed);
+    # there the log-likelihood is that mode's quadratic, which a full fit recovers
+    n_full_min = n_full - d + 1
+    k_sub = min(len(sub), n_full) if len(sub) >= n_full_min else n_fit
+    if len(sub) >= max(k_sub, n_nb + 1):
         sub_tree = cKDTree(U[sub])
         _, nb2 = sub_tree.query(U[sub], k=n_nb + 1)
         for j, i in enumerate(sub):
             if not local_max[i] and Lf[i] >= Lf[sub[nb2[j, 1:]]].max():
-                dist, idx = sub_tree.query(U[i], k=n_full)
-                basin(int(i), sub[idx], dist, 2)
+                dist, idx = sub_tree.query(U[i], k=k_sub)
+                basin(int(i), sub[idx], dist, 2, fit_full=k_sub >= n_full_min)
     out["n_outside"] = int(outside.sum())
     out["basins"].sort(key=lambda b: -b["peak_loglik"])
     out["unexplored_mass"] = float(min(unexplored, 1.0))
