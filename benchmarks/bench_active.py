@@ -245,6 +245,24 @@ def _grid_reference(prob: Problem) -> None:
     prob.ref_info = {"kind": f"exact density on a {GRID_N}x{GRID_N} grid (cell centres)"}
 
 
+def _two_modes(w1: float, m1: np.ndarray, S1: np.ndarray, w2: float, m2: np.ndarray,
+               S2: np.ndarray) -> tuple[Callable, Callable]:
+    """The log-likelihood log(w1 N(m1, S1) + w2 N(m2, S2)) and the mode of a point (the
+    larger weighted density: 0 or 1), of the two-mode problems."""
+
+    def loglik(X):
+        X = np.atleast_2d(X)
+        return np.logaddexp(np.log(w1) + _mvn_logpdf(X, m1, S1),
+                            np.log(w2) + _mvn_logpdf(X, m2, S2))
+
+    def component(X):
+        X = np.atleast_2d(X)
+        return (np.log(w2) + _mvn_logpdf(X, m2, S2) > np.log(w1) + _mvn_logpdf(X, m1, S1)
+                ).astype(int)
+
+    return loglik, component
+
+
 def make_ridge2d() -> Problem:
     s1, b, s2 = 1.0, 0.6, 0.25
 
@@ -294,17 +312,7 @@ def make_bimodal2d() -> Problem:
     peak1 = 1.0 / (2 * np.pi * np.sqrt(np.linalg.det(S1)))
     peak2 = 1.0 / (2 * np.pi * np.sqrt(np.linalg.det(S2)))
     B = float(np.log(w1 * peak1 + w2 * peak2))
-
-    def loglik(X):
-        X = np.atleast_2d(X)
-        return np.logaddexp(np.log(w1) + _mvn_logpdf(X, m1, S1),
-                            np.log(w2) + _mvn_logpdf(X, m2, S2))
-
-    def component(X):  # which mode a point belongs to: the larger weighted density
-        X = np.atleast_2d(X)
-        return (np.log(w2) + _mvn_logpdf(X, m2, S2) > np.log(w1) + _mvn_logpdf(X, m1, S1)
-                ).astype(int)
-
+    loglik, component = _two_modes(w1, m1, S1, w2, m2, S2)
     prob = Problem("bimodal2d", ["x1", "x2"], np.array([[-5.0, 5.0], [-5.0, 5.0]]), loglik, B)
     _grid_reference(prob)
     prob.ref_info["modes"] = {"weights": [w1, w2], "means": [m1.tolist(), m2.tolist()]}
@@ -330,17 +338,7 @@ def make_bimodal4d() -> Problem:
     peak1 = 1.0 / np.sqrt(np.linalg.det(2 * np.pi * S1))
     peak2 = 1.0 / np.sqrt(np.linalg.det(2 * np.pi * S2))
     B = float(np.log(w1 * peak1 + w2 * peak2))
-
-    def loglik(X):
-        X = np.atleast_2d(X)
-        return np.logaddexp(np.log(w1) + _mvn_logpdf(X, m1, S1),
-                            np.log(w2) + _mvn_logpdf(X, m2, S2))
-
-    def component(X):  # which mode a point belongs to: the larger weighted density
-        X = np.atleast_2d(X)
-        return (np.log(w2) + _mvn_logpdf(X, m2, S2) > np.log(w1) + _mvn_logpdf(X, m1, S1)
-                ).astype(int)
-
+    loglik, component = _two_modes(w1, m1, S1, w2, m2, S2)
     m = w1 * m1 + w2 * m2
     C = w1 * (S1 + np.outer(m1, m1)) + w2 * (S2 + np.outer(m2, m2)) - np.outer(m, m)
     prob = Problem("bimodal4d", ["x1", "x2", "x3", "x4"], np.tile([-5.0, 5.0], (4, 1)),
