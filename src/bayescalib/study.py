@@ -939,19 +939,19 @@ class Study:
         fm = cfg["forward_model"]
         if fm["type"] != "fsi" or cfg["observations"]["source"] != "files":
             return []
-        scan = (fm["fsi"].get("geometry") or {}).get("scan") or {}
-        size = scan.get("pixel_size")
-        if (Path(str(scan.get("path") or "")).suffix.lower() not in IMAGE_SUFFIXES
-                or not isinstance(size, (int, float))):
+        geometry = validate(fm["fsi"], "fsi")["geometry"]
+        scan = geometry["scan"] if geometry["shape"] == "scan" else None
+        if (not scan or Path(scan["path"]).suffix.lower() not in IMAGE_SUFFIXES
+                or not isinstance(scan["pixel_size"], (int, float))):
             return []
-        s0 = float(size) * UNITS[scan.get("units") or "mm"]
+        s0 = float(scan["pixel_size"]) * UNITS[scan["units"]]
         odd = []
         for k, e in enumerate(cfg["observations"]["files"] or []):
             s = e.get("pixel_size")
             if (Path(e["path"]).suffix.lower() not in IMAGE_SUFFIXES
                     or not isinstance(s, (int, float))):
                 continue
-            s = float(s) * UNITS[e.get("units") or "mm"]
+            s = float(s) * UNITS[e["units"]]
             if abs(s / s0 - 1.0) > 0.01:
                 odd.append(f"observations.files[{k}] {s * 1e3:.4g} um")
         if not odd:
