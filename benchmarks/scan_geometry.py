@@ -4,7 +4,7 @@ For each synthetic OCT recording (folders written by
 ``examples/oct_colony/make_recording.py``) two studies calibrate E and nu from the
 same scans at three flow rates: one takes the model's biofilm from the recording's
 zero-flow scan (``geometry.shape: scan``), the other keeps the default half-ellipse
-(0.6 mm x 0.4 mm at x = 1 mm). Both use the example's settings
+(0.6 mm x 0.4 mm) at the colony's centre, both in the recording's channel. Both use the example's settings
 (``examples/oct_colony/study.yaml``: coarse mesh, CPP measure, sigma_N 2 um, active
 design) without the diagnosis. The table gives each posterior mean +- sd against the
 truth (in posterior sd), the fit check (best fit within the noise or not) and whether
@@ -44,11 +44,14 @@ def study_config(folder: Path, geometry: str) -> dict:
     image = {"units": rec["units"], "pixel_size": rec["pixel_size"], "origin": rec["origin"],
              "floor": "auto"}
     fsi = cfg["forward_model"]["fsi"]
+    # the recording's channel (2 mm before the recordings said: make_recording.py)
+    length = rec["colony"].get("channel_length_mm", 2.0)
     if geometry == "scan":
-        fsi["geometry"] = {"shape": "scan", "scan": {"path": str(folder / rec["scans"][0]["file"]),
-                                                    **image}}
-    else:
-        fsi.pop("geometry", None)  # the default half-ellipse
+        fsi["geometry"] = {"shape": "scan", "length": length,
+                           "scan": {"path": str(folder / rec["scans"][0]["file"]), **image}}
+    else:  # the default half-ellipse, at the colony's centre
+        fsi["geometry"] = {"length": length, "centre": rec["colony"]["centre_mm"]}
+    cfg["observations"]["domain"] = [[0.0, length], [0.0, 1.0]]
     cfg["observations"]["files"] = [
         {"path": str(folder / s["file"]), "label": f"load_{s['loading_factor']:g}",
          "load": s["inflow_rate_mm2_per_s"], **image} for s in rec["scans"][1:]]

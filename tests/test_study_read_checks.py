@@ -503,7 +503,7 @@ def test_an_observation_images_colony_range_picks_the_colony_to_trace(tmp_path):
 
 
 def test_snapshots_listed_in_the_reverse_order_of_the_loadings_are_refused():
-    """The OCT example's scans lie 2.5, 5.9 and 11.2 um from the zero-flow colony at 50,
+    """The OCT example's scans lie 2.2, 5.6 and 10.4 um from the zero-flow colony at 50,
     100 and 150 mm^2/s: listed in the reverse order without their loads they would be
     compared with the solves at the wrong flows; refused, naming the distances. In order,
     or reversed with each file's load stating its flow (the loads are then checked
@@ -514,6 +514,76 @@ def test_snapshots_listed_in_the_reverse_order_of_the_loadings_are_refused():
     Study(deep_merge(cfg, {"observations": {"files": bare}}), where="mine.yaml")
     msg = _refused(deep_merge(cfg, {"observations": {"files": bare[::-1]}}))
     assert "reverse order of forward_model.loadings.factors" in msg, msg
-    assert "observations.files[2] 2.4" in msg and "at factor 0.5" in msg, msg
+    assert "observations.files[2] 2.24" in msg and "at factor 0.5" in msg, msg
     msg = _refused(deep_merge(cfg, {"observations": {"files": files[::-1]}}))
     assert "load" in msg and "reverse order" not in msg, msg  # the loads' own check
+
+
+# ------------------------------------------------------------------ the channel's ends
+def _moved(study: dict, dx_um: float, length: float) -> dict:
+    """``study`` (the OCT example's) with every scan moved ``dx_um`` downstream in a
+    channel ``length`` mm long."""
+    import copy
+
+    study = copy.deepcopy(study)
+    geo = study["forward_model"]["fsi"]["geometry"]
+    for entry in [geo["scan"], *study["observations"]["files"]]:
+        entry["origin"][0] += dx_um
+    geo["length"] = length
+    study["observations"].pop("domain")
+    return study
+
+
+def test_the_end_effect_is_the_measured_table_and_falls_with_the_clearance():
+    """Between the measured clearances (benchmarks/channel_clearance.py) the change is
+    interpolated; it falls as the colony moves away from either end."""
+    from bayescalib.models.fsi.geometry import END_EFFECT, end_effect
+
+    for end, table in END_EFFECT.items():
+        for c, e in table:
+            assert end_effect(c, end) == pytest.approx(e, rel=1e-12)
+        grid = np.linspace(0.0, 3.0, 61)
+        change = [end_effect(c, end) for c in grid]
+        assert np.all(np.diff(change) <= 0.0), end
+    assert end_effect(1.0, "inlet") < 0.04 < end_effect(0.75, "inlet")
+
+
+def test_a_colony_near_the_channels_inlet_is_refused_with_the_length_that_fits():
+    """The example's colony 0.1 mm (0.1 channel heights) from the inlet: the imposed
+    inflow profile changes its deformation by over 100 % and the solves failed there
+    (measured); refused when the study is read, with the length and shift that put it
+    1.5 channel heights from both ends. At 0.3 channel heights it is read."""
+    base = _oct_study()
+    msg = _refused(_moved(base, -1400.0, 2.0))  # the colony at x = 0.1 to 0.9 mm
+    assert "forward_model.fsi.geometry" in msg and "upstream foot is 0.1 mm" in msg, msg
+    assert "over 128 % off" in msg and "at least 0.3 channel heights" in msg, msg
+    assert "geometry.length: 3.8 with the colony 1.4 mm further downstream" in msg, msg
+    assert "geometry.scan and of every observation file + 1.4 mm" in msg, msg
+    Study(_moved(base, -1195.0, 2.0))  # 0.305 mm: read (with a note)
+
+
+def test_a_colony_near_an_end_of_the_channel_is_noted_for_observed_data():
+    """The example's colony 0.6 mm from both ends of a 2 mm channel (as the recording was
+    made before): a note names both ends with the measured change (14 % at the inlet,
+    7 % at the outlet) and the advised length. In the example's own 3.8 mm channel
+    (1.5 channel heights) there is none; a synthetic study, whose data share the
+    model's channel, gets none either."""
+    moved = Study(_moved(_oct_study(), -900.0, 2.0)).notes
+    note = [n for n in moved if "near the end of the modelled channel" in n]
+    assert len(note) == 1, moved
+    assert "upstream foot is 0.6 mm from the channel's inlet" in note[0], note
+    assert "(0.6 channel heights: the deformation 14 % off)" in note[0], note
+    assert "downstream foot is 0.6 mm from the channel's outlet" in note[0], note
+    assert "(0.6 channel heights: the deformation 7 % off)" in note[0], note
+    assert "geometry.length: 3.8 with the colony 0.9 mm further downstream" in note[0], note
+    assert not [n for n in Study(_oct_study()).notes if "modelled channel" in n]
+    synthetic = deep_merge(DEFAULT, {"forward_model": {"fsi": {"geometry": {"centre": 0.6}}}})
+    assert not [n for n in Study(synthetic).notes if "modelled channel" in n]
+
+
+def test_a_half_ellipse_at_the_inlet_is_refused_naming_its_centre():
+    """The default half-ellipse (0.6 mm wide) centred 0.4 mm from the inlet: its foot 0.1
+    mm from it; refused, naming geometry.centre's value that fits."""
+    msg = _refused(deep_merge(DEFAULT, {"forward_model": {"fsi": {"geometry": {
+        "centre": 0.4}}}}))
+    assert "upstream foot is 0.1 mm" in msg and "geometry.centre 1.8" in msg, msg

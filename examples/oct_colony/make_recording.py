@@ -1,7 +1,9 @@
 """Make a synthetic OCT recording of an irregular biofilm colony in a flow cell.
 
 The colony is a lobed analytic shape (``bayescalib.geometry.shapes.lobed_colony``) in
-the 2 mm x 1 mm flow cell. The fsi model is solved on it at the true E, nu with one
+the middle of a 3.8 mm x 1 mm channel (``--length``), 1.5 channel heights from its ends,
+where the channel's truncation changes the deformation by less than 2 % (a flow cell's
+channel is far longer than a colony; ``docs/channel_ends.md``). The fsi model is solved on it at the true E, nu with one
 hidden effect switched on, at the inflow loadings 0, 0.5, 1, 1.5 x 100 mm^2/s, on a
 finer mesh than the study uses; each deformed state is drawn as an OCT-like B-scan
 (speckle, point-spread, noise, the bright flow-cell floor below y = 0) and written as a
@@ -17,13 +19,13 @@ The committed example (default seeds and truth)::
 
     PYTHONPATH=src python examples/oct_colony/make_recording.py --out examples/oct_colony
 
-Two more colonies::
+Two more colonies (in the 2 mm channel of ``docs/scan_geometry.md``'s rows)::
 
     PYTHONPATH=src python examples/oct_colony/make_recording.py --shape-seed 2 --seed 12 \
-        --width 0.7 --height 0.3 --centre 0.95 --truth 250 0.2 \
+        --width 0.7 --height 0.3 --length 2 --centre 0.95 --truth 250 0.2 \
         --hidden attachment 2e-4 --out results/oct_colony_2
     PYTHONPATH=src python examples/oct_colony/make_recording.py --shape-seed 8 --seed 18 \
-        --width 0.9 --height 0.44 --truth 600 0.35 --hidden layer 1.0 \
+        --width 0.9 --height 0.44 --length 2 --truth 600 0.35 --hidden layer 1.0 \
         --out results/oct_colony_3
 """
 
@@ -56,6 +58,7 @@ def solve_states(
     *,
     nominal: float = 100.0,
     mesh: str = "fine",
+    length: float = 2.0,
     time_limit_s: float = 1800.0,
 ) -> SolveResult:
     """Solve the fsi model on a colony at several inflow loadings.
@@ -75,6 +78,8 @@ def solve_states(
         Nominal inflow rate, mm^2/s.
     mesh : str
         Mesh preset of the data (``fine``, ``paper``, ``coarse``).
+    length : float
+        Channel length, mm.
     time_limit_s : float
         Wall-clock limit of the whole series, s.
 
@@ -89,7 +94,8 @@ def solve_states(
         If a loading did not converge.
     """
     fsi = {"mesh": {"preset": mesh},
-           "geometry": {"shape": "polyline", "outline": np.asarray(outline, dtype=float).tolist()}}
+           "geometry": {"shape": "polyline", "length": float(length),
+                        "outline": np.asarray(outline, dtype=float).tolist()}}
     model = FSIForward(fsi, time_limit_s=time_limit_s)
     res = solve_series(model, {**dict(truth), **dict(hidden)},
                        {"parameter": "inflow.rate", "nominal": float(nominal),
@@ -105,7 +111,11 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--seed", type=int, default=1, help="seed of the speckle and noise")
     p.add_argument("--width", type=float, default=0.8, help="colony width, mm")
     p.add_argument("--height", type=float, default=0.38, help="colony height, mm")
-    p.add_argument("--centre", type=float, default=1.0, help="x of the colony's centre, mm")
+    p.add_argument("--length", type=float, default=3.8,
+                   help="channel length, mm (3.8: the colony 1.5 channel heights from both "
+                        "ends, where the ends change its deformation by less than 2 %%)")
+    p.add_argument("--centre", type=float, default=None,
+                   help="x of the colony's centre, mm (default: the channel's middle)")
     p.add_argument("--truth", type=float, nargs=2, default=[400.0, 0.3], metavar=("E", "NU"),
                    help="true Young's modulus (Pa) and Poisson ratio")
     p.add_argument("--hidden", nargs=2, default=["layer", "1.5"], metavar=("EFFECT", "PHI"),
@@ -116,6 +126,8 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--out", required=True, help="output folder")
     a = p.parse_args(argv)
 
+    if a.centre is None:
+        a.centre = 0.5 * a.length
     t0 = time.perf_counter()
     colony = lobed_colony(width=a.width, height=a.height, centre=a.centre, seed=a.shape_seed)
     outline = colony.outline(a.points)
@@ -127,7 +139,7 @@ def main(argv: list[str] | None = None) -> None:
     else:
         p.error(f"--hidden: unknown effect {effect!r} (one of {', '.join(HIDDEN)}, none)")
     truth = {"material.E": float(a.truth[0]), "material.nu": float(a.truth[1])}
-    res = solve_states(outline, truth, hidden, FACTORS, mesh=a.mesh)
+    res = solve_states(outline, truth, hidden, FACTORS, mesh=a.mesh, length=a.length)
     t_solve = time.perf_counter() - t0
     settings = ScanSettings(pixel_size=a.pixel_size / 1000.0)
     meta = {
@@ -137,7 +149,7 @@ def main(argv: list[str] | None = None) -> None:
         "hidden": hidden,
         "colony": {
             "shape_seed": a.shape_seed, "width_mm": colony.width, "height_mm": colony.height,
-            "centre_mm": a.centre, "area_mm2": colony.area, "interface_length_mm": colony.perimeter,
+            "centre_mm": a.centre, "channel_length_mm": a.length, "area_mm2": colony.area, "interface_length_mm": colony.perimeter,
             "foot_angles_deg": list(colony.foot_angles()),
             "curve": {"x0": colony.x0, "y0": colony.y0, "ax": colony.ax, "ay": colony.ay,
                       "modes_k_eps_phase": [list(m) for m in colony.modes]},

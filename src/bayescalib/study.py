@@ -303,6 +303,7 @@ class Study:
             # before the boxes: the unit is the cause
             validate_fsi_units(cfg["parameters"], where, dim=Study.model_dim(cfg) or 2)
             notes += Study._resolve_geometry(cfg, where)
+            notes += Study._validate_channel_ends(cfg, where)
             Study._validate_boxes(cfg, where)
         Study._validate_hidden(cfg, where)
         observed, read = Study._validate_observation_files(cfg, where)
@@ -689,7 +690,7 @@ class Study:
         half the likelihood's noise sd sigma_N and in all by more than 2 sigma_N, are
         refused as listed in the reverse order (a file's ``load`` states the order, and
         the check is skipped then: the loads are checked against the loadings). On the
-        OCT example the distances are 2.5, 5.9 and 11.2 um at 50, 100 and 150 mm^2/s
+        OCT example the distances are 2.2, 5.6 and 10.4 um at 50, 100 and 150 mm^2/s
         (sigma_N 2 um)."""
         from bayescalib.inference.likelihood import sigma_n2_from_config
 
@@ -1154,6 +1155,64 @@ class Study:
                     f"{ld['parameter']}): the files are paired with the loadings in the order "
                     "listed; list them in the order of forward_model.loadings.factors, or "
                     "correct the load (it is more than 1 % off)")
+
+    @staticmethod
+    def _validate_channel_ends(cfg: dict[str, Any], where: str) -> list[str]:
+        """The 2D model's colony against the channel's ends: refused nearer the inlet
+        than ``MIN_INLET_CLEARANCE`` channel heights (the imposed inflow profile changes
+        its deformation by half, and nearer the solves fail); with observed files, a note
+        where either foot is nearer its end than ``NOTE_CLEARANCE`` channel heights,
+        with the measured change of the deformation and the length and shift that
+        advise (:data:`bayescalib.models.fsi.geometry.END_EFFECT`)."""
+        from bayescalib.models.fsi import geometry as g
+
+        geo = validate(cfg["forward_model"]["fsi"], "fsi")["geometry"]
+        if int(geo["dim"]) != 2:
+            return []
+        key = f"{where}: forward_model.fsi.geometry"
+        up, down = g.channel_ends(geo)
+        h, length = float(geo["channel_height"]), float(geo["length"])
+        if up <= 0 or down <= 0:
+            raise ConfigError(f"{key}: the colony spans x = {up:.4g} to {length - down:.4g} mm, "
+                              f"outside the channel (0 to {length:g} mm)")
+        def ceil(x: float) -> float:  # to 0.01 mm
+            return math.ceil(round(x * 100.0, 6)) / 100.0
+
+        shift = ceil(max(0.0, g.ADVISED_CLEARANCE * h - up))
+        longer = ceil(length + shift + max(0.0, g.ADVISED_CLEARANCE * h - down))
+        moved = {"half_ellipse": f"geometry.centre {float(geo['centre']) + shift:.4g}",
+                 "polyline": f"every x of geometry.outline + {shift:.4g}",
+                 "scan": f"the origin's x of geometry.scan and of every observation file + "
+                         f"{shift:.4g} mm, in their units"}[geo["shape"]]
+        if cfg["observations"].get("domain"):
+            moved += ", observations.domain with it"
+        advice = (f"geometry.length: {longer:.4g} with the colony {shift:.4g} mm further "
+                  f"downstream ({moved})" if shift > 0 else f"geometry.length: {longer:.4g}")
+        def off(c: float, end: str) -> str:  # the measured change, "over" below the table
+            first = g.END_EFFECT[end][0][0]
+            return f"{'over ' if c / h < first else ''}{100 * g.end_effect(c / h, end):.0f} % off"
+
+        if up < g.MIN_INLET_CLEARANCE * h:
+            raise ConfigError(
+                f"{key}: the colony's upstream foot is {up:.3g} mm from the channel's inlet "
+                f"(x = 0), {up / h:.2g} channel heights, where the model imposes the inflow's "
+                f"parabolic profile: its deformation would be {off(up, 'inlet')} "
+                f"a long flow cell's (measured; at 0.1 channel heights the solves fail). It must lie at "
+                f"least {g.MIN_INLET_CLEARANCE:g} channel heights ({g.MIN_INLET_CLEARANCE * h:.3g} mm) "
+                f"from the inlet, better {g.ADVISED_CLEARANCE:g}: {advice}")
+        if cfg["observations"]["source"] != "files":
+            return []  # synthetic data share the model's channel
+        near = [f"its {foot} foot is {c:.3g} mm from the channel's {end} ({c / h:.2g} channel "
+                f"heights: the deformation {off(c, end)})"
+                for foot, end, c in (("upstream", "inlet", up), ("downstream", "outlet", down))
+                if c < g.NOTE_CLEARANCE * h]
+        if not near:
+            return []
+        return [(f"{key}: the colony lies near the end of the modelled channel: "
+                 f"{' and '.join(near)}, measured against the same colony in a long flow cell "
+                 f"(docs/channel_ends.md); the calibrated parameters absorb that difference. "
+                 f"At {g.ADVISED_CLEARANCE:g} channel heights from both ends it is below 2 %: "
+                 f"{advice}")]
 
     @staticmethod
     def _validate_boxes(cfg: dict[str, Any], where: str) -> None:

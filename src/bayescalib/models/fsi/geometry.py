@@ -26,6 +26,13 @@ Heterogeneous split (6-parameter case, paper Sec. 4.5): with
 With the default cuts (0.2, 0.75) the half-ellipse splits into about 25 %, 61 % and
 14 % of its area, which makes ``middle`` the largest as in the paper.
 
+The channel is a truncated piece of the flow cell: a parabolic inflow is imposed at the
+inlet and the outflow is free. A colony disturbs the flow over about a channel height
+up- and downstream, so a colony whose foot lies nearer an end deforms differently from
+the same colony in the long flow cell; :data:`END_EFFECT` holds how much, measured, and
+the study's reading refuses a colony too near the inlet and notes one nearer than
+:data:`NOTE_CLEARANCE` channel heights to an end (:func:`channel_ends`, :func:`end_effect`).
+
 Boundary names: ``inlet`` (x = 0), ``outlet`` (x = L), ``top``, ``floor`` (fluid part of
 the floor), ``biofilm_floor`` (the clamped biofilm base), ``interface`` (fluid–biofilm)
 and ``cut`` (inner boundaries between biofilm subdomains). Region names: ``fluid`` and
@@ -71,6 +78,69 @@ class BiofilmMesh:
     interface_reference: np.ndarray
     segments: np.ndarray
     patch_height: float
+
+
+#: The RMS change of a colony's interface displacement against the same colony in a
+#: long channel, by the clearance c of its upstream foot from the inlet (or of its
+#: downstream foot from the outlet) over the channel height H: pairs (c / H, change /
+#: RMS displacement). Measured with ``benchmarks/channel_clearance.py`` on the colony of
+#: ``examples/oct_colony`` (E 400 Pa, nu 0.3, 100 mm^2/s, coarse mesh, H = 1 mm); the
+#: paper mesh and a channel of H = 2 mm give the same inlet figures within 1-3 points
+#: (``docs/channel_ends.md``), so they are read as a function of
+#: c / H. The outlet's last figure is the mesh's own difference between channel lengths.
+END_EFFECT: dict[str, tuple[tuple[float, float], ...]] = {
+    "inlet": ((0.15, 1.285), (0.2, 0.938), (0.3, 0.538), (0.5, 0.212), (0.75, 0.079),
+              (1.0, 0.037), (1.5, 0.006)),
+    "outlet": ((0.1, 0.109), (0.2, 0.100), (0.3, 0.097), (0.5, 0.082), (0.75, 0.052),
+               (1.0, 0.023), (1.5, 0.016)),
+}
+#: The nearest clearance of the upstream foot from the inlet a study may have, in channel
+#: heights: the displacement is then off by half (:data:`END_EFFECT`), and at 0.1 the
+#: solves fail (inverted elements on the coarse and the paper mesh, measured)
+MIN_INLET_CLEARANCE = 0.3
+#: Below this clearance of either foot from its end, in channel heights, a study of
+#: observed files is told how much the truncated channel changes the deformation
+NOTE_CLEARANCE = 1.0
+#: The clearance, in channel heights, that the notes advise (the change below 2 %)
+ADVISED_CLEARANCE = 1.5
+
+
+def channel_ends(geometry: dict[str, Any]) -> tuple[float, float]:
+    """The colony's clearances from the channel's ends.
+
+    Parameters
+    ----------
+    geometry : dict
+        Validated 2D ``geometry`` section (mm; ``shape: scan`` with its outline filled).
+
+    Returns
+    -------
+    (float, float)
+        Distance of the upstream foot from the inlet (x = 0) and of the downstream foot
+        from the outlet (x = ``length``), mm; negative where the colony reaches past.
+    """
+    x = reference_interface(geometry)[:, 0]
+    return float(x.min()), float(geometry["length"]) - float(x.max())
+
+
+def end_effect(clearance: float, end: str) -> float:
+    """The measured change of the colony's displacement from the channel's end.
+
+    Parameters
+    ----------
+    clearance : float
+        Distance of the colony's foot from the end, in channel heights (c / H).
+    end : {"inlet", "outlet"}
+
+    Returns
+    -------
+    float
+        RMS change of the interface displacement against a long channel, relative to its
+        RMS (:data:`END_EFFECT`, log-linear between the measured clearances, held at
+        the first and last one beyond them).
+    """
+    c, e = np.array(END_EFFECT[end]).T
+    return float(np.exp(np.interp(clearance, c, np.log(e))))
 
 
 #: whether Netgen has generated a mesh in this process, or in the process it was forked
