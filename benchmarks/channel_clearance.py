@@ -7,7 +7,8 @@ reach, the model's flow, and so the colony's deformation, differs from the flow 
 A recording fixes the colony's place in the model through the scan's ``origin`` and
 ``geometry.length``, so a user can put it anywhere.
 
-This script solves the colony of ``examples/oct_colony`` (its zero-flow scan,
+This script (``--dim 3``: the 3D model's default half-ellipsoid in its duct instead)
+solves the colony of ``examples/oct_colony`` (its zero-flow scan,
 ``geometry.shape: scan``; E 400 Pa, nu 0.3, 100 mm^2/s) with its upstream foot at a
 clearance c from the inlet (the downstream end ``--far`` away), then with its
 downstream foot at c from the outlet, and compares the interface's displacement with
@@ -52,6 +53,18 @@ def _example_model(args: argparse.Namespace) -> dict:
     return fm
 
 
+def _duct_model(args: argparse.Namespace) -> dict:
+    """The 3D model's validated ``forward_model`` section: its default half-ellipsoid
+    (0.6 mm along the flow, 0.4 mm high, 0.6 mm across) in the 1 x 1 mm duct."""
+    from bayescalib.config import validate
+
+    fm = {"type": "fsi", "fsi": {"geometry": {"dim": 3, "channel_height": args.height},
+                                 "mesh": {"preset": args.preset}}}
+    fm = validate({"study": "channel_clearance", "forward_model": fm}, "study")["forward_model"]
+    fm["fsi"] = validate(fm["fsi"], "fsi")  # the section's defaults in
+    return fm
+
+
 def solve(fm: dict, up: float, down: float) -> tuple:
     """The example's colony with its feet ``up`` mm from the inlet and ``down`` mm from
     the outlet (placed in the model directly: the study's reading refuses the nearest
@@ -59,16 +72,22 @@ def solve(fm: dict, up: float, down: float) -> tuple:
     reason, seconds) for a failed solve."""
     fm = copy.deepcopy(fm)
     geo = fm["fsi"]["geometry"]
-    outline = np.asarray(geo["outline"], dtype=float)
-    x0, x1 = outline[:, 0].min(), outline[:, 0].max()
-    geo["outline"] = (outline + [up - x0, 0.0]).tolist()
-    geo["length"] = up + (x1 - x0) + down
+    if geo["dim"] == 3:
+        half = 0.5 * float(geo["width"])
+        geo["centre"], geo["length"] = up + half, up + 2.0 * half + down
+    else:
+        outline = np.asarray(geo["outline"], dtype=float)
+        x0, x1 = outline[:, 0].min(), outline[:, 0].max()
+        geo["outline"] = (outline + [up - x0, 0.0]).tolist()
+        geo["length"] = up + (x1 - x0) + down
     t = time.perf_counter()
     with tempfile.TemporaryDirectory() as d:
         res = solve_points(fm, [{"material.E": 400.0, "material.nu": 0.3}], [f"{d}/r.h5"])[0]
     if res.status != "ok":
         return None, res.reason, time.perf_counter() - t
-    return res.interface_reference - [up, 0.0], res.interface_current - res.interface_reference, \
+    frame = res.interface_reference.copy()
+    frame[:, 0] -= up
+    return frame, res.interface_current - res.interface_reference, \
         time.perf_counter() - t
 
 
@@ -77,14 +96,17 @@ def main() -> None:
     p.add_argument("--preset", default="coarse", help="mesh preset (default coarse)")
     p.add_argument("--height", type=float, default=1.0, help="channel height H, mm")
     p.add_argument("--far", type=float, default=2.0, help="the reference's clearance, mm")
+    p.add_argument("--dim", type=int, default=2, choices=(2, 3),
+                   help="2: the example's scanned colony; 3: the 3D model's half-ellipsoid")
     p.add_argument("--clearances", default="0.1,0.15,0.2,0.3,0.5,0.75,1.0,1.5",
                    help="clearances c / H to solve")
     args = p.parse_args()
     h = args.height
-    fm = _example_model(args)
+    fm = _example_model(args) if args.dim == 2 else _duct_model(args)
     ref_p, ref_u, t = solve(fm, args.far, args.far)
     rms = float(np.sqrt((ref_u ** 2).sum(1).mean()))
-    print(f"channel height {h:g} mm, mesh {args.preset}; reference: the colony {args.far:g} mm "
+    print(f"{'the 3D model, ' if args.dim == 3 else ''}channel height {h:g} mm, mesh "
+          f"{args.preset}; reference: the colony {args.far:g} mm "
           f"from both ends, displacement max {np.abs(ref_u).max() * 1e3:.2f} um, RMS "
           f"{rms * 1e3:.2f} um ({t:.1f} s)\n")
     print("| end | clearance c / H | c (mm) | largest difference (um) | RMS difference / RMS "

@@ -19,7 +19,7 @@ The committed example (default seeds and truth)::
 
     PYTHONPATH=src python examples/oct_colony/make_recording.py --out examples/oct_colony
 
-Two more colonies (in the 2 mm channel of ``docs/scan_geometry.md``'s rows)::
+Two more colonies in the 2 mm channel of ``docs/scan_geometry.md``'s rows::
 
     PYTHONPATH=src python examples/oct_colony/make_recording.py --shape-seed 2 --seed 12 \
         --width 0.7 --height 0.3 --length 2 --centre 0.95 --truth 250 0.2 \
