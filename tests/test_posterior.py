@@ -8,6 +8,7 @@ from scipy import stats
 
 from bayescalib.inference.parameters import Normal, Parameter, ParameterSpace, Uniform
 from bayescalib.inference.posterior import (
+    against_bounds,
     laplace_approximation,
     read_particles_h5,
     summarize,
@@ -214,3 +215,57 @@ def test_netcdf_is_arviz_inference_data_without_warnings(tmp_path, small_run):
     m = r.weights @ r.particles[:, 0]
     sd = np.sqrt(r.weights @ (r.particles[:, 0] - m) ** 2)
     assert abs(summ.loc["E", "mean"] - m) < 5 * sd / np.sqrt(2000)
+
+
+# --- a posterior cut by its box ---------------------------------------------------------
+
+def _truncated_draws(centre_sd: float, sd: float, n: int = 4000, seed: int = 3) -> np.ndarray:
+    """Exact draws of N(800 - centre_sd * sd, sd^2) truncated to the box [100, 800]."""
+    mu = 800.0 - centre_sd * sd
+    q = stats.truncnorm((100.0 - mu) / sd, (800.0 - mu) / sd, loc=mu, scale=sd)
+    return q.rvs(size=n, random_state=np.random.default_rng(seed))
+
+
+@pytest.mark.parametrize("centre_sd, sd, cut", [
+    (0.0, 1.1, True),     # the half-ellipse's E of docs/scan_geometry.md: 798.9 +- 1.1
+    (-3.0, 1.1, True),    # its mode beyond the end: all the mass piled there
+    (1.0, 18.0, True),    # the density at the end 61 % of the peak
+    (3.5, 18.0, False),   # 0.2 %: the box does not cut it
+    (0.0, 120.0, True),   # a broad posterior (sd 0.17 of the box) still pressing on it
+])
+def test_a_posterior_cut_by_the_end_of_its_box_is_flagged(centre_sd, sd, cut):
+    """Truncated Gaussians with known density at the box's upper end: flagged when their
+    centre lies within about 2.4 sd of it (the strip estimate of half an sd), never at
+    3.5 sd; the lower end (700 Pa away) never."""
+    space = ParameterSpace([Parameter("E", "Pa", Uniform(100.0, 800.0), 100.0, 800.0)])
+    x = _truncated_draws(centre_sd, sd)
+    found = against_bounds(x[:, None], np.ones_like(x), space)
+    assert [(c["name"], c["side"], c["bound"]) for c in found] == (
+        [("E", "upper", 800.0)] if cut else [])
+    if cut and centre_sd <= 0:
+        assert found[0]["density_ratio"] > 0.5
+
+
+def test_a_posterior_spread_over_its_box_is_not_flagged():
+    """nu hardly informed (uniform over the box: sd 0.29 of it) and a broad Gaussian (sd
+    0.25 of it): the prior decides their ends, as expected; nothing is flagged. Equal or
+    unequal weights give the same answer for the same distribution."""
+    rng = np.random.default_rng(0)
+    space = ParameterSpace([Parameter("nu", "-", Uniform(-0.8, 0.45), -0.8, 0.45),
+                            Parameter("E", "Pa", Uniform(100.0, 800.0), 100.0, 800.0)])
+    X = np.column_stack([rng.uniform(-0.8, 0.45, 4000),
+                         np.clip(rng.normal(450.0, 175.0, 4000), 100.0, 800.0)])
+    assert against_bounds(X, np.ones(4000), space) == []
+    w = rng.uniform(0.5, 1.5, 4000)
+    assert against_bounds(X, w, space) == []
+
+
+def test_the_summary_carries_the_cut_ends():
+    """summarize puts the flags in posterior.json (against_bounds), in user units."""
+    space = ParameterSpace([Parameter("E", "Pa", Uniform(100.0, 800.0), 100.0, 800.0)])
+    x = _truncated_draws(0.0, 1.1, n=1000)
+    r = SMCResult(particles=x[:, None], weights=np.ones(1000) / 1000, loglik=np.zeros(1000),
+                  logprior=np.zeros(1000), log_evidence=0.0, n_steps=1, history={})
+    s = summarize(r, space)
+    assert [(c["name"], c["side"]) for c in s["against_bounds"]] == [("E", "upper")]
+    json.dumps(s)  # JSON-serializable

@@ -197,3 +197,28 @@ def test_a_region_the_posterior_does_not_hold_is_the_reason_it_is_not_converged(
     text = verdict(s)
     assert "E = 512, nu = 0.31" in text and "73 %" in text, text
     assert text.index("region") < text.index("Raise design.active.max_solves"), text
+
+
+def _cut(s, *ends):
+    s = copy.deepcopy(s)
+    s["parameters"] = [{"name": "E", "unit": "Pa"}, {"name": "nu", "unit": "-"}]
+    s["against_bounds"] = [
+        {"name": n, "index": k, "side": side, "bound": b, "density_ratio": 1.0,
+         "edge_mass": 0.4, "delta": 0.5, "sd_fraction": 0.002}
+        for n, k, side, b in ends]
+    return s
+
+
+@pytest.mark.parametrize("base", [CONVERGED, _misfit(CONVERGED), _budget_spent_moving()],
+                         ids=["converged", "misfit", "not converged"])
+def test_a_posterior_cut_by_its_priors_ends_says_so_and_what_to_do(base):
+    """The default half-ellipse fitted to the OCT example: E piles at 800 Pa, nu at -0.8
+    (docs/scan_geometry.md); converged or not, the last sentence names the ends and the
+    keys to widen, in place of advice that cannot help (more solves, sigma_n)."""
+    sents = _short(_cut(base, ("E", 0, "upper", 800.0), ("nu", 1, "lower", -0.8)))
+    assert sents[-1] == ("The prior's ends cut the posterior (E at 800 Pa, nu at -0.8): the "
+                         "data favour values beyond; widen parameters[0] and parameters[1] "
+                         "(prior, bounds) if they are possible, else check the units of "
+                         "data, loads and priors.")
+    assert not any("Raise design.active.max_solves" in t or "sigma_n" in t for t in sents)
+    assert _short(base)[-1] != sents[-1]  # without a cut end: no such sentence

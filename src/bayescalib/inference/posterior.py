@@ -18,6 +18,15 @@ All summaries are weighted sums over the final particles (eq. smcintegration).
   per input for up to 2 calibrated inputs, 10 otherwise -- the paper's choice;
   configurable).
 * **Global Gaussian approximation**: N(mean, cov) of q(x | Y).
+* **A posterior cut by its box** (:func:`against_bounds`): a parameter whose
+  marginal density at an end of its design box is still at least
+  :data:`EDGE_DENSITY` of its peak, while the posterior is concentrated (sd below
+  :data:`INFORMED_SD` of the box): the data favour values beyond the box, which the
+  prior (or the box) excludes. The density at the end is the mass of the strip of half
+  an sd (at most 2 % of the box) there against the fullest such strip, so a truncated
+  Gaussian is flagged when its centre lies within about 2.4 sd of the end. A posterior spread over
+  most of its box (a weakly informed parameter, e.g. nu) is not: there the prior
+  decides every end, as expected.
 * **Laplace approximation** at the MAP: covariance (-H)^{-1}, H the Hessian of
   log L + log p in all inputs, log L by central finite differences on the
   surrogate (step ``fd_step`` times the box width per input), log p
@@ -51,6 +60,7 @@ from bayescalib.io._atomic_write import atomic_path
 from bayescalib.io.header import validate_header, write_header
 
 __all__ = [
+    "against_bounds",
     "credible_intervals",
     "equal_weight_draws",
     "laplace_approximation",
@@ -173,6 +183,67 @@ def laplace_approximation(
     return out
 
 
+#: the marginal density at a box end, relative to its peak, from which the posterior
+#: counts as cut by the box (a truncated Gaussian centred 2.4 sd inside)
+EDGE_DENSITY = 0.1
+#: the posterior sd, relative to the box width, below which a parameter counts as
+#: informed by the data (a uniform posterior has 0.29)
+INFORMED_SD = 0.2
+#: least posterior mass in the strip at the end for a flag (a few particles are noise)
+EDGE_MASS = 0.01
+
+
+def against_bounds(X: np.ndarray, W: np.ndarray, space: ParameterSpace) -> list[dict[str, Any]]:
+    """The parameters whose posterior is cut by an end of their design box.
+
+    The marginal density at each end is estimated by the weighted mass of the strip
+    ``[end, end + delta]`` (``delta`` the smaller of 2 % of the box width and half the
+    posterior sd) against the fullest strip of that width over the box (module
+    docstring, :data:`EDGE_DENSITY`, :data:`INFORMED_SD`, :data:`EDGE_MASS`).
+
+    Parameters
+    ----------
+    X : ndarray, shape (N, d)
+        Particles, user units (every parameter of ``space``, uncertain ones included).
+    W : ndarray, shape (N,)
+        Weights (normalised here).
+    space : ParameterSpace
+        The parameters; ``space.bounds`` is the box the SMC sampled.
+
+    Returns
+    -------
+    list of dict
+        One per cut end: ``name``, ``index`` (in ``space.names``), ``side`` ("lower" or
+        "upper"), ``bound`` (user units), ``density_ratio`` (at the end over the peak),
+        ``edge_mass`` (posterior mass within ``delta`` of the end), ``delta``,
+        ``sd_fraction`` (posterior sd over the box width).
+    """
+    X = np.asarray(X, float)
+    W = np.asarray(W, float) / np.sum(W)
+    out: list[dict[str, Any]] = []
+    for j, name in enumerate(space.names):
+        lo, hi = (float(v) for v in space.bounds[j])
+        width = hi - lo
+        x = X[:, j]
+        mu = float(W @ x)
+        sd = float(np.sqrt(max(W @ (x - mu) ** 2, 0.0)))
+        if not width > 0 or sd >= INFORMED_SD * width:
+            continue
+        delta = min(0.02 * width, 0.5 * sd) if sd > 0 else 0.02 * width
+        n = int(np.ceil(width / delta))
+        mass, _ = np.histogram(x, bins=n, range=(lo, lo + n * delta), weights=W)
+        peak = float(mass.max())
+        ends = (("lower", lo, float(W[x <= lo + delta].sum())),
+                ("upper", hi, float(W[x >= hi - delta].sum())))
+        for side, bound, edge in ends:
+            ratio = edge / peak if peak > 0 else 0.0
+            if ratio >= EDGE_DENSITY and edge >= EDGE_MASS:
+                out.append({"name": name, "index": j, "side": side, "bound": bound,
+                            "density_ratio": min(ratio, 1.0), "edge_mass": edge,
+                            "delta": delta, "sd_fraction": sd / width})
+    return out
+
+
 def _default_bins(n_calibrated: int) -> int:
     return 30 if n_calibrated <= 2 else 10
 
@@ -212,8 +283,8 @@ def summarize(
     order), ``intervals`` ({name: {str(level): [lo, hi]}}), ``map``
     ({calibrated name: value}), ``map_full`` (all names), ``map_log_posterior``,
     ``map_marginal`` ({calibrated name: value}), ``map_bins``, ``gaussian``
-    ({names, mean, cov} of the calibrated inputs), ``laplace``, ``log_evidence``,
-    ``ess``, ``n_particles``, ``n_steps``, ``ground_truth``.
+    ({names, mean, cov} of the calibrated inputs), ``laplace``, ``against_bounds``
+    (:func:`against_bounds`), ``log_evidence``, ``ess``, ``n_particles``, ``n_steps``, ``ground_truth``.
     """
     X = np.asarray(result.particles, float)
     W = np.asarray(result.weights, float)
@@ -249,6 +320,7 @@ def summarize(
             "cov": cov[np.ix_(mask, mask)].tolist(),
         },
         "laplace": None,
+        "against_bounds": against_bounds(X, W, space),
         "log_evidence": float(result.log_evidence),
         "ess": ess(W),
         "n_particles": int(X.shape[0]),

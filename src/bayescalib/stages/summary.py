@@ -108,6 +108,8 @@ def summary(study_name: str, parameters: Sequence[Mapping[str, Any]], measures: 
         **({"ground_truth": truth} if all(v is not None for v in truth.values()) else {}),
         "converged": (extra or {}).get("design", {}).get("converged"),
         "fit": primary["fit"],
+        # parameters whose posterior an end of its box cuts (the data favour beyond it)
+        "against_bounds": post.get("against_bounds") or [],
         "measures": per_measure,
         "figures": dict(figures),
     }

@@ -10,7 +10,11 @@ Most important first:
    history, the budget; ``posterior_check``: the last check of the posterior with real
    solves), never from the long ``design.reason`` text, which stays in summary.json and
    the report as the detail;
-3. what to do, when there is something to do.
+3. what to do, when there is something to do; first of all when the posterior is cut
+   by an end of a parameter's prior box (``against_bounds`` of summary.json,
+   :func:`bayescalib.inference.posterior.against_bounds`): the data favour values the
+   prior excludes, which a unit slip (of the data, the loads or the prior) or a prior
+   too narrow causes, and every other number is then the box's as much as the data's.
 
 :func:`verdict` is pure (a summary.json mapping in, a string out); the run's last lines
 (the Snakefile's ``onsuccess``), ``bayescalib summary`` and the report's front page
@@ -93,6 +97,24 @@ def _not_converged_reason(design: Mapping[str, Any],
     return "the stop rule's tests were not all met (design.reason in summary.json)"
 
 
+def _bounds_sentence(summary: Mapping[str, Any]) -> str | None:
+    """What to do when an end of a parameter's box cuts its posterior, or None."""
+    cut = summary.get("against_bounds") or []
+    if not cut:
+        return None
+    units = {p["name"]: p.get("unit") for p in summary.get("parameters") or []}
+
+    def where(c: Mapping[str, Any]) -> str:
+        unit = units.get(c["name"])
+        unit = f" {unit}" if unit and unit not in ("-", "1") else ""
+        return f"{c['name']} at {_g(c['bound'])}{unit}"
+
+    keys = sorted({f"parameters[{int(c['index'])}]" for c in cut})
+    return (f"The prior's ends cut the posterior ({', '.join(where(c) for c in cut)}): the "
+            f"data favour values beyond; widen {' and '.join(keys)} (prior, bounds) if they "
+            f"are possible, else check the units of data, loads and priors.")
+
+
 def verdict_sentences(summary: Mapping[str, Any]) -> list[str]:
     """The verdict of a finished run as at most three sentences, most important first
     (the module docstring). ``summary`` is summary.json as a mapping."""
@@ -116,7 +138,10 @@ def verdict_sentences(summary: Mapping[str, Any]) -> list[str]:
         else:
             out.append(f"Converged after {used} on the surrogate's own checks, without real "
                        f"solves of the posterior's draws (posterior_check.draws: 0).")
-        if misfit:
+        bounds = _bounds_sentence(summary)
+        if bounds:
+            out.append(bounds)
+        elif misfit:
             out.append(misfit_advice[0].upper() + misfit_advice[1:] + ".")
     elif converged is False:
         spent = budget is not None and n is not None and int(n) >= int(budget)
@@ -127,6 +152,9 @@ def verdict_sentences(summary: Mapping[str, Any]) -> list[str]:
                 "solves are kept)")
         out.append(todo + ("; if the misfit stays, check likelihood.sigma_n or run the "
                            "diagnosis." if misfit else "."))
+        bounds = _bounds_sentence(summary)
+        if bounds:  # before the budget's advice: more solves do not move a prior's end
+            out[-1] = bounds
     else:  # a fixed design: no stop rule, perhaps a final check with real solves
         if posterior_check and posterior_check.get("n_draws") is not None:
             k = int(posterior_check["n_draws"]) - int(posterior_check.get("n_failed") or 0)
@@ -136,7 +164,10 @@ def verdict_sentences(summary: Mapping[str, Any]) -> list[str]:
         else:
             out.append(f"Convergence not checked (fixed design of {n} solves, no posterior "
                        f"check).")
-        if misfit:
+        bounds = _bounds_sentence(summary)
+        if bounds:
+            out.append(bounds)
+        elif misfit:
             out.append(misfit_advice[0].upper() + misfit_advice[1:] + ".")
         elif not (posterior_check and posterior_check.get("confirmed")):
             out.append("Use design.strategy: active to have it checked.")
