@@ -64,6 +64,17 @@ def test_a_round_says_its_solves_of_the_budget_its_decision_and_its_posterior():
     assert all("a long reason" not in ln for ln in round_lines(_rec(1, 13), 40, UNITS))
 
 
+def test_a_rounds_posterior_cut_by_its_prior_says_so_on_the_console():
+    """A round whose posterior piles at an end of a parameter's box (a unit slip, a prior
+    too narrow) says so in its posterior line, rounds before the verdict."""
+    rec = _rec(1, 13)
+    rec["against_bounds"] = [{"name": "E", "index": 0, "side": "upper", "bound": 800.0,
+                              "density_ratio": 1.0, "edge_mass": 0.4, "delta": 0.5,
+                              "sd_fraction": 0.002}]
+    assert round_lines(rec, 40, UNITS)[1] == (
+        "  posterior: E = 380 +- 65 Pa (cut by its prior's upper end), nu = 0.179 +- 0.23")
+
+
 class _Clock:
     def __init__(self):
         self.t = 0.0

@@ -129,11 +129,13 @@ def _g(v: float) -> str:
 def _posterior_text(rec: Mapping[str, Any], units: Mapping[str, str], most: int = 4) -> str:
     names = rec.get("names") or []
     mean, sd = rec["posterior"]["mean"], rec["posterior"]["sd"]
+    cut = {(c["name"]): c["side"] for c in rec.get("against_bounds") or []}
     parts = []
     for k, n in enumerate(names[:most]):
         u = units.get(n, "-")
         parts.append(f"{n} = {_g(mean[k])} +- {_sig(sd[k], 2)}"
-                     + ("" if u in ("-", "", None) else f" {u}"))
+                     + ("" if u in ("-", "", None) else f" {u}")
+                     + (f" (cut by its prior's {cut[n]} end)" if n in cut else ""))
     more = f" (and {len(names) - most} more)" if len(names) > most else ""
     return ", ".join(parts) + more
 

@@ -622,7 +622,8 @@ def acquire_round(r: int, X: np.ndarray, L: np.ndarray, gp, particles: np.ndarra
     -------
     dict
         Plain JSON-able record: ``round``, ``n_solves``, ``n_failed``, ``posterior``
-        (mean, sd, cov, log_evidence), ``trust`` (:func:`trust_check` of this round's
+        (mean, sd, cov, log_evidence), ``against_bounds`` (the box's ends that cut it,
+        :func:`~bayescalib.inference.posterior.against_bounds`), ``trust`` (:func:`trust_check` of this round's
         batch, None in round 0), ``change`` (:func:`posterior_change` from round r-1),
         ``exploration``, ``explored``, ``settled``, ``trusted``, ``settled_streak``,
         ``posterior_check`` (the importance check of round r-1's posterior when this
@@ -656,6 +657,7 @@ def round_record(r: int, X: np.ndarray, L: np.ndarray, gp, particles: np.ndarray
     ``trusted`` and ``explored``. Returns the record and the audit
     (:func:`~bayescalib.inference.exploration.audit`)."""
     from bayescalib.inference.exploration import audit
+    from bayescalib.inference.posterior import against_bounds
 
     n, d = X.shape
     moments = posterior_moments(particles, weights)
@@ -666,6 +668,8 @@ def round_record(r: int, X: np.ndarray, L: np.ndarray, gp, particles: np.ndarray
         "posterior": {"mean": moments["mean"].tolist(), "sd": moments["sd"].tolist(),
                       "cov": moments["cov"].tolist(), "log_evidence": float(log_evidence)},
         "names": list(space.names),
+        # the ends of the box that cut this round's posterior (said on the console)
+        "against_bounds": against_bounds(particles, weights, space),
         "trust": None,
         "change": None,
         "posterior_check": None,
