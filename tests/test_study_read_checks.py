@@ -404,6 +404,19 @@ def test_an_oct_volume_observed_for_the_2d_model_is_refused_as_a_volume(tmp_path
     assert "geometry.dim: 2" in msg and "voxel size" not in msg, msg
 
 
+def test_a_2d_scans_two_pixel_sizes_are_refused_saying_to_resample():
+    """An OCT B-scan's axial and lateral pixel sizes (4 um across, 2.9 um deep) given as
+    a pair for the 2D model: refused, saying that the pixels must be square and what the
+    axial size in the sample is; the same for the zero-flow scan."""
+    msg = _refused(_oct_study(f0={"pixel_size": [4.0, 2.9]}))
+    assert "observations.files[0].pixel_size" in msg, msg
+    assert "square pixels" in msg and "refractive index" in msg, msg
+    study = _oct_study()
+    study["forward_model"]["fsi"]["geometry"]["scan"]["pixel_size"] = [4.0, 2.9]
+    msg = _refused(study)
+    assert "geometry.scan.pixel_size" in msg and "square pixels" in msg, msg
+
+
 def test_observation_pixels_other_than_the_zero_flow_scans_are_noted():
     """A pixel size of the observed scans other than the zero-flow scan's (4.4 um against
     4 um: the colony 10 % larger) passes the placement check; it is noted."""
