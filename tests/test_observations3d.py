@@ -311,3 +311,46 @@ def test_the_files_of_a_study_without_component_keep_their_validated_values():
     entry = validate({"observations": {"source": "files", "files": [{"path": "a.csv"}]}},
                      "measures")["observations"]["files"][0]
     assert "component" not in entry
+
+
+def test_a_volume_whose_substrate_is_not_on_y0_is_refused_with_the_origin_that_fits(tmp_path):
+    """The origin's y given as if the bottom row lay on the floor (the colony's foot is
+    50 um above it; floor: auto finds it): an observed volume lifted so is within the
+    placement check's quarter of the colony's height, and a model's colony from a volume
+    with the same slip was taken with its rim 50 um up (the rim's tolerance grew with the
+    floor found); both are refused when the study is read, with the origin that puts the
+    substrate on y = 0, and an origin in another unit is named."""
+    mask = _mask()
+    mask[:, -5:, :] = False  # no substrate slab: the floor is the colony's foot
+    path = tmp_path / "colony.npy"
+    np.save(path, mask)
+    lifted = _volume(path, origin=[ORIGIN[0], 0.0, ORIGIN[2]], floor="auto")
+    with pytest.raises(ConfigError, match=r"observations.files\[0\] \(.*colony.npy'\): the floor "
+                       r"found \(foreground bottom\) lies at y = 0.045 mm .* with origin "
+                       r"\[0.5, -0.045, 0.1\] mm it would lie there"):
+        _study(lifted, _volume(path, floor="auto"))
+    _study(_volume(path, floor="auto"), _volume(path, floor="auto"))  # in place: fine
+
+    def scan(entry):
+        return Study(deep_merge(FSI3D, {"forward_model": {"fsi": {"geometry": {
+            "shape": "scan", "scan": entry}}}}))
+
+    with pytest.raises(ConfigError, match=r"geometry.scan \(.*colony.npy'\): the floor found "
+                       r".* lies at y = 0.045 mm .* with origin \[0.5, -0.045, 0.1\] mm"):
+        scan(lifted)
+    in_um = _volume(path, origin=[1e3 * v for v in ORIGIN], floor="auto")  # units: mm
+    with pytest.raises(ConfigError, match=r"or the origin is in um, not mm: origin "
+                       r"\[0.5, -0.05, 0.1\] mm puts the substrate on y = 0"):
+        scan(in_um)
+
+
+def test_a_zero_flow_volume_in_another_unit_is_named_by_its_size(volumes):
+    """A volume whose voxel size and origin are in mm under units: um (or in um under
+    units: m) is a colony 1000 times too small (or large): refused naming its size
+    against the channel and the unit that fits, not its rim's height."""
+    entry = _volume(volumes / "colony.npy", units="um")  # the numbers are mm
+    with pytest.raises(ConfigError, match=r"geometry.scan \(.*colony.npy'\): the colony "
+                       r"\(0.000\d+ x .* mm in x, y, z\) is smaller than the mesh resolves "
+                       r".*read as um: .* the sizes fit if they are in mm, units: mm"):
+        Study(deep_merge(FSI3D, {"forward_model": {"fsi": {"geometry": {
+            "shape": "scan", "scan": entry}}}}))

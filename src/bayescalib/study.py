@@ -826,7 +826,7 @@ class Study:
             reader_options,
             validate_shape,
         )
-        from bayescalib.io.volumes import is_volume
+        from bayescalib.io.volumes import is_volume, substrate_offset
 
         obs = cfg["observations"]
         if obs["source"] != "files":
@@ -893,6 +893,14 @@ class Study:
             except ObservationError as exc:
                 raise ConfigError(f"{where}: {key}: {exc}") from None
             iface = observed[key]
+            if info.get("kind") == "volume" and Study.model_dim(cfg) == 3:
+                # the model's floor is y = 0: a volume whose substrate lies elsewhere is
+                # misplaced in y, which the placement check lets through up to a quarter
+                # of the colony's height
+                why = substrate_offset(info, units=opts.get("units", "mm"),
+                                       pixel_size=e["pixel_size"], origin=e["origin"])
+                if why:
+                    raise ConfigError(f"{where}: {key} ('{path}'): {why}")
             if Study.model_dim(cfg) == 2 and iface.n_cells == iface.n_points:
                 # the model's interface runs from foot to foot: a closed outline adds its
                 # base along the floor, which the RKHS measure counts as a misfit

@@ -364,6 +364,32 @@ def validate_height_field(field_: HeightField, *, length: float, channel_height:
             f"top ({channel_height:g} mm): check the scan's units" + hint)
 
 
+def _validate_size(surface: Interface, geometry: dict[str, Any], min_gap: float, units: str,
+                   name: str, volume: bool) -> None:
+    """Refuse a scanned colony larger than the channel or smaller than the gap the mesh
+    resolves (about an interface element), before its height field: the unit slip it is
+    (a volume in um read as m, a voxel size and origin in mm under units um) would
+    otherwise be named after its consequence (a rim far above the floor), naming the
+    unit in which its size fits the channel."""
+    from bayescalib.io.observations import unit_hint
+
+    ext = np.ptp(surface.points, axis=0)
+    chan = np.array([float(geometry["length"]), float(geometry["channel_height"]),
+                     float(geometry["channel_width"])])
+    ratio = float(np.max(ext / chan))
+    if ratio <= 1.0 and float(np.max(ext)) >= min_gap:
+        return
+    u = unit_hint(ratio, units, 0.05, 1.0)
+    size = " x ".join(f"{v:.4g}" for v in ext)
+    raise ScanError(
+        f"{name}: the colony ({size} mm in x, y, z) is "
+        + (f"larger than the channel ({chan[0]:g} x {chan[1]:g} x {chan[2]:g} mm)"
+           if ratio > 1.0 else f"smaller than the mesh resolves ({min_gap:.3g} mm)")
+        + f" (read as {units}: check geometry.scan.units"
+        + (", pixel_size and origin" if volume else "")
+        + (f"; the sizes fit if they are in {u}, units: {u}" if u else "") + ")")
+
+
 def scan_height_field(geometry: dict[str, Any], *, min_gap: float,
                       key: str = "geometry") -> HeightField:
     """The height field of ``geometry.scan``'s colony, checked against the channel.
@@ -395,7 +421,7 @@ def scan_height_field(geometry: dict[str, Any], *, min_gap: float,
     from bayescalib.geometry.surface import UNITS
     from bayescalib.io.observations import ObservationError, cut_height, read_interface_info
     from bayescalib.io.surfaces import SURFACE_SUFFIXES, read_surface
-    from bayescalib.io.volumes import is_volume
+    from bayescalib.io.volumes import is_volume, substrate_offset
 
     scan = geometry["scan"]
     path = Path(scan["path"])
@@ -431,6 +457,12 @@ def scan_height_field(geometry: dict[str, Any], *, min_gap: float,
         raise ScanError(f"{key}.scan: {exc}") from None
     spacing, smoothing = scan.get("spacing"), scan["smoothing"]
     name = f"{key}.scan ('{path}')"
+    if volume:  # the substrate on y = 0 (the rim's check below allows the cut's height)
+        why = substrate_offset(info, units=scan["units"], pixel_size=scan["pixel_size"],
+                               origin=scan["origin"])
+        if why:
+            raise ScanError(f"{name}: {why}")
+    _validate_size(surface, geometry, min_gap, info["units"], name, volume)
     cut = cut_height(surface, info) if volume else None
     field_ = height_field(surface, spacing=None if spacing is None else float(spacing) * f,
                           smoothing=None if smoothing is None else float(smoothing) * f,
