@@ -354,3 +354,20 @@ def test_a_zero_flow_volume_in_another_unit_is_named_by_its_size(volumes):
                        r".*read as um: .* the sizes fit if they are in mm, units: mm"):
         Study(deep_merge(FSI3D, {"forward_model": {"fsi": {"geometry": {
             "shape": "scan", "scan": entry}}}}))
+
+
+def test_the_zero_flow_volume_listed_as_a_loaded_observation_is_refused(volumes):
+    """The model's colony from the zero-flow volume, and the same file listed again as the
+    first snapshot (at factor 0.5): it lies where the model's colony is, so the placement
+    and order checks pass, and the flow would seem not to have moved it (E pulled up).
+    Refused naming the entry and its loading; at a factor 0 it is allowed."""
+    scan = _volume(volumes / "colony.npy")
+    cfg = deep_merge(FSI3D, {"forward_model": {"fsi": {"geometry": {"shape": "scan",
+                                                                     "scan": scan}}}})
+    files = [_volume(volumes / "colony.npy"), _volume(volumes / "colony.tif")]
+    with pytest.raises(ConfigError, match=r"observations.files\[0\] \(.*colony.npy'\) is the "
+                       r"model's zero-flow scan \(forward_model.fsi.geometry.scan.path\), "
+                       r"observed here at loading factor 0.5"):
+        Study(deep_merge(cfg, {"observations": {"source": "files", "files": files}}))
+    zero = deep_merge(cfg, {"forward_model": {"loadings": {"factors": [0.0, 1.0]}}})
+    Study(deep_merge(zero, {"observations": {"source": "files", "files": files}}))

@@ -18,6 +18,7 @@ from __future__ import annotations
 import copy
 import itertools
 import math
+import os
 from collections.abc import Mapping, Sequence
 from functools import cached_property
 from pathlib import Path
@@ -303,6 +304,7 @@ class Study:
             # before the boxes: the unit is the cause
             validate_fsi_units(cfg["parameters"], where, dim=Study.model_dim(cfg) or 2)
             notes += Study._resolve_geometry(cfg, where)
+            Study._validate_scan_not_observed(cfg, where)
             Study._validate_boxes(cfg, where)
         Study._validate_hidden(cfg, where)
         observed, read = Study._validate_observation_files(cfg, where)
@@ -527,6 +529,45 @@ class Study:
                  f"x = {i['x_range_mm'][0]:.4g} to {i['x_range_mm'][1]:.4g} mm, z = "
                  f"{i['z_range_mm'][0]:.4g} to {i['z_range_mm'][1]:.4g} mm, "
                  f"{i['height_mm']:.4g} mm high)")]
+
+    @staticmethod
+    def _validate_scan_not_observed(cfg: dict[str, Any], where: str) -> None:
+        """The model's zero-flow scan (``geometry.scan.path``) listed in
+        ``observations.files`` at a loading above zero is refused: its colony is the
+        model's undeformed biofilm, so the snapshot would be compared with the model
+        under that flow as if the flow had not moved it, which pulls the stiffness up
+        without a word (the placement and order checks pass: it lies where the model's
+        colony is). At factor 0 (or ``load: 0``) it is allowed. Also the other way
+        round: a loaded observation given as the zero-flow scan."""
+        fm = cfg["forward_model"]
+        obs = cfg["observations"]
+        geometry = validate(fm["fsi"], "fsi")["geometry"]
+        if geometry["shape"] != "scan" or obs["source"] != "files":
+            return
+        scan = Path(geometry["scan"]["path"])
+        if not scan.exists():
+            return
+        files = obs.get("files") or []
+        factors = [float(v) for v in fm["loadings"]["factors"]]
+        for k, e in enumerate(files):
+            path = Path(e["path"])
+            if not path.exists() or not os.path.samefile(path, scan):
+                continue
+            load = e.get("load")
+            factor = factors[k] if len(factors) == len(files) else None
+            if (load is not None and float(load) == 0.0) or (load is None and factor == 0.0):
+                continue
+            at = (f"load {float(load):g}" if load is not None else
+                  f"loading factor {factor:g} of forward_model.loadings.factors"
+                  if factor is not None else "a loading above zero")
+            raise ConfigError(
+                f"{where}: observations.files[{k}] ('{path}') is the model's zero-flow scan "
+                f"(forward_model.fsi.geometry.scan.path), observed here at {at}: its colony "
+                "is the model's undeformed biofilm, so the model under that flow would be "
+                "compared with a colony the flow did not move (the stiffness pulled up). "
+                "List the scans under flow only, in the order of the loadings (or give "
+                "this one load: 0 with a factor 0 in forward_model.loadings.factors); if "
+                "this file is a scan under flow, the zero-flow scan is another file")
 
     @staticmethod
     def _validate_colony_choice(cfg: dict[str, Any], where: str, observed: dict[str, Any],
