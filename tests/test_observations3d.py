@@ -371,3 +371,35 @@ def test_the_zero_flow_volume_listed_as_a_loaded_observation_is_refused(volumes)
         Study(deep_merge(cfg, {"observations": {"source": "files", "files": files}}))
     zero = deep_merge(cfg, {"forward_model": {"loadings": {"factors": [0.0, 1.0]}}})
     Study(deep_merge(zero, {"observations": {"source": "files", "files": files}}))
+
+
+def test_an_inverted_or_upside_down_volume_is_named_so(volumes, tmp_path):
+    """Fluid bright and biofilm dark: the 'colony' was the fluid (its specks listed as
+    separate colonies, with 'pick one with component=k'); B-scans upside down (row 0 the
+    bottom): 'no foreground above the floor' alone. Each is named for what it is."""
+    import tifffile
+
+    scan = tifffile.imread(volumes / "colony.tif")
+    tifffile.imwrite(tmp_path / "inverted.tif", (255 - scan).astype(np.uint8))
+    entry = _volume(tmp_path / "inverted.tif", floor="auto")
+    with pytest.raises(ConfigError, match=r"inverted.tif: the foreground .* fills 100 % of the "
+                       r"volume's top layer .* looks like an inverted volume .* invert its grey "
+                       r"values"):
+        _study(entry, entry)
+    from scipy.ndimage import gaussian_filter
+
+    colony = _mask()
+    colony[:, -5:, :] = False
+    contrast = np.where(colony, 1.0, 0.0)
+    contrast[:, -5:-2, :] = 2.5  # a substrate band brighter than the biofilm, dark below it
+    grey = np.clip(40 + 70 * gaussian_filter(contrast, 1.0)
+                   + np.random.default_rng(0).normal(0, 10, contrast.shape), 0, 255)
+    upright = _volume(tmp_path / "upright.tif", floor="auto")
+    tifffile.imwrite(upright["path"], grey.astype(np.uint8))
+    _study(upright, upright)  # the band found below the colony, on y = 0
+    tifffile.imwrite(tmp_path / "upside_down.tif",
+                     np.ascontiguousarray(grey[:, ::-1, :]).astype(np.uint8))
+    entry = _volume(tmp_path / "upside_down.tif", floor="auto")
+    with pytest.raises(ConfigError, match=r"upside_down.tif: no foreground \(biofilm\) above the "
+                       r"floor .* are they upside down \(row 0 must be the top"):
+        _study(entry, entry)

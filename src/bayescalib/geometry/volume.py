@@ -36,7 +36,9 @@ Steps
    (voxels, mm^3), unless ``component`` picks one (0 = the largest). A colony with
    voxels on a side face (x, z) or the top face of the volume is cut off by the field
    of view: refused, naming the faces. An empty mask (or a segmentation without
-   foreground or background) is refused.
+   foreground or background) is refused; so is a foreground filling the top layer
+   (fluid bright and biofilm dark, an inverted volume; or B-scans upside down), and a
+   floor found at the top with foreground only below it is named as B-scans upside down.
 4. *Marching cubes* (:func:`skimage.measure.marching_cubes`, Lewiner, at level 0.5) of
    the colony (in its bounding box) on a substrate slab (two layers below the floor),
    padded with background: a closed surface whose slab face lies on the floor plane exactly, so
@@ -223,6 +225,17 @@ def volume_surface(
             raise SurfaceError(f"{name}: the segmentation finds no background (fluid) {where}")
     nz, ny, nx = mask.shape
     dx, dy, dz = vox
+    top = float(mask[:, 0, :].mean())  # the top layer: fluid above a colony on the floor
+    if top >= imaging.FLOOR_FULL_WIDTH:
+        bright = "bright part" if kind == "scan" else "brighter value"
+        raise SurfaceError(
+            f"{name}: the foreground (the {bright}, taken for biofilm) fills {100 * top:.0f} % "
+            "of the volume's top layer (row 0 of every B-scan): the fluid above the colony "
+            "must be the dark part and the biofilm the bright one. This looks like an "
+            "inverted volume (fluid bright, biofilm dark): invert its grey values"
+            + (" (or check segmentation.threshold)" if kind == "scan" else "")
+            + "; or its B-scans are upside down (row 0 must be the top, the substrate at "
+            "the bottom): flip their rows")
     # ---- floor: a layer edge (row - 0.5 between rows row - 1 and row)
     if floor == "auto":
         flat = mask.transpose(1, 0, 2).reshape(ny, -1)
@@ -247,8 +260,12 @@ def volume_surface(
     y_floor = float(org[1] + (ny - 1 - row) * dy)
     part = mask[:, :n_above, :]
     if not part.any():
+        upside = (f"; the floor was found {'at the top' if row < 1 else 'in the upper half'} "
+                  "of the B-scans, with foreground below it: are they upside down (row 0 "
+                  "must be the top, the substrate at the bottom)? Flip their rows"
+                  if row < 0.5 * ny and mask[:, n_above:, :].any() else "")
         raise SurfaceError(f"{name}: no foreground (biofilm) above the floor y = {y_floor:g} mm "
-                           f"({method_f}): the mask is empty there")
+                           f"({method_f}): the mask is empty there" + upside)
     # ---- one colony
     lab, n_comp = label(part, structure=np.ones((3, 3, 3), dtype=bool))
     sizes = np.bincount(lab.ravel())[1:]
