@@ -267,7 +267,9 @@ def test_the_model_colony_from_a_zero_flow_volume_and_observations_checked_again
     scan = _volume(volumes / "colony.npy")
     cfg = deep_merge(FSI3D, {"forward_model": {"fsi": {"geometry": {"shape": "scan",
                                                                      "scan": scan}}}})
-    files = [dict(_volume(volumes / "colony.npy"), load=load) for load in (50.0, 100.0)]
+    # the observed volumes: the same colony in another file (the zero-flow file itself
+    # listed under flow is refused: test_the_zero_flow_volume_listed_as_a_loaded_...)
+    files = [dict(_volume(volumes / "colony.tif"), load=load) for load in (50.0, 100.0)]
     study = Study(deep_merge(cfg, {"observations": {"source": "files", "files": files}}))
     assert any("as a height field" in n and "colony.npy" in n for n in study.notes)
     geometry = validate(study.config["forward_model"]["fsi"], "fsi")["geometry"]
@@ -403,3 +405,28 @@ def test_an_inverted_or_upside_down_volume_is_named_so(volumes, tmp_path):
     with pytest.raises(ConfigError, match=r"upside_down.tif: no foreground \(biofilm\) above the "
                        r"floor .* are they upside down \(row 0 must be the top"):
         _study(entry, entry)
+
+
+def test_observed_voxel_sizes_are_checked_against_the_zero_flow_volumes(volumes):
+    """The same three voxel sizes in another order than the zero-flow volume's is
+    refused (before, the placement check named the origin, or, with both in the wrong
+    order, nothing); another size is noted, as in 2D."""
+    path = volumes / "colony.npy"
+
+    def study(scan_size, obs_size):
+        scan = _volume(path, pixel_size=scan_size)
+        cfg = deep_merge(FSI3D, {"forward_model": {"fsi": {"geometry": {"shape": "scan",
+                                                                         "scan": scan}}}})
+        files = [dict(_volume(volumes / "colony.tif", pixel_size=obs_size), load=v)
+                 for v in (50.0, 100.0)]
+        return Study(deep_merge(cfg, {"observations": {"source": "files", "files": files}}))
+
+    with pytest.raises(ConfigError, match=r"observations.files\[0\].pixel_size: \[10, 10, 12\] "
+                       r"um, the zero-flow volume's voxel size \(forward_model.fsi.geometry.scan"
+                       r".pixel_size: \[12, 10, 10\] um\) in another order: both are \[dx, dy, "
+                       r"dz\]"):
+        study([0.012, VOXEL, VOXEL], [VOXEL, VOXEL, 0.012])
+    notes = study([VOXEL] * 3, [0.0105, VOXEL, VOXEL]).notes
+    assert any("pixel_size: observations.files[0] [10.5, 10, 10] um" in n and "the model's "
+               "zero-flow volume (forward_model.fsi.geometry.scan) has [10, 10, 10] um voxels"
+               in n for n in notes)

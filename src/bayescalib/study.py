@@ -990,6 +990,8 @@ class Study:
             return []
         geometry = validate(fm["fsi"], "fsi")["geometry"]
         scan = geometry["scan"] if geometry["shape"] == "scan" else None
+        if scan and isinstance(scan["pixel_size"], list):
+            return Study._voxel_size_notes(cfg, where, scan)
         if (not scan or Path(scan["path"]).suffix.lower() not in IMAGE_SUFFIXES
                 or not isinstance(scan["pixel_size"], (int, float))):
             return []
@@ -1009,6 +1011,43 @@ class Study:
                  f"(forward_model.fsi.geometry.scan) has {s0 * 1e3:.4g} um pixels: scans of "
                  "one recording share their pixel size, and a wrong one scales the colony by "
                  "as much (check both)")]
+
+    @staticmethod
+    def _voxel_size_notes(cfg: dict[str, Any], where: str, scan: Mapping[str, Any]) -> list[str]:
+        """The 3D :meth:`_pixel_size_notes`: each observed volume's voxel size against the
+        zero-flow volume's (``geometry.scan.pixel_size``, [dx, dy, dz]), axis by axis. The
+        same three sizes in another order is refused (the order is [dx, dy, dz]: a
+        [dz, dy, dx] stretches the colony along the flow and shrinks it across, which the
+        extent check lets through, and the placement check then names the origin); other
+        differences above 1 % are noted."""
+        from bayescalib.io.observations import UNITS
+
+        s0 = [float(v) * UNITS[scan["units"]] for v in scan["pixel_size"]]
+        um = ", ".join(f"{v * 1e3:.4g}" for v in s0)
+        odd = []
+        for k, e in enumerate(cfg["observations"]["files"] or []):
+            size = e.get("pixel_size")
+            if not isinstance(size, list) or len(size) != 3:
+                continue
+            s = [float(v) * UNITS[e["units"]] for v in size]
+            if all(abs(a / b - 1.0) <= 0.01 for a, b in zip(s, s0, strict=True)):
+                continue
+            given = ", ".join(f"{v * 1e3:.4g}" for v in s)
+            if all(abs(a / b - 1.0) <= 0.01 for a, b in zip(sorted(s), sorted(s0), strict=True)):
+                raise ConfigError(
+                    f"{where}: observations.files[{k}].pixel_size: [{given}] um, the zero-flow "
+                    f"volume's voxel size (forward_model.fsi.geometry.scan.pixel_size: [{um}] "
+                    "um) in another order: both are [dx, dy, dz], along the B-scan's columns "
+                    "(x, the flow), its rows (y, depth) and between B-scans (z); a swap "
+                    "stretches the colony along one axis and shrinks it along another. "
+                    "Check which of the two is right and give both in that order")
+            odd.append(f"observations.files[{k}] [{given}] um")
+        if not odd:
+            return []
+        return [(f"{where}: pixel_size: {', '.join(odd)}, but the model's zero-flow volume "
+                 f"(forward_model.fsi.geometry.scan) has [{um}] um voxels: volumes of one "
+                 "recording share their voxel size, and a wrong one scales the colony by as "
+                 "much along that axis (check both)")]
 
     @staticmethod
     def _validate_volume_entry(where: str, key: str, entry: Mapping[str, Any]) -> None:
