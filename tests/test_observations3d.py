@@ -430,3 +430,40 @@ def test_observed_voxel_sizes_are_checked_against_the_zero_flow_volumes(volumes)
     assert any("pixel_size: observations.files[0] [10.5, 10, 10] um" in n and "the model's "
                "zero-flow volume (forward_model.fsi.geometry.scan) has [10, 10, 10] um voxels"
                in n for n in notes)
+
+
+def _leaning(shear: float) -> np.ndarray:
+    """The colony of :func:`_mask` bent along x: its top ``shear`` mm downstream."""
+    xs = ORIGIN[0] + VOXEL * np.arange(100)
+    ys = ORIGIN[1] + VOXEL * np.arange(61)
+    zs = ORIGIN[2] + VOXEL * np.arange(80)
+    Z, Y, X = np.meshgrid(zs, ys[::-1], xs, indexing="ij")
+    inside = (((X - 1.0 - shear * np.clip(Y, 0, None) / 0.4) / 0.3) ** 2 + (Y / 0.4) ** 2
+              + ((Z - 0.5) / 0.3) ** 2 <= 1.0)
+    return inside | (Y < -0.001)
+
+
+def test_colonies_bent_upstream_or_listed_in_reverse_order_are_refused(volumes, tmp_path):
+    """The model's colony from the zero-flow volume; the observed colonies bent 20 and 40 um
+    downstream at factors 0.5 and 1 are accepted. Mirrored in x (B-scan columns against
+    the flow) they lean upstream, which the placement check lets through: refused. Listed
+    in the reverse order they are refused by their lean (in 3D the mean distance from the
+    model's colony is blurred by the geometry's own misfit)."""
+    for name, shear in (("a", 0.02), ("b", 0.04), ("ma", -0.02), ("mb", -0.04)):
+        np.save(tmp_path / f"{name}.npy", _leaning(shear))
+    scan = _volume(volumes / "colony.npy")
+    cfg = deep_merge(FSI3D, {"forward_model": {"fsi": {"geometry": {"shape": "scan",
+                                                                     "scan": scan}}}})
+
+    def study(*names):
+        files = [_volume(tmp_path / f"{n}.npy") for n in names]
+        return Study(deep_merge(cfg, {"observations": {"source": "files", "files": files}}))
+
+    study("a", "b")
+    with pytest.raises(ConfigError, match=r"the observed colonies lean upstream of the model's "
+                       r"undeformed biofilm \(observations.files\[0\] -\d+.* um, .* are the "
+                       r"B-scans' columns running against the flow \(x mirrored\)\?"):
+        study("ma", "mb")
+    with pytest.raises(ConfigError, match=r"lean the farther downstream of the model's "
+                       r"undeformed biofilm the smaller their loading .* reverse order"):
+        study("b", "a")

@@ -639,7 +639,7 @@ class Study:
 
         from bayescalib.geometry.interface import Interface
         from bayescalib.geometry.outline import placement
-        from bayescalib.geometry.surface import surface_placement
+        from bayescalib.geometry.surface import downstream_lean, surface_placement
         from bayescalib.io.observations import UNITS, unit_hint
 
         if not observed:
@@ -669,6 +669,7 @@ class Study:
         axes = ((0, "wide"),) if dim == 2 else ((0, "long (x, along the flow)"),
                                                     (2, "wide (z, across the flow)"))
         moved: dict[str, float] = {}  # each snapshot's mean distance from the model's colony
+        leans: dict[str, float] = {}  # 3D: each snapshot's downstream lean (surface.downstream_lean)
         for key, iface in observed.items():
             if key == what:  # the reference compared with itself
                 continue
@@ -694,6 +695,8 @@ class Study:
                 continue
             p = placement(iface.points, ref.points) if dim == 2 else surface_placement(iface, ref)
             moved[key] = float(p.mean_distance)
+            if dim == 3:
+                leans[key] = downstream_lean(iface, ref)
             foot = 0.0 if dim == 2 else float(np.hypot(p.offset[0], p.offset[2]))
             span = float(np.mean(np.ptp(ref.points[:, [0, 2]], axis=0))) if dim == 3 else 1.0
             if p.mean_distance > 0.25 * height or foot > FOOTPRINT_SHIFT * span:
@@ -719,19 +722,59 @@ class Study:
                     f"{where}: {key} ('{entry['path']}'): {why}. It is offset by about "
                     f"({offset}) mm: check {key}.origin and {key}.units{fix}")
         if what.startswith("the model"):
-            Study._validate_snapshot_order(cfg, where, moved)
+            Study._validate_lean(cfg, where, leans)
+            Study._validate_snapshot_order(cfg, where, leans if dim == 3 else moved)
+
+    @staticmethod
+    def _validate_lean(cfg: dict[str, Any], where: str, leans: Mapping[str, float]) -> None:
+        """3D, the model's colony from a zero-flow scan: the flow (+x) bends the colony
+        downstream, so observed colonies that all lean upstream of the model's undeformed
+        one (:func:`bayescalib.geometry.surface.downstream_lean`), the most loaded by more
+        than 2 sigma_N, are refused as mirrored in x (B-scan columns running against the
+        flow): the placement and unit checks pass a colony mirrored about its middle,
+        and the model would be fitted to a deformation in the opposite direction. Only
+        with ``geometry.shape: scan``: the lean is then measured from the same colony
+        at zero flow (an analytic colony's own asymmetry is no flow's)."""
+        from bayescalib.inference.likelihood import sigma_n2_from_config
+
+        fm = cfg["forward_model"]
+        geometry = validate(fm["fsi"], "fsi")["geometry"]
+        files = cfg["observations"]["files"] or []
+        keys = [f"observations.files[{k}]" for k in range(len(files))]
+        if geometry["shape"] != "scan" or not leans or any(k not in leans for k in keys):
+            return
+        factors = [float(v) for v in fm["loadings"]["factors"]]
+        if len(factors) == len(files) and all(e.get("load") is None for e in files):
+            top = keys[max(range(len(factors)), key=lambda k: factors[k])]
+        else:
+            top = min(keys, key=lambda k: leans[k])
+        sigma = math.sqrt(sigma_n2_from_config(cfg["likelihood"]))
+        if all(v < 0.0 for v in leans.values()) and leans[top] < -2.0 * sigma:
+            listed = ", ".join(f"{k} {1e3 * leans[k]:+.3g} um" for k in keys)
+            raise ConfigError(
+                f"{where}: the observed colonies lean upstream of the model's undeformed "
+                f"biofilm ({listed}: the x-shift of their upper half's centre; the "
+                f"likelihood's sigma_N is {1e3 * sigma:.3g} um), while the flow, along +x, "
+                "bends a colony downstream: are the B-scans' columns running against the "
+                "flow (x mirrored)? Reverse the columns of the observed volumes (or of "
+                "every volume, the zero-flow one included, if its colony is not symmetric), "
+                "so that column 0 is the upstream side")
 
     @staticmethod
     def _validate_snapshot_order(cfg: dict[str, Any], where: str,
                                  moved: Mapping[str, float]) -> None:
         """Snapshots are paired with the loadings by their order. A larger flow moves the
         interface farther from the undeformed colony, so files whose mean distance from
-        the model's undeformed biofilm falls as the loading rises, each step by more than
-        half the likelihood's noise sd sigma_N and in all by more than 2 sigma_N, are
-        refused as listed in the reverse order (a file's ``load`` states the order, and
-        the check is skipped then: the loads are checked against the loadings). On the
-        OCT example the distances are 2.5, 5.9 and 11.2 um at 50, 100 and 150 mm^2/s
-        (sigma_N 2 um)."""
+        the model's undeformed biofilm (3D: their downstream lean,
+        :func:`bayescalib.geometry.surface.downstream_lean`) falls as the loading rises,
+        each step by more than half the likelihood's noise sd sigma_N and in all by more
+        than 2 sigma_N, are refused as listed in the reverse order (a file's ``load``
+        states the order, and the check is skipped then: the loads are checked against
+        the loadings). On the OCT example the distances are 2.5, 5.9 and 11.2 um at 50,
+        100 and 150 mm^2/s (sigma_N 2 um); on the 3D one (the model's colony from its
+        zero-flow volume) the mean distances are 4.2 and 8.2 um at 50 and 100 mm^3/s, a
+        step the geometry's own misfit makes too small to tell (sigma_N 3.2 um), the
+        leans 7.6 and 19.2 um."""
         from bayescalib.inference.likelihood import sigma_n2_from_config
 
         files = cfg["observations"]["files"] or []
@@ -747,10 +790,15 @@ class Study:
                 and dist[0] - dist[-1] > 2.0 * sigma:
             listed = ", ".join(f"{keys[k]} {1e3 * moved[keys[k]]:.3g} um at factor "
                                f"{factors[k]:g}" for k in by_load)
+            lean = Study.model_dim(cfg) == 3
             raise ConfigError(
-                f"{where}: the observed interfaces lie the farther from the model's undeformed "
-                f"biofilm the smaller their loading ({listed}; mean distance of their "
-                f"nodes; the likelihood's sigma_N is {1e3 * sigma:.3g} um), while a "
+                f"{where}: the observed interfaces "
+                + ("lean the farther downstream of" if lean else "lie the farther from")
+                + " the model's undeformed "
+                f"biofilm the smaller their loading ({listed}; "
+                + ("the x-shift of their upper half's centre" if lean else
+                   "mean distance of their nodes")
+                + f"; the likelihood's sigma_N is {1e3 * sigma:.3g} um), while a "
                 "larger flow moves the interface farther: are observations.files listed in "
                 "the reverse order of forward_model.loadings.factors? List them in that "
                 "order, or give each file its load to state which loading it is")

@@ -49,7 +49,7 @@ import numpy as np
 from bayescalib.geometry.interface import Interface, InterfaceError
 
 __all__ = ["CLIP_EPS", "TAUBIN_ITERATIONS", "TAUBIN_LAMBDA", "TAUBIN_MU", "UNITS",
-           "SurfaceError", "boundary_edges", "colony_surface", "enclosed_volume",
+           "SurfaceError", "boundary_edges", "colony_surface", "downstream_lean", "enclosed_volume",
            "mesh_components", "pick_component", "plane_section", "surface_above",
            "surface_placement",
            "taubin_smooth", "unit_factor"]
@@ -390,6 +390,31 @@ def surface_placement(observed: Interface, reference: Interface) -> Any:
     dy = float(obs[:, 1].max() - ref[:, 1].max())  # the top: a surface may be cut above the floor
     return Placement(float(np.mean(np.abs(d))), float(np.sqrt(ratio[0] * ratio[1])),
                      (mid[0], dy, mid[1]))
+
+
+def downstream_lean(observed: Interface, reference: Interface) -> float:
+    """How far an observed colony's upper half lies downstream (+x, the flow) of the
+    model's undeformed colony's, mm: the x of the area-weighted centre of the
+    triangles above half the reference's height, observed minus reference.
+
+    A flow along +x bends the colony downstream, its top the most, while its base stays
+    put: the lean grows with the loading and is positive. On the 3D example recording
+    (``examples/oct_colony3d`` on the coarse mesh, the model's colony from its zero-flow
+    volume): 0.0 um at
+    zero flow, 7.6 and 19.2 um at 50 and 100 mm^3/s, -9.9 and -21.5 um for the same
+    volumes with their columns reversed (x against the flow). Unlike the mean distance from the
+    model's colony (:func:`surface_placement`), it is not blurred by the geometry's own
+    misfit (7 um there at every loading)."""
+    half = 0.5 * float(reference.points[:, 1].max())
+
+    def centre_x(surface: Interface) -> float:
+        c, w = surface.centres, surface.measures
+        upper = c[:, 1] > half
+        if not upper.any():
+            return float(np.average(c[:, 0], weights=w))
+        return float(np.average(c[upper, 0], weights=w[upper]))
+
+    return centre_x(observed) - centre_x(reference)
 
 
 # ------------------------------------------------------------------ plane sections
