@@ -467,3 +467,23 @@ def test_colonies_bent_upstream_or_listed_in_reverse_order_are_refused(volumes, 
     with pytest.raises(ConfigError, match=r"lean the farther downstream of the model's "
                        r"undeformed biofilm the smaller their loading .* reverse order"):
         study("b", "a")
+
+
+def test_volumes_with_x_and_z_swapped_are_refused_by_their_bend_across_the_flow(tmp_path):
+    """Every volume stored (nx, ny, nz), the zero-flow one included: the model's colony
+    is swapped as the observed ones are, so the size and placement checks pass, and the
+    observed colonies bend across the model's flow. Refused naming the axes."""
+    def swapped(mask):
+        return np.ascontiguousarray(mask.transpose(2, 1, 0))
+
+    np.save(tmp_path / "zero.npy", swapped(_leaning(0.0)))
+    for name, shear in (("a", 0.02), ("b", 0.04)):
+        np.save(tmp_path / f"{name}.npy", swapped(_leaning(shear)))
+    origin = [ORIGIN[0], ORIGIN[1], 0.0]  # the colony mid-channel across the flow
+    scan = _volume(tmp_path / "zero.npy", origin=origin)
+    cfg = deep_merge(FSI3D, {"forward_model": {"fsi": {"geometry": {"shape": "scan",
+                                                                     "scan": scan}}}})
+    files = [_volume(tmp_path / f"{n}.npy", origin=origin) for n in ("a", "b")]
+    with pytest.raises(ConfigError, match=r"the observed colonies bend across the flow \(z\), "
+                       r"not along it .* are the volumes' x and z axes swapped"):
+        Study(deep_merge(cfg, {"observations": {"source": "files", "files": files}}))

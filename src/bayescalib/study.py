@@ -639,7 +639,7 @@ class Study:
 
         from bayescalib.geometry.interface import Interface
         from bayescalib.geometry.outline import placement
-        from bayescalib.geometry.surface import downstream_lean, surface_placement
+        from bayescalib.geometry.surface import surface_placement, upper_shift
         from bayescalib.io.observations import UNITS, unit_hint
 
         if not observed:
@@ -669,7 +669,8 @@ class Study:
         axes = ((0, "wide"),) if dim == 2 else ((0, "long (x, along the flow)"),
                                                     (2, "wide (z, across the flow)"))
         moved: dict[str, float] = {}  # each snapshot's mean distance from the model's colony
-        leans: dict[str, float] = {}  # 3D: each snapshot's downstream lean (surface.downstream_lean)
+        leans: dict[str, float] = {}  # 3D: each snapshot's downstream lean (surface.upper_shift)
+        across: dict[str, float] = {}  # 3D: and its shift across the flow
         for key, iface in observed.items():
             if key == what:  # the reference compared with itself
                 continue
@@ -696,7 +697,7 @@ class Study:
             p = placement(iface.points, ref.points) if dim == 2 else surface_placement(iface, ref)
             moved[key] = float(p.mean_distance)
             if dim == 3:
-                leans[key] = downstream_lean(iface, ref)
+                leans[key], across[key] = upper_shift(iface, ref)
             foot = 0.0 if dim == 2 else float(np.hypot(p.offset[0], p.offset[2]))
             span = float(np.mean(np.ptp(ref.points[:, [0, 2]], axis=0))) if dim == 3 else 1.0
             if p.mean_distance > 0.25 * height or foot > FOOTPRINT_SHIFT * span:
@@ -722,19 +723,24 @@ class Study:
                     f"{where}: {key} ('{entry['path']}'): {why}. It is offset by about "
                     f"({offset}) mm: check {key}.origin and {key}.units{fix}")
         if what.startswith("the model"):
-            Study._validate_lean(cfg, where, leans)
+            Study._validate_lean(cfg, where, leans, across)
             Study._validate_snapshot_order(cfg, where, leans if dim == 3 else moved)
 
     @staticmethod
-    def _validate_lean(cfg: dict[str, Any], where: str, leans: Mapping[str, float]) -> None:
+    def _validate_lean(cfg: dict[str, Any], where: str, leans: Mapping[str, float],
+                       across: Mapping[str, float]) -> None:
         """3D, the model's colony from a zero-flow scan: the flow (+x) bends the colony
         downstream, so observed colonies that all lean upstream of the model's undeformed
         one (:func:`bayescalib.geometry.surface.downstream_lean`), the most loaded by more
         than 2 sigma_N, are refused as mirrored in x (B-scan columns running against the
         flow): the placement and unit checks pass a colony mirrored about its middle,
-        and the model would be fitted to a deformation in the opposite direction. Only
-        with ``geometry.shape: scan``: the lean is then measured from the same colony
-        at zero flow (an analytic colony's own asymmetry is no flow's)."""
+        and the model would be fitted to a deformation in the opposite direction. And a
+        most loaded colony bent across the flow (z) by more than 2 sigma_N and twice its
+        lean is refused as a volume with its x and z axes swapped (an array (nx, ny, nz),
+        B-scans along the flow): the model's colony from such a volume is swapped too, so
+        the size and placement checks pass. Only with ``geometry.shape: scan``: the
+        shifts are then measured from the same colony at zero flow (an analytic colony's
+        own asymmetry is no flow's)."""
         from bayescalib.inference.likelihood import sigma_n2_from_config
 
         fm = cfg["forward_model"]
@@ -759,6 +765,19 @@ class Study:
                 "flow (x mirrored)? Reverse the columns of the observed volumes (or of "
                 "every volume, the zero-flow one included, if its colony is not symmetric), "
                 "so that column 0 is the upstream side")
+        side = across[top]
+        if abs(side) > 2.0 * sigma and abs(side) > 2.0 * abs(leans[top]):
+            listed = ", ".join(f"{k} {1e3 * across[k]:+.3g} um across, {1e3 * leans[k]:+.3g} "
+                               "um along" for k in keys)
+            raise ConfigError(
+                f"{where}: the observed colonies bend across the flow (z), not along it "
+                f"({listed}: the shift of their upper half's centre from the model's "
+                f"undeformed biofilm's; the likelihood's sigma_N is {1e3 * sigma:.3g} um), "
+                "while the flow runs along x: are the volumes' x and z axes swapped (B-scans "
+                "taken along the flow, or an array stored (nx, ny, nz))? A volume is (nz, ny, "
+                "nx): B-scans across the flow (planes z = const), each a row per depth and a "
+                "column per x along the flow; transpose every volume, the zero-flow one "
+                "included (pixel_size and origin are of the flow cell's x, y, z)")
 
     @staticmethod
     def _validate_snapshot_order(cfg: dict[str, Any], where: str,
