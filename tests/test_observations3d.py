@@ -487,3 +487,18 @@ def test_volumes_with_x_and_z_swapped_are_refused_by_their_bend_across_the_flow(
     with pytest.raises(ConfigError, match=r"the observed colonies bend across the flow \(z\), "
                        r"not along it .* are the volumes' x and z axes swapped"):
         Study(deep_merge(cfg, {"observations": {"source": "files", "files": files}}))
+
+
+
+def test_a_colony_moved_as_a_whole_is_not_taken_for_a_bent_one(volumes, tmp_path):
+    """The lean is measured against the colony's base: observed volumes moved 30 um
+    upstream as a whole (cropped with the origin kept: within the placement check's 10 %
+    of the footprint) do not lean upstream."""
+    moved = np.roll(_mask(), -3, axis=2)
+    for name in ("a", "b"):
+        np.save(tmp_path / f"{name}.npy", moved)
+    scan = _volume(volumes / "colony.npy")
+    cfg = deep_merge(FSI3D, {"forward_model": {"fsi": {"geometry": {"shape": "scan",
+                                                                     "scan": scan}}}})
+    files = [_volume(tmp_path / f"{n}.npy") for n in ("a", "b")]
+    Study(deep_merge(cfg, {"observations": {"source": "files", "files": files}}))

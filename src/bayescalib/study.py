@@ -706,7 +706,12 @@ class Study:
                 origin = entry.get("origin")
                 if origin is not None and len(origin) == len(p.offset):
                     f = UNITS[units]
-                    moved = ", ".join(f"{o - v / f:.6g}" for o, v in zip(origin, p.offset))
+                    # 3D: the offset's y is the top's (a flow lowers it); a volume's
+                    # substrate is checked on y = 0 on its own, so its y is kept
+                    shifted = [o - v / f for o, v in zip(origin, p.offset, strict=True)]
+                    if dim == 3:
+                        shifted[1] = origin[1]
+                    moved = ", ".join(f"{v:.6g}" for v in shifted)
                     fix = f"; with origin [{moved}] {units} it would lie in place"
                 elif entry.get("pixel_size") is not None:
                     fix = f"; {key}.origin is not given"
@@ -759,7 +764,7 @@ class Study:
             listed = ", ".join(f"{k} {1e3 * leans[k]:+.3g} um" for k in keys)
             raise ConfigError(
                 f"{where}: the observed colonies lean upstream of the model's undeformed "
-                f"biofilm ({listed}: the x-shift of their upper half's centre; the "
+                f"biofilm ({listed}: the x-shift of their upper half's centre from their base's; the "
                 f"likelihood's sigma_N is {1e3 * sigma:.3g} um), while the flow, along +x, "
                 "bends a colony downstream: are the B-scans' columns running against the "
                 "flow (x mirrored)? Reverse the columns of the observed volumes (or of "
@@ -771,8 +776,8 @@ class Study:
                                "um along" for k in keys)
             raise ConfigError(
                 f"{where}: the observed colonies bend across the flow (z), not along it "
-                f"({listed}: the shift of their upper half's centre from the model's "
-                f"undeformed biofilm's; the likelihood's sigma_N is {1e3 * sigma:.3g} um), "
+                f"({listed}: the shift of their upper half's centre from their base's, "
+                f"against the model's undeformed biofilm; the likelihood's sigma_N is {1e3 * sigma:.3g} um), "
                 "while the flow runs along x: are the volumes' x and z axes swapped (B-scans "
                 "taken along the flow, or an array stored (nx, ny, nz))? A volume is (nz, ny, "
                 "nx): B-scans across the flow (planes z = const), each a row per depth and a "
@@ -793,7 +798,7 @@ class Study:
         100 and 150 mm^2/s (sigma_N 2 um); on the 3D one (the model's colony from its
         zero-flow volume) the mean distances are 4.2 and 8.2 um at 50 and 100 mm^3/s, a
         step the geometry's own misfit makes too small to tell (sigma_N 3.2 um), the
-        leans 7.6 and 19.2 um."""
+        leans 5.1 and 14.3 um."""
         from bayescalib.inference.likelihood import sigma_n2_from_config
 
         files = cfg["observations"]["files"] or []
@@ -815,7 +820,7 @@ class Study:
                 + ("lean the farther downstream of" if lean else "lie the farther from")
                 + " the model's undeformed "
                 f"biofilm the smaller their loading ({listed}; "
-                + ("the x-shift of their upper half's centre" if lean else
+                + ("the x-shift of their upper half's centre from their base's" if lean else
                    "mean distance of their nodes")
                 + f"; the likelihood's sigma_N is {1e3 * sigma:.3g} um), while a "
                 "larger flow moves the interface farther: are observations.files listed in "

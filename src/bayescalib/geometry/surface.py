@@ -393,16 +393,14 @@ def surface_placement(observed: Interface, reference: Interface) -> Any:
 
 
 def downstream_lean(observed: Interface, reference: Interface) -> float:
-    """How far an observed colony's upper half lies downstream (+x, the flow) of the
-    model's undeformed colony's, mm: the x of the area-weighted centre of the
-    triangles above half the reference's height, observed minus reference
-    (:func:`upper_shift`'s x).
+    """How far an observed colony's upper half lies downstream (+x, the flow) of its base,
+    compared with the model's undeformed colony, mm (:func:`upper_shift`'s x).
 
     A flow along +x bends the colony downstream, its top the most, while its base stays
     put: the lean grows with the loading and is positive. On the 3D example recording
     (``examples/oct_colony3d`` on the coarse mesh, the model's colony from its zero-flow
-    volume): 0.0 um at zero flow, 7.6 and 19.2 um at 50 and 100 mm^3/s, -9.9 and -21.5 um
-    for the same volumes with their columns reversed (x against the flow). Unlike the
+    volume): -0.2 um at zero flow, 5.1 and 14.3 um at 50 and 100 mm^3/s, -6.6 and -15.9
+    um for the same volumes with their columns reversed (x against the flow). Unlike the
     mean distance from the model's colony (:func:`surface_placement`), it is not blurred
     by the geometry's own misfit (7 um there at every loading)."""
     return upper_shift(observed, reference)[0]
@@ -410,11 +408,13 @@ def downstream_lean(observed: Interface, reference: Interface) -> float:
 
 def upper_shift(observed: Interface, reference: Interface) -> tuple[float, float]:
     """The shift (x, z) of an observed colony's upper half from the model's undeformed
-    colony's, mm: the area-weighted centres of the triangles above half the reference's
-    height, observed minus reference. Under a flow along x the x-shift is the downstream
-    lean (:func:`downstream_lean`) and the z-shift about nil (0.1 um on the 3D example
-    recording); a z-shift well above the x-shift is a colony bent across the flow: a
-    volume whose x and z axes are swapped."""
+    colony's, relative to their bases, mm: the area-weighted centre of the triangles
+    above half the reference's height less that of the triangles below a quarter of it,
+    observed minus reference; a colony moved as a whole (a wrong origin, which
+    :func:`surface_placement` measures) has none, and a speck at the foot barely counts. Under a flow along
+    x the x-shift is the downstream lean (:func:`downstream_lean`) and the z-shift about
+    nil (0.1 um on the 3D example recording); a z-shift well above the x-shift is a
+    colony bent across the flow: a volume whose x and z axes are swapped."""
     half = 0.5 * float(reference.points[:, 1].max())
 
     def centre(surface: Interface) -> np.ndarray:
@@ -422,7 +422,10 @@ def upper_shift(observed: Interface, reference: Interface) -> tuple[float, float
         upper = c[:, 1] > half
         if not upper.any():
             upper = np.ones(len(c), dtype=bool)
-        return np.average(c[upper][:, [0, 2]], axis=0, weights=w[upper])
+        lower = c[:, 1] < 0.5 * half  # the base, which the flow moves least
+        lower = lower if lower.any() else ~upper if (~upper).any() else upper
+        return (np.average(c[upper][:, [0, 2]], axis=0, weights=w[upper])
+                - np.average(c[lower][:, [0, 2]], axis=0, weights=w[lower]))
 
     d = centre(observed) - centre(reference)
     return float(d[0]), float(d[1])
