@@ -502,3 +502,31 @@ def test_a_colony_moved_as_a_whole_is_not_taken_for_a_bent_one(volumes, tmp_path
                                                                      "scan": scan}}}})
     files = [_volume(tmp_path / f"{n}.npy") for n in ("a", "b")]
     Study(deep_merge(cfg, {"observations": {"source": "files", "files": files}}))
+
+
+def test_a_folder_volume_must_be_one_numbered_series_of_bscans(volumes, tmp_path):
+    """An extra image of the B-scans' size (a copy, an en-face view) or a missing B-scan
+    moved every B-scan after it by one spacing without a word; both are refused naming
+    the names or numbers. Evenly numbered files (by their z in um) are fine."""
+    import shutil
+
+    from skimage import io
+
+    files = sorted((volumes / "bscans").iterdir(), key=lambda f: int(f.stem[1:]))
+    extra, gap, even = (tmp_path / n for n in ("extra", "gap", "even"))
+    for d in (extra, gap, even):
+        d.mkdir()
+    for k, f in enumerate(files):
+        shutil.copy(f, extra / f.name)
+        if k != 40:
+            shutil.copy(f, gap / f.name)
+        shutil.copy(f, even / f"z{100 + 10 * k:04d}um.png")
+    io.imsave(extra / "b1_copy.png", io.imread(files[1]), check_contrast=False)
+    with pytest.raises(ObservationError, match=r"extra: the folder's images are not one numbered "
+                       r"series of B-scans: 80 named 'b#.png', and 'b#_copy.png' \(1: "
+                       r"'b1_copy.png'\)"):
+        volume_shape(extra)
+    with pytest.raises(ObservationError, match=r"gap: B-scans missing from the numbered series 0 "
+                       r"to 79: 40 \(1\)"):
+        volume_shape(gap)
+    assert volume_shape(even) == (80, 61, 100)

@@ -7,7 +7,9 @@ A volume is one of
 * a multi-page TIFF (``.tif``/``.tiff`` of more than one page: one B-scan per page,
   the way OCT software exports a volume); a one-page TIFF is a 2D image (a B-scan);
 * a folder of 2D images (``.png``/``.tif``/``.tiff``), one B-scan per file, taken in
-  the natural order of their names (``scan2`` before ``scan10``).
+  the natural order of their names (``scan2`` before ``scan10``); the names must be one
+  numbered series (alike but for their numbers, none missing: another image or a gap
+  would move the B-scans after it by a spacing).
 
 The axes and coordinates are those of :mod:`bayescalib.geometry.volume`: B-scan ``k``
 is the plane ``z = z0 + k dz``, its row 0 the top. The size is checked from the
@@ -57,6 +59,48 @@ def _slices(folder: Path) -> list[Path]:
     files = [f for f in folder.iterdir()
              if f.is_file() and f.suffix.lower() in IMAGE_SUFFIXES and not f.name.startswith(".")]
     return sorted(files, key=lambda f: _natural(f.name))
+
+
+def _series(files: Sequence[Path], where: str) -> None:
+    """A folder volume's images are one numbered series of B-scans: their names alike but
+    for their numbers, and (with one varying number) none missing. Another image (a copy,
+    an en-face view of the same size) or a missing B-scan would move every B-scan after it
+    by one spacing (B-scan k is the k-th in name order, at ``z0 + k dz``) without a word.
+
+    Raises
+    ------
+    ObservationError
+        Naming the odd names, or the missing numbers."""
+    groups: dict[str, list[str]] = {}
+    for f in files:
+        groups.setdefault(re.sub(r"\d+", "#", f.name), []).append(f.name)
+    if len(groups) > 1:
+        main = max(groups, key=lambda k: len(groups[k]))
+        odd = "; ".join(f"'{k}' ({len(v)}: {', '.join(repr(n) for n in v[:3])}"
+                        + (", ..." if len(v) > 3 else "") + ")"
+                        for k, v in groups.items() if k != main)
+        raise ObservationError(
+            f"{where}: the folder's images are not one numbered series of B-scans: "
+            f"{len(groups[main])} named '{main}', and {odd}: a folder volume holds its "
+            "B-scans only (the k-th in natural name order at z0 + k dz); move the others out")
+    names = next(iter(groups.values()))
+    numbers = [[int(t) for t in re.findall(r"\d+", n)] for n in names]
+    varying = [i for i in range(len(numbers[0])) if len({row[i] for row in numbers}) > 1]
+    if len(varying) != 1:
+        return
+    k = sorted(row[varying[0]] for row in numbers)
+    steps = np.diff(k)
+    if len(set(steps.tolist())) <= 1:  # evenly numbered (e.g. by their z in um)
+        return
+    step = int(np.bincount(steps).argmax())  # the usual step
+    gaps = sorted(set(range(k[0], k[-1] + 1, step)) - set(k)) if step > 0 else []
+    if gaps and len(gaps) < len(k):
+        shown = ", ".join(str(v) for v in gaps[:10]) + (", ..." if len(gaps) > 10 else "")
+        raise ObservationError(
+            f"{where}: B-scans missing from the numbered series {k[0]} to {k[-1]}: {shown} "
+            f"({len(gaps)}): the volume puts the k-th B-scan in name order at z0 + k dz, so "
+            "every one after a gap would lie a spacing off; restore them (or number the "
+            "files evenly, as they lie)")
 
 
 def _tiff_pages(path: Path) -> tuple[int, tuple[int, ...]] | None:
@@ -115,6 +159,7 @@ def volume_shape(path: str | Path) -> tuple[int, int, int]:
             raise ObservationError(
                 f"{where}: a folder volume needs at least 2 B-scan images "
                 f"({', '.join(sorted(IMAGE_SUFFIXES))}), found {len(files)}")
+        _series(files, where)
         try:
             (w0, h0), (w1, h1) = image_size(files[0]), image_size(files[-1])
         except ImageError as exc:
