@@ -530,3 +530,17 @@ def test_a_folder_volume_must_be_one_numbered_series_of_bscans(volumes, tmp_path
                        r"to 79: 40 \(1\)"):
         volume_shape(gap)
     assert volume_shape(even) == (80, 61, 100)
+
+
+def test_the_fields_section_of_a_scanned_colony_is_its_footprints_middle(volumes):
+    """The workflow's fields figure cuts a 3D model at the colony's mid-plane; with the
+    colony from a zero-flow volume that raised 'a 2D slice of geometry.shape scan is not
+    defined' when the Snakefile was parsed, so no such study could run (snakemake -n
+    failed). It is the middle of the footprint's z-range."""
+    from bayescalib.models.fsi.slice2d import midplane_z
+
+    scan = _volume(volumes / "colony.npy")
+    study = Study(deep_merge(FSI3D, {"forward_model": {"fsi": {"geometry": {
+        "shape": "scan", "scan": scan}}}}))
+    z = midplane_z(study.config["forward_model"]["fsi"]["geometry"])
+    assert z == pytest.approx(0.5, abs=2 * VOXEL)

@@ -5,8 +5,9 @@ recording at zero (or the lowest) flow, the field's practice (Picioreanu et al. 
 the scanned colony is the model's undeformed biofilm. The scan arrives as a
 triangulated surface in mm (:class:`bayescalib.geometry.interface.Interface`: points
 ``(n, 3)``, triangles ``(m, 3)``, rim on the floor ``y = 0``, normals into the fluid),
-from a surface file (:func:`bayescalib.io.surfaces.read_surface`) or, later, from an
-OCT volume (:func:`bayescalib.geometry.volume.volume_surface`). This module turns it
+from a surface file (:func:`bayescalib.io.surfaces.read_surface`) or from an OCT
+volume (:func:`bayescalib.io.volumes.read_volume_surface`; its substrate must lie on
+y = 0, :func:`bayescalib.io.volumes.substrate_offset`). This module turns it
 into the solid the mesher cuts out of the channel box, in four steps:
 
 1. *Height field.* A colony imaged from above is a height field ``y = h(x, z)`` over
