@@ -544,3 +544,24 @@ def test_the_fields_section_of_a_scanned_colony_is_its_footprints_middle(volumes
         "shape": "scan", "scan": scan}}}}))
     z = midplane_z(study.config["forward_model"]["fsi"]["geometry"])
     assert z == pytest.approx(0.5, abs=2 * VOXEL)
+
+
+def test_without_a_substrate_band_the_floor_is_under_the_foot_not_under_its_blur():
+    """No substrate band: the floor is the bottom of the foreground. A sparse layer below
+    the colony's foot (blur or speckle: 22 voxels under a foot of 5800 in the example
+    recording without its band) put it a layer too low, and the foot's underside stayed
+    in the surface (half the footprint's area facing down: an 'overhang' for the model's
+    colony, a second sheet for an observation)."""
+    from bayescalib.geometry.volume import volume_surface
+
+    mask = _mask()
+    mask[:, -5:, :] = False  # no substrate
+    rng = np.random.default_rng(0)
+    k, c = rng.integers(30, 50, 30), rng.integers(40, 60, 30)
+    mask[k, -5, c] = True  # a few voxels of blur under the foot
+    surf, info = volume_surface(mask, voxel_size=[VOXEL] * 3, units="mm", origin=ORIGIN,
+                                floor="auto")
+    assert info["floor"]["method"] == "foreground bottom"
+    assert info["floor"]["y_mm"] == pytest.approx(-0.5 * VOXEL)  # under the foot (y = 0)
+    down = surf.normals[:, 1] < -0.5
+    assert surf.measures[down].sum() < 0.02 * surf.measures.sum()

@@ -91,12 +91,17 @@ from bayescalib.geometry.surface import (
     unit_factor,
 )
 
-__all__ = ["MASK_SURFACE_RMS", "positional_sigma", "volume_surface"]
+__all__ = ["FOOT_SHARE", "MASK_SURFACE_RMS", "positional_sigma", "volume_surface"]
 
 #: RMS distance of a binary mask's smoothed marching-cubes surface from the true one, in
 #: voxel edges along the normal (tests/test_surface3d.py: 0.149 on a half-ellipsoid, 0.235
 #: before the Taubin smoothing): the quantisation part of :func:`positional_sigma`
 MASK_SURFACE_RMS = 0.15
+
+#: with the floor at the bottom of the foreground (no substrate band), a lowest layer with
+#: less than this share of the foreground of the layer above it is blur or speckle below
+#: the colony's foot, not its foot: the floor is put above it
+FOOT_SHARE = 0.1
 
 _FACES = (("z min", 0, 0), ("z max", 0, -1), ("y max (top)", 1, 0), ("x min", 2, 0),
           ("x max", 2, -1))
@@ -244,6 +249,16 @@ def volume_surface(
         method_f = found["method"]
         row = ny - 0.5 if found["row"] is None else float(found["row"])
         edge_row = found.get("edge_row")
+        if method_f == "foreground bottom":
+            # no substrate band: the floor under the colony's foot, not under a sparse
+            # layer of its blur or speckle below it (22 voxels under a foot of 5800 in the
+            # example recording without its band), which would leave the foot's
+            # underside in the surface as an overhang
+            count = flat.sum(axis=1)
+            low = round(row - 0.5)
+            while low > 0 and count[low] < FOOT_SHARE * count[low - 1]:
+                low -= 1
+            row = low + 0.5
     elif floor is None:
         method_f, row, edge_row = "volume bottom", ny - 0.5, None
     elif isinstance(floor, str):
