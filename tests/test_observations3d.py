@@ -565,3 +565,25 @@ def test_without_a_substrate_band_the_floor_is_under_the_foot_not_under_its_blur
     assert info["floor"]["y_mm"] == pytest.approx(-0.5 * VOXEL)  # under the foot (y = 0)
     down = surf.normals[:, 1] < -0.5
     assert surf.measures[down].sum() < 0.02 * surf.measures.sum()
+
+
+def test_a_component_that_picks_another_colony_is_named_in_the_placement_error(volumes,
+                                                                               tmp_path):
+    """component ranks a volume's colonies by size; under flow (or in another volume) the
+    ranks may change, and the colony picked is then the wrong one: the placement error
+    says so besides the origin."""
+    xs = ORIGIN[0] + VOXEL * np.arange(200)
+    ys = ORIGIN[1] + VOXEL * np.arange(61)
+    zs = ORIGIN[2] + VOXEL * np.arange(80)
+    Z, Y, X = np.meshgrid(zs, ys[::-1], xs, indexing="ij")
+    colony = ((X - 1.0) / 0.3) ** 2 + (Y / 0.4) ** 2 + ((Z - 0.5) / 0.3) ** 2 <= 1.0
+    bigger = ((X - 1.9) / 0.31) ** 2 + (Y / 0.4) ** 2 + ((Z - 0.5) / 0.3) ** 2 <= 1.0
+    np.save(tmp_path / "two.npy", colony | bigger | (Y < -0.001))
+    scan = _volume(volumes / "colony.npy")
+    cfg = deep_merge(FSI3D, {"forward_model": {"fsi": {"geometry": {"shape": "scan",
+                                                                     "scan": scan}}}})
+    files = [_volume(tmp_path / "two.npy", component=0), _volume(volumes / "colony.tif")]
+    with pytest.raises(ConfigError, match=r"observations.files\[0\] .* footprint's centre .* "
+                       r"or observations.files\[0\].component picked another colony: the "
+                       r"volume holds 2, ranked by size"):
+        Study(deep_merge(cfg, {"observations": {"source": "files", "files": files}}))

@@ -311,7 +311,7 @@ class Study:
         notes += Study._pixel_size_notes(cfg, where)
         Study._validate_measure_points(cfg, where)
         notes += Study._validate_colony_choice(cfg, where, observed, read)
-        Study._validate_registration(cfg, where, observed)
+        Study._validate_registration(cfg, where, observed, read)
         if "rkhs" in cfg["measures"]:  # after the unit check, whose words are the clearer
             for key, iface in observed.items():
                 if key != "observations.reference":
@@ -620,7 +620,8 @@ class Study:
         return notes
 
     @staticmethod
-    def _validate_registration(cfg: dict[str, Any], where: str, observed: dict[str, Any]) -> None:
+    def _validate_registration(cfg: dict[str, Any], where: str, observed: dict[str, Any],
+                               read: Mapping[str, Any] | None = None) -> None:
         """Every observed interface lies where the model's undeformed biofilm is, at its
         scale: a flow moves the interface by a fraction of the colony's height and its
         feet barely; a wrong origin or unit moves or scales it as a whole. Refused when
@@ -718,6 +719,11 @@ class Study:
                 if dim == 3 and isinstance(entry.get("pixel_size"), list):
                     fix += ("; or the volume's axes are in another order than (B-scan = z, "
                             "row from the top = y, column = x)")
+                n = int(((read or {}).get(key) or {}).get("colonies") or 1)
+                if dim == 3 and n > 1:
+                    fix += (f"; or {key}.component picked another colony: the volume holds "
+                            f"{n}, ranked by size (0 the largest), and the ranks may differ "
+                            "from one volume to the next: give the one at the model's colony")
                 why = (f"its footprint's centre lies {foot:.3g} mm from {what}'s, whose "
                        f"footprint is {span:.3g} mm across: the base, attached to the floor, "
                        "does not move under flow" if foot > FOOTPRINT_SHIFT * span else
