@@ -267,7 +267,9 @@ def test_the_model_colony_from_a_zero_flow_volume_and_observations_checked_again
     scan = _volume(volumes / "colony.npy")
     cfg = deep_merge(FSI3D, {"forward_model": {"fsi": {"geometry": {"shape": "scan",
                                                                      "scan": scan}}}})
-    files = [dict(_volume(volumes / "colony.npy"), load=load) for load in (50.0, 100.0)]
+    # the observed volumes: the same colony in another file (the zero-flow file itself
+    # listed under flow is refused: test_the_zero_flow_volume_listed_as_a_loaded_...)
+    files = [dict(_volume(volumes / "colony.tif"), load=load) for load in (50.0, 100.0)]
     study = Study(deep_merge(cfg, {"observations": {"source": "files", "files": files}}))
     assert any("as a height field" in n and "colony.npy" in n for n in study.notes)
     geometry = validate(study.config["forward_model"]["fsi"], "fsi")["geometry"]
@@ -311,3 +313,277 @@ def test_the_files_of_a_study_without_component_keep_their_validated_values():
     entry = validate({"observations": {"source": "files", "files": [{"path": "a.csv"}]}},
                      "measures")["observations"]["files"][0]
     assert "component" not in entry
+
+
+def test_a_volume_whose_substrate_is_not_on_y0_is_refused_with_the_origin_that_fits(tmp_path):
+    """The origin's y given as if the bottom row lay on the floor (the colony's foot is
+    50 um above it; floor: auto finds it): an observed volume lifted so is within the
+    placement check's quarter of the colony's height, and a model's colony from a volume
+    with the same slip was taken with its rim 50 um up (the rim's tolerance grew with the
+    floor found); both are refused when the study is read, with the origin that puts the
+    substrate on y = 0, and an origin in another unit is named."""
+    mask = _mask()
+    mask[:, -5:, :] = False  # no substrate slab: the floor is the colony's foot
+    path = tmp_path / "colony.npy"
+    np.save(path, mask)
+    lifted = _volume(path, origin=[ORIGIN[0], 0.0, ORIGIN[2]], floor="auto")
+    with pytest.raises(ConfigError, match=r"observations.files\[0\] \(.*colony.npy'\): the floor "
+                       r"found \(foreground bottom\) lies at y = 0.045 mm .* with origin "
+                       r"\[0.5, -0.045, 0.1\] mm it would lie there"):
+        _study(lifted, _volume(path, floor="auto"))
+    _study(_volume(path, floor="auto"), _volume(path, floor="auto"))  # in place: fine
+
+    def scan(entry):
+        return Study(deep_merge(FSI3D, {"forward_model": {"fsi": {"geometry": {
+            "shape": "scan", "scan": entry}}}}))
+
+    with pytest.raises(ConfigError, match=r"geometry.scan \(.*colony.npy'\): the floor found "
+                       r".* lies at y = 0.045 mm .* with origin \[0.5, -0.045, 0.1\] mm"):
+        scan(lifted)
+    in_um = _volume(path, origin=[1e3 * v for v in ORIGIN], floor="auto")  # units: mm
+    with pytest.raises(ConfigError, match=r"or the origin is in um, not mm: origin "
+                       r"\[0.5, -0.05, 0.1\] mm puts the substrate on y = 0"):
+        scan(in_um)
+
+
+def test_a_zero_flow_volume_in_another_unit_is_named_by_its_size(volumes):
+    """A volume whose voxel size and origin are in mm under units: um (or in um under
+    units: m) is a colony 1000 times too small (or large): refused naming its size
+    against the channel and the unit that fits, not its rim's height."""
+    entry = _volume(volumes / "colony.npy", units="um")  # the numbers are mm
+    with pytest.raises(ConfigError, match=r"geometry.scan \(.*colony.npy'\): the colony "
+                       r"\(0.000\d+ x .* mm in x, y, z\) is smaller than the mesh resolves "
+                       r".*read as um: .* the sizes fit if they are in mm, units: mm"):
+        Study(deep_merge(FSI3D, {"forward_model": {"fsi": {"geometry": {
+            "shape": "scan", "scan": entry}}}}))
+
+
+def test_the_zero_flow_volume_listed_as_a_loaded_observation_is_refused(volumes):
+    """The model's colony from the zero-flow volume, and the same file listed again as the
+    first snapshot (at factor 0.5): it lies where the model's colony is, so the placement
+    and order checks pass, and the flow would seem not to have moved it (E pulled up).
+    Refused naming the entry and its loading; at a factor 0 it is allowed."""
+    scan = _volume(volumes / "colony.npy")
+    cfg = deep_merge(FSI3D, {"forward_model": {"fsi": {"geometry": {"shape": "scan",
+                                                                     "scan": scan}}}})
+    files = [_volume(volumes / "colony.npy"), _volume(volumes / "colony.tif")]
+    with pytest.raises(ConfigError, match=r"observations.files\[0\] \(.*colony.npy'\) is the "
+                       r"model's zero-flow scan \(forward_model.fsi.geometry.scan.path\), "
+                       r"observed here at loading factor 0.5"):
+        Study(deep_merge(cfg, {"observations": {"source": "files", "files": files}}))
+    zero = deep_merge(cfg, {"forward_model": {"loadings": {"factors": [0.0, 1.0]}}})
+    Study(deep_merge(zero, {"observations": {"source": "files", "files": files}}))
+
+
+def test_an_inverted_or_upside_down_volume_is_named_so(volumes, tmp_path):
+    """Fluid bright and biofilm dark: the 'colony' was the fluid (its specks listed as
+    separate colonies, with 'pick one with component=k'); B-scans upside down (row 0 the
+    bottom): 'no foreground above the floor' alone. Each is named for what it is."""
+    import tifffile
+
+    scan = tifffile.imread(volumes / "colony.tif")
+    tifffile.imwrite(tmp_path / "inverted.tif", (255 - scan).astype(np.uint8))
+    entry = _volume(tmp_path / "inverted.tif", floor="auto")
+    with pytest.raises(ConfigError, match=r"inverted.tif: the foreground .* fills 100 % of the "
+                       r"volume's top layer .* looks like an inverted volume .* invert its grey "
+                       r"values"):
+        _study(entry, entry)
+    from scipy.ndimage import gaussian_filter
+
+    colony = _mask()
+    colony[:, -5:, :] = False
+    contrast = np.where(colony, 1.0, 0.0)
+    contrast[:, -5:-2, :] = 2.5  # a substrate band brighter than the biofilm, dark below it
+    grey = np.clip(40 + 70 * gaussian_filter(contrast, 1.0)
+                   + np.random.default_rng(0).normal(0, 10, contrast.shape), 0, 255)
+    upright = _volume(tmp_path / "upright.tif", floor="auto")
+    tifffile.imwrite(upright["path"], grey.astype(np.uint8))
+    _study(upright, upright)  # the band found below the colony, on y = 0
+    tifffile.imwrite(tmp_path / "upside_down.tif",
+                     np.ascontiguousarray(grey[:, ::-1, :]).astype(np.uint8))
+    entry = _volume(tmp_path / "upside_down.tif", floor="auto")
+    with pytest.raises(ConfigError, match=r"upside_down.tif: no foreground \(biofilm\) above the "
+                       r"floor .* are they upside down \(row 0 must be the top"):
+        _study(entry, entry)
+
+
+def test_observed_voxel_sizes_are_checked_against_the_zero_flow_volumes(volumes):
+    """The same three voxel sizes in another order than the zero-flow volume's is
+    refused (before, the placement check named the origin, or, with both in the wrong
+    order, nothing); another size is noted, as in 2D."""
+    path = volumes / "colony.npy"
+
+    def study(scan_size, obs_size):
+        scan = _volume(path, pixel_size=scan_size)
+        cfg = deep_merge(FSI3D, {"forward_model": {"fsi": {"geometry": {"shape": "scan",
+                                                                         "scan": scan}}}})
+        files = [dict(_volume(volumes / "colony.tif", pixel_size=obs_size), load=v)
+                 for v in (50.0, 100.0)]
+        return Study(deep_merge(cfg, {"observations": {"source": "files", "files": files}}))
+
+    with pytest.raises(ConfigError, match=r"observations.files\[0\].pixel_size: \[10, 10, 12\] "
+                       r"um, the zero-flow volume's voxel size \(forward_model.fsi.geometry.scan"
+                       r".pixel_size: \[12, 10, 10\] um\) in another order: both are \[dx, dy, "
+                       r"dz\]"):
+        study([0.012, VOXEL, VOXEL], [VOXEL, VOXEL, 0.012])
+    notes = study([VOXEL] * 3, [0.0105, VOXEL, VOXEL]).notes
+    assert any("pixel_size: observations.files[0] [10.5, 10, 10] um" in n and "the model's "
+               "zero-flow volume (forward_model.fsi.geometry.scan) has [10, 10, 10] um voxels"
+               in n for n in notes)
+
+
+def _leaning(shear: float) -> np.ndarray:
+    """The colony of :func:`_mask` bent along x: its top ``shear`` mm downstream."""
+    xs = ORIGIN[0] + VOXEL * np.arange(100)
+    ys = ORIGIN[1] + VOXEL * np.arange(61)
+    zs = ORIGIN[2] + VOXEL * np.arange(80)
+    Z, Y, X = np.meshgrid(zs, ys[::-1], xs, indexing="ij")
+    inside = (((X - 1.0 - shear * np.clip(Y, 0, None) / 0.4) / 0.3) ** 2 + (Y / 0.4) ** 2
+              + ((Z - 0.5) / 0.3) ** 2 <= 1.0)
+    return inside | (Y < -0.001)
+
+
+def test_colonies_bent_upstream_or_listed_in_reverse_order_are_refused(volumes, tmp_path):
+    """The model's colony from the zero-flow volume; the observed colonies bent 20 and 40 um
+    downstream at factors 0.5 and 1 are accepted. Mirrored in x (B-scan columns against
+    the flow) they lean upstream, which the placement check lets through: refused. Listed
+    in the reverse order they are refused by their lean (in 3D the mean distance from the
+    model's colony is blurred by the geometry's own misfit)."""
+    for name, shear in (("a", 0.02), ("b", 0.04), ("ma", -0.02), ("mb", -0.04)):
+        np.save(tmp_path / f"{name}.npy", _leaning(shear))
+    scan = _volume(volumes / "colony.npy")
+    cfg = deep_merge(FSI3D, {"forward_model": {"fsi": {"geometry": {"shape": "scan",
+                                                                     "scan": scan}}}})
+
+    def study(*names):
+        files = [_volume(tmp_path / f"{n}.npy") for n in names]
+        return Study(deep_merge(cfg, {"observations": {"source": "files", "files": files}}))
+
+    study("a", "b")
+    with pytest.raises(ConfigError, match=r"the observed colonies lean upstream of the model's "
+                       r"undeformed biofilm \(observations.files\[0\] -\d+.* um, .* are the "
+                       r"B-scans' columns running against the flow \(x mirrored\)\?"):
+        study("ma", "mb")
+    with pytest.raises(ConfigError, match=r"lean the farther downstream of the model's "
+                       r"undeformed biofilm the smaller their loading .* reverse order"):
+        study("b", "a")
+
+
+def test_volumes_with_x_and_z_swapped_are_refused_by_their_bend_across_the_flow(tmp_path):
+    """Every volume stored (nx, ny, nz), the zero-flow one included: the model's colony
+    is swapped as the observed ones are, so the size and placement checks pass, and the
+    observed colonies bend across the model's flow. Refused naming the axes."""
+    def swapped(mask):
+        return np.ascontiguousarray(mask.transpose(2, 1, 0))
+
+    np.save(tmp_path / "zero.npy", swapped(_leaning(0.0)))
+    for name, shear in (("a", 0.02), ("b", 0.04)):
+        np.save(tmp_path / f"{name}.npy", swapped(_leaning(shear)))
+    origin = [ORIGIN[0], ORIGIN[1], 0.0]  # the colony mid-channel across the flow
+    scan = _volume(tmp_path / "zero.npy", origin=origin)
+    cfg = deep_merge(FSI3D, {"forward_model": {"fsi": {"geometry": {"shape": "scan",
+                                                                     "scan": scan}}}})
+    files = [_volume(tmp_path / f"{n}.npy", origin=origin) for n in ("a", "b")]
+    with pytest.raises(ConfigError, match=r"the observed colonies bend across the flow \(z\), "
+                       r"not along it .* are the volumes' x and z axes swapped"):
+        Study(deep_merge(cfg, {"observations": {"source": "files", "files": files}}))
+
+
+
+def test_a_colony_moved_as_a_whole_is_not_taken_for_a_bent_one(volumes, tmp_path):
+    """The lean is measured against the colony's base: observed volumes moved 30 um
+    upstream as a whole (cropped with the origin kept: within the placement check's 10 %
+    of the footprint) do not lean upstream."""
+    moved = np.roll(_mask(), -3, axis=2)
+    for name in ("a", "b"):
+        np.save(tmp_path / f"{name}.npy", moved)
+    scan = _volume(volumes / "colony.npy")
+    cfg = deep_merge(FSI3D, {"forward_model": {"fsi": {"geometry": {"shape": "scan",
+                                                                     "scan": scan}}}})
+    files = [_volume(tmp_path / f"{n}.npy") for n in ("a", "b")]
+    Study(deep_merge(cfg, {"observations": {"source": "files", "files": files}}))
+
+
+def test_a_folder_volume_must_be_one_numbered_series_of_bscans(volumes, tmp_path):
+    """An extra image of the B-scans' size (a copy, an en-face view) or a missing B-scan
+    moved every B-scan after it by one spacing without a word; both are refused naming
+    the names or numbers. Evenly numbered files (by their z in um) are fine."""
+    import shutil
+
+    from skimage import io
+
+    files = sorted((volumes / "bscans").iterdir(), key=lambda f: int(f.stem[1:]))
+    extra, gap, even = (tmp_path / n for n in ("extra", "gap", "even"))
+    for d in (extra, gap, even):
+        d.mkdir()
+    for k, f in enumerate(files):
+        shutil.copy(f, extra / f.name)
+        if k != 40:
+            shutil.copy(f, gap / f.name)
+        shutil.copy(f, even / f"z{100 + 10 * k:04d}um.png")
+    io.imsave(extra / "b1_copy.png", io.imread(files[1]), check_contrast=False)
+    with pytest.raises(ObservationError, match=r"extra: the folder's images are not one numbered "
+                       r"series of B-scans: 80 named 'b#.png', and 'b#_copy.png' \(1: "
+                       r"'b1_copy.png'\)"):
+        volume_shape(extra)
+    with pytest.raises(ObservationError, match=r"gap: B-scans missing from the numbered series 0 "
+                       r"to 79: 40 \(1\)"):
+        volume_shape(gap)
+    assert volume_shape(even) == (80, 61, 100)
+
+
+def test_the_fields_section_of_a_scanned_colony_is_its_footprints_middle(volumes):
+    """The workflow's fields figure cuts a 3D model at the colony's mid-plane; with the
+    colony from a zero-flow volume that raised 'a 2D slice of geometry.shape scan is not
+    defined' when the Snakefile was parsed, so no such study could run (snakemake -n
+    failed). It is the middle of the footprint's z-range."""
+    from bayescalib.models.fsi.slice2d import midplane_z
+
+    scan = _volume(volumes / "colony.npy")
+    study = Study(deep_merge(FSI3D, {"forward_model": {"fsi": {"geometry": {
+        "shape": "scan", "scan": scan}}}}))
+    z = midplane_z(study.config["forward_model"]["fsi"]["geometry"])
+    assert z == pytest.approx(0.5, abs=2 * VOXEL)
+
+
+def test_without_a_substrate_band_the_floor_is_under_the_foot_not_under_its_blur():
+    """No substrate band: the floor is the bottom of the foreground. A sparse layer below
+    the colony's foot (blur or speckle: 22 voxels under a foot of 5800 in the example
+    recording without its band) put it a layer too low, and the foot's underside stayed
+    in the surface (half the footprint's area facing down: an 'overhang' for the model's
+    colony, a second sheet for an observation)."""
+    from bayescalib.geometry.volume import volume_surface
+
+    mask = _mask()
+    mask[:, -5:, :] = False  # no substrate
+    rng = np.random.default_rng(0)
+    k, c = rng.integers(30, 50, 30), rng.integers(40, 60, 30)
+    mask[k, -5, c] = True  # a few voxels of blur under the foot
+    surf, info = volume_surface(mask, voxel_size=[VOXEL] * 3, units="mm", origin=ORIGIN,
+                                floor="auto")
+    assert info["floor"]["method"] == "foreground bottom"
+    assert info["floor"]["y_mm"] == pytest.approx(-0.5 * VOXEL)  # under the foot (y = 0)
+    down = surf.normals[:, 1] < -0.5
+    assert surf.measures[down].sum() < 0.02 * surf.measures.sum()
+
+
+def test_a_component_that_picks_another_colony_is_named_in_the_placement_error(volumes,
+                                                                               tmp_path):
+    """component ranks a volume's colonies by size; under flow (or in another volume) the
+    ranks may change, and the colony picked is then the wrong one: the placement error
+    says so besides the origin."""
+    xs = ORIGIN[0] + VOXEL * np.arange(200)
+    ys = ORIGIN[1] + VOXEL * np.arange(61)
+    zs = ORIGIN[2] + VOXEL * np.arange(80)
+    Z, Y, X = np.meshgrid(zs, ys[::-1], xs, indexing="ij")
+    colony = ((X - 1.0) / 0.3) ** 2 + (Y / 0.4) ** 2 + ((Z - 0.5) / 0.3) ** 2 <= 1.0
+    bigger = ((X - 1.9) / 0.31) ** 2 + (Y / 0.4) ** 2 + ((Z - 0.5) / 0.3) ** 2 <= 1.0
+    np.save(tmp_path / "two.npy", colony | bigger | (Y < -0.001))
+    scan = _volume(volumes / "colony.npy")
+    cfg = deep_merge(FSI3D, {"forward_model": {"fsi": {"geometry": {"shape": "scan",
+                                                                     "scan": scan}}}})
+    files = [_volume(tmp_path / "two.npy", component=0), _volume(volumes / "colony.tif")]
+    with pytest.raises(ConfigError, match=r"observations.files\[0\] .* footprint's centre .* "
+                       r"or observations.files\[0\].component picked another colony: the "
+                       r"volume holds 2, ranked by size"):
+        Study(deep_merge(cfg, {"observations": {"source": "files", "files": files}}))

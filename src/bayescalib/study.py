@@ -18,6 +18,7 @@ from __future__ import annotations
 import copy
 import itertools
 import math
+import os
 from collections.abc import Mapping, Sequence
 from functools import cached_property
 from pathlib import Path
@@ -304,13 +305,14 @@ class Study:
             validate_fsi_units(cfg["parameters"], where, dim=Study.model_dim(cfg) or 2)
             notes += Study._resolve_geometry(cfg, where)
             notes += Study._validate_channel_ends(cfg, where)
+            Study._validate_scan_not_observed(cfg, where)
             Study._validate_boxes(cfg, where)
         Study._validate_hidden(cfg, where)
         observed, read = Study._validate_observation_files(cfg, where)
         notes += Study._pixel_size_notes(cfg, where)
         Study._validate_measure_points(cfg, where)
         notes += Study._validate_colony_choice(cfg, where, observed, read)
-        Study._validate_registration(cfg, where, observed)
+        Study._validate_registration(cfg, where, observed, read)
         if "rkhs" in cfg["measures"]:  # after the unit check, whose words are the clearer
             for key, iface in observed.items():
                 if key != "observations.reference":
@@ -530,6 +532,45 @@ class Study:
                  f"{i['height_mm']:.4g} mm high)")]
 
     @staticmethod
+    def _validate_scan_not_observed(cfg: dict[str, Any], where: str) -> None:
+        """The model's zero-flow scan (``geometry.scan.path``) listed in
+        ``observations.files`` at a loading above zero is refused: its colony is the
+        model's undeformed biofilm, so the snapshot would be compared with the model
+        under that flow as if the flow had not moved it, which pulls the stiffness up
+        without a word (the placement and order checks pass: it lies where the model's
+        colony is). At factor 0 (or ``load: 0``) it is allowed. Also the other way
+        round: a loaded observation given as the zero-flow scan."""
+        fm = cfg["forward_model"]
+        obs = cfg["observations"]
+        geometry = validate(fm["fsi"], "fsi")["geometry"]
+        if geometry["shape"] != "scan" or obs["source"] != "files":
+            return
+        scan = Path(geometry["scan"]["path"])
+        if not scan.exists():
+            return
+        files = obs.get("files") or []
+        factors = [float(v) for v in fm["loadings"]["factors"]]
+        for k, e in enumerate(files):
+            path = Path(e["path"])
+            if not path.exists() or not os.path.samefile(path, scan):
+                continue
+            load = e.get("load")
+            factor = factors[k] if len(factors) == len(files) else None
+            if (load is not None and float(load) == 0.0) or (load is None and factor == 0.0):
+                continue
+            at = (f"load {float(load):g}" if load is not None else
+                  f"loading factor {factor:g} of forward_model.loadings.factors"
+                  if factor is not None else "a loading above zero")
+            raise ConfigError(
+                f"{where}: observations.files[{k}] ('{path}') is the model's zero-flow scan "
+                f"(forward_model.fsi.geometry.scan.path), observed here at {at}: its colony "
+                "is the model's undeformed biofilm, so the model under that flow would be "
+                "compared with a colony the flow did not move (the stiffness pulled up). "
+                "List the scans under flow only, in the order of the loadings (or give "
+                "this one load: 0 with a factor 0 in forward_model.loadings.factors); if "
+                "this file is a scan under flow, the zero-flow scan is another file")
+
+    @staticmethod
     def _validate_colony_choice(cfg: dict[str, Any], where: str, observed: dict[str, Any],
                                 read: dict[str, Any]) -> list[str]:
         """An observation image with several colonies is traced along the largest, or the
@@ -580,7 +621,8 @@ class Study:
         return notes
 
     @staticmethod
-    def _validate_registration(cfg: dict[str, Any], where: str, observed: dict[str, Any]) -> None:
+    def _validate_registration(cfg: dict[str, Any], where: str, observed: dict[str, Any],
+                               read: Mapping[str, Any] | None = None) -> None:
         """Every observed interface lies where the model's undeformed biofilm is, at its
         scale: a flow moves the interface by a fraction of the colony's height and its
         feet barely; a wrong origin or unit moves or scales it as a whole. Refused when
@@ -599,7 +641,7 @@ class Study:
 
         from bayescalib.geometry.interface import Interface
         from bayescalib.geometry.outline import placement
-        from bayescalib.geometry.surface import surface_placement
+        from bayescalib.geometry.surface import surface_placement, upper_shift
         from bayescalib.io.observations import UNITS, unit_hint
 
         if not observed:
@@ -629,6 +671,8 @@ class Study:
         axes = ((0, "wide"),) if dim == 2 else ((0, "long (x, along the flow)"),
                                                     (2, "wide (z, across the flow)"))
         moved: dict[str, float] = {}  # each snapshot's mean distance from the model's colony
+        leans: dict[str, float] = {}  # 3D: each snapshot's downstream lean (surface.upper_shift)
+        across: dict[str, float] = {}  # 3D: and its shift across the flow
         for key, iface in observed.items():
             if key == what:  # the reference compared with itself
                 continue
@@ -654,6 +698,8 @@ class Study:
                 continue
             p = placement(iface.points, ref.points) if dim == 2 else surface_placement(iface, ref)
             moved[key] = float(p.mean_distance)
+            if dim == 3:
+                leans[key], across[key] = upper_shift(iface, ref)
             foot = 0.0 if dim == 2 else float(np.hypot(p.offset[0], p.offset[2]))
             span = float(np.mean(np.ptp(ref.points[:, [0, 2]], axis=0))) if dim == 3 else 1.0
             if p.mean_distance > 0.25 * height or foot > FOOTPRINT_SHIFT * span:
@@ -662,13 +708,23 @@ class Study:
                 origin = entry.get("origin")
                 if origin is not None and len(origin) == len(p.offset):
                     f = UNITS[units]
-                    moved = ", ".join(f"{o - v / f:.6g}" for o, v in zip(origin, p.offset))
+                    # 3D: the offset's y is the top's (a flow lowers it); a volume's
+                    # substrate is checked on y = 0 on its own, so its y is kept
+                    shifted = [o - v / f for o, v in zip(origin, p.offset, strict=True)]
+                    if dim == 3:
+                        shifted[1] = origin[1]
+                    moved = ", ".join(f"{v:.6g}" for v in shifted)
                     fix = f"; with origin [{moved}] {units} it would lie in place"
                 elif entry.get("pixel_size") is not None:
                     fix = f"; {key}.origin is not given"
                 if dim == 3 and isinstance(entry.get("pixel_size"), list):
                     fix += ("; or the volume's axes are in another order than (B-scan = z, "
                             "row from the top = y, column = x)")
+                n = int(((read or {}).get(key) or {}).get("colonies") or 1)
+                if dim == 3 and n > 1:
+                    fix += (f"; or {key}.component picked another colony: the volume holds "
+                            f"{n}, ranked by size (0 the largest), and the ranks may differ "
+                            "from one volume to the next: give the one at the model's colony")
                 why = (f"its footprint's centre lies {foot:.3g} mm from {what}'s, whose "
                        f"footprint is {span:.3g} mm across: the base, attached to the floor, "
                        "does not move under flow" if foot > FOOTPRINT_SHIFT * span else
@@ -679,19 +735,77 @@ class Study:
                     f"{where}: {key} ('{entry['path']}'): {why}. It is offset by about "
                     f"({offset}) mm: check {key}.origin and {key}.units{fix}")
         if what.startswith("the model"):
-            Study._validate_snapshot_order(cfg, where, moved)
+            Study._validate_lean(cfg, where, leans, across)
+            Study._validate_snapshot_order(cfg, where, leans if dim == 3 else moved)
+
+    @staticmethod
+    def _validate_lean(cfg: dict[str, Any], where: str, leans: Mapping[str, float],
+                       across: Mapping[str, float]) -> None:
+        """3D, the model's colony from a zero-flow scan: the flow (+x) bends the colony
+        downstream, so observed colonies that all lean upstream of the model's undeformed
+        one (:func:`bayescalib.geometry.surface.downstream_lean`), the most loaded by more
+        than 2 sigma_N, are refused as mirrored in x (B-scan columns running against the
+        flow): the placement and unit checks pass a colony mirrored about its middle,
+        and the model would be fitted to a deformation in the opposite direction. And a
+        most loaded colony bent across the flow (z) by more than 2 sigma_N and twice its
+        lean is refused as a volume with its x and z axes swapped (an array (nx, ny, nz),
+        B-scans along the flow): the model's colony from such a volume is swapped too, so
+        the size and placement checks pass. Only with ``geometry.shape: scan``: the
+        shifts are then measured from the same colony at zero flow (an analytic colony's
+        own asymmetry is no flow's)."""
+        from bayescalib.inference.likelihood import sigma_n2_from_config
+
+        fm = cfg["forward_model"]
+        geometry = validate(fm["fsi"], "fsi")["geometry"]
+        files = cfg["observations"]["files"] or []
+        keys = [f"observations.files[{k}]" for k in range(len(files))]
+        if geometry["shape"] != "scan" or not leans or any(k not in leans for k in keys):
+            return
+        factors = [float(v) for v in fm["loadings"]["factors"]]
+        if len(factors) == len(files) and all(e.get("load") is None for e in files):
+            top = keys[max(range(len(factors)), key=lambda k: factors[k])]
+        else:
+            top = min(keys, key=lambda k: leans[k])
+        sigma = math.sqrt(sigma_n2_from_config(cfg["likelihood"]))
+        if all(v < 0.0 for v in leans.values()) and leans[top] < -2.0 * sigma:
+            listed = ", ".join(f"{k} {1e3 * leans[k]:+.3g} um" for k in keys)
+            raise ConfigError(
+                f"{where}: the observed colonies lean upstream of the model's undeformed "
+                f"biofilm ({listed}: the x-shift of their upper half's centre from their base's; the "
+                f"likelihood's sigma_N is {1e3 * sigma:.3g} um), while the flow, along +x, "
+                "bends a colony downstream: are the B-scans' columns running against the "
+                "flow (x mirrored)? Reverse the columns of the observed volumes (or of "
+                "every volume, the zero-flow one included, if its colony is not symmetric), "
+                "so that column 0 is the upstream side")
+        side = across[top]
+        if abs(side) > 2.0 * sigma and abs(side) > 2.0 * abs(leans[top]):
+            listed = ", ".join(f"{k} {1e3 * across[k]:+.3g} um across, {1e3 * leans[k]:+.3g} "
+                               "um along" for k in keys)
+            raise ConfigError(
+                f"{where}: the observed colonies bend across the flow (z), not along it "
+                f"({listed}: the shift of their upper half's centre from their base's, "
+                f"against the model's undeformed biofilm; the likelihood's sigma_N is {1e3 * sigma:.3g} um), "
+                "while the flow runs along x: are the volumes' x and z axes swapped (B-scans "
+                "taken along the flow, or an array stored (nx, ny, nz))? A volume is (nz, ny, "
+                "nx): B-scans across the flow (planes z = const), each a row per depth and a "
+                "column per x along the flow; transpose every volume, the zero-flow one "
+                "included (pixel_size and origin are of the flow cell's x, y, z)")
 
     @staticmethod
     def _validate_snapshot_order(cfg: dict[str, Any], where: str,
                                  moved: Mapping[str, float]) -> None:
         """Snapshots are paired with the loadings by their order. A larger flow moves the
         interface farther from the undeformed colony, so files whose mean distance from
-        the model's undeformed biofilm falls as the loading rises, each step by more than
-        half the likelihood's noise sd sigma_N and in all by more than 2 sigma_N, are
-        refused as listed in the reverse order (a file's ``load`` states the order, and
-        the check is skipped then: the loads are checked against the loadings). On the
-        OCT example the distances are 2.2, 5.6 and 10.4 um at 50, 100 and 150 mm^2/s
-        (sigma_N 2 um)."""
+        the model's undeformed biofilm (3D: their downstream lean,
+        :func:`bayescalib.geometry.surface.downstream_lean`) falls as the loading rises,
+        each step by more than half the likelihood's noise sd sigma_N and in all by more
+        than 2 sigma_N, are refused as listed in the reverse order (a file's ``load``
+        states the order, and the check is skipped then: the loads are checked against
+        the loadings). On the OCT example the distances are 2.2, 5.6 and 10.4 um at 50,
+        100 and 150 mm^2/s (sigma_N 2 um); on the 3D one (the model's colony from its
+        zero-flow volume) the mean distances are 4.2 and 8.2 um at 50 and 100 mm^3/s, a
+        step the geometry's own misfit makes too small to tell (sigma_N 3.2 um), the
+        leans 5.1 and 14.3 um."""
         from bayescalib.inference.likelihood import sigma_n2_from_config
 
         files = cfg["observations"]["files"] or []
@@ -707,10 +821,15 @@ class Study:
                 and dist[0] - dist[-1] > 2.0 * sigma:
             listed = ", ".join(f"{keys[k]} {1e3 * moved[keys[k]]:.3g} um at factor "
                                f"{factors[k]:g}" for k in by_load)
+            lean = Study.model_dim(cfg) == 3
             raise ConfigError(
-                f"{where}: the observed interfaces lie the farther from the model's undeformed "
-                f"biofilm the smaller their loading ({listed}; mean distance of their "
-                f"nodes; the likelihood's sigma_N is {1e3 * sigma:.3g} um), while a "
+                f"{where}: the observed interfaces "
+                + ("lean the farther downstream of" if lean else "lie the farther from")
+                + " the model's undeformed "
+                f"biofilm the smaller their loading ({listed}; "
+                + ("the x-shift of their upper half's centre from their base's" if lean else
+                   "mean distance of their nodes")
+                + f"; the likelihood's sigma_N is {1e3 * sigma:.3g} um), while a "
                 "larger flow moves the interface farther: are observations.files listed in "
                 "the reverse order of forward_model.loadings.factors? List them in that "
                 "order, or give each file its load to state which loading it is")
@@ -827,7 +946,7 @@ class Study:
             reader_options,
             validate_shape,
         )
-        from bayescalib.io.volumes import is_volume
+        from bayescalib.io.volumes import is_volume, substrate_offset
 
         obs = cfg["observations"]
         if obs["source"] != "files":
@@ -894,6 +1013,14 @@ class Study:
             except ObservationError as exc:
                 raise ConfigError(f"{where}: {key}: {exc}") from None
             iface = observed[key]
+            if info.get("kind") == "volume" and Study.model_dim(cfg) == 3:
+                # the model's floor is y = 0: a volume whose substrate lies elsewhere is
+                # misplaced in y, which the placement check lets through up to a quarter
+                # of the colony's height
+                why = substrate_offset(info, units=opts.get("units", "mm"),
+                                       pixel_size=e["pixel_size"], origin=e["origin"])
+                if why:
+                    raise ConfigError(f"{where}: {key} ('{path}'): {why}")
             if Study.model_dim(cfg) == 2 and iface.n_cells == iface.n_points:
                 # the model's interface runs from foot to foot: a closed outline adds its
                 # base along the floor, which the RKHS measure counts as a misfit
@@ -942,6 +1069,8 @@ class Study:
             return []
         geometry = validate(fm["fsi"], "fsi")["geometry"]
         scan = geometry["scan"] if geometry["shape"] == "scan" else None
+        if scan and isinstance(scan["pixel_size"], list):
+            return Study._voxel_size_notes(cfg, where, scan)
         if (not scan or Path(scan["path"]).suffix.lower() not in IMAGE_SUFFIXES
                 or not isinstance(scan["pixel_size"], (int, float))):
             return []
@@ -961,6 +1090,43 @@ class Study:
                  f"(forward_model.fsi.geometry.scan) has {s0 * 1e3:.4g} um pixels: scans of "
                  "one recording share their pixel size, and a wrong one scales the colony by "
                  "as much (check both)")]
+
+    @staticmethod
+    def _voxel_size_notes(cfg: dict[str, Any], where: str, scan: Mapping[str, Any]) -> list[str]:
+        """The 3D :meth:`_pixel_size_notes`: each observed volume's voxel size against the
+        zero-flow volume's (``geometry.scan.pixel_size``, [dx, dy, dz]), axis by axis. The
+        same three sizes in another order is refused (the order is [dx, dy, dz]: a
+        [dz, dy, dx] stretches the colony along the flow and shrinks it across, which the
+        extent check lets through, and the placement check then names the origin); other
+        differences above 1 % are noted."""
+        from bayescalib.io.observations import UNITS
+
+        s0 = [float(v) * UNITS[scan["units"]] for v in scan["pixel_size"]]
+        um = ", ".join(f"{v * 1e3:.4g}" for v in s0)
+        odd = []
+        for k, e in enumerate(cfg["observations"]["files"] or []):
+            size = e.get("pixel_size")
+            if not isinstance(size, list) or len(size) != 3:
+                continue
+            s = [float(v) * UNITS[e["units"]] for v in size]
+            if all(abs(a / b - 1.0) <= 0.01 for a, b in zip(s, s0, strict=True)):
+                continue
+            given = ", ".join(f"{v * 1e3:.4g}" for v in s)
+            if all(abs(a / b - 1.0) <= 0.01 for a, b in zip(sorted(s), sorted(s0), strict=True)):
+                raise ConfigError(
+                    f"{where}: observations.files[{k}].pixel_size: [{given}] um, the zero-flow "
+                    f"volume's voxel size (forward_model.fsi.geometry.scan.pixel_size: [{um}] "
+                    "um) in another order: both are [dx, dy, dz], along the B-scan's columns "
+                    "(x, the flow), its rows (y, depth) and between B-scans (z); a swap "
+                    "stretches the colony along one axis and shrinks it along another. "
+                    "Check which of the two is right and give both in that order")
+            odd.append(f"observations.files[{k}] [{given}] um")
+        if not odd:
+            return []
+        return [(f"{where}: pixel_size: {', '.join(odd)}, but the model's zero-flow volume "
+                 f"(forward_model.fsi.geometry.scan) has [{um}] um voxels: volumes of one "
+                 "recording share their voxel size, and a wrong one scales the colony by as "
+                 "much along that axis (check both)")]
 
     @staticmethod
     def _validate_volume_entry(where: str, key: str, entry: Mapping[str, Any]) -> None:

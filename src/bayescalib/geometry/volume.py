@@ -36,7 +36,9 @@ Steps
    (voxels, mm^3), unless ``component`` picks one (0 = the largest). A colony with
    voxels on a side face (x, z) or the top face of the volume is cut off by the field
    of view: refused, naming the faces. An empty mask (or a segmentation without
-   foreground or background) is refused.
+   foreground or background) is refused; so is a foreground filling the top layer
+   (fluid bright and biofilm dark, an inverted volume; or B-scans upside down), and a
+   floor found at the top with foreground only below it is named as B-scans upside down.
 4. *Marching cubes* (:func:`skimage.measure.marching_cubes`, Lewiner, at level 0.5) of
    the colony (in its bounding box) on a substrate slab (two layers below the floor),
    padded with background: a closed surface whose slab face lies on the floor plane exactly, so
@@ -89,12 +91,17 @@ from bayescalib.geometry.surface import (
     unit_factor,
 )
 
-__all__ = ["MASK_SURFACE_RMS", "positional_sigma", "volume_surface"]
+__all__ = ["FOOT_SHARE", "MASK_SURFACE_RMS", "positional_sigma", "volume_surface"]
 
 #: RMS distance of a binary mask's smoothed marching-cubes surface from the true one, in
 #: voxel edges along the normal (tests/test_surface3d.py: 0.149 on a half-ellipsoid, 0.235
 #: before the Taubin smoothing): the quantisation part of :func:`positional_sigma`
 MASK_SURFACE_RMS = 0.15
+
+#: with the floor at the bottom of the foreground (no substrate band), a lowest layer with
+#: less than this share of the foreground of the layer above it is blur or speckle below
+#: the colony's foot, not its foot: the floor is put above it
+FOOT_SHARE = 0.1
 
 _FACES = (("z min", 0, 0), ("z max", 0, -1), ("y max (top)", 1, 0), ("x min", 2, 0),
           ("x max", 2, -1))
@@ -223,6 +230,17 @@ def volume_surface(
             raise SurfaceError(f"{name}: the segmentation finds no background (fluid) {where}")
     nz, ny, nx = mask.shape
     dx, dy, dz = vox
+    top = float(mask[:, 0, :].mean())  # the top layer: fluid above a colony on the floor
+    if top >= imaging.FLOOR_FULL_WIDTH:
+        bright = "bright part" if kind == "scan" else "brighter value"
+        raise SurfaceError(
+            f"{name}: the foreground (the {bright}, taken for biofilm) fills {100 * top:.0f} % "
+            "of the volume's top layer (row 0 of every B-scan): the fluid above the colony "
+            "must be the dark part and the biofilm the bright one. This looks like an "
+            "inverted volume (fluid bright, biofilm dark): invert its grey values"
+            + (" (or check segmentation.threshold)" if kind == "scan" else "")
+            + "; or its B-scans are upside down (row 0 must be the top, the substrate at "
+            "the bottom): flip their rows")
     # ---- floor: a layer edge (row - 0.5 between rows row - 1 and row)
     if floor == "auto":
         flat = mask.transpose(1, 0, 2).reshape(ny, -1)
@@ -231,6 +249,16 @@ def volume_surface(
         method_f = found["method"]
         row = ny - 0.5 if found["row"] is None else float(found["row"])
         edge_row = found.get("edge_row")
+        if method_f == "foreground bottom":
+            # no substrate band: the floor under the colony's foot, not under a sparse
+            # layer of its blur or speckle below it (22 voxels under a foot of 5800 in the
+            # example recording without its band), which would leave the foot's
+            # underside in the surface as an overhang
+            count = flat.sum(axis=1)
+            low = round(row - 0.5)
+            while low > 0 and count[low] < FOOT_SHARE * count[low - 1]:
+                low -= 1
+            row = low + 0.5
     elif floor is None:
         method_f, row, edge_row = "volume bottom", ny - 0.5, None
     elif isinstance(floor, str):
@@ -247,8 +275,12 @@ def volume_surface(
     y_floor = float(org[1] + (ny - 1 - row) * dy)
     part = mask[:, :n_above, :]
     if not part.any():
+        upside = (f"; the floor was found {'at the top' if row < 1 else 'in the upper half'} "
+                  "of the B-scans, with foreground below it: are they upside down (row 0 "
+                  "must be the top, the substrate at the bottom)? Flip their rows"
+                  if row < 0.5 * ny and mask[:, n_above:, :].any() else "")
         raise SurfaceError(f"{name}: no foreground (biofilm) above the floor y = {y_floor:g} mm "
-                           f"({method_f}): the mask is empty there")
+                           f"({method_f}): the mask is empty there" + upside)
     # ---- one colony
     lab, n_comp = label(part, structure=np.ones((3, 3, 3), dtype=bool))
     sizes = np.bincount(lab.ravel())[1:]

@@ -7,7 +7,9 @@ A volume is one of
 * a multi-page TIFF (``.tif``/``.tiff`` of more than one page: one B-scan per page,
   the way OCT software exports a volume); a one-page TIFF is a 2D image (a B-scan);
 * a folder of 2D images (``.png``/``.tif``/``.tiff``), one B-scan per file, taken in
-  the natural order of their names (``scan2`` before ``scan10``).
+  the natural order of their names (``scan2`` before ``scan10``); the names must be one
+  numbered series (alike but for their numbers, none missing: another image or a gap
+  would move the B-scans after it by a spacing).
 
 The axes and coordinates are those of :mod:`bayescalib.geometry.volume`: B-scan ``k``
 is the plane ``z = z0 + k dz``, its row 0 the top. The size is checked from the
@@ -36,13 +38,17 @@ from bayescalib.geometry.interface import Interface
 from bayescalib.geometry.surface import SurfaceError
 from bayescalib.io.observations import IMAGE_SUFFIXES, VOLUME_SUFFIXES, ObservationError
 
-__all__ = ["MAX_VOLUME_VOXELS", "VOLUME_SUFFIXES", "is_volume", "read_volume",
-           "read_volume_surface", "volume_files", "volume_shape", "write_volume_recording"]
+__all__ = ["FLOOR_TOL_MM", "MAX_VOLUME_VOXELS", "VOLUME_SUFFIXES", "is_volume", "read_volume",
+           "read_volume_surface", "substrate_offset", "volume_files", "volume_shape",
+           "write_volume_recording"]
 
 #: largest volume decoded, voxels (about 0.8 GB as float64; the segmentation holds a few
 #: such arrays)
 MAX_VOLUME_VOXELS = 100_000_000
 _TIFF = {".tif", ".tiff"}
+#: a volume's substrate found this far from y = 0 (mm; and at least two voxels in y) is a
+#: misplaced volume (the 2D zero-flow scan's rule, :data:`bayescalib.io.colony.FLOOR_TOL_MM`)
+FLOOR_TOL_MM = 0.01
 
 
 def _natural(name: str) -> list[Any]:
@@ -53,6 +59,48 @@ def _slices(folder: Path) -> list[Path]:
     files = [f for f in folder.iterdir()
              if f.is_file() and f.suffix.lower() in IMAGE_SUFFIXES and not f.name.startswith(".")]
     return sorted(files, key=lambda f: _natural(f.name))
+
+
+def _series(files: Sequence[Path], where: str) -> None:
+    """A folder volume's images are one numbered series of B-scans: their names alike but
+    for their numbers, and (with one varying number) none missing. Another image (a copy,
+    an en-face view of the same size) or a missing B-scan would move every B-scan after it
+    by one spacing (B-scan k is the k-th in name order, at ``z0 + k dz``) without a word.
+
+    Raises
+    ------
+    ObservationError
+        Naming the odd names, or the missing numbers."""
+    groups: dict[str, list[str]] = {}
+    for f in files:
+        groups.setdefault(re.sub(r"\d+", "#", f.name), []).append(f.name)
+    if len(groups) > 1:
+        main = max(groups, key=lambda k: len(groups[k]))
+        odd = "; ".join(f"'{k}' ({len(v)}: {', '.join(repr(n) for n in v[:3])}"
+                        + (", ..." if len(v) > 3 else "") + ")"
+                        for k, v in groups.items() if k != main)
+        raise ObservationError(
+            f"{where}: the folder's images are not one numbered series of B-scans: "
+            f"{len(groups[main])} named '{main}', and {odd}: a folder volume holds its "
+            "B-scans only (the k-th in natural name order at z0 + k dz); move the others out")
+    names = next(iter(groups.values()))
+    numbers = [[int(t) for t in re.findall(r"\d+", n)] for n in names]
+    varying = [i for i in range(len(numbers[0])) if len({row[i] for row in numbers}) > 1]
+    if len(varying) != 1:
+        return
+    k = sorted(row[varying[0]] for row in numbers)
+    steps = np.diff(k)
+    if len(set(steps.tolist())) <= 1:  # evenly numbered (e.g. by their z in um)
+        return
+    step = int(np.bincount(steps).argmax())  # the usual step
+    gaps = sorted(set(range(k[0], k[-1] + 1, step)) - set(k)) if step > 0 else []
+    if gaps and len(gaps) < len(k):
+        shown = ", ".join(str(v) for v in gaps[:10]) + (", ..." if len(gaps) > 10 else "")
+        raise ObservationError(
+            f"{where}: B-scans missing from the numbered series {k[0]} to {k[-1]}: {shown} "
+            f"({len(gaps)}): the volume puts the k-th B-scan in name order at z0 + k dz, so "
+            "every one after a gap would lie a spacing off; restore them (or number the "
+            "files evenly, as they lie)")
 
 
 def _tiff_pages(path: Path) -> tuple[int, tuple[int, ...]] | None:
@@ -111,6 +159,7 @@ def volume_shape(path: str | Path) -> tuple[int, int, int]:
             raise ObservationError(
                 f"{where}: a folder volume needs at least 2 B-scan images "
                 f"({', '.join(sorted(IMAGE_SUFFIXES))}), found {len(files)}")
+        _series(files, where)
         try:
             (w0, h0), (w1, h1) = image_size(files[0]), image_size(files[-1])
         except ImageError as exc:
@@ -270,6 +319,70 @@ def read_volume_surface(
     except SurfaceError as exc:
         raise ObservationError(str(exc)) from None
     return surf, {**vinfo, **sinfo, "image": sinfo["kind"], "kind": "volume"}
+
+
+def substrate_offset(info: Mapping[str, Any], *, units: str, pixel_size: Sequence[float],
+                     origin: Sequence[float]) -> str | None:
+    """Why a volume's substrate is not on the flow cell's floor y = 0, or None.
+
+    The substrate's surface is the floor the reading found (``floor: auto``): a bright
+    band's own top edge (below the plane the surface is cut at, on top of the band's
+    blurred halo), else the floor itself. More than :data:`FLOOR_TOL_MM` (and two voxels)
+    from y = 0 is a wrong ``origin`` (its y: e.g. the bottom row put at y = 0 though the
+    substrate lies above it, or the top row's y given), or a unit slip of the origin or
+    the voxel size, which the checks of size and placement let through when the model's
+    colony comes from a volume with the same slip: the colony would sit on a ledge or
+    reach far up into the channel. A floor given as a number is the user's plane: None.
+
+    Parameters
+    ----------
+    info : mapping
+        The reading record of :func:`read_volume_surface`.
+    units, pixel_size, origin
+        As given (for the values that fit, in the same units).
+
+    Returns
+    -------
+    str or None
+        The reason with the origin that puts the substrate on y = 0 (and, where the
+        origin or the voxel size alone in another unit does, that unit), without the
+        file's name.
+    """
+    from bayescalib.geometry.surface import UNITS
+
+    fl = info.get("floor") or {}
+    if fl.get("method") == "given" or fl.get("y_mm") is None:
+        return None
+    band = fl.get("edge_y_mm") is not None
+    y_sub = float(fl["edge_y_mm"] if band else fl["y_mm"])
+    vox = [float(v) for v in info["voxel_size_mm"]]
+    tol = max(FLOOR_TOL_MM, 2.0 * vox[1])
+    if abs(y_sub) <= tol:
+        return None
+    f = UNITS[units]
+    y0 = float(info["origin_mm"][1])
+    fixed = ", ".join(f"{v:.6g}" for v in (origin[0], (y0 - y_sub) / f, origin[2]))
+    slip = ""
+    for u, g in UNITS.items():  # the origin first: its numbers are copied from another tool
+        if u != units and abs(y_sub - y0 + y0 * g / f) <= tol:
+            o = ", ".join(f"{v * g / f:.6g}" for v in origin)
+            slip = (f"; or the origin is in {u}, not {units}: origin [{o}] {units} puts the "
+                    "substrate on y = 0")
+            break
+    else:
+        for u, g in UNITS.items():
+            if u != units and abs(y0 + (y_sub - y0) * g / f) <= max(FLOOR_TOL_MM,
+                                                                    2.0 * vox[1] * min(1, g / f)):
+                s = ", ".join(f"{v * g / f:.6g}" for v in pixel_size)
+                slip = (f"; or pixel_size is in {u}, not {units}: pixel_size [{s}] {units} "
+                        "puts the substrate on y = 0")
+                break
+    what = ("the substrate's surface (the top edge of the bright band found below the "
+            "colony)" if band else f"the floor found ({fl['method']})")
+    return (f"{what} lies at y = {y_sub:.4g} mm in the volume's coordinates (origin "
+            f"{[float(v) for v in origin]} {units}), but the flow cell's floor is y = 0 "
+            f"(tolerance {tol * 1e3:.3g} um): with origin [{fixed}] {units} it would lie there "
+            "(origin is the centre of the first B-scan's bottom-left pixel)" + slip)
 
 
 def write_volume_recording(

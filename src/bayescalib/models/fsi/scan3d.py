@@ -5,8 +5,9 @@ recording at zero (or the lowest) flow, the field's practice (Picioreanu et al. 
 the scanned colony is the model's undeformed biofilm. The scan arrives as a
 triangulated surface in mm (:class:`bayescalib.geometry.interface.Interface`: points
 ``(n, 3)``, triangles ``(m, 3)``, rim on the floor ``y = 0``, normals into the fluid),
-from a surface file (:func:`bayescalib.io.surfaces.read_surface`) or, later, from an
-OCT volume (:func:`bayescalib.geometry.volume.volume_surface`). This module turns it
+from a surface file (:func:`bayescalib.io.surfaces.read_surface`) or from an OCT
+volume (:func:`bayescalib.io.volumes.read_volume_surface`; its substrate must lie on
+y = 0, :func:`bayescalib.io.volumes.substrate_offset`). This module turns it
 into the solid the mesher cuts out of the channel box, in four steps:
 
 1. *Height field.* A colony imaged from above is a height field ``y = h(x, z)`` over
@@ -364,6 +365,32 @@ def validate_height_field(field_: HeightField, *, length: float, channel_height:
             f"top ({channel_height:g} mm): check the scan's units" + hint)
 
 
+def _validate_size(surface: Interface, geometry: dict[str, Any], min_gap: float, units: str,
+                   name: str, volume: bool) -> None:
+    """Refuse a scanned colony larger than the channel or smaller than the gap the mesh
+    resolves (about an interface element), before its height field: the unit slip it is
+    (a volume in um read as m, a voxel size and origin in mm under units um) would
+    otherwise be named after its consequence (a rim far above the floor), naming the
+    unit in which its size fits the channel."""
+    from bayescalib.io.observations import unit_hint
+
+    ext = np.ptp(surface.points, axis=0)
+    chan = np.array([float(geometry["length"]), float(geometry["channel_height"]),
+                     float(geometry["channel_width"])])
+    ratio = float(np.max(ext / chan))
+    if ratio <= 1.0 and float(np.max(ext)) >= min_gap:
+        return
+    u = unit_hint(ratio, units, 0.05, 1.0)
+    size = " x ".join(f"{v:.4g}" for v in ext)
+    raise ScanError(
+        f"{name}: the colony ({size} mm in x, y, z) is "
+        + (f"larger than the channel ({chan[0]:g} x {chan[1]:g} x {chan[2]:g} mm)"
+           if ratio > 1.0 else f"smaller than the mesh resolves ({min_gap:.3g} mm)")
+        + f" (read as {units}: check geometry.scan.units"
+        + (", pixel_size and origin" if volume else "")
+        + (f"; the sizes fit if they are in {u}, units: {u}" if u else "") + ")")
+
+
 def scan_height_field(geometry: dict[str, Any], *, min_gap: float,
                       key: str = "geometry") -> HeightField:
     """The height field of ``geometry.scan``'s colony, checked against the channel.
@@ -395,7 +422,7 @@ def scan_height_field(geometry: dict[str, Any], *, min_gap: float,
     from bayescalib.geometry.surface import UNITS
     from bayescalib.io.observations import ObservationError, cut_height, read_interface_info
     from bayescalib.io.surfaces import SURFACE_SUFFIXES, read_surface
-    from bayescalib.io.volumes import is_volume
+    from bayescalib.io.volumes import is_volume, substrate_offset
 
     scan = geometry["scan"]
     path = Path(scan["path"])
@@ -431,10 +458,27 @@ def scan_height_field(geometry: dict[str, Any], *, min_gap: float,
         raise ScanError(f"{key}.scan: {exc}") from None
     spacing, smoothing = scan.get("spacing"), scan["smoothing"]
     name = f"{key}.scan ('{path}')"
+    if volume:  # the substrate on y = 0 (the rim's check below allows the cut's height)
+        why = substrate_offset(info, units=scan["units"], pixel_size=scan["pixel_size"],
+                               origin=scan["origin"])
+        if why:
+            raise ScanError(f"{name}: {why}")
+    _validate_size(surface, geometry, min_gap, info["units"], name, volume)
     cut = cut_height(surface, info) if volume else None
-    field_ = height_field(surface, spacing=None if spacing is None else float(spacing) * f,
-                          smoothing=None if smoothing is None else float(smoothing) * f,
-                          name=name, floor_tol=FLOOR_TOL_MM + (cut or 0.0))
+    try:
+        field_ = height_field(surface, spacing=None if spacing is None else float(spacing) * f,
+                              smoothing=None if smoothing is None else float(smoothing) * f,
+                              name=name, floor_tol=FLOOR_TOL_MM + (cut or 0.0))
+    except ScanError as exc:
+        if not (volume and "overhangs" in str(exc) and (cut or 0.0) < FLOOR_TOL_MM):
+            raise
+        # a volume cut at its substrate (no band's halo to cut above): a steep foot's
+        # voxel staircase faces down in places (2.3 % on the example recording without
+        # its band, accepted with floor: 6 um)
+        raise ScanError(f"{exc}; from a volume cut at the substrate, a steep foot's voxel "
+                        "staircase faces down in places: give geometry.scan.floor a voxel "
+                        f"above the substrate (it may lie up to {FLOOR_TOL_MM * 1e3:g} um "
+                        "above y = 0)") from None
     validate_height_field(field_, length=float(geometry["length"]),
                           channel_height=float(geometry["channel_height"]),
                           channel_width=float(geometry["channel_width"]), min_gap=min_gap,

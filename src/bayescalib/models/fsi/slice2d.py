@@ -65,7 +65,16 @@ def _geometry_3d(geometry: Mapping[str, Any]) -> dict[str, Any]:
 
 
 def midplane_z(geometry: Mapping[str, Any]) -> float:
-    """``z`` of the colony's mid-plane (``centre_z``, or the middle of the width), mm."""
+    """``z`` of the colony's mid-plane (``centre_z``, or the middle of the width; a
+    scanned colony's, ``shape: scan``: the middle of its footprint's z-range, from
+    ``height_field``, filled when the study is read), mm."""
+    geo = validate({"geometry": dict(geometry)}, "fsi", where="3D geometry")["geometry"]
+    if int(geo["dim"]) == 3 and geo["shape"] == "scan" and geo.get("height_field"):
+        from bayescalib.models.fsi.scan3d import HeightField
+
+        hf = HeightField.from_config(geo["height_field"])
+        z = hf.z[np.any(hf.heights > 0, axis=0)]
+        return 0.5 * float(z.min() + z.max()) if z.size else 0.5 * float(geo["channel_width"])
     geo = _geometry_3d(geometry)
     return 0.5 * float(geo["channel_width"]) if geo["centre_z"] is None \
         else float(geo["centre_z"])
