@@ -260,6 +260,21 @@ def test_a_posterior_spread_over_its_box_is_not_flagged():
     assert against_bounds(X, w, space) == []
 
 
+def test_an_end_at_the_models_own_limit_is_not_flagged():
+    """nu's box ending at 0.5, the fsi model's limit (the smoke study: nu 0.20 +- 0.21,
+    its density at 0.5 still a third of its peak): no prior can widen it, so it is not
+    flagged; the same posterior under a box ending at 0.45 (a prior's choice) is."""
+    def space(hi):
+        return ParameterSpace([Parameter("nu", "-", Uniform(-0.8, hi), -0.8, hi,
+                                         target="material.nu")])
+    rng = np.random.default_rng(1)
+    x = rng.normal(0.2, 0.21, 20000)
+    for hi, flagged in ((0.5, False), (0.45, True)):
+        keep = x[(x > -0.8) & (x < hi)]
+        found = against_bounds(keep[:, None], np.ones_like(keep), space(hi))
+        assert [(c["side"], c["bound"]) for c in found] == ([("upper", hi)] if flagged else [])
+
+
 def test_the_summary_carries_the_cut_ends():
     """summarize puts the flags in posterior.json (against_bounds), in user units."""
     space = ParameterSpace([Parameter("E", "Pa", Uniform(100.0, 800.0), 100.0, 800.0)])

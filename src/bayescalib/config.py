@@ -124,6 +124,24 @@ def schema(name: str) -> dict[str, Any]:
     return copy.deepcopy(_load_schema_file(f"{name}.schema.yaml"))
 
 
+def schema_limits(schema_name: str, dotted: str) -> tuple[float | None, float | None]:
+    """The numeric range the schema ``schema_name`` allows for the dotted key (its
+    ``minimum``/``exclusiveMinimum`` and ``maximum``/``exclusiveMaximum``, None where it
+    sets none or has no such key), e.g. ``schema_limits("fsi", "material.nu")`` is
+    (-1, 0.5): the limits of the model itself, which no prior can widen."""
+    node: Any = _load_schema_file(f"{schema_name}.schema.yaml")
+    for part in dotted.split("."):
+        props = node.get("properties") if isinstance(node, dict) else None
+        if not isinstance(props, dict) or part not in props:
+            return None, None
+        node = props[part]
+    if not isinstance(node, dict):
+        return None, None
+    lo = node.get("minimum", node.get("exclusiveMinimum"))
+    hi = node.get("maximum", node.get("exclusiveMaximum"))
+    return (None if lo is None else float(lo)), (None if hi is None else float(hi))
+
+
 def defaults(schema_name: str, definition: str) -> dict[str, Any]:
     """The schema's default of each property of ``#/definitions/<definition>`` in schema
     ``schema_name`` that has one (a deep copy), e.g. ``defaults("inference",

@@ -26,7 +26,9 @@ All summaries are weighted sums over the final particles (eq. smcintegration).
   an sd (at most 2 % of the box) there against the fullest such strip, so a truncated
   Gaussian is flagged when its centre lies within about 2.4 sd of the end. A posterior spread over
   most of its box (a weakly informed parameter, e.g. nu) is not: there the prior
-  decides every end, as expected.
+  decides every end, as expected. Nor is an end that is the model's own limit (the
+  fsi model's range of the target, e.g. nu <= 0.5, ``bayescalib.config.schema_limits``):
+  no prior can widen it.
 * **Laplace approximation** at the MAP: covariance (-H)^{-1}, H the Hessian of
   log L + log p in all inputs, log L by central finite differences on the
   surrogate (step ``fd_step`` times the box width per input), log p
@@ -208,7 +210,8 @@ def against_bounds(X: np.ndarray, W: np.ndarray, space: ParameterSpace) -> list[
     W : ndarray, shape (N,)
         Weights (normalised here).
     space : ParameterSpace
-        The parameters; ``space.bounds`` is the box the SMC sampled.
+        The parameters; ``space.bounds`` is the box the SMC sampled, ``space.targets``
+        name the model keys whose own limits are no prior's.
 
     Returns
     -------
@@ -218,12 +221,16 @@ def against_bounds(X: np.ndarray, W: np.ndarray, space: ParameterSpace) -> list[
         ``edge_mass`` (posterior mass within ``delta`` of the end), ``delta``,
         ``sd_fraction`` (posterior sd over the box width).
     """
+    from bayescalib.config import schema_limits
+
     X = np.asarray(X, float)
     W = np.asarray(W, float) / np.sum(W)
     out: list[dict[str, Any]] = []
     for j, name in enumerate(space.names):
         lo, hi = (float(v) for v in space.bounds[j])
         width = hi - lo
+        target = space.targets[j]
+        limits = schema_limits("fsi", target) if target else (None, None)
         x = X[:, j]
         mu = float(W @ x)
         sd = float(np.sqrt(max(W @ (x - mu) ** 2, 0.0)))
@@ -235,7 +242,9 @@ def against_bounds(X: np.ndarray, W: np.ndarray, space: ParameterSpace) -> list[
         peak = float(mass.max())
         ends = (("lower", lo, float(W[x <= lo + delta].sum())),
                 ("upper", hi, float(W[x >= hi - delta].sum())))
-        for side, bound, edge in ends:
+        for (side, bound, edge), limit in zip(ends, limits, strict=True):
+            if limit is not None and abs(bound - limit) <= 1e-9 * width:
+                continue  # the model's own limit: no prior widens it
             ratio = edge / peak if peak > 0 else 0.0
             if ratio >= EDGE_DENSITY and edge >= EDGE_MASS:
                 out.append({"name": name, "index": j, "side": side, "bound": bound,
