@@ -600,3 +600,48 @@ def test_a_half_ellipse_at_the_inlet_is_refused_naming_its_centre():
     msg = _refused(deep_merge(DEFAULT, {"forward_model": {"fsi": {"geometry": {
         "centre": 0.4}}}}))
     assert "upstream foot is 0.1 mm" in msg and "geometry.centre 1.8" in msg, msg
+
+
+# ------------------------------------------------------------------ 2D images' placement
+@pytest.mark.parametrize("dy", [33.0, 12.0, -20.0])
+def test_an_observed_scans_substrate_off_the_floor_is_refused_with_the_origin(dy):
+    """The example's loaded scans with their origin's y off by dy um: the substrate
+    (floor: auto) lies dy um from y = 0, the traced interface that far above or below
+    the model's (33 um is 16 sigma_N); the placement check let it through (a quarter of
+    the colony's height); refused, naming the origin that puts it on y = 0."""
+    study = _oct_study()
+    for e in study["observations"]["files"]:
+        e["origin"][1] += dy
+    msg = _refused(study)
+    assert "observations.files[0]" in msg and f"lies at y = {dy:.3g} um" in msg, msg
+    assert "With origin [1422, -30] um it would lie there" in msg, msg
+
+
+def _mirrored(tmp_path: Path, which: list[int], scan: bool) -> dict:
+    study = _oct_study()
+    for k in which:
+        e = study["observations"]["files"][k]
+        e["path"] = _png16(tmp_path / f"m{k}.png", _oct_pixels(k + 1)[:, ::-1])
+    if scan:
+        study["forward_model"]["fsi"]["geometry"]["scan"]["path"] = _png16(
+            tmp_path / "m_scan_0.png", _oct_pixels(0)[:, ::-1])
+    return study
+
+
+def test_an_observed_image_mirrored_against_the_zero_flow_scan_is_refused(tmp_path):
+    """One loaded scan with its columns reversed: its lobed colony lies 31.8 um from the
+    model's (placement allows a quarter of the height) and 1.6 um from it mirrored back;
+    refused, naming the file and asking for its columns reversed."""
+    msg = _refused(_mirrored(tmp_path, [0], scan=False))
+    assert "observations.files[0]" in msg and "m0.png" in msg, msg
+    assert "is the image mirrored against the zero-flow scan" in msg, msg
+
+
+def test_scans_whose_flow_runs_against_x_are_refused(tmp_path):
+    """Every scan with its columns reversed, the zero-flow one included (the flow running
+    from the image's right to its left): each loaded colony has moved upstream of the
+    model's (-1.1, -2.6, -4.9 um, the example as is +1.1, +2.6, +4.9); refused."""
+    msg = _refused(_mirrored(tmp_path, [0, 1, 2], scan=True))
+    assert "moved upstream of the model's undeformed biofilm" in msg, msg
+    assert "Reverse the columns of every scan" in msg, msg
+    Study(_oct_study())  # as recorded: read

@@ -640,7 +640,7 @@ class Study:
         import numpy as np
 
         from bayescalib.geometry.interface import Interface
-        from bayescalib.geometry.outline import placement
+        from bayescalib.geometry.outline import downstream_shift, mirrored_x, placement
         from bayescalib.geometry.surface import surface_placement, upper_shift
         from bayescalib.io.observations import UNITS, unit_hint
 
@@ -673,6 +673,7 @@ class Study:
         moved: dict[str, float] = {}  # each snapshot's mean distance from the model's colony
         leans: dict[str, float] = {}  # 3D: each snapshot's downstream lean (surface.upper_shift)
         across: dict[str, float] = {}  # 3D: and its shift across the flow
+        mirrors: dict[str, float] = {}  # 2D: its mean distance mirrored in x
         for key, iface in observed.items():
             if key == what:  # the reference compared with itself
                 continue
@@ -700,6 +701,10 @@ class Study:
             moved[key] = float(p.mean_distance)
             if dim == 3:
                 leans[key], across[key] = upper_shift(iface, ref)
+            else:
+                leans[key] = downstream_shift(iface.points, ref.points)
+                mirrors[key] = float(placement(mirrored_x(iface.points, ref.points),
+                                               ref.points).mean_distance)
             foot = 0.0 if dim == 2 else float(np.hypot(p.offset[0], p.offset[2]))
             span = float(np.mean(np.ptp(ref.points[:, [0, 2]], axis=0))) if dim == 3 else 1.0
             if p.mean_distance > 0.25 * height or foot > FOOTPRINT_SHIFT * span:
@@ -735,14 +740,46 @@ class Study:
                     f"{where}: {key} ('{entry['path']}'): {why}. It is offset by about "
                     f"({offset}) mm: check {key}.origin and {key}.units{fix}")
         if what.startswith("the model"):
+            Study._validate_mirror(cfg, where, moved, mirrors)
             Study._validate_lean(cfg, where, leans, across)
             Study._validate_snapshot_order(cfg, where, leans if dim == 3 else moved)
 
     @staticmethod
+    def _validate_mirror(cfg: dict[str, Any], where: str, moved: Mapping[str, float],
+                         mirrors: Mapping[str, float]) -> None:
+        """2D, the model's colony from a zero-flow scan: an observed interface that lies
+        more than 2 sigma_N from the model's undeformed colony but less than half as far
+        as its mirror image (x reversed, on the colony's footprint) is an image with its
+        columns reversed against the zero-flow scan's: refused. The OCT example's scans
+        lie 2.2-10.4 um from the colony and 30-34 um mirrored; reversed, the other way
+        round. The placement check lets it through (a quarter of the colony's height), and
+        the model would be fitted to another colony's shape. A symmetric colony is its own
+        mirror image: nothing to tell, and nothing lost."""
+        from bayescalib.inference.likelihood import sigma_n2_from_config
+
+        geometry = validate(cfg["forward_model"]["fsi"], "fsi")["geometry"]
+        if geometry["shape"] != "scan" or not mirrors:
+            return
+        sigma = math.sqrt(sigma_n2_from_config(cfg["likelihood"]))
+        for key, d in moved.items():
+            m = mirrors.get(key)
+            if m is not None and d > 2.0 * sigma and m < 0.5 * d:
+                path = _entry_at(cfg, key)["path"]
+                raise ConfigError(
+                    f"{where}: {key} ('{path}'): the observed interface lies {1e3 * d:.3g} um "
+                    f"(mean distance of its nodes) from the model's undeformed biofilm but "
+                    f"{1e3 * m:.3g} um mirrored (x reversed, on the colony's footprint; the "
+                    f"likelihood's sigma_N is {1e3 * sigma:.3g} um): is the image "
+                    "mirrored against the zero-flow scan (columns reversed)? Reverse its "
+                    "columns, so that all scans run from upstream (column 0) to downstream")
+
+    @staticmethod
     def _validate_lean(cfg: dict[str, Any], where: str, leans: Mapping[str, float],
                        across: Mapping[str, float]) -> None:
-        """3D, the model's colony from a zero-flow scan: the flow (+x) bends the colony
-        downstream, so observed colonies that all lean upstream of the model's undeformed
+        """The model's colony from a zero-flow scan (2D: the height-weighted x-offset of
+        the observed nodes, :func:`bayescalib.geometry.outline.downstream_shift`, the most
+        loaded by more than sigma_N upstream refuses the same way; 3D as follows). 3D: the
+        flow (+x) bends the colony downstream, so observed colonies that all lean upstream of the model's undeformed
         one (:func:`bayescalib.geometry.surface.downstream_lean`), the most loaded by more
         than 2 sigma_N, are refused as mirrored in x (B-scan columns running against the
         flow): the placement and unit checks pass a colony mirrored about its middle,
@@ -767,6 +804,18 @@ class Study:
         else:
             top = min(keys, key=lambda k: leans[k])
         sigma = math.sqrt(sigma_n2_from_config(cfg["likelihood"]))
+        if not across:  # 2D: the height-weighted x-offset, smaller than the 3D lean
+            if all(v < 0.0 for v in leans.values()) and leans[top] < -sigma:
+                listed = ", ".join(f"{k} {1e3 * leans[k]:+.3g} um" for k in keys)
+                raise ConfigError(
+                    f"{where}: the observed interfaces have moved upstream of the model's "
+                    f"undeformed biofilm ({listed}: the x-offset of their nodes from it, "
+                    f"weighted by height; the likelihood's sigma_N is {1e3 * sigma:.3g} um), "
+                    "while the flow, along +x, pushes a colony downstream: does the flow "
+                    "run against the images' x (columns from downstream to upstream)? "
+                    "Reverse the columns of every scan, the zero-flow one included, so that "
+                    "column 0 is the upstream side")
+            return
         if all(v < 0.0 for v in leans.values()) and leans[top] < -2.0 * sigma:
             listed = ", ".join(f"{k} {1e3 * leans[k]:+.3g} um" for k in keys)
             raise ConfigError(
@@ -942,6 +991,7 @@ class Study:
             IMAGE_SUFFIXES,
             INTERFACE_SUFFIXES,
             ObservationError,
+            image_substrate_offset,
             read_interface_info,
             reader_options,
             validate_shape,
@@ -1035,6 +1085,14 @@ class Study:
             why = inverted(info) if suffix in IMAGE_SUFFIXES else None
             if why and Study.model_dim(cfg) == 2:  # the colony stands on the floor
                 raise ConfigError(f"{where}: {key}: {why}")
+            if suffix in IMAGE_SUFFIXES and Study.model_dim(cfg) == 2 \
+                    and cfg["forward_model"]["type"] == "fsi":
+                # the model's feet are on y = 0: an image whose substrate lies elsewhere
+                # is misplaced in y, which the placement check lets through
+                why = image_substrate_offset(info, units=opts.get("units", "mm"),
+                                             origin=e["origin"])
+                if why:
+                    raise ConfigError(f"{where}: {key} ('{path}'): {why}")
             if info.get("border") and Study.model_dim(cfg) == 2:
                 # the fsi model's colony stands on the floor with fluid on both sides and
                 # above: an observed one that runs into the image's side is cut off there

@@ -496,6 +496,45 @@ class Placement:
     offset: tuple[float, ...]
 
 
+def downstream_shift(observed: np.ndarray, reference: np.ndarray) -> float:
+    """How far an observed 2D interface has moved downstream (+x, the flow) of the
+    model's undeformed one, mm: the mean x of each observed node's offset from its
+    closest point on the reference, weighted by the node's height (the top moves most,
+    the feet not at all). A flow along +x gives a positive shift that grows with the
+    loading: 1.1, 2.6 and 4.9 um on the OCT example (``examples/oct_colony``, 50, 100
+    and 150 mm^2/s); the same scans with their columns reversed, the zero-flow one
+    included (the flow running against the image's x), -1.1, -2.6 and -4.9 um.
+
+    Parameters
+    ----------
+    observed : array_like, shape (n, 2)
+        Observed interface, mm.
+    reference : array_like, shape (m, 2)
+        Model's undeformed interface from foot to foot, mm.
+    """
+    from bayescalib.geometry.interface import Interface
+    from bayescalib.geometry.projection import closest_points
+
+    obs = np.asarray(observed, dtype=float)
+    _, near, _ = closest_points(obs, Interface.polyline(np.asarray(reference, dtype=float),
+                                                        name="model reference"))
+    w = np.clip(obs[:, 1], 0.0, None)
+    return float(np.average(obs[:, 0] - near[:, 0], weights=w)) if w.sum() > 0 else 0.0
+
+
+def mirrored_x(points: np.ndarray, reference: np.ndarray) -> np.ndarray:
+    """``points`` (n, 2) mirrored in x and put on the reference's footprint: x becomes
+    ``m_p + m_r - x`` (``m`` the middle of the first and last points, the feet), in
+    reverse order. An interface traced from an image whose columns were reversed
+    becomes the one the image would give the right way round, wherever the image's own
+    middle was (the mirror's axis); one the right way round becomes its mirror image on
+    the reference's footprint."""
+    p = np.array(points, dtype=float)
+    r = np.asarray(reference, dtype=float)
+    p[:, 0] = 0.5 * float(p[0, 0] + p[-1, 0] + r[0, 0] + r[-1, 0]) - p[:, 0]
+    return p[::-1]
+
+
 def placement(observed: np.ndarray, reference: np.ndarray) -> Placement:
     """Compare an observed interface with the model's undeformed interface.
 

@@ -648,6 +648,51 @@ def _read_image(path: Path, pixel_size, origin, drop_border: bool, floor, units:
     return curve, {**info, **mm}
 
 
+def image_substrate_offset(info: Mapping[str, Any], *, units: str,
+                           origin: Sequence[float]) -> str | None:
+    """Why an observed image's substrate is not on the flow cell's floor y = 0, or None.
+
+    With ``floor: auto`` the reading finds the substrate (a bright band's top edge, a
+    full-width band, or the foreground's bottom); more than 10 um (and two pixels)
+    from y = 0 is a wrong ``origin``: the traced interface would stand that far above
+    (or below) the model's, whose feet are on y = 0, and the placement check lets it
+    through up to a quarter of the colony's height (33 um on the OCT example, 16 sigma_N,
+    was read without a word). As :func:`bayescalib.io.volumes.substrate_offset` for
+    volumes and the zero-flow scan's check (:mod:`bayescalib.io.colony`). A floor given
+    as a number is the user's plane: None.
+
+    Parameters
+    ----------
+    info : mapping
+        The reading record of :func:`read_interface_info` for an image.
+    units, origin
+        As given (the origin that fits is written in them).
+    """
+    from bayescalib.io.colony import FLOOR_TOL_MM
+
+    fl = info.get("floor") or {}
+    if info.get("floor_source") != "auto" or info.get("floor_mm") is None:
+        return None
+    s = float(info["pixel_size_mm"])
+    y_sub = float(info["floor_mm"])
+    band = fl.get("edge_row") is not None and fl.get("row") is not None
+    if band:  # the band's own top edge, below the halo the trace is cut above
+        y_sub += (float(fl["row"]) - float(fl["edge_row"])) * s
+    tol = max(FLOOR_TOL_MM, 2.0 * s)
+    if abs(y_sub) <= tol:
+        return None
+    f = _unit_factor(units, "origin")
+    fixed = f"{float(origin[0]):.6g}, {float(origin[1]) - y_sub / f:.6g}"
+    what = ("the substrate's surface (the top edge of the bright band found below the "
+            "colony)" if band else f"the floor found ({fl.get('method')})")
+    return (f"{what} lies at y = {y_sub * 1e3:.3g} um in the flow cell (origin "
+            f"{[float(v) for v in origin]} {units}), but the flow cell's floor is y = 0 "
+            f"(tolerance {tol * 1e3:.3g} um): the observed interface would stand "
+            f"{abs(y_sub) * 1e3:.3g} um {'above' if y_sub > 0 else 'below'} the model's. With "
+            f"origin [{fixed}] {units} it would lie there (origin is the centre of the "
+            "bottom-left pixel)")
+
+
 # ---------------------------------------------------------------------------- API
 #: the keys of an ``observations.files`` entry that are :func:`read_interface`'s options
 READER_KEYS = ("units", "pixel_size", "origin", "drop_border", "floor", "image",
