@@ -1067,7 +1067,7 @@ class Study:
                 # the model's floor is y = 0: a volume whose substrate lies elsewhere is
                 # misplaced in y, which the placement check lets through up to a quarter
                 # of the colony's height
-                why = substrate_offset(info, units=opts.get("units", "mm"),
+                why = substrate_offset(info, units=e["units"],
                                        pixel_size=e["pixel_size"], origin=e["origin"])
                 if why:
                     raise ConfigError(f"{where}: {key} ('{path}'): {why}")
@@ -1089,7 +1089,7 @@ class Study:
                     and cfg["forward_model"]["type"] == "fsi":
                 # the model's feet are on y = 0: an image whose substrate lies elsewhere
                 # is misplaced in y, which the placement check lets through
-                why = image_substrate_offset(info, units=opts.get("units", "mm"),
+                why = image_substrate_offset(info, units=e["units"],
                                              origin=e["origin"])
                 if why:
                     raise ConfigError(f"{where}: {key} ('{path}'): {why}")
