@@ -129,7 +129,7 @@ def _g(v: float) -> str:
 def _posterior_text(rec: Mapping[str, Any], units: Mapping[str, str], most: int = 4) -> str:
     names = rec.get("names") or []
     mean, sd = rec["posterior"]["mean"], rec["posterior"]["sd"]
-    cut = {(c["name"]): c["side"] for c in rec.get("against_bounds") or []}
+    cut = {c["name"]: c["side"] for c in rec.get("against_bounds") or []}
     parts = []
     for k, n in enumerate(names[:most]):
         u = units.get(n, "-")

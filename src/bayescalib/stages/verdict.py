@@ -122,6 +122,7 @@ def verdict_sentences(summary: Mapping[str, Any]) -> list[str]:
     design = summary.get("design") or {}
     posterior_check = summary.get("posterior_check") or None
     misfit = fit.get("consistent") is False and fit.get("misfit_nats") is not None
+    bounds = _bounds_sentence(summary)
     out = [_misfit_sentence(fit)] if misfit else []
     n = design.get("n_solves", summary.get("n_train"))
     budget = design.get("max_solves")
@@ -138,7 +139,6 @@ def verdict_sentences(summary: Mapping[str, Any]) -> list[str]:
         else:
             out.append(f"Converged after {used} on the surrogate's own checks, without real "
                        f"solves of the posterior's draws (posterior_check.draws: 0).")
-        bounds = _bounds_sentence(summary)
         if bounds:
             out.append(bounds)
         elif misfit:
@@ -152,7 +152,6 @@ def verdict_sentences(summary: Mapping[str, Any]) -> list[str]:
                 "solves are kept)")
         out.append(todo + ("; if the misfit stays, check likelihood.sigma_n or run the "
                            "diagnosis." if misfit else "."))
-        bounds = _bounds_sentence(summary)
         if bounds:  # before the budget's advice: more solves do not move a prior's end
             out[-1] = bounds
     else:  # a fixed design: no stop rule, perhaps a final check with real solves
@@ -164,7 +163,6 @@ def verdict_sentences(summary: Mapping[str, Any]) -> list[str]:
         else:
             out.append(f"Convergence not checked (fixed design of {n} solves, no posterior "
                        f"check).")
-        bounds = _bounds_sentence(summary)
         if bounds:
             out.append(bounds)
         elif misfit:
